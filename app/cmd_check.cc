@@ -1,0 +1,15 @@
+#include "app/commands.h"
+#include "core/error.h"
+
+namespace mesoscan {
+
+// Placeholder until the owning issue lands: refuses clearly rather than pretending.
+void AddCheckCommand(CLI::App* app) {
+  auto* cmd = app->add_subcommand("check", "(not implemented yet)");
+  cmd->allow_extras();
+  cmd->callback([] {
+    MESOSCAN_THROW(ErrorKind::kInternal, "'check' is not implemented yet");
+  });
+}
+
+}  // namespace mesoscan

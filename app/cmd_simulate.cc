@@ -1,0 +1,15 @@
+#include "app/commands.h"
+#include "core/error.h"
+
+namespace mesoscan {
+
+// Placeholder until the owning issue lands: refuses clearly rather than pretending.
+void AddSimulateCommand(CLI::App* app) {
+  auto* cmd = app->add_subcommand("simulate", "(not implemented yet)");
+  cmd->allow_extras();
+  cmd->callback([] {
+    MESOSCAN_THROW(ErrorKind::kInternal, "'simulate' is not implemented yet");
+  });
+}
+
+}  // namespace mesoscan

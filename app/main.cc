@@ -1,0 +1,57 @@
+// mesoscan: the command-line tool. The only place that wires modules together and catches
+// errors for the user: one clear line on stderr and a distinct exit code (README "Exit codes").
+
+#include <cstdio>
+#include <exception>
+
+#include "app/commands.h"
+#include "core/error.h"
+#include "core/log.h"
+#include "core/progress.h"
+
+int main(int argc, char** argv) {
+  using namespace mesoscan;
+  CLI::App app{"mesoscan: lens-shifted structured light to calibrated height fields", "mesoscan"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "mesoscan 0.1.0");
+  bool quiet = false, verbose = false;
+  app.add_flag("-q,--quiet", quiet, "Only errors; no progress bars");
+  app.add_flag("-v,--verbose", verbose, "Debug messages");
+  app.parse_complete_callback([&] {
+    if (quiet) {
+      SetLogLevel(LogLevel::kError);
+      Progress::SetEnabled(false);
+    }
+    if (verbose) SetLogLevel(LogLevel::kDebug);
+  });
+
+  AddSimulateCommand(&app);
+  AddReconstructCommand(&app);
+  AddExportCommand(&app);
+  AddCheckCommand(&app);
+  AddBrdfCommand(&app);
+  AddDoctorCommand(&app);
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "mesoscan: %s (see 'mesoscan --help')\n", e.what());
+    return static_cast<int>(ErrorKind::kUsage);
+  } catch (const Error& e) {
+    std::fprintf(stderr, "mesoscan: %s\n", e.what());
+    return e.exit_code();
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "mesoscan: out of memory\n");
+    return static_cast<int>(ErrorKind::kInternal);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "mesoscan: internal error: %s\n", e.what());
+    return static_cast<int>(ErrorKind::kInternal);
+  }
+  return 0;
+}

@@ -1,0 +1,187 @@
+#include "core/image_io.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "core/error.h"
+#include "core/fs.h"
+
+namespace mesoscan {
+namespace fs = std::filesystem;
+namespace oiio = OIIO;
+
+namespace {
+
+ImageInfo InfoFromSpec(const oiio::ImageSpec& spec) {
+  ImageInfo info;
+  info.width = spec.width;
+  info.height = spec.height;
+  info.channels = spec.nchannels;
+  info.bits_per_sample = static_cast<int>(spec.format.size() * 8);
+  info.is_float = spec.format.is_floating_point();
+  info.channel_names = spec.channelnames;
+  for (const auto& p : spec.extra_attribs) {
+    const oiio::TypeDesc t = p.type();
+    if (t == oiio::TypeFloat || t == oiio::TypeInt || t == oiio::TypeDesc::DOUBLE) {
+      info.float_attributes[p.name().string()] = p.get_float();
+    }
+  }
+  // The PNG/TIFF "oiio:BitsPerSample" hint (e.g. 12 bits in 16) is reported if present.
+  const int bps = spec.get_int_attribute("oiio:BitsPerSample", 0);
+  if (bps > 0) info.bits_per_sample = bps;
+  return info;
+}
+
+std::unique_ptr<oiio::ImageInput> OpenInput(const fs::path& path) {
+  if (!fs::exists(path)) MESOSCAN_BAD_INPUT(path.string() << ": file not found");
+  auto in = oiio::ImageInput::open(path.string());
+  if (!in) {
+    std::string err = oiio::geterror();
+    if (err.empty()) err = "unknown format";
+    std::replace(err.begin(), err.end(), '\n', ' ');
+    MESOSCAN_BAD_INPUT(path.string() << ": cannot read image (" << err << ")");
+  }
+  return in;
+}
+
+// Interleaved -> planar.
+void Deinterleave(const std::vector<float>& inter, ImageF* out) {
+  const int nc = out->channels();
+  const size_t n = out->pixels();
+  for (int c = 0; c < nc; ++c) {
+    float* dst = out->channel(c);
+    for (size_t i = 0; i < n; ++i) dst[i] = inter[i * nc + c];
+  }
+}
+
+template <typename T>
+std::vector<T> Interleave(const Image<T>& im) {
+  const int nc = im.channels();
+  const size_t n = im.pixels();
+  std::vector<T> inter(n * nc);
+  for (int c = 0; c < nc; ++c) {
+    const T* src = im.channel(c);
+    for (size_t i = 0; i < n; ++i) inter[i * nc + c] = src[i];
+  }
+  return inter;
+}
+
+void WriteWithOiio(const fs::path& path, const oiio::ImageSpec& spec, oiio::TypeDesc type,
+                   const void* data) {
+  WriteAtomically(path, [&](const fs::path& tmp) {
+    auto out = oiio::ImageOutput::create(tmp.string());
+    if (!out) MESOSCAN_BAD_INPUT(path.string() << ": no writer for this format");
+    if (!out->open(tmp.string(), spec) || !out->write_image(type, data) || !out->close()) {
+      std::string err = out->geterror();
+      std::replace(err.begin(), err.end(), '\n', ' ');
+      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+    }
+  });
+}
+
+}  // namespace
+
+ImageInfo ReadImageInfo(const fs::path& path) { return InfoFromSpec(OpenInput(path)->spec()); }
+
+ImageF ReadImage(const fs::path& path, ImageInfo* info) {
+  auto in = OpenInput(path);
+  const oiio::ImageSpec& spec = in->spec();
+  if (info) *info = InfoFromSpec(spec);
+  ImageF out(spec.width, spec.height, spec.nchannels);
+  std::vector<float> inter(out.pixels() * spec.nchannels);
+  if (!in->read_image(0, 0, 0, spec.nchannels, oiio::TypeFloat, inter.data())) {
+    std::string err = in->geterror();
+    std::replace(err.begin(), err.end(), '\n', ' ');
+    MESOSCAN_BAD_INPUT(path.string() << ": cannot decode image (" << err << ")");
+  }
+  Deinterleave(inter, &out);
+  return out;
+}
+
+ImageF ReadImageGrey(const fs::path& path, ImageInfo* info) {
+  ImageInfo local;
+  ImageF im = ReadImage(path, &local);
+  if (info) *info = local;
+  if (im.channels() == 1) return im;
+  // Grey = mean of the colour channels; an alpha channel is ignored.
+  int nc = im.channels();
+  if (nc == 2 || nc == 4) --nc;
+  ImageF grey(im.width(), im.height(), 1);
+  const size_t n = im.pixels();
+  for (int c = 0; c < nc; ++c) {
+    const float* src = im.channel(c);
+    float* dst = grey.channel(0);
+    for (size_t i = 0; i < n; ++i) dst[i] += src[i] / nc;
+  }
+  return grey;
+}
+
+ImageF ReadExrChannels(const fs::path& path, const std::vector<std::string>& names,
+                       std::map<std::string, double>* float_attributes) {
+  ImageInfo info;
+  ImageF all = ReadImage(path, &info);
+  ImageF out(all.width(), all.height(), static_cast<int>(names.size()));
+  for (size_t k = 0; k < names.size(); ++k) {
+    auto it = std::find(info.channel_names.begin(), info.channel_names.end(), names[k]);
+    if (it == info.channel_names.end())
+      MESOSCAN_BAD_INPUT(path.string() << ": missing channel '" << names[k] << "'");
+    const int c = static_cast<int>(it - info.channel_names.begin());
+    std::copy(all.channel(c), all.channel(c) + all.pixels(), out.channel(static_cast<int>(k)));
+  }
+  if (float_attributes) *float_attributes = info.float_attributes;
+  return out;
+}
+
+void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::string>& names,
+              const std::map<std::string, double>& float_attributes,
+              const std::map<std::string, std::string>& string_attributes) {
+  MESOSCAN_CHECK_EQ(static_cast<int>(names.size()), image.channels());
+  oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeFloat);
+  spec.channelnames = names;
+  spec.alpha_channel = -1;
+  spec.attribute("compression", "zip");
+  for (const auto& [k, v] : float_attributes) spec.attribute(k, static_cast<float>(v));
+  for (const auto& [k, v] : string_attributes) spec.attribute(k, v);
+  const std::vector<float> inter = Interleave(image);
+  WriteWithOiio(path, spec, oiio::TypeFloat, inter.data());
+}
+
+void WritePng16(const fs::path& path, const ImageU16& image) {
+  oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt16);
+  const std::vector<uint16_t> inter = Interleave(image);
+  WriteWithOiio(path, spec, oiio::TypeUInt16, inter.data());
+}
+
+void WritePng8(const fs::path& path, const ImageU8& image) {
+  oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt8);
+  const std::vector<uint8_t> inter = Interleave(image);
+  WriteWithOiio(path, spec, oiio::TypeUInt8, inter.data());
+}
+
+ImageU16 QuantizeU16(const ImageF& image) {
+  ImageU16 out(image.width(), image.height(), image.channels());
+  const auto& src = image.data();
+  auto& dst = out.data();
+  for (size_t i = 0; i < src.size(); ++i) {
+    const float v = std::isfinite(src[i]) ? std::clamp(src[i], 0.0f, 1.0f) : 0.0f;
+    dst[i] = static_cast<uint16_t>(std::lround(v * 65535.0f));
+  }
+  return out;
+}
+
+ImageU8 QuantizeU8(const ImageF& image, bool srgb_encode) {
+  ImageU8 out(image.width(), image.height(), image.channels());
+  const auto& src = image.data();
+  auto& dst = out.data();
+  for (size_t i = 0; i < src.size(); ++i) {
+    float v = std::isfinite(src[i]) ? std::clamp(src[i], 0.0f, 1.0f) : 0.0f;
+    if (srgb_encode)
+      v = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+    dst[i] = static_cast<uint8_t>(std::lround(v * 255.0f));
+  }
+  return out;
+}
+
+}  // namespace mesoscan

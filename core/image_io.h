@@ -1,0 +1,52 @@
+#pragma once
+// Image I/O through OpenImageIO. Every writer is atomic (temp file + rename): a failed or
+// interrupted write never leaves a partial file under the final name.
+
+#include <filesystem>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "core/image.h"
+
+namespace mesoscan {
+
+struct ImageInfo {
+  int width = 0, height = 0, channels = 0;
+  int bits_per_sample = 0;  // 8, 16, 32 (float) ...
+  bool is_float = false;
+  std::vector<std::string> channel_names;
+  std::map<std::string, double> float_attributes;  // numeric header attributes
+};
+
+// Reads only the header. Throws Error(kBadInput) naming the file if unreadable.
+ImageInfo ReadImageInfo(const std::filesystem::path& path);
+
+// Reads any format OIIO knows as float. Integer formats are normalised to [0, 1] (uint16 / 65535,
+// uint8 / 255); float formats are returned as stored. All channels, planar.
+ImageF ReadImage(const std::filesystem::path& path, ImageInfo* info = nullptr);
+
+// Reads one image as a single grey channel: multi-channel images are averaged (RGB -> mean).
+ImageF ReadImageGrey(const std::filesystem::path& path, ImageInfo* info = nullptr);
+
+// Reads an EXR's named channels (throws naming the file and the missing channel).
+ImageF ReadExrChannels(const std::filesystem::path& path, const std::vector<std::string>& names,
+                       std::map<std::string, double>* float_attributes = nullptr);
+
+// float32 EXR with named channels (one per image channel) and float header attributes.
+// Compression: ZIP (lossless).
+void WriteExr(const std::filesystem::path& path, const ImageF& image,
+              const std::vector<std::string>& channel_names,
+              const std::map<std::string, double>& float_attributes = {},
+              const std::map<std::string, std::string>& string_attributes = {});
+
+// 16-bit PNG (1, 2, 3 or 4 channels), values already quantised.
+void WritePng16(const std::filesystem::path& path, const ImageU16& image);
+// 8-bit PNG (1, 3 or 4 channels).
+void WritePng8(const std::filesystem::path& path, const ImageU8& image);
+
+// Float [0, 1] -> 16-bit / 8-bit with clamping and rounding; NaN maps to 0.
+ImageU16 QuantizeU16(const ImageF& image);
+ImageU8 QuantizeU8(const ImageF& image, bool srgb_encode = false);
+
+}  // namespace mesoscan

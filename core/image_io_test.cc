@@ -1,0 +1,64 @@
+#include "core/image_io.h"
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "core/scan_folder.h"
+
+namespace mesoscan {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path TempDir(const std::string& name) {
+  fs::path p = fs::temp_directory_path() / ("mesoscan_core_test_" + name);
+  fs::remove_all(p);
+  fs::create_directories(p);
+  return p;
+}
+
+TEST(ImageIo, Png16RoundTripIsExact) {
+  const fs::path dir = TempDir("png16");
+  ImageU16 im(7, 5, 1);
+  for (int y = 0; y < 5; ++y)
+    for (int x = 0; x < 7; ++x) im(x, y) = static_cast<uint16_t>(x * 9000 + y * 17);
+  WritePng16(dir / "a.png", im);
+  ImageInfo info;
+  ImageF back = ReadImage(dir / "a.png", &info);
+  EXPECT_EQ(info.bits_per_sample, 16);
+  for (int y = 0; y < 5; ++y)
+    for (int x = 0; x < 7; ++x) EXPECT_EQ(std::lround(back(x, y) * 65535.0f), im(x, y));
+  // Nothing but the final file is left behind.
+  int files = 0;
+  for (auto& e : fs::directory_iterator(dir)) files += e.is_regular_file();
+  EXPECT_EQ(files, 1);
+}
+
+TEST(ImageIo, ExrNamedChannelsAndAttributes) {
+  const fs::path dir = TempDir("exr");
+  HeightField hf;
+  hf.z = ImageF(4, 3, 1, 0.001f);
+  hf.z(1, 1) = std::numeric_limits<float>::quiet_NaN();
+  hf.x0 = -0.01;
+  hf.y0 = 0.02;
+  hf.pixel_size = 55e-6;
+  WriteHeightExr(dir / "height.exr", hf);
+  HeightField back = ReadHeightExr(dir / "height.exr");
+  EXPECT_NEAR(back.pixel_size, 55e-6, 1e-12);
+  EXPECT_NEAR(back.x0, -0.01, 1e-9);
+  EXPECT_TRUE(std::isnan(back.z(1, 1)));
+  EXPECT_FLOAT_EQ(back.z(0, 0), 0.001f);
+  EXPECT_EQ(back.confidence(1, 1), 0.0f);
+}
+
+TEST(ImageIo, MissingFileNamesIt) {
+  try {
+    ReadImage("/nonexistent/frame.png");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()), "/nonexistent/frame.png: file not found");
+    EXPECT_EQ(e.exit_code(), 3);
+  }
+}
+
+}  // namespace
+}  // namespace mesoscan

@@ -1,0 +1,102 @@
+#include "core/scan_folder.h"
+
+#include "core/error.h"
+#include "core/fs.h"
+#include "core/image_io.h"
+
+namespace mesoscan {
+namespace fs = std::filesystem;
+
+namespace {
+std::map<std::string, double> GridAttributes(const HeightField& hf) {
+  return {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size}};
+}
+
+void ReadGridAttributes(const fs::path& path, const std::map<std::string, double>& attrs,
+                        HeightField* hf) {
+  for (const char* key : {kAttrX0, kAttrY0, kAttrPixelSize}) {
+    if (!attrs.count(key)) MESOSCAN_BAD_INPUT(path.string() << ": missing header attribute '" << key << "'");
+  }
+  hf->x0 = attrs.at(kAttrX0);
+  hf->y0 = attrs.at(kAttrY0);
+  hf->pixel_size = attrs.at(kAttrPixelSize);
+  if (!(hf->pixel_size > 0) || !std::isfinite(hf->pixel_size))
+    MESOSCAN_BAD_INPUT(path.string() << ": header attribute '" << kAttrPixelSize << "': expected a positive number");
+}
+
+ImageF Stack(const std::vector<const ImageF*>& planes) {
+  int nc = 0;
+  for (auto* p : planes) nc += p->channels();
+  ImageF out(planes[0]->width(), planes[0]->height(), nc);
+  int c = 0;
+  for (auto* p : planes) {
+    MESOSCAN_CHECK(p->width() == out.width() && p->height() == out.height());
+    for (int k = 0; k < p->channels(); ++k, ++c)
+      std::copy(p->channel(k), p->channel(k) + p->pixels(), out.channel(c));
+  }
+  return out;
+}
+
+ImageF Plane(const ImageF& all, int c0, int n) {
+  ImageF out(all.width(), all.height(), n);
+  for (int k = 0; k < n; ++k)
+    std::copy(all.channel(c0 + k), all.channel(c0 + k) + all.pixels(), out.channel(k));
+  return out;
+}
+}  // namespace
+
+void WritePointsExr(const fs::path& path, const ScanPoints& p) {
+  WriteExr(path, Stack({&p.xyz, &p.confidence, &p.projector_u}),
+           {"X", "Y", "Z", "confidence", "projector_u"});
+}
+
+ScanPoints ReadPointsExr(const fs::path& path) {
+  ImageF all = ReadExrChannels(path, {"X", "Y", "Z", "confidence", "projector_u"});
+  return {Plane(all, 0, 3), Plane(all, 3, 1), Plane(all, 4, 1)};
+}
+
+void WriteHeightExr(const fs::path& path, const HeightField& hf) {
+  ImageF conf = hf.confidence;
+  if (conf.empty()) {
+    conf = ImageF(hf.width(), hf.height(), 1, 0.0f);
+    for (size_t i = 0; i < conf.pixels(); ++i) conf.data()[i] = std::isfinite(hf.z.data()[i]) ? 1.0f : 0.0f;
+  }
+  WriteExr(path, Stack({&hf.z, &conf}), {"Z", "confidence"}, GridAttributes(hf));
+}
+
+HeightField ReadHeightExr(const fs::path& path) {
+  std::map<std::string, double> attrs;
+  ImageF all = ReadExrChannels(path, {"Z", "confidence"}, &attrs);
+  HeightField hf;
+  hf.z = Plane(all, 0, 1);
+  hf.confidence = Plane(all, 1, 1);
+  ReadGridAttributes(path, attrs, &hf);
+  return hf;
+}
+
+void WriteNormalExr(const fs::path& path, const HeightField& grid, const ImageF& n) {
+  MESOSCAN_CHECK_EQ(n.channels(), 3);
+  WriteExr(path, n, {"X", "Y", "Z"}, GridAttributes(grid));
+}
+
+void WriteScanFolder(const fs::path& dir, const Scan& scan) {
+  WriteFolderAtomically(dir, [&](const fs::path& tmp) {
+    WritePointsExr(tmp / "points.exr", scan.points);
+    WriteHeightExr(tmp / "height.exr", scan.height);
+    WriteNormalExr(tmp / "normal.exr", scan.height,
+                   scan.normals.empty() ? scan.height.Normals() : scan.normals);
+    WriteJsonFile(tmp / "report.json", scan.report);
+  });
+}
+
+Scan ReadScanFolder(const fs::path& dir) {
+  if (!fs::is_directory(dir)) MESOSCAN_BAD_INPUT(dir.string() << ": not a scan folder (no such directory)");
+  Scan s;
+  s.points = ReadPointsExr(dir / "points.exr");
+  s.height = ReadHeightExr(dir / "height.exr");
+  s.normals = ReadExrChannels(dir / "normal.exr", {"X", "Y", "Z"});
+  if (fs::exists(dir / "report.json")) s.report = ReadJsonFile(dir / "report.json");
+  return s;
+}
+
+}  // namespace mesoscan
