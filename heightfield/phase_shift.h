@@ -1,0 +1,96 @@
+#pragma once
+// Phase-shift decoding and temporal unwrapping.
+//
+// Convention (shared/spec/session-format.md, "Patterns"): the projector shows
+//   0.5 + 0.5 cos(2 pi u / period + delta)
+// so a camera pixel seeing projector column u records I_k = A + B cos(theta + delta_k) with
+// theta = 2 pi u / period (mod 2 pi). WrappedPhaseSolver recovers theta per period;
+// TemporalUnwrapper combines the wrapped phases of several periods into the absolute u.
+
+#include <vector>
+
+namespace mesoscan {
+
+// Least-squares wrapped phase for any set of >= 3 distinct phase offsets delta_k (unequal steps
+// allowed): [A, B cos theta, B sin theta] = pinv([1, cos delta_k, -sin delta_k]) I, the
+// pseudo-inverse precomputed once. Solve() is const, thread-safe and allocation-free.
+class WrappedPhaseSolver {
+ public:
+  struct Result {
+    float theta = 0.0f;         // wrapped phase in [0, 2 pi)
+    float modulation = 0.0f;    // B >= 0, frame units
+    float offset = 0.0f;        // A, frame units
+    float residual_rms = 0.0f;  // sqrt(sum of squared residuals / K) (0 for K = 3)
+    bool valid = false;         // all samples finite (otherwise every other field is 0)
+  };
+
+  // deltas: the phase offsets delta_k (radians) of the K frames, in the order Solve() receives
+  // the samples. Throws mesoscan::Error (bad input) if K < 3, a delta is not finite, or the
+  // offsets do not determine theta (fewer than 3 distinct values mod 2 pi).
+  explicit WrappedPhaseSolver(std::vector<double> deltas);
+
+  // samples[k * stride], k in [0, K).
+  Result Solve(const float* samples, int stride = 1) const;
+
+  // var(theta) (rad^2) for white noise sigma per sample and modulation B, at a given theta
+  // (unequal steps make it depend on theta) and averaged over theta. Equal steps: 2 sigma^2 /
+  // (K B^2) for every theta.
+  double ThetaVarianceAt(double sigma, double modulation, double theta) const;
+  double ThetaVariance(double sigma, double modulation) const;
+
+  int num_samples() const { return static_cast<int>(deltas_.size()); }
+  const std::vector<double>& deltas() const { return deltas_; }
+
+ private:
+  std::vector<double> deltas_;
+  std::vector<double> pinv_;  // 3 x K row-major: rows A, B cos theta, B sin theta
+  double cov_cc_ = 0, cov_ss_ = 0, cov_cs_ = 0;  // (M^T M)^-1 block of (B cos, B sin)
+};
+
+struct UnwrapResult {
+  double u = 0.0;         // absolute projector coordinate (px) in [-0.5, range - 0.5)
+  double residual = 0.0;  // consistency: RMS over periods of the weighted circular residual, in
+                          // sigma units (sqrt(chi^2 / periods)); ~1 for consistent data
+  bool valid = false;     // inputs finite, weights > 0 and residual <= the unwrapper's limit
+};
+
+// Temporal unwrapping (one API for both cases):
+//  - several periods (e.g. coprime 7/11/13 px covering 1001 px): every candidate fringe order of
+//    the coarsest period is scored by the weighted circular residual of the others; the best two
+//    candidates are refined (fringe orders of every period, u = weighted mean of the per-period
+//    estimates) and the one with the smaller chi^2 wins;
+//  - hierarchical: a cue period >= range (one candidate) plus shorter periods refining it (the
+//    same search: the coarsest period then has a single candidate).
+// Unwrap() is const, thread-safe and allocation-free.
+class TemporalUnwrapper {
+ public:
+  // periods: > 0 projector px, any order, at least 1; range_px: projector width (px) > 0.
+  // max_residual: Unwrap() marks results with residual above it invalid (sigma units).
+  // Throws mesoscan::Error (bad input) if the periods cannot tell apart two columns of
+  // [0, range): separation_cycles() < kMinSeparationCycles.
+  TemporalUnwrapper(std::vector<double> periods, double range_px, double max_residual = 4.0);
+
+  // theta[i]: wrapped phase of period i in [0, 2 pi) (any real is accepted and wrapped);
+  // weight[i]: 1 / var(theta[i]) (rad^-2), > 0. A non-finite theta or weight <= 0 gives
+  // valid == false.
+  UnwrapResult Unwrap(const double* theta, const double* weight) const;
+
+  // The smallest code distance between two columns at least half the finest period apart:
+  // min over such pairs of max over periods of the circular distance in cycles. Phase errors
+  // below about half of it (in cycles, per period) cannot cause a wrong fringe order.
+  double separation_cycles() const { return separation_cycles_; }
+  static constexpr double kMinSeparationCycles = 0.02;
+
+  const std::vector<double>& periods() const { return periods_; }
+  double range_px() const { return range_px_; }
+
+ private:
+  std::vector<double> periods_;
+  double range_px_;
+  double max_residual_;
+  int anchor_ = 0;           // index of the coarsest period
+  int num_candidates_ = 0;   // fringe orders of the anchor that can fall in the domain
+  double separation_cycles_ = 0.0;
+};
+
+}  // namespace mesoscan
