@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "core/camera.h"
+#include "core/image_io.h"
 #include "core/json.h"
 
 namespace mesoscan {
@@ -22,17 +23,20 @@ enum class PatternType { kSine, kStripes, kWhite, kBlack };
 struct Pattern {
   PatternType type = PatternType::kWhite;
   char axis = 'x';         // 'x' (varies along projector u) or 'y' (along v)
-  double period_px = 0.0;  // sine: any real > 2; stripes: > 0 (2 for the lens-shift pattern)
+  double period_px = 0.0;  // sine: any real > 2; stripes: >= 2 (2 for the lens-shift pattern)
   double phase = 0.0;      // sine only, radians
 
   // Displayed value in [0, 1] at projector pixel (u, v) (spec "Patterns"), before the
-  // projector's response. u, v may be fractional (the lens shifter moves the image).
+  // projector's response. u, v may be fractional (the lens shifter moves the image): sine is
+  // then the continuous cosine (the band-limited ideal the phase decoder assumes); stripes take
+  // the value of the projector pixel whose footprint [u - 0.5, u + 0.5) contains u (pixel centres
+  // are at integers, spec "Conventions"), so a stripe edge lies half-way between two pixels.
   double Value(double u, double v) const;
   bool IsLensShift() const { return type == PatternType::kStripes; }
 };
 
 struct Frame {
-  std::string file;     // relative to the session folder, as written in session.json
+  std::string file;  // relative to the session folder, as written in session.json
   Pattern pattern;
   int shift_steps = 0;  // lens-shifter position when the frame was taken
 };
@@ -47,7 +51,7 @@ struct Response {
 
 struct LensShifter {
   char axis = 'x';
-  double steps_per_px = 2048;                // > 0
+  double steps_per_px = 2048;  // > 0
   std::array<int, 2> range_steps{-2048, 2048};
 };
 
@@ -77,10 +81,48 @@ struct Session {
   std::filesystem::path FramePath(size_t i) const { return root / frames[i].file; }
 };
 
+// The frames of a session grouped by what they encode: for validation, `mesoscan check` and the
+// decoders. Indices refer to Session::frames.
+struct FramePlan {
+  struct SineSet {
+    char axis = 'x';
+    double period_px = 0.0;
+    std::vector<double> phases;  // distinct phases, radians in [0, 2*pi), ascending
+    std::vector<size_t> frames;  // every frame of this (axis, period), in session order
+  };
+  std::vector<SineSet> sine;                     // ascending by axis, then period
+  std::vector<size_t> lens_shift;                // stripes frames, in session order
+  int distinct_shift_steps = 0;                  // distinct shift_steps among lens_shift frames
+  int min_shift_steps = 0, max_shift_steps = 0;  // over lens_shift frames (0 if none)
+  std::vector<size_t> white, black;
+
+  // Sine periods of one axis ('x' or 'y'), ascending.
+  std::vector<double> Periods(char axis) const;
+  // Multi-line human summary, e.g. "phase shift: periods 7,11,13 x 3 phases (axis x), ...".
+  std::string Describe(const Rig& rig) const;
+};
+
+FramePlan MakeFramePlan(const std::vector<Frame>& frames);
+
+// The length (projector px) over which the tuple of phases of sine patterns with these periods is
+// unique, i.e. the smallest L > 0 that is (to 1e-3 of a cycle) a multiple of every period: the
+// LCM for integer periods, the longest period when one period is a multiple of all others
+// (hierarchical cue + fine period). Returns `search_limit_px` if L >= search_limit_px.
+double UnambiguousRangePx(const std::vector<double>& periods_px, double search_limit_px);
+
 // Reads and validates <dir>/session.json and checks every frame file's header (size, readable).
-// Throws Error(kBadInput) with one line "<file>: <key>: <expected ...>" on the first problem.
+// `dir` may also name the session.json file itself.
+// Throws Error(kBadInput) with one line on the first problem:
+//   "session.json: <key>: <what was expected>"        (document errors; key like rig.camera.K)
+//   "<frame file>: <what is wrong>"                   (frame errors; the path as in session.json)
+//   "<dir>/session.json: file not found"              (no manifest)
 // `check_frames` false skips opening the frame images (for fast inspection).
 Session ReadSession(const std::filesystem::path& dir, bool check_frames = true);
+
+// Opens every frame's and ground-truth file's header (in parallel, no decode) and checks it is
+// readable and camera.width x camera.height (camera raw files: twice that, see the spec).
+// Returns one ImageInfo per frame. Warns once if frames are 8-bit. Throws as ReadSession.
+std::vector<ImageInfo> CheckSessionFiles(const Session& s);
 
 // Parses and validates a session.json document already in memory (no frame files are opened).
 // `file_label` is the name used in error messages.
