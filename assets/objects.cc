@@ -1,0 +1,272 @@
+#include "assets/objects.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+
+#include "core/error.h"
+#include "core/parallel.h"
+#include "core/scan_folder.h"
+
+namespace mesoscan {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+double SmoothStep(double e0, double e1, double x) {
+  const double t = std::clamp((x - e0) / (e1 - e0), 0.0, 1.0);
+  return t * t * (3 - 2 * t);
+}
+
+// An empty grid covering [x_min, x_max] x [y_min, y_max] plus `margin_cells` zero cells.
+HeightField MakeGrid(double x_min, double x_max, double y_min, double y_max, double h,
+                     int margin_cells) {
+  HeightField hf;
+  hf.pixel_size = h;
+  const int w = static_cast<int>(std::ceil((x_max - x_min) / h)) + 1 + 2 * margin_cells;
+  const int ht = static_cast<int>(std::ceil((y_max - y_min) / h)) + 1 + 2 * margin_cells;
+  hf.x0 = x_min - margin_cells * h;
+  hf.y0 = y_max + margin_cells * h;
+  hf.z = ImageF(w, ht, 1, 0.0f);
+  return hf;
+}
+
+// Fills height and albedo from fn(x, y, &z, &albedo), rows in parallel. Cells within
+// `margin_cells` of the border are forced to z = 0 and the mount albedo.
+template <typename Fn>
+SceneObject Generate(const std::string& name, HeightField hf, int margin_cells, Fn&& fn) {
+  SceneObject obj;
+  obj.name = name;
+  obj.albedo = ImageF(hf.width(), hf.height(), 1, 0.0f);
+  ParallelForRows(hf.height(), [&](int j0, int j1) {
+    for (int j = j0; j < j1; ++j)
+      for (int i = 0; i < hf.width(); ++i) {
+        const double x = hf.X(i), y = hf.Y(j);
+        double z = 0.0, a = MountAlbedo(x, y);
+        const bool border = i < margin_cells || j < margin_cells ||
+                            i >= hf.width() - margin_cells || j >= hf.height() - margin_cells;
+        if (!border) fn(x, y, &z, &a);
+        hf.z(i, j) = static_cast<float>(z);
+        obj.albedo(i, j) = static_cast<float>(std::clamp(a, 0.0, 1.0));
+      }
+  });
+  obj.height = std::move(hf);
+  return obj;
+}
+
+// ---- 5x7 bitmap font: 7 rows of 5, top to bottom, '#' = raised ----
+const std::map<char, std::array<const char*, 7>>& Font() {
+  static const std::map<char, std::array<const char*, 7>> font = {
+      {'A', {".###.", "#...#", "#...#", "#####", "#...#", "#...#", "#...#"}},
+      {'C', {".####", "#....", "#....", "#....", "#....", "#....", ".####"}},
+      {'E', {"#####", "#....", "#....", "####.", "#....", "#....", "#####"}},
+      {'F', {"#####", "#....", "#....", "####.", "#....", "#....", "#...."}},
+      {'H', {"#...#", "#...#", "#...#", "#####", "#...#", "#...#", "#...#"}},
+      {'I', {"#####", "..#..", "..#..", "..#..", "..#..", "..#..", "#####"}},
+      {'L', {"#....", "#....", "#....", "#....", "#....", "#....", "#####"}},
+      {'M', {"#...#", "##.##", "#.#.#", "#.#.#", "#...#", "#...#", "#...#"}},
+      {'N', {"#...#", "##..#", "#.#.#", "#..##", "#...#", "#...#", "#...#"}},
+      {'O', {".###.", "#...#", "#...#", "#...#", "#...#", "#...#", ".###."}},
+      {'S', {".####", "#....", "#....", ".###.", "....#", "....#", "####."}},
+      {'T', {"#####", "..#..", "..#..", "..#..", "..#..", "..#..", "..#.."}},
+      {'0', {".###.", "#...#", "#..##", "#.#.#", "##..#", "#...#", ".###."}},
+      {'2', {".###.", "#...#", "....#", "...#.", "..#..", ".#...", "#####"}},
+      {'6', {"..##.", ".#...", "#....", "####.", "#...#", "#...#", ".###."}},
+      {'*', {".....", "#.#.#", ".###.", "#####", ".###.", "#.#.#", "....."}},
+  };
+  return font;
+}
+
+bool GlyphOn(char c, int col, int row) {
+  if (col < 0 || col >= 5 || row < 0 || row >= 7) return false;
+  auto it = Font().find(c);
+  return it != Font().end() && it->second[row][col] == '#';
+}
+
+// Lettering around the coin: text on a circle of radius kTextRadius, letters upright (tops
+// outwards), reading clockwise from the top. Returns the raised fraction in [0, 1] with edges
+// smoothed over kEdge.
+constexpr char kCoinText[] = "MESOSCAN * LENS SHIFT * 2026 *";
+constexpr double kFontPx = 0.2e-3;     // bitmap pixel size on the coin
+constexpr double kCharPitch = 1.2e-3;  // 5 pixels + 1 gap
+constexpr double kTextTop = 8.25e-3;   // radius of the letters' top row
+constexpr double kEdge = 25e-6;        // width of the letters' rounded edges
+
+double LetteringAt(double x, double y) {
+  const double r = std::hypot(x, y);
+  if (r > kTextTop + kEdge || r < kTextTop - 7 * kFontPx - kEdge) return 0.0;
+  const double text_len = (sizeof(kCoinText) - 1) * kCharPitch;
+  const double radius_mid = kTextTop - 3.5 * kFontPx;
+  // Arc length clockwise from the top (+y), centred so the text is symmetric about the top.
+  double theta = std::atan2(x, y);  // 0 at +y, positive clockwise (towards +x)
+  double s = theta * radius_mid + 0.5 * text_len;
+  if (s < -kCharPitch || s > text_len + kCharPitch) {
+    s = (theta + (theta < 0 ? 2 * kPi : -2 * kPi)) * radius_mid + 0.5 * text_len;
+    if (s < -kCharPitch || s > text_len + kCharPitch) return 0.0;
+  }
+  const double row_f = (kTextTop - r) / kFontPx;  // 0 at the top row's top edge
+  const int ci = static_cast<int>(std::floor(s / kCharPitch));
+  double best = 0.0;
+  // The raised fraction is the max over nearby "on" font pixels of a box that is 1 inside the
+  // pixel and falls smoothly to 0 over kEdge outside it.
+  for (int char_index = ci - 1; char_index <= ci + 1; ++char_index) {
+    if (char_index < 0 || char_index >= static_cast<int>(sizeof(kCoinText) - 1)) continue;
+    const char c = kCoinText[char_index];
+    const double local_col = (s - char_index * kCharPitch) / kFontPx;
+    if (local_col < -1 || local_col > 6) continue;
+    const int col0 = static_cast<int>(std::floor(local_col));
+    for (int col = col0 - 1; col <= col0 + 1; ++col)
+      for (int row = static_cast<int>(std::floor(row_f)) - 1;
+           row <= static_cast<int>(std::floor(row_f)) + 1; ++row) {
+        if (!GlyphOn(c, col, row)) continue;
+        const double du = std::max({0.0, col - local_col, local_col - (col + 1)}) * kFontPx;
+        const double dv = std::max({0.0, row - row_f, row_f - (row + 1)}) * kFontPx;
+        const double d = std::hypot(du, dv);
+        best = std::max(best, 1.0 - SmoothStep(0.0, kEdge, d));
+      }
+  }
+  return best;
+}
+
+}  // namespace
+
+double MountAlbedo(double x, double y) {
+  return 0.30 + 0.03 * std::sin(2 * kPi * x / 0.023 + 0.4) * std::cos(2 * kPi * y / 0.017) +
+         0.01 * std::cos(2 * kPi * (x + y) / 0.031);
+}
+
+double SceneObject::Albedo(double x, double y) const {
+  const double i = height.I(x), j = height.J(y);
+  if (i < 0 || j < 0 || i > height.width() - 1 || j > height.height() - 1)
+    return MountAlbedo(x, y);
+  const int i0 = std::min(static_cast<int>(i), height.width() - 2);
+  const int j0 = std::min(static_cast<int>(j), height.height() - 2);
+  const double a = i - i0, b = j - j0;
+  return (1 - a) * (1 - b) * albedo(i0, j0) + a * (1 - b) * albedo(i0 + 1, j0) +
+         (1 - a) * b * albedo(i0, j0 + 1) + a * b * albedo(i0 + 1, j0 + 1);
+}
+
+double SceneObject::SurfaceZ(double x, double y) const {
+  const double z = height.Sample(x, y);
+  return std::isfinite(z) ? z : 0.0;
+}
+
+SceneObject MakeCoin(double h) {
+  constexpr double kRadius = 9.5e-3, kField = 1.2e-3, kRim = 1.3e-3, kRimInner = 8.6e-3;
+  constexpr int kMargin = 3;
+  HeightField grid = MakeGrid(-kRadius, kRadius, -kRadius, kRadius, h, kMargin);
+  return Generate("coin", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+    const double r = std::hypot(x, y);
+    if (r >= kRadius) return;
+    // Body: field, raised rim (inner flank 0.15 mm wide), edge rounded over the last 0.1 mm.
+    double zz = kField + (kRim - kField) * SmoothStep(kRimInner - 0.15e-3, kRimInner, r);
+    if (r > kRadius - 0.1e-3) {
+      const double q = (r - (kRadius - 0.1e-3)) / 0.1e-3;
+      zz = (kRim - 0.1e-3) + 0.1e-3 * std::sqrt(std::max(0.0, 1 - q * q));
+      zz *= std::sqrt(std::max(0.0, 1 - q * q * q * q));
+    }
+    // Portrait: a head (smooth elliptical dome, 90 um), a nose and a neck, left of centre.
+    auto dome = [](double u, double v, double amp) {
+      const double q = u * u + v * v;
+      return q < 1 ? amp * (1 - q) * (1 - q) : 0.0;
+    };
+    zz += dome((x + 0.4e-3) / 3.2e-3, (y - 0.6e-3) / 4.0e-3, 90e-6);
+    zz += dome((x - 2.9e-3) / 0.8e-3, (y - 0.3e-3) / 0.6e-3, 35e-6);  // nose
+    zz += dome((x + 0.2e-3) / 1.8e-3, (y + 4.0e-3) / 1.6e-3, 50e-6);  // neck
+    // Lettering 40 um, and a ring of beads (20 um) inside the rim.
+    zz += 40e-6 * LetteringAt(x, y);
+    const double bead_r = 8.4e-3, bead_pitch = 0.3e-3;
+    if (std::abs(r - bead_r) < 0.15e-3) {
+      const double s = std::atan2(y, x) * bead_r;
+      const double ds = s - bead_pitch * std::round(s / bead_pitch);
+      zz += dome(ds / 0.1e-3, (r - bead_r) / 0.1e-3, 20e-6);
+    }
+    *z = zz;
+    // Bronze with smooth tarnish.
+    *a = 0.55 + 0.08 * std::cos(x / 3e-3) * std::sin(y / 4e-3 + 0.3) -
+         0.06 * std::exp(-((x - 4e-3) * (x - 4e-3) + (y + 3e-3) * (y + 3e-3)) / (2 * 2e-3 * 2e-3));
+  });
+}
+
+SceneObject MakePaperRamp(double h) {
+  constexpr int kMargin = 3;
+  HeightField grid = MakeGrid(kRampX0, kRampX1, -kRampHalfWidthM, kRampHalfWidthM, h, kMargin);
+  return Generate("ramp", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+    if (x < kRampX0 || x > kRampX1 || std::abs(y) > kRampHalfWidthM) return;
+    const int sheets =
+        std::min(kRampSheets, static_cast<int>(std::floor((x - kRampX0) / kRampStepWidthM)) + 1);
+    *z = sheets * kRampSheetM;
+    *a = 0.80 + 0.04 * std::sin(2 * kPi * x / 7e-3) * std::cos(2 * kPi * y / 5e-3);
+  });
+}
+
+SceneObject MakeTiltedPlane(double h) {
+  constexpr int kMargin = 2;
+  HeightField grid = MakeGrid(kBarX0, kBarX1, -kBarHalfWidthM, kBarHalfWidthM, h, kMargin);
+  return Generate("plane", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+    if (x < kBarX0 || x > kBarX1 || std::abs(y) > kBarHalfWidthM) return;
+    *z = (x - kBarX0) * std::tan(kBarAngleRad);
+    *a = 0.45 + 0.05 * std::sin(2 * kPi * x / 13e-3) + 0.03 * std::cos(2 * kPi * y / 6e-3);
+  });
+}
+
+SceneObject MakeLeaf(double h) {
+  constexpr double kHalfLength = 20e-3, kHalfWidth = 9e-3;
+  constexpr int kMargin = 3;
+  HeightField grid = MakeGrid(-kHalfLength, kHalfLength, -kHalfWidth, kHalfWidth, h, kMargin);
+  return Generate("leaf", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+    const double u = (x + kHalfLength) / (2 * kHalfLength);  // 0 at the stem, 1 at the tip
+    if (u <= 0 || u >= 1) return;
+    const double w = kHalfWidth * std::pow(std::sin(kPi * u), 0.8) * (1.0 - 0.25 * u);
+    if (std::abs(y) >= w) return;
+    const double yn = y / w;  // -1..1 across the blade
+    // Curled blade: 1.0 mm at the margins rising to 1.3 mm along the midrib, sagging at the tip.
+    double zz = 1.0e-3 + 0.3e-3 * (1 - yn * yn) - 0.2e-3 * u * u;
+    // Midrib: a groove 60 um deep, 0.15 mm sigma.
+    zz -= 60e-6 * std::exp(-y * y / (2 * 0.15e-3 * 0.15e-3));
+    // Lateral veins leaving the midrib at 50 degrees every 4 mm, 45 um deep, fading outwards.
+    const double along = x - std::abs(y) / std::tan(50.0 * kPi / 180.0);
+    const double d = (along - 4e-3 * std::round(along / 4e-3)) * std::sin(50.0 * kPi / 180.0);
+    zz -= 45e-6 * std::exp(-d * d / (2 * 0.08e-3 * 0.08e-3)) * (1 - 0.6 * std::abs(yn));
+    *z = zz;
+    *a = 0.28 + 0.05 * std::sin(2 * kPi * x / 11e-3) * std::cos(2 * kPi * y / 9e-3) +
+         0.03 * std::exp(-d * d / (2 * 0.1e-3 * 0.1e-3));
+  });
+}
+
+SceneObject LoadHeightExrObject(const std::filesystem::path& path) {
+  SceneObject obj;
+  obj.name = path.filename().string();
+  obj.height = ReadHeightExr(path);
+  const HeightField& hf = obj.height;
+  if (hf.width() < 2 || hf.height() < 2)
+    MESOSCAN_BAD_INPUT(path.string() << ": Z: expected a height field of at least 2 x 2 pixels");
+  bool any = false;
+  for (float v : hf.z.data()) any = any || std::isfinite(v);
+  if (!any) MESOSCAN_BAD_INPUT(path.string() << ": Z: no finite height");
+  obj.height.confidence = ImageF();
+  obj.albedo = ImageF(hf.width(), hf.height(), 1);
+  for (int j = 0; j < hf.height(); ++j)
+    for (int i = 0; i < hf.width(); ++i) {
+      const double x = hf.X(i), y = hf.Y(j);
+      obj.albedo(i, j) = static_cast<float>(0.5 + 0.1 * std::sin(2 * kPi * x / 9e-3) *
+                                                      std::cos(2 * kPi * y / 7e-3));
+    }
+  return obj;
+}
+
+SceneObject MakeObject(const std::string& spec, double h) {
+  if (spec == "coin") return MakeCoin(h > 0 ? h : 10e-6);
+  if (spec == "ramp") return MakePaperRamp(h > 0 ? h : 20e-6);
+  if (spec == "plane") return MakeTiltedPlane(h > 0 ? h : 50e-6);
+  if (spec == "leaf") return MakeLeaf(h > 0 ? h : 20e-6);
+  const std::filesystem::path p(spec);
+  std::string ext = p.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  if (ext == ".exr") return LoadHeightExrObject(p);
+  MESOSCAN_BAD_INPUT("--object: '" << spec
+                                   << "': expected coin, plane, ramp, leaf or a height .exr file");
+}
+
+}  // namespace mesoscan

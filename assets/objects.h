@@ -1,0 +1,63 @@
+#pragma once
+// Procedural demo objects for the virtual rig (assets/README.md): each is a height field lying on
+// the mount plane z = 0 (+z up, towards the rig) plus a smooth, spatially varying Lambert albedo.
+// The generators are compiled into mesoscan_sim (assets/ holds the generators of the demo assets,
+// architecture.md); nothing here is downloaded or read at run time except a user's FILE.exr.
+//
+// Every generated grid has a margin of zero-height cells around the object, so the height field
+// meets the mount plane without a gap and the object's sides appear as steep one-cell slopes.
+
+#include <filesystem>
+#include <string>
+
+#include "core/height_field.h"
+
+namespace mesoscan {
+
+struct SceneObject {
+  std::string name;    // "coin", "ramp", "plane", "leaf" or the EXR file name
+  HeightField height;  // metres above the mount; NaN = hole (rays pass to the mount below)
+  ImageF albedo;       // same grid as height, Lambert albedo in [0, 1]
+
+  // Lambert albedo at world (x, y): bilinear in the object's grid, MountAlbedo outside it.
+  double Albedo(double x, double y) const;
+  // True surface height at world (x, y): height.Sample inside the grid where finite, else 0 (the
+  // mount, also seen through holes).
+  double SurfaceZ(double x, double y) const;
+};
+
+// Albedo of the mount board: 0.30 +- 0.04, smooth (periods of a few cm).
+double MountAlbedo(double x, double y);
+
+// Coin: 19 mm diameter, 1.3 mm thick at its rim; a 1.2 mm field with a raised rim (0.1 mm), a
+// smooth portrait-like bump (up to 90 um), lettering around the edge from a 5x7 bitmap font
+// (40 um relief, 0.2 mm font pixels) and a bead ring (20 um). Centred on the origin.
+SceneObject MakeCoin(double pixel_size_m = 10e-6);
+
+// Paper ramp (Ritz et al. 2012, Fig. 12): kRampSheets stacked sheets, each kRampSheetM thick,
+// sheet k covering x in [kRampX0 + k * kRampStepWidthM, kRampX1], |y| <= kRampHalfWidthM.
+inline constexpr int kRampSheets = 10;
+inline constexpr double kRampSheetM = 93e-6;
+inline constexpr double kRampStepWidthM = 3e-3;
+inline constexpr double kRampX0 = -15e-3, kRampX1 = 15e-3, kRampHalfWidthM = 10e-3;
+SceneObject MakePaperRamp(double pixel_size_m = 20e-6);
+
+// Tilted plane (steel bar test): z = (x - kBarX0) * tan(kBarAngleRad) for x in [kBarX0, kBarX1],
+// |y| <= kBarHalfWidthM. A bilinear grid represents a plane exactly.
+inline constexpr double kBarX0 = -20e-3, kBarX1 = 20e-3, kBarHalfWidthM = 8e-3;
+inline constexpr double kBarAngleRad = 7.0 * 3.14159265358979323846 / 180.0;
+SceneObject MakeTiltedPlane(double pixel_size_m = 50e-6);
+
+// Leaf: 40 mm x 18 mm, lying about 1.0-1.3 mm above the mount (curled), with a midrib 60 um
+// deep and lateral veins 45 um deep.
+SceneObject MakeLeaf(double pixel_size_m = 20e-6);
+
+// A height EXR in the scan-outputs.md layout (channel Z, grid attributes), placed as given; a
+// smooth albedo 0.5 +- 0.1 is made up. Throws Error naming the file if unreadable.
+SceneObject LoadHeightExrObject(const std::filesystem::path& path);
+
+// "coin" | "plane" | "ramp" | "leaf" | a path ending in .exr. pixel_size_m <= 0: the object's
+// default grid spacing. Throws Error(kBadInput) naming `--object` for anything else.
+SceneObject MakeObject(const std::string& spec, double pixel_size_m = 0.0);
+
+}  // namespace mesoscan

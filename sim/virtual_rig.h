@@ -1,0 +1,132 @@
+#pragma once
+// The virtual rig: ray-casts a procedural object (assets/objects.h) lying on the mount with
+// Embree (render/embree_scene.h), evaluates the projector's light for every frame of a lens-shift
+// scan, adds sensor noise and writes a session folder (shared/spec/session-format.md) with
+// ground truth. The model, its formulas and defaults are documented in sim/README.md; every
+// parameter below is also recorded under the top-level "simulation" key of session.json.
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "capture/session.h"
+#include "core/json.h"
+
+namespace mesoscan {
+
+struct SimulateOptions {
+  // ---- scene and rig ----
+  // "coin", "plane", "ramp", "leaf" or a height EXR in the scan-outputs layout.
+  std::string object = "coin";
+  // Grid spacing of procedural objects in metres (> 0), or 0 for the object's default
+  // (coin 10 um, ramp 20 um, leaf 20 um, plane 50 um). Ignored for EXR objects.
+  double object_pixel_size_m = 0.0;
+  // "paper" (the built-in rig, sim/README.md) or a JSON file holding a "rig" object in the
+  // session format.
+  std::string rig = "paper";
+  // Camera crop {W, H, X, Y} in pixels of the rig's camera: the output camera is W x H with
+  // cx -= X, cy -= Y (a valid camera of its own). Must lie inside the rig's camera.
+  std::optional<std::array<int, 4>> crop;
+  // The session's "object" text; empty: the object's name.
+  std::string object_label;
+
+  // ---- frame plan (patterns vary along projector u, axis "x") ----
+  std::vector<double> ps_periods_px{7, 11, 13};  // sine periods, each > 2 px
+  int ps_phases = 3;                             // phases per period (>= 3), 2*pi*k/phases
+  int ls_frames = 50;  // lens-shift (1-px stripes) frames evenly over the shifter range incl.
+                       // both ends, shift_steps rounded to integers; 0 or >= 4
+  bool white = true;   // a white frame
+  bool black = true;   // a black frame
+
+  // ---- sampling ----
+  int supersample = 3;  // camera pixel-area integration: S x S rays per pixel (1..8)
+  bool shadows = true;  // occlusion rays towards the projector (cast shadows)
+
+  // ---- projector optics ----
+  double fill_factor = 0.9;       // lit fraction of the pixel pitch along each axis, (0, 1]
+  double blur_sigma_px = 0.35;    // Gaussian blur sigma at the focus distance, projector px, > 0
+  // The projector is focused on the plane z = focus_height_m (a Scheimpflug projector focused
+  // on the mount); sigma = blur_sigma_px + defocus_px_per_m * |z - focus_height_m|.
+  double defocus_px_per_m = 200;  // sigma growth per metre off the focus plane, >= 0
+  double focus_height_m = 0.0;    // world height of the focus plane, metres
+  // Lens-shifter gain g(u, v) = 1 + gx * un + gy * vn + gr * (un^2 + vn^2), with un = (u - cx) /
+  // (W/2), vn = (v - cy) / (H/2) the projector coordinates of the surface point at shift 0.
+  // The true displacement of the image is shift_steps / steps_per_px * g. |g - 1| < 0.5.
+  double shift_gain_x = 0.04;
+  double shift_gain_y = -0.02;
+  double shift_gain_r = 0.03;
+  // Projector response: displayed value v emits light v^gamma. 1 = linear (no response key
+  // written); otherwise projector.response = {"gamma": g}. In (0, 5].
+  double projector_gamma = 1.0;
+
+  // ---- radiometry (frame values normalised to [0, 1] = ADC full scale) ----
+  // Frame value of a white, fully lit, albedo-1 surface facing the projector at the reference
+  // distance r0 (projector centre to world origin), before noise. > 0.
+  double exposure = 0.85;
+  // Ambient / indirect light: adds exposure * ambient * albedo to every frame (also black). >= 0.
+  double ambient = 0.03;
+
+  // ---- sensor noise ----
+  double noise = 1.0;          // scale of all random noise (shot, read, gain jitter); 0 = none
+  double full_well_e = 20000;  // electrons at frame value 1.0 (shot noise), > 0
+  double read_noise_e = 8.0;   // read noise, electrons rms, >= 0
+  int adc_bits = 14;           // ADC depth; frames are 16-bit PNG with bit replication, 8..16
+  double gain_jitter = 0.005;  // per-frame multiplicative gain, relative sigma, >= 0
+  uint64_t seed = 1;           // random seed (frames are deterministic for a seed)
+
+  void Check() const;  // throws Error(kUsage) naming the option
+};
+
+// Per-pixel noise of a frame in normalised units [0, 1] (sim/README.md "Noise"): for a noise-free
+// value m, the recorded value is m * (1 + jitter) + e, with e ~ N(0, Variance(m)) independent per
+// pixel and frame, and jitter ~ N(0, GainJitterSigma()) shared by all pixels of a frame.
+struct NoiseModel {
+  double scale = 1.0;
+  double full_well_e = 20000;
+  double read_noise_e = 8;
+  int adc_bits = 14;
+  double gain_jitter = 0.005;
+
+  // Per-pixel variance (normalised units^2) of a pixel whose noise-free value is `mean`:
+  // scale^2 * (mean / full_well + (read / full_well)^2) + q^2 / 12, q = 1 / (2^bits - 1).
+  double Variance(double mean) const;
+  double Sigma(double mean) const;
+  double GainJitterSigma() const { return scale * gain_jitter; }
+};
+NoiseModel MakeNoiseModel(const SimulateOptions& options);
+
+// The built-in "paper" rig (sim/README.md "The paper rig").
+Rig PaperRig();
+// A rig from a JSON file holding a "rig" object in the session format (validated by the session
+// parser; errors name the file and the key).
+Rig LoadRigFile(const std::filesystem::path& path);
+// options.rig resolved ("paper" or a file), with options.crop applied.
+Rig ResolveRig(const SimulateOptions& options);
+// Applies a camera crop {W, H, X, Y}; throws Error(kUsage) if it leaves the camera.
+PinholeCamera CropCamera(const PinholeCamera& camera, const std::array<int, 4>& crop);
+
+// The lens-shifter gain g(u, v) of the options at projector pixel (u, v).
+double ShifterGain(const SimulateOptions& options, const PinholeCamera& projector, double u,
+                   double v);
+
+// The frames the options ask for (sine, then lens shift, white, black), files frames/*.png.
+std::vector<Frame> MakeSimulationFrames(const SimulateOptions& options, const Rig& rig);
+
+struct SimulateSummary {
+  int width = 0, height = 0;   // camera image size
+  int frames = 0;
+  int64_t rays = 0;            // camera rays cast (subsamples + centre rays)
+  int64_t lit_pixels = 0;      // pixels whose centre sees a surface lit by the projector
+  int64_t unrefined_hits = 0;  // hits kept in float precision (EmbreeScene::unrefined_hits)
+  double seconds_scene = 0, seconds_raycast = 0, seconds_frames = 0, seconds_total = 0;
+  std::string BriefReport() const;
+};
+
+// Simulates the scan and writes the session folder `out_dir` atomically (an existing folder is
+// replaced only on success): session.json, frames/*.png, gt_points.exr, gt_height.exr.
+SimulateSummary Simulate(const SimulateOptions& options, const std::filesystem::path& out_dir);
+
+}  // namespace mesoscan
