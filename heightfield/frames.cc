@@ -1,0 +1,266 @@
+#include "heightfield/frames.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+
+#include "core/error.h"
+#include "core/log.h"
+#include "core/parallel.h"
+#include "core/progress.h"
+
+namespace mesoscan {
+namespace {
+
+PixelRect ClipRoi(const PixelRect& r, int width, int height) {
+  if (r.w <= 0 || r.h <= 0) return {0, 0, width, height};
+  PixelRect c;
+  c.x = std::clamp(r.x, 0, width);
+  c.y = std::clamp(r.y, 0, height);
+  c.w = std::clamp(r.x + r.w, 0, width) - c.x;
+  c.h = std::clamp(r.y + r.h, 0, height) - c.y;
+  return c;
+}
+
+struct DecodedFrame {
+  int width = 0, height = 0, channels = 0;
+  bool is_float = false;
+  bool eight_bit = false;
+  std::vector<uint16_t> u16;  // interleaved
+  std::vector<float> f32;     // interleaved
+};
+
+DecodedFrame Decode(const std::filesystem::path& path, const std::string& label) {
+  auto in = OIIO::ImageInput::open(path.string());
+  if (!in) {
+    std::string err = OIIO::geterror();
+    std::replace(err.begin(), err.end(), '\n', ' ');
+    MESOSCAN_BAD_INPUT(label << ": cannot read image (" << err << ")");
+  }
+  const OIIO::ImageSpec& spec = in->spec();
+  DecodedFrame d;
+  d.width = spec.width;
+  d.height = spec.height;
+  d.channels = spec.nchannels;
+  d.is_float = spec.format.is_floating_point();
+  d.eight_bit = spec.format.size() == 1;
+  const size_t n = static_cast<size_t>(d.width) * d.height * d.channels;
+  bool ok;
+  if (d.is_float) {
+    d.f32.resize(n);
+    ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeFloat, d.f32.data());
+  } else {
+    d.u16.resize(n);
+    ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::UINT16, d.u16.data());
+  }
+  if (!ok) {
+    std::string err = in->geterror();
+    std::replace(err.begin(), err.end(), '\n', ' ');
+    MESOSCAN_BAD_INPUT(label << ": cannot decode image (" << err << ")");
+  }
+  return d;
+}
+
+// Colour channels averaged (an alpha channel, 2nd of 2 or 4th of 4, ignored).
+int ColourChannels(int channels) { return (channels == 2 || channels == 4) ? channels - 1 : channels; }
+
+}  // namespace
+
+void FrameLoadOptions::Check() const {
+  if (!(saturation_level > 0.0 && saturation_level <= 1.0))
+    MESOSCAN_BAD_INPUT("saturation_level: expected a value in (0, 1], got " << saturation_level);
+  if (roi.w < 0 || roi.h < 0 || roi.x < 0 || roi.y < 0)
+    MESOSCAN_BAD_INPUT("roi: expected non-negative x, y, w, h");
+}
+
+void FrameStack::Gather(int k, size_t i0, size_t n, float* out) const {
+  if (is_float_) {
+    const float* src = raw_float_[k].data() + i0;
+    for (size_t i = 0; i < n; ++i) out[i] = src[i] - float_black_;
+  } else {
+    const uint16_t* src = raw_[k].data() + i0;
+    const float* lut = lut_.data();
+    for (size_t i = 0; i < n; ++i) out[i] = lut[src[i]];
+  }
+}
+
+FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indices,
+                      const FrameLoadOptions& options) {
+  options.Check();
+  const PinholeCamera& cam = session.rig.camera;
+  FrameStack s;
+  s.roi_ = ClipRoi(options.roi, cam.width, cam.height);
+  if (s.roi_.w <= 0 || s.roi_.h <= 0)
+    MESOSCAN_BAD_INPUT("roi: " << options.roi.x << "," << options.roi.y << "," << options.roi.w
+                               << "," << options.roi.h << " does not overlap the "
+                               << cam.width << "x" << cam.height << " camera image");
+  s.width_ = s.roi_.w;
+  s.height_ = s.roi_.h;
+  s.session_frames_ = frame_indices;
+  const int nf = static_cast<int>(frame_indices.size());
+  const size_t np = s.pixels();
+
+  // Which storage: float only if some frame is float (EXR); decided from the headers.
+  bool any_float = false;
+  for (int f : frame_indices) {
+    const auto path = session.FramePath(f);
+    auto in = OIIO::ImageInput::open(path.string());
+    if (!in) MESOSCAN_BAD_INPUT(path.string() << ": frames[" << f << "]: cannot read image");
+    any_float |= in->spec().format.is_floating_point();
+  }
+  s.is_float_ = any_float;
+  if (any_float)
+    s.raw_float_.assign(nf, std::vector<float>(np));
+  else
+    s.raw_.assign(nf, std::vector<uint16_t>(np));
+
+  const uint16_t sat_code = static_cast<uint16_t>(
+      std::min(65535.0, std::floor(options.saturation_level * 65535.0)));
+  std::atomic<int> eight_bit{0};
+  std::vector<uint8_t> saturated(np, 0);
+  std::vector<std::vector<uint8_t>> sat(nf);
+  {
+    Progress progress("decode frames", nf);
+    ParallelFor(nf, [&](int64_t k) {
+      const int f = frame_indices[k];
+      const auto path = session.FramePath(f);
+      const std::string label = path.string() + ": frames[" + std::to_string(f) + "]";
+      DecodedFrame d = Decode(path, label);
+      if (d.width != cam.width || d.height != cam.height)
+        MESOSCAN_BAD_INPUT(label << ": size " << d.width << "x" << d.height
+                                 << ", expected camera.width x camera.height = " << cam.width
+                                 << "x" << cam.height);
+      if (d.eight_bit) eight_bit.fetch_add(1);
+      const int nc = d.channels, ncc = ColourChannels(nc);
+      sat[k].assign(np, 0);
+      for (int y = 0; y < s.height_; ++y) {
+        const size_t src_row = (static_cast<size_t>(y + s.roi_.y) * d.width + s.roi_.x) * nc;
+        const size_t dst_row = static_cast<size_t>(y) * s.width_;
+        for (int x = 0; x < s.width_; ++x) {
+          const size_t src = src_row + static_cast<size_t>(x) * nc;
+          if (d.is_float || any_float) {
+            float v = 0.0f;
+            bool saturated_sample = false;
+            for (int c = 0; c < ncc; ++c) {
+              const float sample = d.is_float ? d.f32[src + c] : d.u16[src + c] / 65535.0f;
+              if (!d.is_float && d.u16[src + c] >= sat_code) saturated_sample = true;
+              v += sample;
+            }
+            s.raw_float_[k][dst_row + x] = v / ncc;
+            sat[k][dst_row + x] = saturated_sample;
+          } else {
+            uint32_t v = 0;
+            bool saturated_sample = false;
+            for (int c = 0; c < ncc; ++c) {
+              v += d.u16[src + c];
+              if (d.u16[src + c] >= sat_code) saturated_sample = true;
+            }
+            s.raw_[k][dst_row + x] = static_cast<uint16_t>((v + ncc / 2) / ncc);
+            sat[k][dst_row + x] = saturated_sample;
+          }
+        }
+      }
+      progress.Advance();
+    });
+  }
+  ParallelForRows(s.height_, [&](int y0, int y1) {
+    for (size_t i = static_cast<size_t>(y0) * s.width_; i < static_cast<size_t>(y1) * s.width_;
+         ++i) {
+      uint8_t any = 0;
+      for (int k = 0; k < nf; ++k) any |= sat[k][i];
+      saturated[i] = any;
+    }
+  });
+  s.saturated_ = std::move(saturated);
+  s.eight_bit_frames_ = eight_bit.load();
+  if (s.eight_bit_frames_ > 0)
+    MESOSCAN_LOG(kWarning) << session.root.string() << ": " << s.eight_bit_frames_
+                           << " frame(s) have 8 bits per sample; precision is limited";
+
+  // Black level and response: linear = ToLinear(v) - ToLinear(black_level), v in [0, 1]
+  // (black_level is a level in the frame's own units, so it is linearised like the frames).
+  const Response& resp = session.rig.camera_response;
+  const double black_lin = resp.ToLinear(session.rig.black_level);
+  if (s.is_float_) {
+    // Float frames are linear radiance as stored; a non-linear response is applied in place.
+    if (resp.kind != Response::Kind::kLinear) {
+      ParallelFor(nf, [&](int64_t k) {
+        for (float& v : s.raw_float_[k]) v = static_cast<float>(resp.ToLinear(v));
+      });
+    }
+    s.float_black_ = static_cast<float>(black_lin);
+  } else {
+    s.lut_.resize(65536);
+    for (int c = 0; c < 65536; ++c)
+      s.lut_[c] = static_cast<float>(resp.ToLinear(c / 65535.0) - black_lin);
+  }
+  return s;
+}
+
+std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,
+                                       const std::vector<uint32_t>& pixels, int iterations) {
+  // With h_k = 1 / g_k the model h_k I_k(i) = (M c(i))_k is linear. Eliminating c(i) per pixel
+  // leaves min_h sum_i |Q diag(I(i)) h|^2, Q = 1 - M pinv(M): h^T (Q o G) h with G the Gram
+  // matrix of the frames over the pixels (o: element-wise), subject to sum h = K. A tiny ridge
+  // keeps directions the per-pixel model absorbs (not identifiable) at h = 1.
+  const int nk = static_cast<int>(model.frames.size());
+  std::vector<double> gains(nk, 1.0);
+  if (nk == 0 || pixels.empty()) return gains;
+  const int np = static_cast<int>(model.design[0].size());
+  if (nk <= np) return gains;  // every gain pattern is absorbed by the per-pixel model
+  Eigen::MatrixXd M(nk, np);
+  for (int k = 0; k < nk; ++k)
+    for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
+  const Eigen::MatrixXd Q = Eigen::MatrixXd::Identity(nk, nk) -
+                            M * (M.transpose() * M).ldlt().solve(M.transpose());
+  const size_t n = pixels.size();
+  Eigen::MatrixXd I(nk, n);  // samples, frame-major
+  for (int k = 0; k < nk; ++k)
+    for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], pixels[j]);
+  std::vector<uint8_t> use(n, 1);
+  Eigen::VectorXd h = Eigen::VectorXd::Ones(nk);
+  for (int it = 0; it < std::max(1, iterations); ++it) {
+    Eigen::MatrixXd G = Eigen::MatrixXd::Zero(nk, nk);
+    Eigen::VectorXd col(nk);
+    for (size_t j = 0; j < n; ++j)
+      if (use[j]) G.selfadjointView<Eigen::Lower>().rankUpdate(I.col(j));
+    G = G.selfadjointView<Eigen::Lower>();
+    Eigen::MatrixXd A = Q.cwiseProduct(G);
+    const double ridge = 1e-9 * A.trace() / nk + 1e-300;
+    // KKT: [2(A + ridge) 1; 1^T 0] [h; lambda] = [2 ridge 1; K] (ridge pulls towards h = 1).
+    Eigen::MatrixXd kkt = Eigen::MatrixXd::Zero(nk + 1, nk + 1);
+    kkt.topLeftCorner(nk, nk) = 2 * (A + ridge * Eigen::MatrixXd::Identity(nk, nk));
+    kkt.block(0, nk, nk, 1).setOnes();
+    kkt.block(nk, 0, 1, nk).setOnes();
+    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(nk + 1);
+    rhs.head(nk).setConstant(2 * ridge);
+    rhs(nk) = nk;
+    const Eigen::VectorXd sol = kkt.fullPivLu().solve(rhs);
+    if (!sol.allFinite() || (sol.head(nk).array() <= 0).any()) break;
+    h = sol.head(nk);
+    if (it + 1 == iterations) break;
+    // Robust: drop pixels whose relative residual is an outlier (> median + 4 MAD).
+    std::vector<double> rel(n);
+    for (size_t j = 0; j < n; ++j) {
+      const Eigen::VectorXd v = I.col(j).cwiseProduct(h);
+      rel[j] = (Q * v).norm() / std::max(1e-30, v.norm());
+    }
+    std::vector<double> sorted = rel;
+    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+    const double med = sorted[n / 2];
+    for (double& v : sorted) v = std::abs(v - med);
+    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+    const double mad = sorted[n / 2];
+    for (size_t j = 0; j < n; ++j) use[j] = std::isfinite(rel[j]) && rel[j] <= med + 4 * 1.4826 * mad;
+  }
+  double mean = 0.0;
+  for (int k = 0; k < nk; ++k) mean += gains[k] = 1.0 / h(k);
+  mean /= nk;
+  for (double& g : gains) g /= mean;
+  return gains;
+}
+
+}  // namespace mesoscan

@@ -1,0 +1,173 @@
+#pragma once
+// The reconstruction pipeline (issue 3): a capture session (shared/spec/session-format.md) to a
+// scan (shared/spec/scan-outputs.md).
+//
+//  1. frames: parallel decode (uint16), black level, camera response; validity from white/black
+//     frames (or phase-shift modulation), saturation;
+//  2. per-frame luminance normalisation (Ritz et al. 2012, Sec. 5.1), optional 5-sample box
+//     filter of each lens-shift profile;
+//  3. phase shifting: least-squares wrapped phase per period (any phase sets), temporal
+//     unwrapping (coprime periods) or hierarchical unwrapping (a cue period covering the
+//     projector plus shorter ones) -> coarse absolute projector column u_c;
+//  4. lens-shift fit per pixel (heightfield/lens_shift_fit.h) with positions referenced to the
+//     centre of the shift range -> u modulo 2 px;
+//  5. combination (paper Eq. 2) and triangulation with camera and projector distortion;
+//  6. confidence (paper Eq. 4) times the modulation and unwrapping consistency; NaN and
+//     confidence 0 wherever a point is rejected;
+//  7. the height field on a regular world grid, normals, report.json figures.
+// Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted.
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "capture/session.h"
+#include "core/image.h"
+#include "core/json.h"
+#include "core/scan_folder.h"
+#include "heightfield/frames.h"
+#include "heightfield/lens_shift_fit.h"
+#include "heightfield/resample.h"
+
+namespace mesoscan {
+
+struct ReconstructOptions {
+  // Camera pixels to reconstruct (x, y, w, h); w == 0 or h == 0: the whole image.
+  PixelRect roi;
+  // Optional mask on the camera grid (any image format OIIO reads; camera width x height):
+  // pixels whose (grey) value is 0 are not reconstructed. Empty: no mask.
+  std::string mask_path;
+  // Lens-shift profile fitter (heightfield/lens_shift_fit.h): fast, lm or ceres.
+  LensShiftFitter fitter = LensShiftFitter::kFast;
+  // false: ignore lens-shift frames and reconstruct from phase shifting alone.
+  bool use_lens_shift = true;
+  // Worker threads, >= 0; 0 = all cores.
+  int num_threads = 0;
+  // Per-frame luminance normalisation (paper Sec. 5.1).
+  bool normalize_luminance = true;
+  // Paper's optional 5-sample box filter along each lens-shift profile (it trades resolution
+  // along the shift for noise; the phase at the range centre is unbiased).
+  bool lens_shift_box_filter = false;
+  // Fit the per-pixel lens-shift frequency (4-parameter model, paper Eq. 1).
+  bool fit_frequency = true;
+
+  // Thresholds, all in normalised units: frame values divided by the pixel's white level
+  // (white - black frame, or twice the phase-shift mean when there are no white/black frames).
+  // A pixel is lit if white - black >= min_lit (linear frame units in [0, 1]), > 0.
+  double min_lit = 0.02;
+  // Phase-shift modulation B / white level >= min_modulation, in (0, 0.5]; a full-contrast sine
+  // gives 0.5.
+  double min_modulation = 0.05;
+  // Temporal unwrapping: the consistency residual (heightfield/phase_shift.h, RMS over periods
+  // of the weighted circular residual in sigma units, ~1 for consistent data) above which a
+  // pixel is rejected, > 0.
+  double max_unwrap_residual = 4.0;
+  // Phase error (radians per period) added in quadrature to each period's noise-predicted phase
+  // variance before unwrapping: model errors that noise does not explain (projector harmonics,
+  // defocus, residual brightness jitter), >= 0.
+  double systematic_phase_noise = 0.02;
+  // Combination (paper Eq. 2): |u_coarse - u| above this (px; the fine period is 2 px, so 1 is
+  // the ambiguity limit) rejects the pixel as a period jump, in (0, 1).
+  double max_combination_residual_px = 0.6;
+  // Paper Eq. 4: c = 1 - sqrt(E t), clamped to [0, 1], with E the mean squared residual of the
+  // profile in units of its fitted amplitude (E = (rms / a)^2: pure noise of the same size as the
+  // signal gives E = 1). t = 4 reaches c = 0 at rms = a / 2. > 0.
+  double confidence_t = 4.0;
+  // Points with confidence below this are rejected (NaN, confidence 0), in [0, 1).
+  double min_confidence = 0.05;
+  // Mixed pixels at depth discontinuities (a camera pixel seeing two surfaces decodes to a point
+  // between them): a point is rejected if, along x or along y, it disagrees with the linear
+  // extrapolation of its valid neighbours on every side that has two (z_p vs 2 z_1 - z_2) by more
+  // than this many camera footprints (or 8 predicted depth sigmas, whichever is larger). >= 0;
+  // 0 disables the test.
+  double discontinuity_footprints = 0.5;
+  // Height-field grid.
+  ResampleOptions resample;
+  // Keep per-pixel intermediate images in the summary (tests, benchmarks, CRLB).
+  bool keep_diagnostics = false;
+
+  void Check() const;
+  Json ToJson() const;
+};
+
+// Per-pixel intermediate results on the camera grid (NaN where not computed).
+struct ReconstructDiagnostics {
+  ImageF u_coarse;         // absolute projector column from phase shifting, px
+  ImageF unwrap_residual;  // px
+  ImageF ps_modulation;    // B / white level
+  ImageF white_level;      // linear frame units
+  ImageF ls_amplitude;     // lens-shift a, linear frame units (after luminance normalisation)
+  ImageF ls_offset;        // d
+  ImageF ls_frequency;     // f, cycles per projector px
+  ImageF ls_residual_rms;  // linear frame units
+  ImageF ls_samples;       // samples used
+  ImageF dz_du;            // dZ/du of the triangulation, metres per projector px
+  ImageF u;                // final projector column
+};
+
+struct ReconstructSummary {
+  // Wall time (s) per stage, in pipeline order: decode, normalize, phase_shift, lens_shift,
+  // triangulate, height_field, ...
+  std::vector<std::pair<std::string, double>> timings_s;
+  int64_t pixels_total = 0;    // camera pixels
+  int64_t pixels_roi = 0;      // inside ROI and mask
+  int64_t pixels_lit = 0;      // lit, unsaturated, modulated
+  int64_t pixels_fitted = 0;   // lens-shift profiles fitted (or phase-shift decoded if none)
+  int64_t pixels_valid = 0;    // points with confidence > 0
+  int64_t pixels_saturated = 0;
+  int64_t pixels_rejected_unwrap = 0;
+  int64_t pixels_rejected_combination = 0;
+  int64_t pixels_rejected_confidence = 0;
+  int64_t pixels_rejected_discontinuity = 0;
+  int lens_shift_frames = 0, phase_shift_frames = 0;
+  std::vector<double> frame_gains;  // per session frame, 1 where not estimated
+  std::string unwrapping;           // "temporal", "hierarchical" or "single"
+  bool used_lens_shift = false;
+  double total_s = 0.0;
+  // Cramer-Rao prediction of the depth RMS (m) with the noise estimated from each pixel's own fit
+  // residual: var(u) from var(phi) >= 2 sigma^2 / (N a^2) (lens shift; phase shifting alone: the
+  // weighted periods), carried through the triangulation (dZ/du), RMS over a subsample of the
+  // valid pixels. 0 if no valid pixel.
+  double predicted_depth_rms_m = 0.0;
+  ReconstructDiagnostics diagnostics;  // filled if options.keep_diagnostics
+
+  double Seconds(const std::string& stage) const;
+  std::string BriefReport() const;
+  Json ToJson() const;
+};
+
+// Runs the pipeline on a session already read by ReadSession. Throws Error for bad input (a mask
+// of the wrong size, a session whose patterns cannot decode); never for data (a pixel that cannot
+// be reconstructed is NaN with confidence 0). The returned Scan's report holds the summary and
+// options; the caller adds the session path and ground-truth figures (EvaluateAgainstGroundTruth).
+Scan Reconstruct(const Session& session, const ReconstructOptions& options,
+                 ReconstructSummary* summary = nullptr);
+
+// Errors of reconstructed points against a simulated session's gt_points.exr. The depth error of a
+// pixel is the Z (world height) difference at the same camera pixel, metres; only pixels where
+// both are finite enter the error figures. Coverage = reconstructed / ground-truth-lit pixels
+// inside `roi` (empty = whole image).
+struct GroundTruthErrors {
+  int64_t pixels_gt = 0;      // ground truth finite (lit surface) inside the ROI
+  int64_t pixels_both = 0;    // ... and reconstructed
+  double coverage = 0.0;      // pixels_both / pixels_gt
+  double rms_m = 0.0;         // RMS of the Z error
+  double mean_m = 0.0;        // mean (bias)
+  double median_abs_m = 0.0;  // median |error|
+  double p99_abs_m = 0.0;     // 99th percentile |error|
+  double max_abs_m = 0.0;
+  int64_t gross = 0;          // |error| > gross_threshold_m
+  double gross_fraction = 0.0;
+  double gross_threshold_m = 0.0;
+  ImageF error;  // camera grid, Z error (m), NaN where not both
+  Json ToJson() const;
+};
+// gross_threshold_m <= 0: 10x the RMS of the inliers (|e| < 5 median |e|) is used.
+GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
+                                             const PixelRect& roi = {},
+                                             double gross_threshold_m = 0.0);
+
+// Error map PNG: |Z error| as a colour map (0 .. `max_m`, default p99) with a scale bar. NaN black.
+void WriteErrorMapPng(const std::filesystem::path& path, const ImageF& error, double max_m = 0.0);
+
+}  // namespace mesoscan

@@ -1,0 +1,127 @@
+#include "heightfield/resample.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "core/error.h"
+
+namespace mesoscan {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+struct GridVertex {
+  double i = 0, j = 0, z = 0, c = 0;
+  Vec3d p = Vec3d::Zero();
+};
+
+}  // namespace
+
+void ResampleOptions::Check() const {
+  if (!(pixel_size >= 0.0) || !std::isfinite(pixel_size))
+    MESOSCAN_BAD_INPUT("resample: pixel_size: expected a finite value >= 0, got " << pixel_size);
+  if (!(max_edge_footprints > 1.0))
+    MESOSCAN_BAD_INPUT("resample: max_edge_footprints: expected > 1, got " << max_edge_footprints);
+}
+
+double CameraFootprint(const ImageF& xyz) {
+  std::vector<float> d;
+  const int w = xyz.width(), h = xyz.height();
+  const int stride = std::max(1, h / 256);  // a few hundred rows are plenty for a median
+  for (int y = 0; y < h; y += stride) {
+    for (int x = 0; x + 1 < w; ++x) {
+      const float dx = xyz(x + 1, y, 0) - xyz(x, y, 0);
+      const float dy = xyz(x + 1, y, 1) - xyz(x, y, 1);
+      if (std::isfinite(dx) && std::isfinite(dy) && std::isfinite(xyz(x, y, 2)) &&
+          std::isfinite(xyz(x + 1, y, 2)))
+        d.push_back(std::sqrt(dx * dx + dy * dy));
+    }
+  }
+  if (d.empty()) return 0.0;
+  std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+  return d[d.size() / 2];
+}
+
+HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
+                           const ResampleOptions& options) {
+  options.Check();
+  MESOSCAN_CHECK_EQ(xyz.channels(), 3);
+  const int w = xyz.width(), h = xyz.height();
+  HeightField hf;
+  double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin, ymax = -xmin;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      if (!std::isfinite(xyz(x, y, 2))) continue;
+      xmin = std::min<double>(xmin, xyz(x, y, 0));
+      xmax = std::max<double>(xmax, xyz(x, y, 0));
+      ymin = std::min<double>(ymin, xyz(x, y, 1));
+      ymax = std::max<double>(ymax, xyz(x, y, 1));
+    }
+  const double footprint = CameraFootprint(xyz);
+  if (!std::isfinite(xmin) || !(footprint > 0)) {
+    hf.z = ImageF(0, 0);
+    hf.confidence = ImageF(0, 0);
+    return hf;
+  }
+  hf.pixel_size = options.pixel_size > 0 ? options.pixel_size : footprint;
+  // Grid aligned to multiples of the pixel size, covering the points.
+  hf.x0 = std::ceil(xmin / hf.pixel_size) * hf.pixel_size;
+  hf.y0 = std::floor(ymax / hf.pixel_size) * hf.pixel_size;
+  const int gw = static_cast<int>(std::floor((xmax - hf.x0) / hf.pixel_size)) + 1;
+  const int gh = static_cast<int>(std::floor((hf.y0 - ymin) / hf.pixel_size)) + 1;
+  MESOSCAN_CHECK(gw > 0 && gh > 0);
+  hf.z = ImageF(gw, gh, 1, kNaN);
+  hf.confidence = ImageF(gw, gh, 1, 0.0f);
+  const double max_edge2 = std::pow(options.max_edge_footprints * footprint, 2);
+
+  auto vertex = [&](int x, int y, GridVertex* v) {
+    const float z = xyz(x, y, 2);
+    if (!std::isfinite(z)) return false;
+    v->p = Vec3d(xyz(x, y, 0), xyz(x, y, 1), z);
+    v->i = hf.I(v->p.x());
+    v->j = hf.J(v->p.y());
+    v->z = z;
+    v->c = confidence.empty() ? 1.0 : confidence(x, y);
+    return true;
+  };
+  auto raster = [&](const GridVertex& a, const GridVertex& b, const GridVertex& c) {
+    if ((a.p - b.p).squaredNorm() > max_edge2 || (b.p - c.p).squaredNorm() > max_edge2 ||
+        (c.p - a.p).squaredNorm() > max_edge2)
+      return;  // spans a depth discontinuity
+    const double area = (b.i - a.i) * (c.j - a.j) - (c.i - a.i) * (b.j - a.j);
+    if (std::abs(area) < 1e-12) return;
+    const int i0 = std::max(0, static_cast<int>(std::ceil(std::min({a.i, b.i, c.i}) - 1e-9)));
+    const int i1 = std::min(gw - 1, static_cast<int>(std::floor(std::max({a.i, b.i, c.i}) + 1e-9)));
+    const int j0 = std::max(0, static_cast<int>(std::ceil(std::min({a.j, b.j, c.j}) - 1e-9)));
+    const int j1 = std::min(gh - 1, static_cast<int>(std::floor(std::max({a.j, b.j, c.j}) + 1e-9)));
+    for (int j = j0; j <= j1; ++j)
+      for (int i = i0; i <= i1; ++i) {
+        const double wa = ((b.i - i) * (c.j - j) - (c.i - i) * (b.j - j)) / area;
+        const double wb = ((c.i - i) * (a.j - j) - (a.i - i) * (c.j - j)) / area;
+        const double wc = 1.0 - wa - wb;
+        constexpr double eps = -1e-9;
+        if (wa < eps || wb < eps || wc < eps) continue;
+        const float z = static_cast<float>(wa * a.z + wb * b.z + wc * c.z);
+        float& gz = hf.z(i, j);
+        if (std::isfinite(gz) && gz >= z) continue;
+        gz = z;
+        hf.confidence(i, j) = static_cast<float>(wa * a.c + wb * b.c + wc * c.c);
+      }
+  };
+  GridVertex v00, v10, v01, v11;
+  for (int y = 0; y + 1 < h; ++y)
+    for (int x = 0; x + 1 < w; ++x) {
+      const bool b00 = vertex(x, y, &v00), b10 = vertex(x + 1, y, &v10);
+      const bool b01 = vertex(x, y + 1, &v01), b11 = vertex(x + 1, y + 1, &v11);
+      // Two triangles per quad; with one corner missing, the triangle of the other three.
+      if (b00 && b10 && b11) raster(v00, v10, v11);
+      if (b00 && b11 && b01) raster(v00, v11, v01);
+      if (!b11 && b00 && b10 && b01) raster(v00, v10, v01);
+      if (!b00 && b10 && b11 && b01) raster(v10, v11, v01);
+    }
+  return hf;
+}
+
+}  // namespace mesoscan

@@ -1,0 +1,62 @@
+#include "heightfield/triangulate.h"
+
+#include <cmath>
+
+namespace mesoscan {
+
+Triangulator::Triangulator(const PinholeCamera& camera, const PinholeCamera& projector)
+    : camera_(camera), projector_(projector) {
+  proj_from_world_ = projector.world_from_device.Inverse();
+  projector_distorted_ = projector.HasDistortion();
+  projector_skewed_ = projector.K(0, 1) != 0.0;
+}
+
+std::optional<Vec3d> Triangulator::Intersect(const Vec3d& ray_in_world, double u) const {
+  // The ray in projector device coordinates: p(t) = o + t d.
+  const Vec3d o = proj_from_world_ * camera_.CentreInWorld();
+  const Vec3d d = proj_from_world_.rotation * ray_in_world;
+  const Mat3d& K = projector_.K;
+  // Pinhole (zero-skew) plane x - xn z = 0 through the projector centre.
+  const double xn = (u - K(0, 2)) / K(0, 0);
+  const double den = d.x() - xn * d.z();
+  if (std::abs(den) < 1e-12) return std::nullopt;
+  double t = (xn * o.z() - o.x()) / den;
+  if (projector_distorted_ || projector_skewed_) {
+    // Newton on g(t) = column(p(t)) - u; the derivative by central differences.
+    auto column = [&](double tt, double* col) {
+      const Vec3d p = o + tt * d;
+      double uv[2];
+      if (!projector_.ProjectDevice(p.data(), uv)) return false;
+      *col = uv[0];
+      return true;
+    };
+    bool converged = false;
+    for (int it = 0; it < 20; ++it) {
+      double g0;
+      if (!column(t, &g0)) return std::nullopt;
+      g0 -= u;
+      if (std::abs(g0) < 1e-10) {
+        converged = true;
+        break;
+      }
+      const double h = 1e-7 * std::max(1e-3, std::abs(t));
+      double gp, gm;
+      if (!column(t + h, &gp) || !column(t - h, &gm)) return std::nullopt;
+      const double slope = (gp - gm) / (2 * h);
+      if (!(std::abs(slope) > 0)) return std::nullopt;
+      const double step = g0 / slope;
+      t -= step;
+      if (std::abs(step) < 1e-13 * std::max(1.0, std::abs(t))) {
+        converged = true;
+        break;
+      }
+    }
+    if (!converged) return std::nullopt;
+  }
+  if (!(t > 0) || !std::isfinite(t)) return std::nullopt;
+  const Vec3d p = o + t * d;
+  if (!(p.z() > 0)) return std::nullopt;
+  return camera_.CentreInWorld() + t * ray_in_world;
+}
+
+}  // namespace mesoscan

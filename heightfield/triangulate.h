@@ -1,0 +1,43 @@
+#pragma once
+// Triangulation of a camera pixel with a decoded projector column: the camera ray (distortion
+// removed, core/camera.h UndistortNormalized) intersected with the projector's surface of constant
+// column u. Without projector distortion that surface is the plane through the projector centre
+// containing the undistorted column (closed form); with distortion the column is a curve, so the
+// point on the camera ray whose projection has column u is found by a 1-D Newton iteration
+// started from the pinhole solution.
+
+#include <optional>
+
+#include "core/camera.h"
+
+namespace mesoscan {
+
+class Triangulator {
+ public:
+  Triangulator(const PinholeCamera& camera, const PinholeCamera& projector);
+
+  // Unit ray direction in world coordinates of camera pixel (x, y) (full-image pixel
+  // coordinates, pixel centres at integers). The ray starts at camera.CentreInWorld().
+  Vec3d CameraRay(double x, double y) const { return camera_.RayDirectionInWorld({x, y}); }
+
+  // The world point on the ray (origin = camera centre, unit `ray_in_world`) whose projection
+  // into the projector has column `u` (projector pixels). nullopt if the ray is parallel to the
+  // column's surface, the point lies behind the camera or the projector, or Newton fails.
+  std::optional<Vec3d> Intersect(const Vec3d& ray_in_world, double u) const;
+
+  // CameraRay + Intersect.
+  std::optional<Vec3d> Triangulate(double x, double y, double u) const {
+    return Intersect(CameraRay(x, y), u);
+  }
+
+  const PinholeCamera& camera() const { return camera_; }
+  const PinholeCamera& projector() const { return projector_; }
+
+ private:
+  PinholeCamera camera_, projector_;
+  Rigid3d proj_from_world_;
+  bool projector_distorted_ = false;
+  bool projector_skewed_ = false;
+};
+
+}  // namespace mesoscan
