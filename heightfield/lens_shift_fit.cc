@@ -1,45 +1,819 @@
 #include "heightfield/lens_shift_fit.h"
 
+#include <ceres/ceres.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+#include <Eigen/LU>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <complex>
+#include <limits>
+#include <memory>
+#include <numbers>
+#include <type_traits>
+
 #include "core/error.h"
 
-// Interim: the implementation lands in the next commit (headers first, so reconstruct can code
-// against them).
 namespace mesoscan {
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+
+// kFast: the data moments W_m = sum y t^m e^{i w_j x} (t = x / X, X = max |x|) are taken around a
+// grid frequency f_j, and sum y e^{i (w_j + eps) x} = sum_m (i eps')^m / m! W_m with
+// eps' = 2 pi (f - f_j) X. Truncating after kOrder leaves a relative error below
+// kRadius^(kOrder+1) / (kOrder+1)! = 0.35^8 / 8! = 5.5e-9 for |eps'| <= kRadius, which sets the
+// grid spacing h = kRadius / (pi X). The data-independent sums (Gram matrix) use order kGramOrder
+// at twice the radius: 0.7^11 / 11! = 5e-10. The residual SSR = sum y^2 - J inherits the
+// truncation: residual_rms has a floor of sqrt(5.5e-9) a = 7.4e-5 a (irrelevant below
+// a / sigma = 1e4); phase, amplitude and frequency are exact to ~1e-8.
+//
+// Float vs double accumulation (LensShiftFitOptions::double_accumulation): the moments are
+// dot products of the centred profile with the basis rows; float rounding of a length-N sum is
+// ~sqrt(N) 6e-8 relative to |W| ~ N a / 2, i.e. ~1e-7 rad of phase whatever the offset (the
+// profile is centred first; uncentred, an offset of 100 a would multiply it by 100). Measured
+// max |phi_float - phi_double|: 1.4e-7 rad (N 50), 1.7e-7 rad (N 200) at offset 100 a and
+// a / sigma = 1000, where sigma_phi = 2.1e-4 / 1.0e-4 rad: below 0.2 % of the noise. But the
+// residual SSR = sum y^2 - J takes the float rounding of J (~1e-7 relative) directly: the
+// residual_rms floor rises from 7.4e-5 a (double) to ~3e-4 a (float), which would bias the
+// confidence of very clean pixels. The speed difference is within our measurement noise (SSE2:
+// 4 float lanes vs 2 double, but the Newton part dominates), so double is the default.
+constexpr int kOrder = 7;
+constexpr int kMoments = 2 * (kOrder + 1);  // real rows: t^m cos, t^m sin
+constexpr int kGramOrder = 10;
+constexpr double kRadius = 0.35;
+// Newton steps beyond the grid radius are still evaluated up to this |eps'| (truncation error
+// 0.5^8 / 8! = 1e-7 relative, transient only) before the moments are re-centred.
+constexpr double kEvalRadius = 0.5;
+// Largest Newton step in eps' (the main lobe of the objective is ~pi / 2 wide in eps').
+constexpr double kMaxStep = 0.25;
+constexpr int kMaxGridHalf = 64;
+constexpr int kStackSamples = 512;
+// Accepting a fit needs a / d above float rounding of a constant profile (6e-8 per sample).
+constexpr double kMinRelativeAmplitude = 1e-5;
+
+using Cd = std::complex<double>;
+
+double WrapPhase(double phi) {
+  // To (-pi, pi].
+  phi = std::remainder(phi, kTwoPi);
+  if (phi <= -kPi) phi += kTwoPi;
+  return phi;
+}
+
+// Horner evaluation of p(e) = sum c_m e^m and its first two derivatives.
+template <int kN>
+void Horner(const std::array<Cd, kN>& c, double e, Cd* p, Cd* p1, Cd* p2) {
+  Cd v = c[kN - 1], d1 = 0.0, d2 = 0.0;
+  for (int m = kN - 2; m >= 0; --m) {
+    d2 = d2 * e + 2.0 * d1;
+    d1 = d1 * e + v;
+    v = v * e + c[m];
+  }
+  *p = v;
+  *p1 = d1;
+  *p2 = d2;
+}
+
+template <int kN>
+Cd HornerValue(const std::array<Cd, kN>& c, double e) {
+  Cd v = c[kN - 1];
+  for (int m = kN - 2; m >= 0; --m) v = v * e + c[m];
+  return v;
+}
+
+// Fills a LensShiftFit from the fitted parameters and decides validity (shared by all fitters).
+LensShiftFit Finalize(double phi, double a, double f, double d, double ssr, int n, int iterations,
+                      bool converged, double f0, const LensShiftFitOptions& options) {
+  LensShiftFit fit;
+  if (a < 0.0) {
+    a = -a;
+    phi += kPi;
+  }
+  const int p = options.fit_frequency ? 4 : 3;
+  ssr = std::max(ssr, 0.0);
+  fit.phase = WrapPhase(phi);
+  fit.amplitude = a;
+  fit.frequency = f;
+  fit.offset = d;
+  fit.samples_used = n;
+  fit.iterations = iterations;
+  fit.converged = converged;
+  fit.residual_rms = n > 0 ? std::sqrt(ssr / n) : 0.0;
+  double snr = 0.0;
+  if (n > p) {
+    const double sigma_hat = std::sqrt(ssr / (n - p));
+    const double sigma_a = sigma_hat * std::sqrt(2.0 / n);
+    fit.phase_sigma = a > 0.0 ? sigma_a / a : std::numeric_limits<double>::infinity();
+    snr = sigma_a > 0.0 ? a / sigma_a : std::numeric_limits<double>::infinity();
+  }
+  const bool finite = std::isfinite(fit.phase) && std::isfinite(a) && std::isfinite(f) &&
+                      std::isfinite(d) && std::isfinite(fit.residual_rms) &&
+                      std::isfinite(fit.phase_sigma);
+  fit.valid = finite && converged && n > p && a > options.min_amplitude &&
+              a > kMinRelativeAmplitude * std::abs(d) && snr >= options.min_amplitude_snr &&
+              std::abs(f - f0) <= options.max_frequency_deviation * std::abs(f0);
+  if (!fit.valid) {
+    // Invalid fits carry finite best-effort values (0 where nothing meaningful exists).
+    for (double* v : {&fit.phase, &fit.amplitude, &fit.frequency, &fit.offset, &fit.residual_rms,
+                      &fit.phase_sigma})
+      if (!std::isfinite(*v)) *v = 0.0;
+  }
+  return fit;
+}
+
+LensShiftFit InvalidFit(int n, double f0) {
+  LensShiftFit fit;
+  fit.samples_used = n;
+  fit.frequency = f0;
+  return fit;
+}
+
+// Linear least squares of b = c0 cos(w x) + c1 sin(w x) + c2 at fixed f (the starting point of
+// the iterative fitters). Returns false if the 3x3 normal matrix is singular.
+bool LinearFitAtFrequency(const float* b, const double* x, int n, double f, double* phi, double* a,
+                          double* d) {
+  Eigen::Matrix3d g = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d q = Eigen::Vector3d::Zero();
+  for (int k = 0; k < n; ++k) {
+    const double th = kTwoPi * f * x[k];
+    const Eigen::Vector3d row(std::cos(th), std::sin(th), 1.0);
+    g += row * row.transpose();
+    q += row * static_cast<double>(b[k]);
+  }
+  Eigen::LDLT<Eigen::Matrix3d> ldlt(g);
+  if (ldlt.info() != Eigen::Success || !(std::abs(g.determinant()) > 1e-12 * n * n * n))
+    return false;
+  const Eigen::Vector3d c = ldlt.solve(q);
+  *phi = std::atan2(c(0), c(1));
+  *a = std::hypot(c(0), c(1));
+  *d = c(2);
+  return std::isfinite(*phi) && std::isfinite(*a) && std::isfinite(*d);
+}
+
+// ---------------------------------------------------------------------------------------------
+// kLm: the paper's two-step Levenberg-Marquardt (Ritz et al. 2012, Sec. 5.2).
+
+double SumSquares(const float* b, const double* x, int n, const Eigen::Vector4d& p) {
+  double s = 0.0;
+  for (int k = 0; k < n; ++k) {
+    const double r = p(1) * std::sin(p(0) + kTwoPi * p(2) * x[k]) + p(3) - b[k];
+    s += r * r;
+  }
+  return s;
+}
+
+LensShiftFit FitLm(const float* b, const double* x, int n, double f0,
+                   const LensShiftFitOptions& options) {
+  const int p = options.fit_frequency ? 4 : 3;
+  if (n < p) return InvalidFit(n, f0);
+  double mean = 0.0;
+  for (int k = 0; k < n; ++k) mean += b[k];
+  mean /= n;
+  double var = 0.0;
+  for (int k = 0; k < n; ++k) var += (b[k] - mean) * (b[k] - mean);
+  var /= n;
+  const double scale = std::sqrt(2.0 * var);  // amplitude of a sine with this variance
+  if (!(scale > 0.0) || !std::isfinite(scale)) return InvalidFit(n, f0);
+
+  // Step 1: phase only, on the normalised profile (b - mean) / scale with a = 1 and f = f0.
+  // Start at the best of 8 phases so the 1-D LM begins inside the right basin.
+  auto cost1 = [&](double phi) {
+    double s = 0.0;
+    for (int k = 0; k < n; ++k) {
+      const double r = std::sin(phi + kTwoPi * f0 * x[k]) - (b[k] - mean) / scale;
+      s += r * r;
+    }
+    return s;
+  };
+  double phi = 0.0, best = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < 8; ++i) {
+    const double c = cost1(i * kPi / 4);
+    if (c < best) best = c, phi = i * kPi / 4;
+  }
+  int iterations = 0;
+  double lambda = 1e-3;
+  for (int it = 0; it < options.max_iterations; ++it, ++iterations) {
+    double jtj = 0.0, jtr = 0.0;
+    for (int k = 0; k < n; ++k) {
+      const double th = phi + kTwoPi * f0 * x[k];
+      const double r = std::sin(th) - (b[k] - mean) / scale;
+      const double j = std::cos(th);
+      jtj += j * j;
+      jtr += j * r;
+    }
+    bool accepted = false;
+    double step = 0.0;
+    for (int tries = 0; tries < 10 && !accepted; ++tries) {
+      step = -jtr / (jtj * (1.0 + lambda) + 1e-300);
+      const double c = cost1(phi + step);
+      if (c <= best) {
+        accepted = true;
+        best = c;
+        phi += step;
+        lambda = std::max(lambda * 0.1, 1e-12);
+      } else {
+        lambda *= 10.0;
+      }
+    }
+    if (!accepted || std::abs(step) < 1e-10) break;
+  }
+
+  // Step 2: all parameters (phi, a, f, d) on the raw profile, Marquardt-scaled damping.
+  Eigen::Vector4d params(phi, scale, f0, mean);
+  double cost = SumSquares(b, x, n, params);
+  lambda = 1e-3;
+  bool converged = false;
+  for (int it = 0; it < options.max_iterations; ++it) {
+    ++iterations;
+    Eigen::Matrix4d jtj = Eigen::Matrix4d::Zero();
+    Eigen::Vector4d jtr = Eigen::Vector4d::Zero();
+    for (int k = 0; k < n; ++k) {
+      const double w = kTwoPi * x[k];
+      const double th = params(0) + w * params(2);
+      const double s = std::sin(th), c = std::cos(th);
+      const double r = params(1) * s + params(3) - b[k];
+      const Eigen::Vector4d j(params(1) * c, s, options.fit_frequency ? params(1) * c * w : 0.0,
+                              1.0);
+      jtj.selfadjointView<Eigen::Lower>().rankUpdate(j);
+      jtr += j * r;
+    }
+    jtj = jtj.selfadjointView<Eigen::Lower>();
+    if (!options.fit_frequency) {
+      jtj.row(2).setZero();
+      jtj.col(2).setZero();
+      jtj(2, 2) = 1.0;
+    }
+    bool accepted = false;
+    Eigen::Vector4d step = Eigen::Vector4d::Zero();
+    for (int tries = 0; tries < 10 && !accepted; ++tries) {
+      Eigen::Matrix4d a = jtj;
+      a.diagonal() *= 1.0 + lambda;
+      step = -a.ldlt().solve(jtr);
+      if (!step.allFinite()) {
+        lambda *= 10.0;
+        continue;
+      }
+      const double c = SumSquares(b, x, n, params + step);
+      if (c <= cost) {
+        accepted = true;
+        params += step;
+        const double rel = (cost - c) / std::max(cost, 1e-300);
+        cost = c;
+        lambda = std::max(lambda * 0.1, 1e-12);
+        if (std::abs(step(2)) < options.frequency_tolerance && rel < 1e-12) converged = true;
+      } else {
+        lambda *= 10.0;
+      }
+    }
+    if (!accepted) {
+      // No downhill step even with heavy damping: at the minimum to machine precision.
+      converged = true;
+      break;
+    }
+    if (converged) break;
+  }
+  return Finalize(params(0), params(1), params(2), params(3), cost, n, iterations, converged, f0,
+                  options);
+}
+
+// ---------------------------------------------------------------------------------------------
+// kCeres: the reference. Parameters (phi, a, d) and f in two blocks so f can be held constant.
+
+struct ProfileResidual {
+  ProfileResidual(const float* b, const double* x, int n) : b(b), x(x), n(n) {}
+  template <typename T>
+  bool operator()(const T* pad, const T* f, T* residuals) const {
+    for (int k = 0; k < n; ++k)
+      residuals[k] = pad[1] * sin(pad[0] + kTwoPi * f[0] * x[k]) + pad[2] - T(b[k]);
+    return true;
+  }
+  const float* b;
+  const double* x;
+  int n;
+};
+
+LensShiftFit FitCeres(const float* b, const double* x, int n, double f0,
+                      const LensShiftFitOptions& options) {
+  const int p = options.fit_frequency ? 4 : 3;
+  if (n < p) return InvalidFit(n, f0);
+  double pad[3];
+  if (!LinearFitAtFrequency(b, x, n, f0, &pad[0], &pad[1], &pad[2])) return InvalidFit(n, f0);
+  double f = f0;
+  ceres::Problem::Options problem_options;
+  problem_options.enable_fast_removal = false;
+  ceres::Problem problem(problem_options);
+  auto* cost = new ceres::AutoDiffCostFunction<ProfileResidual, ceres::DYNAMIC, 3, 1>(
+      new ProfileResidual(b, x, n), n);
+  problem.AddResidualBlock(cost, nullptr, pad, &f);
+  if (!options.fit_frequency) problem.SetParameterBlockConstant(&f);
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::DENSE_QR;
+  solver_options.max_num_iterations = options.max_iterations;
+  solver_options.function_tolerance = 1e-14;
+  solver_options.gradient_tolerance = 1e-16;
+  solver_options.parameter_tolerance = 1e-12;
+  solver_options.logging_type = ceres::SILENT;
+  solver_options.minimizer_progress_to_stdout = false;
+  solver_options.num_threads = 1;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &problem, &summary);
+  const bool converged = summary.termination_type == ceres::CONVERGENCE;
+  return Finalize(pad[0], pad[1], f, pad[2], 2.0 * summary.final_cost, n,
+                  static_cast<int>(summary.iterations.size()), converged, f0, options);
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// kFast tables and fitter
+
+struct LensShiftBatchFitter::Tables {
+  int n = 0;
+  double x_scale = 1.0;  // X = max |x|
+  double h = 0.0;        // grid spacing (cycles / px)
+  int grid_half = 0;     // grid f_j = f0 + j h, j in [-grid_half, grid_half]
+  // Per grid point: kMoments x n row-major basis rows t^m cos(w_j x), t^m sin(w_j x), in float
+  // and double (the accumulation type is an option).
+  std::vector<Eigen::Matrix<float, kMoments, Eigen::Dynamic, Eigen::RowMajor>> basis_f;
+  std::vector<Eigen::Matrix<double, kMoments, Eigen::Dynamic, Eigen::RowMajor>> basis_d;
+  // Per grid point: Horner coefficients in eps' of sum e^{i (w_j + eps) x} and of
+  // sum e^{2 i (w_j + eps) x}.
+  std::vector<std::array<Cd, kGramOrder + 1>> e1, e2;
+};
+
+namespace {
+
+struct Objective {
+  double j = 0, j1 = 0, j2 = 0;  // projected energy q^T G^-1 q and its eps' derivatives
+  double c[3] = {0, 0, 0};       // coefficients of (cos, sin, 1) at eps'
+  double dc[3] = {0, 0, 0};      // their eps' derivatives (with `derivatives` only)
+  bool ok = false;
+};
+
+// J(eps') = q^T G^-1 q (variable projection: sum y^2 - J is the residual of the best linear fit
+// at that frequency), with derivatives for Newton. G = [[A, B, C], [B, D, E], [C, E, n]] over
+// the basis (cos, sin, 1) and q = (u, v, y0); the constant column is eliminated by its Schur
+// complement, leaving a 2x2 system (scalar code: this runs a few times per pixel).
+Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
+                   const std::array<Cd, kGramOrder + 1>& e1c,
+                   const std::array<Cd, kGramOrder + 1>& e2c, double n, double eps,
+                   bool derivatives) {
+  Objective o;
+  Cd z, z1 = 0.0, z2 = 0.0, e1, e11 = 0.0, e12 = 0.0, e2, e21 = 0.0, e22 = 0.0;
+  if (derivatives) {
+    Horner<kOrder + 1>(z_coef, eps, &z, &z1, &z2);
+    // E1 and E2 in one loop: two independent dependency chains.
+    Cd v1 = e1c[kGramOrder], v2 = e2c[kGramOrder];
+    for (int m = kGramOrder - 1; m >= 0; --m) {
+      e12 = e12 * eps + 2.0 * e11;
+      e22 = e22 * eps + 2.0 * e21;
+      e11 = e11 * eps + v1;
+      e21 = e21 * eps + v2;
+      v1 = v1 * eps + e1c[m];
+      v2 = v2 * eps + e2c[m];
+    }
+    e1 = v1;
+    e2 = v2;
+  } else {
+    z = HornerValue<kOrder + 1>(z_coef, eps);
+    Cd v1 = e1c[kGramOrder], v2 = e2c[kGramOrder];
+    for (int m = kGramOrder - 1; m >= 0; --m) {
+      v1 = v1 * eps + e1c[m];
+      v2 = v2 * eps + e2c[m];
+    }
+    e1 = v1;
+    e2 = v2;
+  }
+  const double inv_n = 1.0 / n;
+  const double C = e1.real(), E = e1.imag();
+  // Reduced 2x2 system M c = w after eliminating the constant.
+  const double a = 0.5 * (n + e2.real()) - C * C * inv_n;
+  const double b = 0.5 * e2.imag() - C * E * inv_n;
+  const double d = 0.5 * (n - e2.real()) - E * E * inv_n;
+  const double wu = z.real() - C * y0 * inv_n;
+  const double wv = z.imag() - E * y0 * inv_n;
+  const double det = a * d - b * b;
+  if (!(det > 1e-12 * n * n)) return o;
+  const double inv_det = 1.0 / det;
+  const double cc = (d * wu - b * wv) * inv_det;
+  const double cs = (a * wv - b * wu) * inv_det;
+  o.c[0] = cc;
+  o.c[1] = cs;
+  o.c[2] = (y0 - C * cc - E * cs) * inv_n;
+  o.j = wu * cc + wv * cs + y0 * y0 * inv_n;
+  o.ok = std::isfinite(o.j);
+  if (!derivatives) return o;
+  // First and second eps' derivatives of the reduced system.
+  const double C1 = e11.real(), E1 = e11.imag(), C2 = e12.real(), E2 = e12.imag();
+  const double a1 = 0.5 * e21.real() - 2.0 * C * C1 * inv_n;
+  const double b1 = 0.5 * e21.imag() - (C1 * E + C * E1) * inv_n;
+  const double d1 = -0.5 * e21.real() - 2.0 * E * E1 * inv_n;
+  const double a2 = 0.5 * e22.real() - 2.0 * (C1 * C1 + C * C2) * inv_n;
+  const double b2 = 0.5 * e22.imag() - (C2 * E + 2.0 * C1 * E1 + C * E2) * inv_n;
+  const double d2 = -0.5 * e22.real() - 2.0 * (E1 * E1 + E * E2) * inv_n;
+  const double wu1 = z1.real() - C1 * y0 * inv_n, wv1 = z1.imag() - E1 * y0 * inv_n;
+  const double wu2 = z2.real() - C2 * y0 * inv_n, wv2 = z2.imag() - E2 * y0 * inv_n;
+  // M' c and c' = M^-1 (w' - M' c).
+  const double mc_u = a1 * cc + b1 * cs, mc_v = b1 * cc + d1 * cs;
+  const double ru = wu1 - mc_u, rv = wv1 - mc_v;
+  const double cc1 = (d * ru - b * rv) * inv_det;
+  const double cs1 = (a * rv - b * ru) * inv_det;
+  o.dc[0] = cc1;
+  o.dc[1] = cs1;
+  o.dc[2] = -(C1 * cc + C * cc1 + E1 * cs + E * cs1) * inv_n;
+  o.j1 = 2.0 * (wu1 * cc + wv1 * cs) - (cc * mc_u + cs * mc_v);
+  const double m2c = cc * (a2 * cc + b2 * cs) + cs * (b2 * cc + d2 * cs);
+  o.j2 = 2.0 * (wu2 * cc + wv2 * cs) + 2.0 * (wu1 * cc1 + wv1 * cs1) -
+         2.0 * (cc1 * mc_u + cs1 * mc_v) - m2c;
+  o.ok = o.ok && std::isfinite(o.j1) && std::isfinite(o.j2);
+  return o;
+}
+
+// Moments of the centred profile y at grid point gi: Horner coefficients i^m W_m / m! and
+// y0 = sum y.
+template <typename Scalar, typename Basis>
+void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder + 1>* z_coef) {
+  const Eigen::Map<const Eigen::Matrix<Scalar, Eigen::Dynamic, 1>> yv(y, n);
+  const Eigen::Matrix<Scalar, kMoments, 1> w = basis * yv;
+  // i^m W_m / m! with i^m applied as a rotation (no complex multiply).
+  constexpr std::array<double, kOrder + 1> kInvFact = [] {
+    std::array<double, kOrder + 1> f{};
+    double v = 1.0;
+    for (int m = 0; m <= kOrder; ++m) {
+      if (m > 0) v /= m;
+      f[m] = v;
+    }
+    return f;
+  }();
+  for (int m = 0; m <= kOrder; ++m) {
+    const double re = kInvFact[m] * w(2 * m), im = kInvFact[m] * w(2 * m + 1);
+    switch (m & 3) {
+      case 0: (*z_coef)[m] = Cd(re, im); break;
+      case 1: (*z_coef)[m] = Cd(-im, re); break;
+      case 2: (*z_coef)[m] = Cd(-re, -im); break;
+      default: (*z_coef)[m] = Cd(im, -re); break;
+    }
+  }
+}
+
+}  // namespace
+
+namespace {
+
+// The kFast fit of one all-finite profile b (n samples, gathered contiguously).
+template <typename Scalar>
+LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, float mean,
+                     double f0, double f_start, const LensShiftFitOptions& options, Scalar* y) {
+  const int n = t.n;
+  const int p = options.fit_frequency ? 4 : 3;
+  if (n < p) return InvalidFit(n, f0);
+  // Centre the profile on its mean (any reference works: it is added back to d). The moments
+  // then scale with the amplitude, not with the offset: float accumulation and Taylor
+  // truncation errors stay relative to a.
+  const Eigen::Map<const Eigen::ArrayXf> bv(b, n);
+  Eigen::Map<Eigen::Array<Scalar, Eigen::Dynamic, 1>> yv(y, n);
+  yv = (bv - mean).template cast<Scalar>();
+  const double y0 = static_cast<double>(yv.sum());
+  const double y2 = static_cast<double>(yv.square().sum());
+  const double two_pi_x = kTwoPi * t.x_scale;
+  // Grid point nearest to the starting frequency.
+  auto nearest = [&](double f) {
+    return static_cast<int>(std::nearbyint((f - f0) / t.h));
+  };
+  int j = nearest(f_start);
+  if (std::abs(j) > t.grid_half) return InvalidFit(n, f0);
+  double eps = two_pi_x * (f_start - (f0 + j * t.h));
+  std::array<Cd, kOrder + 1> z_coef;
+  auto moments = [&](int jj) {
+    if constexpr (std::is_same_v<Scalar, float>)
+      Moments<float>(t.basis_f[jj + t.grid_half], y, n, &z_coef);
+    else
+      Moments<double>(t.basis_d[jj + t.grid_half], y, n, &z_coef);
+  };
+  moments(j);
+  const double nd = n;
+  auto eval = [&](double e, bool derivs) {
+    return Evaluate(z_coef, y0, t.e1[j + t.grid_half], t.e2[j + t.grid_half], nd, e, derivs);
+  };
+  Objective o = eval(eps, options.fit_frequency);
+  if (!o.ok) return InvalidFit(n, f0);
+  int iterations = 0;
+  bool converged = !options.fit_frequency;
+  const double eps_tol = options.frequency_tolerance * two_pi_x;
+  // Newton converges quadratically: after a step s the error is ~ kQuadratic s^2 (kQuadratic
+  // ~ |J''' / 2 J''| ~ 1 for the main lobe; 4 for margin), so a step below final_step is the
+  // last one needed.
+  constexpr double kQuadratic = 4.0;
+  const double final_step = std::sqrt(eps_tol / kQuadratic);
+  while (!converged && iterations < options.max_iterations) {
+    ++iterations;
+    // Newton step on J'(eps') = 0 towards a maximum; uphill gradient step where J is not concave.
+    double step = o.j2 < 0.0 ? -o.j1 / o.j2 : (o.j1 > 0.0 ? kMaxStep : -kMaxStep);
+    step = std::clamp(step, -kMaxStep, kMaxStep);
+    if (o.j2 < 0.0 && std::abs(step) < final_step && std::abs(eps + step) <= kEvalRadius) {
+      // Converged: the remaining error after this Newton step is below the tolerance; take it
+      // without a line search, extrapolating the coefficients to first order (their error is
+      // O(step^2), below 1e-7 relative) and J to second order.
+      eps += step;
+      for (int i = 0; i < 3; ++i) o.c[i] += o.dc[i] * step;
+      o.j += step * (o.j1 + 0.5 * step * o.j2);
+      converged = true;
+      break;
+    }
+    Objective next;
+    bool accepted = false;
+    for (int halving = 0; halving < 12; ++halving) {
+      const double e = std::clamp(eps + step, -kEvalRadius, kEvalRadius);
+      next = eval(e, true);
+      if (next.ok && next.j >= o.j - 1e-15 * std::abs(o.j)) {
+        step = e - eps;
+        accepted = true;
+        break;
+      }
+      step *= 0.5;
+    }
+    if (!accepted) {
+      // No uphill step at any scale: the maximum to machine precision.
+      converged = true;
+      break;
+    }
+    eps += step;
+    o = next;
+    if (std::abs(step) < eps_tol) converged = true;
+    if (std::abs(eps) > kRadius) {
+      // Re-centre the Taylor expansion on the grid point nearest to the current frequency.
+      const double f = f0 + j * t.h + eps / two_pi_x;
+      const int jn = nearest(f);
+      if (std::abs(jn) > t.grid_half) return Finalize(0, 0, f, mean, 0, n, iterations, false, f0,
+                                                      options);  // frequency out of range
+      j = jn;
+      eps = two_pi_x * (f - (f0 + j * t.h));
+      moments(j);
+      o = eval(eps, true);
+      if (!o.ok) return InvalidFit(n, f0);
+    }
+  }
+  const double f = f0 + j * t.h + eps / two_pi_x;
+  // Model y = c0 cos + c1 sin + c2 = a sin(phi + theta) + c2: c0 = a sin phi, c1 = a cos phi.
+  const double phi = std::atan2(o.c[0], o.c[1]);
+  const double a = std::hypot(o.c[0], o.c[1]);
+  const double ssr = y2 - o.j;
+  return Finalize(phi, a, f, o.c[2] + mean, ssr, n, iterations, converged, f0, options);
+}
+
+// Copies the finite samples (and their positions) of a strided profile.
+int GatherFinite(const float* b, int stride, const double* x, int n, std::vector<float>* bf,
+                 std::vector<double>* xf) {
+  bf->clear();
+  xf->clear();
+  for (int k = 0; k < n; ++k) {
+    const float v = b[static_cast<std::ptrdiff_t>(k) * stride];
+    if (std::isfinite(v)) {
+      bf->push_back(v);
+      xf->push_back(x[k]);
+    }
+  }
+  return static_cast<int>(bf->size());
+}
+
+std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vector<double>& x,
+                                                                double f0,
+                                                                const LensShiftFitOptions& o) {
+  auto t = std::make_shared<LensShiftBatchFitter::Tables>();
+  const int n = static_cast<int>(x.size());
+  t->n = n;
+  double xmax = 0.0;
+  for (double v : x) xmax = std::max(xmax, std::abs(v));
+  t->x_scale = xmax > 0.0 ? xmax : 1.0;
+  t->h = kRadius / (kPi * t->x_scale);
+  const double span = o.max_frequency_deviation * std::abs(f0);
+  t->grid_half = std::min(kMaxGridHalf, static_cast<int>(std::ceil(span / t->h)) + 1);
+  const int grid = 2 * t->grid_half + 1;
+  t->basis_f.resize(grid);
+  t->basis_d.resize(grid);
+  t->e1.resize(grid);
+  t->e2.resize(grid);
+  for (int g = 0; g < grid; ++g) {
+    const double fj = f0 + (g - t->grid_half) * t->h;
+    auto& bd = t->basis_d[g];
+    bd.resize(kMoments, n);
+    std::array<Cd, kGramOrder + 1> p1{}, p2{};  // sum t^m e^{i w x}, sum t^m e^{2 i w x}
+    for (int k = 0; k < n; ++k) {
+      const double tk = x[k] / t->x_scale;
+      const double th = kTwoPi * fj * x[k];
+      const Cd e(std::cos(th), std::sin(th));
+      const Cd ee(std::cos(2.0 * th), std::sin(2.0 * th));
+      double tm = 1.0;
+      for (int m = 0; m <= kGramOrder; ++m) {
+        if (m <= kOrder) {
+          bd(2 * m, k) = tm * e.real();
+          bd(2 * m + 1, k) = tm * e.imag();
+        }
+        p1[m] += tm * e;
+        p2[m] += tm * ee;
+        tm *= tk;
+      }
+    }
+    t->basis_f[g] = bd.cast<float>();
+    // Horner coefficients: sum e^{i (w + eps) x} = sum_m (i eps')^m / m! P_m, and with 2 i eps'
+    // for the doubled frequency.
+    double inv_fact = 1.0;
+    Cd i1 = 1.0, i2 = 1.0;
+    for (int m = 0; m <= kGramOrder; ++m) {
+      if (m > 0) inv_fact /= m, i1 *= Cd(0.0, 1.0), i2 *= Cd(0.0, 2.0);
+      t->e1[g][m] = i1 * inv_fact * p1[m];
+      t->e2[g][m] = i2 * inv_fact * p2[m];
+    }
+  }
+  return t;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Public API
 
 const char* LensShiftFitterName(LensShiftFitter fitter) {
   switch (fitter) {
-    case LensShiftFitter::kFast: return "fast";
-    case LensShiftFitter::kLm: return "lm";
-    case LensShiftFitter::kCeres: return "ceres";
+    case LensShiftFitter::kFast:
+      return "fast";
+    case LensShiftFitter::kLm:
+      return "lm";
+    case LensShiftFitter::kCeres:
+      return "ceres";
   }
   return "?";
 }
+
 LensShiftFitter ParseLensShiftFitter(const std::string& name, const std::string& what) {
   if (name == "fast") return LensShiftFitter::kFast;
   if (name == "lm") return LensShiftFitter::kLm;
   if (name == "ceres") return LensShiftFitter::kCeres;
   MESOSCAN_BAD_INPUT(what << ": unknown fitter '" << name << "' (expected fast, lm or ceres)");
 }
-void LensShiftFitOptions::Check() const {}
-struct LensShiftBatchFitter::Tables {};
-LensShiftFit FitLensShiftProfile(const float*, const double*, int, double,
-                                 const LensShiftFitOptions&, int) {
-  MESOSCAN_THROW(ErrorKind::kInternal, "FitLensShiftProfile: not implemented yet");
+
+void LensShiftFitOptions::Check() const {
+  if (max_iterations < 1)
+    MESOSCAN_BAD_INPUT("lens-shift fit: max_iterations " << max_iterations << " must be >= 1");
+  if (!(frequency_tolerance > 0.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: frequency_tolerance " << frequency_tolerance
+                                                              << " must be > 0");
+  if (!(max_frequency_deviation > 0.0 && max_frequency_deviation < 1.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: max_frequency_deviation " << max_frequency_deviation
+                                                                  << " must be in (0, 1)");
+  if (!(min_amplitude_snr >= 0.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: min_amplitude_snr " << min_amplitude_snr
+                                                            << " must be >= 0");
+  if (!(min_amplitude >= 0.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: min_amplitude " << min_amplitude << " must be >= 0");
 }
+
+LensShiftFit FitLensShiftProfile(const float* b, const double* x, int n, double f0,
+                                 const LensShiftFitOptions& options, int stride) {
+  std::vector<float> bf;
+  std::vector<double> xf;
+  const int used = GatherFinite(b, stride, x, n, &bf, &xf);
+  if (!(std::isfinite(f0) && f0 != 0.0)) return InvalidFit(used, f0);
+  for (double v : xf)
+    if (!std::isfinite(v)) return InvalidFit(used, f0);
+  switch (options.fitter) {
+    case LensShiftFitter::kLm:
+      return FitLm(bf.data(), xf.data(), used, f0, options);
+    case LensShiftFitter::kCeres:
+      return FitCeres(bf.data(), xf.data(), used, f0, options);
+    case LensShiftFitter::kFast:
+      break;
+  }
+  const auto tables = BuildTables(xf, f0, options);
+  std::vector<double> y(std::max(used, 1));
+  const float mean = used > 0 ? Eigen::Map<const Eigen::ArrayXf>(bf.data(), used).mean() : 0.0f;
+  return FastFit<double>(*tables, bf.data(), mean, f0, f0, options, y.data());
+}
+
 LensShiftBatchFitter::LensShiftBatchFitter(std::vector<double> x, double f0,
                                            const LensShiftFitOptions& options)
     : x_(std::move(x)), f0_(f0), options_(options) {
-  MESOSCAN_THROW(ErrorKind::kInternal, "LensShiftBatchFitter: not implemented yet");
+  options_.Check();
+  if (x_.empty()) MESOSCAN_BAD_INPUT("lens-shift fit: no shift positions");
+  for (double v : x_)
+    if (!std::isfinite(v)) MESOSCAN_BAD_INPUT("lens-shift fit: a shift position is not finite");
+  if (!(std::isfinite(f0_) && f0_ != 0.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: nominal frequency " << f0_ << " must be finite and != 0");
+  if (options_.fitter == LensShiftFitter::kFast) tables_ = BuildTables(x_, f0_, options_);
 }
-LensShiftFit LensShiftBatchFitter::Fit(const float*, int) const { return {}; }
-LensShiftFit LensShiftBatchFitter::Fit(const float*, int, double) const { return {}; }
+
+LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride) const {
+  return Fit(b, stride, f0_);
+}
+
+LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride, double f_start) const {
+  const int n = num_samples();
+  // Gather into a contiguous buffer (stack for the usual sizes) unless already contiguous.
+  std::array<float, kStackSamples> stack_b;
+  std::vector<float> heap_b;
+  const float* buf = b;
+  if (stride != 1) {
+    float* dst = stack_b.data();
+    if (n > kStackSamples) {
+      heap_b.resize(n);
+      dst = heap_b.data();
+    }
+    for (int k = 0; k < n; ++k) dst[k] = b[static_cast<std::ptrdiff_t>(k) * stride];
+    buf = dst;
+  }
+  // One vectorised pass: the mean (centring reference) and the finiteness of every sample
+  // (NaN/Inf make the sum non-finite; so does overflow, which the fallback handles too).
+  const float sum = Eigen::Map<const Eigen::ArrayXf>(buf, n).sum();
+  if (!std::isfinite(sum) || !std::isfinite(f_start)) {
+    // NaN/Inf samples (or an overflowing sum): fit the finite samples on their own positions.
+    LensShiftFitOptions o = options_;
+    std::vector<float> bf;
+    std::vector<double> xf;
+    const int used = GatherFinite(buf, 1, x_.data(), n, &bf, &xf);
+    if (!std::isfinite(f_start)) return InvalidFit(used, f0_);
+    LensShiftFit fit = FitLensShiftProfile(bf.data(), xf.data(), used, f_start, o);
+    // Validity bounds are relative to f0, not to the start.
+    if (fit.valid && std::abs(fit.frequency - f0_) > o.max_frequency_deviation * std::abs(f0_))
+      fit.valid = false;
+    return fit;
+  }
+  switch (options_.fitter) {
+    case LensShiftFitter::kLm: {
+      LensShiftFit fit = FitLm(buf, x_.data(), n, f_start, options_);
+      if (fit.valid && std::abs(fit.frequency - f0_) > options_.max_frequency_deviation *
+                                                           std::abs(f0_))
+        fit.valid = false;
+      return fit;
+    }
+    case LensShiftFitter::kCeres: {
+      LensShiftFit fit = FitCeres(buf, x_.data(), n, f_start, options_);
+      if (fit.valid && std::abs(fit.frequency - f0_) > options_.max_frequency_deviation *
+                                                           std::abs(f0_))
+        fit.valid = false;
+      return fit;
+    }
+    case LensShiftFitter::kFast:
+      break;
+  }
+  if (options_.double_accumulation) {
+    std::array<double, kStackSamples> stack_y;
+    std::vector<double> heap_y;
+    double* y = stack_y.data();
+    if (n > kStackSamples) {
+      heap_y.resize(n);
+      y = heap_y.data();
+    }
+    return FastFit<double>(*tables_, buf, sum / n, f0_, f_start, options_, y);
+  }
+  std::array<float, kStackSamples> stack_y;
+  std::vector<float> heap_y;
+  float* y = stack_y.data();
+  if (n > kStackSamples) {
+    heap_y.resize(n);
+    y = heap_y.data();
+  }
+  return FastFit<float>(*tables_, buf, sum / n, f0_, f_start, options_, y);
+}
+
 int LensShiftBatchFitter::num_samples() const { return static_cast<int>(x_.size()); }
 const std::vector<double>& LensShiftBatchFitter::positions() const { return x_; }
 double LensShiftBatchFitter::nominal_frequency() const { return f0_; }
 const LensShiftFitOptions& LensShiftBatchFitter::options() const { return options_; }
-double LensShiftPhaseCrlbAt(double, double, const std::vector<double>&, double, double, bool) {
-  return 0;
+
+double LensShiftPhaseCrlbAt(double sigma, double amplitude, const std::vector<double>& x, double f,
+                            double phase, bool fit_frequency) {
+  // Fisher information F = J^T J / sigma^2 of b = a sin(phi + 2 pi f x) + d, columns
+  // d/dphi = a cos psi, d/da = sin psi, d/df = 2 pi x a cos psi, d/dd = 1.
+  Eigen::Matrix4d jtj = Eigen::Matrix4d::Zero();
+  for (double xk : x) {
+    const double psi = phase + kTwoPi * f * xk;
+    const Eigen::Vector4d j(amplitude * std::cos(psi), std::sin(psi),
+                            kTwoPi * xk * amplitude * std::cos(psi), 1.0);
+    jtj += j * j.transpose();
+  }
+  if (!fit_frequency) {
+    Eigen::Matrix3d m;
+    const int idx[3] = {0, 1, 3};
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) m(r, c) = jtj(idx[r], idx[c]);
+    return sigma * sigma * m.inverse()(0, 0);
+  }
+  return sigma * sigma * jtj.inverse()(0, 0);
 }
-double LensShiftPhaseCrlb(double, double, const std::vector<double>&, double, bool) { return 0; }
+
+double LensShiftPhaseCrlb(double sigma, double amplitude, const std::vector<double>& x, double f,
+                          bool fit_frequency) {
+  // var(phi) is a smooth periodic function of phi (harmonics of 2 phi from sin^2, cos^2): 64
+  // evenly spaced phases average it exactly to rounding for all practical x.
+  constexpr int kPhases = 64;
+  double s = 0.0;
+  for (int i = 0; i < kPhases; ++i)
+    s += LensShiftPhaseCrlbAt(sigma, amplitude, x, f, kTwoPi * i / kPhases, fit_frequency);
+  return s / kPhases;
+}
 
 }  // namespace mesoscan

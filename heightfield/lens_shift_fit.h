@@ -42,7 +42,7 @@ struct LensShiftFitOptions {
   // iterations for kCeres), >= 1. Every fitter stops after at most this many.
   int max_iterations = 20;
   // Convergence: stop when a step changes f by less than this (cycles per projector px), > 0.
-  double frequency_tolerance = 1e-9;
+  double frequency_tolerance = 1e-7;
   // Fit the per-pixel frequency (4 parameters). false: f stays at the starting frequency and
   // only (phi, a, d) are fitted (3 parameters, a linear problem).
   bool fit_frequency = true;
@@ -57,6 +57,13 @@ struct LensShiftFitOptions {
   // valid requires a > min_amplitude (data units, >= 0) and a > 1e-5 |d| (float rounding of a
   // constant profile).
   double min_amplitude = 0.0;
+  // kFast only: accumulate the per-pixel moments in double (true) or float (false). Both work
+  // on the mean-centred profile. Measured (bench_fitters, lens_shift_fit_test): float moves the
+  // phase by <= 1.8e-7 rad (N 50-200, offset / amplitude 100, a / sigma 1000: <= 0.2 % of
+  // sigma_phi), but its rounding enters SSR = sum y^2 - J directly and lifts the residual_rms
+  // floor from 7.4e-5 a to ~3e-4 a, for a speed gain within the noise of our measurements.
+  // Double is the default.
+  bool double_accumulation = true;
 
   void Check() const;  // throws mesoscan::Error (bad input) naming the offending field
 };

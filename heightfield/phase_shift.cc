@@ -1,23 +1,247 @@
 #include "heightfield/phase_shift.h"
 
+#include <Eigen/Core>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <numbers>
+
 #include "core/error.h"
 
-// Interim: the implementation lands in the next commit (headers first, so reconstruct can code
-// against them).
 namespace mesoscan {
+namespace {
+
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+
+// Signed distance of t to the nearest integer, in [-0.5, 0.5].
+inline double WrapCycles(double t) { return t - std::nearbyint(t); }
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// WrappedPhaseSolver
 
 WrappedPhaseSolver::WrappedPhaseSolver(std::vector<double> deltas) : deltas_(std::move(deltas)) {
-  MESOSCAN_THROW(ErrorKind::kInternal, "WrappedPhaseSolver: not implemented yet");
+  const int k = static_cast<int>(deltas_.size());
+  if (k < 3)
+    MESOSCAN_BAD_INPUT("phase shifting: " << k << " phase offsets given, at least 3 are needed");
+  for (double d : deltas_)
+    if (!std::isfinite(d)) MESOSCAN_BAD_INPUT("phase shifting: a phase offset is not finite");
+  // Design matrix of I_k = A + (B cos theta) cos delta_k + (B sin theta) (-sin delta_k).
+  Eigen::MatrixXd m(k, 3);
+  for (int i = 0; i < k; ++i) m.row(i) << 1.0, std::cos(deltas_[i]), -std::sin(deltas_[i]);
+  const Eigen::Matrix3d mtm = m.transpose() * m;
+  // Fewer than 3 distinct offsets mod 2 pi make M^T M singular; the smallest eigenvalue of a
+  // well-posed set is O(K) (equal steps: K/2), so a relative threshold tells them apart.
+  const double min_eig = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(mtm).eigenvalues()(0);
+  if (!(min_eig > 1e-6 * k))
+    MESOSCAN_BAD_INPUT("phase shifting: the " << k
+                                              << " phase offsets do not determine the phase (fewer "
+                                                 "than 3 distinct values modulo 2 pi)");
+  const Eigen::Matrix3d inv = mtm.inverse();
+  const Eigen::MatrixXd pinv = inv * m.transpose();  // 3 x K
+  pinv_.resize(3 * k);
+  for (int r = 0; r < 3; ++r)
+    for (int i = 0; i < k; ++i) pinv_[r * k + i] = pinv(r, i);
+  cov_cc_ = inv(1, 1);
+  cov_ss_ = inv(2, 2);
+  cov_cs_ = inv(1, 2);
 }
-WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float*, int) const { return {}; }
-double WrappedPhaseSolver::ThetaVarianceAt(double, double, double) const { return 0; }
-double WrappedPhaseSolver::ThetaVariance(double, double) const { return 0; }
+
+WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int stride) const {
+  const int k = num_samples();
+  Result result;
+  double a = 0.0, c = 0.0, s = 0.0;
+  for (int i = 0; i < k; ++i) {
+    const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
+    if (!std::isfinite(v)) return result;  // valid == false, all fields 0
+    a += pinv_[i] * v;
+    c += pinv_[k + i] * v;
+    s += pinv_[2 * k + i] * v;
+  }
+  double ssr = 0.0;
+  for (int i = 0; i < k; ++i) {
+    const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
+    const double r = v - (a + c * std::cos(deltas_[i]) - s * std::sin(deltas_[i]));
+    ssr += r * r;
+  }
+  double theta = std::atan2(s, c);
+  if (theta < 0.0) theta += kTwoPi;
+  float theta_f = static_cast<float>(theta);
+  if (theta_f >= static_cast<float>(kTwoPi)) theta_f = 0.0f;  // float rounding of 2 pi - tiny
+  result.theta = theta_f;
+  result.modulation = static_cast<float>(std::hypot(c, s));
+  result.offset = static_cast<float>(a);
+  result.residual_rms = static_cast<float>(std::sqrt(ssr / k));
+  result.valid = true;
+  return result;
+}
+
+double WrappedPhaseSolver::ThetaVarianceAt(double sigma, double modulation, double theta) const {
+  // theta = atan2(S, C) with (C, S) = B (cos theta, sin theta) and Cov(C, S) = sigma^2 (M^T M)^-1:
+  // var(theta) = g^T Cov g with g = (-sin theta, cos theta) / B (first-order propagation).
+  const double sn = std::sin(theta), cs = std::cos(theta);
+  const double q = sn * sn * cov_cc_ - 2.0 * sn * cs * cov_cs_ + cs * cs * cov_ss_;
+  return sigma * sigma * q / (modulation * modulation);
+}
+
+double WrappedPhaseSolver::ThetaVariance(double sigma, double modulation) const {
+  // The theta average of sin^2 and cos^2 is 1/2, of sin cos 0.
+  return sigma * sigma * 0.5 * (cov_cc_ + cov_ss_) / (modulation * modulation);
+}
+
+// ---------------------------------------------------------------------------------------------
+// TemporalUnwrapper
 
 TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_px,
                                      double max_residual)
     : periods_(std::move(periods)), range_px_(range_px), max_residual_(max_residual) {
-  MESOSCAN_THROW(ErrorKind::kInternal, "TemporalUnwrapper: not implemented yet");
+  if (periods_.empty()) MESOSCAN_BAD_INPUT("unwrapping: no phase-shift period given");
+  for (double p : periods_)
+    if (!(std::isfinite(p) && p > 0.0))
+      MESOSCAN_BAD_INPUT("unwrapping: period " << p << " px is not a positive number");
+  if (!(std::isfinite(range_px_) && range_px_ > 0.0))
+    MESOSCAN_BAD_INPUT("unwrapping: projector width " << range_px_ << " px is not positive");
+  if (!(max_residual_ > 0.0))
+    MESOSCAN_BAD_INPUT("unwrapping: max_residual " << max_residual_ << " must be > 0");
+  order_.resize(periods_.size());
+  for (size_t i = 0; i < order_.size(); ++i) order_[i] = static_cast<int>(i);
+  std::stable_sort(order_.begin(), order_.end(),
+                   [&](int i, int j) { return periods_[i] > periods_[j]; });
+  anchor_ = order_[0];
+
+  // Separation: min over column distances D in [p_min / 2, R - 1] of the max over periods of the
+  // circular distance of D / p in cycles. The max is piecewise linear in D with slopes <= 1 /
+  // p_min, so sampling D every 0.002 p_min finds the minimum within 0.001 cycles.
+  const double p_min = *std::min_element(periods_.begin(), periods_.end());
+  const double step = 0.002 * p_min;
+  const double d_end = range_px_ - 1.0;
+  separation_cycles_ = 0.5;
+  if (d_end > 0.5 * p_min) {
+    const double n_steps = std::ceil((d_end - 0.5 * p_min) / step);
+    if (n_steps > 5e7)
+      MESOSCAN_BAD_INPUT("unwrapping: projector width " << range_px_ << " px is too large for the "
+                                                        << "finest period " << p_min << " px");
+    for (int64_t i = 0; i <= static_cast<int64_t>(n_steps); ++i) {
+      const double d = std::min(0.5 * p_min + static_cast<double>(i) * step, d_end);
+      double worst = 0.0;
+      for (double p : periods_) worst = std::max(worst, std::abs(WrapCycles(d / p)));
+      separation_cycles_ = std::min(separation_cycles_, worst);
+    }
+  }
+  if (separation_cycles_ < kMinSeparationCycles) {
+    std::ostringstream list;
+    for (size_t i = 0; i < periods_.size(); ++i) list << (i ? "/" : "") << periods_[i];
+    MESOSCAN_BAD_INPUT("unwrapping: periods " << list.str() << " px do not tell apart the columns "
+                                              << "of a " << range_px_
+                                              << " px wide projector (code separation "
+                                              << separation_cycles_ << " cycles < "
+                                              << kMinSeparationCycles << ")");
+  }
 }
-UnwrapResult TemporalUnwrapper::Unwrap(const double*, const double*) const { return {}; }
+
+UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight) const {
+  UnwrapResult result;
+  const int m = static_cast<int>(periods_.size());
+  constexpr int kMaxPeriods = 16;
+  if (m > kMaxPeriods) return result;  // not a pattern set anyone projects
+  std::array<double, kMaxPeriods> t{};  // wrapped phase in cycles [0, 1)
+  std::array<double, kMaxPeriods> w_px{};  // weight of the per-period estimate of u (px^-2)
+  for (int i = 0; i < m; ++i) {
+    if (!std::isfinite(theta[i]) || !(weight[i] > 0.0) || !std::isfinite(weight[i])) return result;
+    const double c = theta[i] / kTwoPi;
+    t[i] = c - std::floor(c);
+    const double g = kTwoPi / periods_[i];  // d theta / d u
+    w_px[i] = weight[i] * g * g;
+  }
+  const int a = anchor_;
+  const double pa = periods_[a];
+
+  // 1. Score every fringe order k of the anchor: u_k = pa (t_a + k). The residual of period i at
+  //    u_k, in cycles, carries its own noise and the anchor's scaled by pa / p_i.
+  std::array<double, kMaxPeriods> inv_var{};  // 1 / var of the residual of period i (cycles^-2)
+  const double var_a_px = 1.0 / w_px[a];
+  for (int i = 0; i < m; ++i) {
+    if (i == a) continue;
+    const double var_i_px = 1.0 / w_px[i];
+    inv_var[i] = periods_[i] * periods_[i] / (var_i_px + var_a_px);
+  }
+  // Candidates may leave the domain [-0.5, R - 0.5) by the anchor's own noise (a long cue
+  // period turns a small phase error into pixels).
+  const double margin = 0.5 + 6.0 * std::sqrt(var_a_px);
+  const int k0 = static_cast<int>(std::floor((-0.5 - margin) / pa));
+  const int k_end = static_cast<int>(std::floor((range_px_ - 0.5 + margin) / pa));
+  double best_score[2] = {std::numeric_limits<double>::infinity(),
+                          std::numeric_limits<double>::infinity()};
+  int best_k[2] = {k0, k0};
+  for (int k = k0; k <= k_end; ++k) {
+    const double u = pa * (t[a] + k);
+    if (u < -0.5 - margin || u >= range_px_ - 0.5 + margin) continue;  // outside the domain
+    double score = 0.0;
+    for (int i = 0; i < m; ++i) {
+      if (i == a) continue;
+      const double r = WrapCycles(u / periods_[i] - t[i]);
+      score += r * r * inv_var[i];
+    }
+    if (score < best_score[0]) {
+      best_score[1] = best_score[0];
+      best_k[1] = best_k[0];
+      best_score[0] = score;
+      best_k[0] = k;
+    } else if (score < best_score[1]) {
+      best_score[1] = score;
+      best_k[1] = k;
+    }
+  }
+  if (!std::isfinite(best_score[0])) return result;
+
+  // 2. Refine the best two: coarse to fine, each period's fringe order from the running
+  //    estimate, which then becomes the weighted mean of the per-period estimates so far
+  //    (hierarchical sets need the chain); a last pass re-derives every order at the final u.
+  //    Keep the candidate with the smaller chi^2.
+  double best_score_refined = std::numeric_limits<double>::infinity();
+  double best_chi2 = 0.0, best_u = 0.0;
+  for (int c = 0; c < 2; ++c) {
+    if (!std::isfinite(best_score[c])) continue;
+    double u = pa * (t[a] + best_k[c]);
+    double sw = 0.0, swu = 0.0;
+    for (int o = 0; o < m; ++o) {
+      const int i = order_[o];
+      const double n_i = std::nearbyint(u / periods_[i] - t[i]);
+      sw += w_px[i];
+      swu += w_px[i] * periods_[i] * (t[i] + n_i);
+      u = swu / sw;
+    }
+    sw = swu = 0.0;
+    for (int i = 0; i < m; ++i) {
+      const double n_i = std::nearbyint(u / periods_[i] - t[i]);
+      sw += w_px[i];
+      swu += w_px[i] * periods_[i] * (t[i] + n_i);
+    }
+    u = swu / sw;
+    double chi2 = 0.0;
+    for (int i = 0; i < m; ++i) {
+      const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
+      chi2 += w_px[i] * r_px * r_px;
+    }
+    // Where the code repeats exactly at the projector width (e.g. 7/11/13 on 1001 px) the two
+    // ends alias: prefer the estimate inside the domain, by its distance outside in sigma_u.
+    const double out = std::max({0.0, -0.5 - u, u - (range_px_ - 0.5)});
+    const double score = chi2 + out * out * sw;
+    if (score < best_score_refined) {
+      best_score_refined = score;
+      best_chi2 = chi2;
+      best_u = u;
+    }
+  }
+  result.u = best_u;
+  result.residual = m > 1 ? std::sqrt(best_chi2 / (m - 1)) : 0.0;
+  result.valid = std::isfinite(result.u) && result.residual <= max_residual_ &&
+                 result.u >= -1.0 && result.u < range_px_;
+  return result;
+}
 
 }  // namespace mesoscan

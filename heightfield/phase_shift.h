@@ -48,9 +48,10 @@ class WrappedPhaseSolver {
 };
 
 struct UnwrapResult {
-  double u = 0.0;         // absolute projector coordinate (px) in [-0.5, range - 0.5)
-  double residual = 0.0;  // consistency: RMS over periods of the weighted circular residual, in
-                          // sigma units (sqrt(chi^2 / periods)); ~1 for consistent data
+  double u = 0.0;  // absolute projector coordinate (px), in [-0.5, range - 0.5) up to noise
+  // Consistency of the periods, in sigma units: sqrt(chi^2 / (periods - 1)) with chi^2 the
+  // weighted squared circular residuals at u; ~1 for consistent data, 0 for a single period.
+  double residual = 0.0;
   bool valid = false;     // inputs finite, weights > 0 and residual <= the unwrapper's limit
 };
 
@@ -88,8 +89,8 @@ class TemporalUnwrapper {
   std::vector<double> periods_;
   double range_px_;
   double max_residual_;
+  std::vector<int> order_;   // period indices, coarsest first
   int anchor_ = 0;           // index of the coarsest period
-  int num_candidates_ = 0;   // fringe orders of the anchor that can fall in the domain
   double separation_cycles_ = 0.0;
 };
 

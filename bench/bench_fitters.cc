@@ -1,0 +1,229 @@
+// Lens-shift fitter benchmark: profiles per second of each fitter (fast, LM, Ceres) at N = 15,
+// 25, 50, 100, 200 samples, with the phase RMS error against the Cramer-Rao bound.
+// Figures, not assertions. CSV: $MESOSCAN_BENCH_OUT/fitters.csv (one row per fitter and N).
+//
+// Profiles: b = a sin(phi + 2 pi f x) + d + noise, x uniform over [-1, 1] projector px (the
+// pipeline's centred shift positions, one stripe period), f within +-5 % of 0.5 cycles/px,
+// a = 0.2, d = 0.5, sigma = 0.01 (a / sigma = 20), phase uniform. Single thread.
+
+#include <benchmark/benchmark.h>
+
+#include <time.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <numbers>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "heightfield/lens_shift_fit.h"
+
+namespace mesoscan {
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kF0 = 0.5;
+
+struct ProfileSet {
+  std::vector<double> x;
+  std::vector<float> b;  // count x n
+  std::vector<double> phase, frequency;
+  double sigma = 0.0, amplitude = 0.0;
+  int n = 0, count = 0;
+};
+
+ProfileSet MakeProfiles(int n, int count, double offset, uint64_t seed) {
+  ProfileSet s;
+  s.n = n;
+  s.count = count;
+  s.amplitude = 0.2;
+  s.sigma = 0.01;
+  for (int i = 0; i < n; ++i) s.x.push_back(-1.0 + 2.0 * i / (n - 1));
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  s.b.resize(static_cast<size_t>(n) * count);
+  for (int p = 0; p < count; ++p) {
+    const double phase = -kPi + 2 * kPi * uni(rng);
+    const double f = kF0 * (0.95 + 0.1 * uni(rng));
+    s.phase.push_back(phase);
+    s.frequency.push_back(f);
+    for (int k = 0; k < n; ++k)
+      s.b[static_cast<size_t>(p) * n + k] = static_cast<float>(
+          s.amplitude * std::sin(phase + 2 * kPi * f * s.x[k]) + offset + s.sigma * noise(rng));
+  }
+  return s;
+}
+
+struct Row {
+  std::string fitter;
+  int n = 0;
+  double profiles_per_s = 0, ns_per_profile = 0;
+  double phase_rms = 0, crlb_rms = 0;
+  int valid = 0, count = 0;
+};
+std::map<std::pair<std::string, int>, Row>& Rows() {
+  static std::map<std::pair<std::string, int>, Row> rows;
+  return rows;
+}
+
+// fitter_id: 0 fast (default: double accumulation), 1 fast (float accumulation), 2 lm, 3 ceres.
+void BM_Fit(benchmark::State& state) {
+  const int fitter_id = static_cast<int>(state.range(0));
+  const int n = static_cast<int>(state.range(1));
+  LensShiftFitOptions options;
+  options.fitter = fitter_id == 2   ? LensShiftFitter::kLm
+                   : fitter_id == 3 ? LensShiftFitter::kCeres
+                                    : LensShiftFitter::kFast;
+  options.double_accumulation = fitter_id != 1;
+  const std::string name = fitter_id == 1 ? "fast_float" : LensShiftFitterName(options.fitter);
+  // Accuracy set: the same profiles for every fitter (seed depends on N only).
+  const int count = fitter_id == 3 ? 2000 : 20000;
+  const ProfileSet set = MakeProfiles(n, count, 0.5, 100 + n);
+  const LensShiftBatchFitter fitter(set.x, kF0, options);
+
+  int64_t i = 0;
+  for (auto _ : state) {
+    const LensShiftFit fit = fitter.Fit(set.b.data() + static_cast<size_t>(i % count) * n);
+    benchmark::DoNotOptimize(fit);
+    ++i;
+  }
+  state.SetItemsProcessed(state.iterations());
+
+  // Phase RMS error against the truth, and the phase-averaged CRLB at the profiles' f.
+  Row row;
+  row.fitter = name;
+  row.n = n;
+  row.count = count;
+  double se = 0, crlb = 0, iterations = 0;
+  for (int p = 0; p < count; ++p) {
+    const LensShiftFit fit = fitter.Fit(set.b.data() + static_cast<size_t>(p) * n);
+    iterations += fit.iterations;
+    if (!fit.valid) continue;
+    ++row.valid;
+    const double e = std::remainder(fit.phase - set.phase[p], 2 * kPi);
+    se += e * e;
+    if (p < 500) crlb += LensShiftPhaseCrlb(set.sigma, set.amplitude, set.x, set.frequency[p]);
+  }
+  row.phase_rms = std::sqrt(se / std::max(row.valid, 1));
+  row.crlb_rms = std::sqrt(crlb / std::min(count, 500));
+  state.counters["phase_rms"] = row.phase_rms;
+  state.counters["rms/crlb"] = row.phase_rms / row.crlb_rms;
+  state.counters["iterations"] = iterations / count;
+  state.counters["valid"] = static_cast<double>(row.valid) / count;
+  Rows()[{name, n}] = row;
+}
+
+void Args(benchmark::internal::Benchmark* b) {
+  for (int f = 0; f < 4; ++f)
+    for (int n : {15, 25, 50, 100, 200}) b->Args({f, n});
+}
+BENCHMARK(BM_Fit)->Apply(Args)->Unit(benchmark::kNanosecond);
+
+// Float vs double accumulation of the fast fitter on large offsets (offset / amplitude 100,
+// a / sigma 1000): max phase difference between the two.
+void FloatVsDouble(std::FILE* out) {
+  for (int n : {50, 100, 200}) {
+    ProfileSet set = MakeProfiles(n, 5000, 0.0, 7 + n);
+    // Rescale to offset 100 a and a / sigma = 1000.
+    std::mt19937_64 rng(3);
+    std::normal_distribution<double> noise(0.0, 1.0);
+    for (int p = 0; p < set.count; ++p)
+      for (int k = 0; k < n; ++k)
+        set.b[static_cast<size_t>(p) * n + k] = static_cast<float>(
+            set.amplitude * std::sin(set.phase[p] + 2 * kPi * set.frequency[p] * set.x[k]) +
+            100 * set.amplitude + 2e-4 * noise(rng));
+    LensShiftFitOptions of, od;
+    of.double_accumulation = false;
+    od.double_accumulation = true;
+    const LensShiftBatchFitter ff(set.x, kF0, of), fd(set.x, kF0, od);
+    double worst = 0, sum2 = 0;
+    for (int p = 0; p < set.count; ++p) {
+      const float* b = set.b.data() + static_cast<size_t>(p) * n;
+      const double d = std::remainder(ff.Fit(b).phase - fd.Fit(b).phase, 2 * kPi);
+      worst = std::max(worst, std::abs(d));
+      sum2 += d * d;
+    }
+    const double crlb = std::sqrt(LensShiftPhaseCrlb(2e-4, set.amplitude, set.x, kF0));
+    std::fprintf(out,
+                 "float_vs_double,N=%d,offset/a=100,a/sigma=1000,max_dphi=%.3e,rms_dphi=%.3e,"
+                 "sigma_phi=%.3e\n",
+                 n, worst, std::sqrt(sum2 / set.count), crlb);
+  }
+}
+
+}  // namespace
+}  // namespace mesoscan
+
+double ThreadCpuSeconds() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+
+  using mesoscan::Rows;
+  const char* out_dir = std::getenv("MESOSCAN_BENCH_OUT");
+  const std::filesystem::path dir = out_dir ? out_dir : ".";
+  std::filesystem::create_directories(dir);
+  const auto path = dir / "fitters.csv";
+  std::FILE* csv = std::fopen(path.c_str(), "w");
+  if (!csv) {
+    std::fprintf(stderr, "cannot write %s\n", path.c_str());
+    return 1;
+  }
+  std::fprintf(csv,
+               "fitter,N,ns_per_profile,profiles_per_s,phase_rms_rad,crlb_rms_rad,rms_over_crlb,"
+               "valid_fraction,speedup_vs_ceres\n");
+  // Timing for the CSV: each fitter again on the same profiles, single thread, in thread CPU
+  // time (this machine is shared: wall time includes other processes' slices).
+  for (auto& [key, row] : Rows()) {
+    const int n = row.n;
+    mesoscan::LensShiftFitOptions o;
+    o.fitter = row.fitter == "lm"      ? mesoscan::LensShiftFitter::kLm
+               : row.fitter == "ceres" ? mesoscan::LensShiftFitter::kCeres
+                                       : mesoscan::LensShiftFitter::kFast;
+    o.double_accumulation = row.fitter != "fast_float";
+    const int count = row.fitter == "ceres" ? 300 : 20000;
+    const auto set = mesoscan::MakeProfiles(n, count, 0.5, 100 + n);
+    const mesoscan::LensShiftBatchFitter fitter(set.x, mesoscan::kF0, o);
+    const double t0 = ThreadCpuSeconds();
+    double sink = 0;
+    for (int p = 0; p < count; ++p)
+      sink += fitter.Fit(set.b.data() + static_cast<size_t>(p) * n).phase;
+    const double s = ThreadCpuSeconds() - t0;
+    benchmark::DoNotOptimize(sink);
+    row.ns_per_profile = 1e9 * s / count;
+    row.profiles_per_s = count / s;
+  }
+  for (auto& [key, row] : Rows()) {
+    const auto it = Rows().find({"ceres", row.n});
+    const double speedup =
+        it != Rows().end() ? it->second.ns_per_profile / row.ns_per_profile : 0.0;
+    std::fprintf(csv, "%s,%d,%.1f,%.0f,%.5e,%.5e,%.4f,%.4f,%.1f\n", row.fitter.c_str(), row.n,
+                 row.ns_per_profile, row.profiles_per_s, row.phase_rms, row.crlb_rms,
+                 row.phase_rms / row.crlb_rms, static_cast<double>(row.valid) / row.count,
+                 speedup);
+    std::printf("%-10s N %3d: %9.1f ns/profile  %10.0f profiles/s  phase RMS %.4e = %.4f x CRLB"
+                "  valid %.4f  speedup vs ceres %.1f\n",
+                row.fitter.c_str(), row.n, row.ns_per_profile, row.profiles_per_s, row.phase_rms,
+                row.phase_rms / row.crlb_rms, static_cast<double>(row.valid) / row.count,
+                speedup);
+  }
+  mesoscan::FloatVsDouble(csv);
+  mesoscan::FloatVsDouble(stdout);
+  std::fclose(csv);
+  std::printf("wrote %s\n", path.c_str());
+  return 0;
+}

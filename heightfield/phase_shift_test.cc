@@ -1,0 +1,254 @@
+#include "heightfield/phase_shift.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <vector>
+
+#include "core/error.h"
+
+namespace mesoscan {
+namespace {
+
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+
+double CircDiff(double a, double b) { return std::remainder(a - b, kTwoPi); }
+
+std::vector<double> EqualSteps(int k) {
+  std::vector<double> d(k);
+  for (int i = 0; i < k; ++i) d[i] = kTwoPi * i / k;
+  return d;
+}
+
+std::vector<float> Frames(const std::vector<double>& deltas, double a, double b, double theta,
+                          double sigma, std::mt19937_64* rng) {
+  std::normal_distribution<double> noise(0.0, 1.0);
+  std::vector<float> s(deltas.size());
+  for (size_t k = 0; k < deltas.size(); ++k)
+    s[k] = static_cast<float>(a + b * std::cos(theta + deltas[k]) +
+                              (sigma > 0 ? sigma * noise(*rng) : 0.0));
+  return s;
+}
+
+TEST(WrappedPhaseSolver, ExactRecoveryEqualAndUnequalSteps) {
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  const std::vector<std::vector<double>> sets = {
+      EqualSteps(3), EqualSteps(4), EqualSteps(8), {0.0, 1.0, 2.5, 4.0}, {0.3, 0.9, 2.0},
+      {0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0}};
+  for (const auto& deltas : sets) {
+    const WrappedPhaseSolver solver(deltas);
+    for (int trial = 0; trial < 200; ++trial) {
+      const double theta = kTwoPi * uni(rng), a = 0.2 + 0.6 * uni(rng), b = 0.05 + 0.3 * uni(rng);
+      const auto s = Frames(deltas, a, b, theta, 0.0, &rng);
+      const auto r = solver.Solve(s.data());
+      ASSERT_TRUE(r.valid);
+      // float samples and outputs: ~1e-7 relative rounding.
+      EXPECT_NEAR(CircDiff(r.theta, theta), 0.0, 2e-6 / b) << deltas.size();
+      EXPECT_NEAR(r.modulation, b, 1e-6);
+      EXPECT_NEAR(r.offset, a, 1e-6);
+      EXPECT_LT(r.residual_rms, 1e-6);
+      EXPECT_GE(r.theta, 0.0f);
+      EXPECT_LT(r.theta, static_cast<float>(kTwoPi));
+    }
+  }
+}
+
+TEST(WrappedPhaseSolver, StridedSamplesAndBadInput) {
+  const auto deltas = EqualSteps(4);
+  const WrappedPhaseSolver solver(deltas);
+  std::mt19937_64 rng(2);
+  const auto s = Frames(deltas, 0.5, 0.3, 1.0, 0.0, &rng);
+  std::vector<float> strided(16, -1.0f);
+  for (int k = 0; k < 4; ++k) strided[4 * k] = s[k];
+  EXPECT_EQ(solver.Solve(s.data()).theta, solver.Solve(strided.data(), 4).theta);
+  std::vector<float> bad = s;
+  bad[2] = std::nanf("");
+  const auto r = solver.Solve(bad.data());
+  EXPECT_FALSE(r.valid);
+  EXPECT_EQ(r.modulation, 0.0f);
+  EXPECT_THROW(WrappedPhaseSolver({0.0, 1.0}), Error);
+  EXPECT_THROW(WrappedPhaseSolver({0.0, 1.0, 1.0 + kTwoPi}), Error);  // 2 distinct mod 2 pi
+  EXPECT_THROW(WrappedPhaseSolver({0.0, 1.0, std::nan("")}), Error);
+}
+
+TEST(WrappedPhaseSolver, NoiseVarianceMatchesTheory) {
+  // Equal steps: var(theta) = 2 sigma^2 / (K B^2). Unequal steps: the first-order propagation
+  // through (M^T M)^-1, which depends on theta. 20000 draws: the sample variance has a relative
+  // standard error of sqrt(2 / 20000) = 1 %, so 5 % is a 5-sigma band.
+  std::mt19937_64 rng(3);
+  const double sigma = 0.002, b = 0.3, a = 0.5;
+  for (const auto& deltas : {EqualSteps(3), EqualSteps(5), std::vector<double>{0.0, 0.7, 2.9, 4.1}}) {
+    const WrappedPhaseSolver solver(deltas);
+    if (deltas.size() != 4) {
+      EXPECT_NEAR(solver.ThetaVariance(sigma, b), 2 * sigma * sigma / (deltas.size() * b * b),
+                  1e-12);
+    }
+    for (double theta : {0.3, 2.0, 4.5}) {
+      const int n = 20000;
+      double s1 = 0, s2 = 0;
+      for (int i = 0; i < n; ++i) {
+        const auto s = Frames(deltas, a, b, theta, sigma, &rng);
+        const double e = CircDiff(solver.Solve(s.data()).theta, theta);
+        s1 += e;
+        s2 += e * e;
+      }
+      const double var = s2 / n - (s1 / n) * (s1 / n);
+      EXPECT_NEAR(var / solver.ThetaVarianceAt(sigma, b, theta), 1.0, 0.05)
+          << deltas.size() << " theta " << theta;
+      EXPECT_LT(std::abs(s1 / n), 5 * std::sqrt(var / n));  // unbiased
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Temporal unwrapping
+
+std::vector<double> PhasesAt(double u, const std::vector<double>& periods) {
+  std::vector<double> t;
+  for (double p : periods) {
+    double v = std::fmod(kTwoPi * u / p, kTwoPi);
+    if (v < 0) v += kTwoPi;
+    t.push_back(v);
+  }
+  return t;
+}
+
+TEST(TemporalUnwrapper, CoprimePeriodsNoiseFreeEveryColumn) {
+  const std::vector<double> periods = {7, 11, 13};
+  const TemporalUnwrapper unwrapper(periods, 1001);
+  const std::vector<double> w(3, 1e4);
+  // Every column and fractional positions, the half-pixel margins at both ends included.
+  for (double u = -0.5; u < 1000.5; u += 0.0625) {
+    const auto t = PhasesAt(u, periods);
+    const UnwrapResult r = unwrapper.Unwrap(t.data(), w.data());
+    ASSERT_TRUE(r.valid) << u;
+    ASSERT_NEAR(r.u, u, 1e-9) << u;
+    EXPECT_LT(r.residual, 1e-6);
+  }
+}
+
+// Noisy phases: every column is recovered (no fringe-order error) and the position error and
+// the consistency residual follow the noise model. Phase noise sigma = 0.06 rad is 1 % of a
+// period; the code separation of 7/11/13 is 0.05 cycles, so 3-sigma errors (0.03 cycles) stay
+// below half of it.
+void CheckNoisyUnwrapping(const std::vector<double>& periods, double range, double lo, double hi) {
+  const TemporalUnwrapper unwrapper(periods, range);
+  const double sigma = 0.06;
+  const std::vector<double> w(periods.size(), 1.0 / (sigma * sigma));
+  double info = 0;  // predicted sigma_u = 1 / sqrt(sum w (2 pi / p)^2)
+  for (double p : periods) info += w[0] * std::pow(kTwoPi / p, 2);
+  const double sigma_u = 1.0 / std::sqrt(info);
+  std::mt19937_64 rng(4);
+  std::normal_distribution<double> noise(0.0, sigma);
+  double se = 0, chi = 0;
+  int count = 0;
+  for (int col = 0; col < static_cast<int>(range); ++col) {
+    for (double frac : {-0.49, 0.0, 0.25, 0.49}) {
+      const double u = col + frac;
+      if (u < lo || u >= hi) continue;
+      auto t = PhasesAt(u, periods);
+      for (double& v : t) v = std::fmod(v + noise(rng) + kTwoPi, kTwoPi);
+      const UnwrapResult r = unwrapper.Unwrap(t.data(), w.data());
+      ASSERT_TRUE(r.valid) << u;
+      ASSERT_LT(std::abs(r.u - u), 6 * sigma_u) << "u " << u << " got " << r.u;
+      se += (r.u - u) * (r.u - u);
+      chi += r.residual * r.residual;
+      ++count;
+    }
+  }
+  EXPECT_NEAR(std::sqrt(se / count) / sigma_u, 1.0, 0.05);
+  EXPECT_NEAR(chi / count, 1.0, 0.05);  // residual in sigma units: E[chi^2 / (m - 1)] = 1
+}
+
+TEST(TemporalUnwrapper, CoprimePeriodsWithNoise) {
+  std::printf("7/11/13 over 1001 px: code separation %.4f cycles\n",
+              TemporalUnwrapper({7, 11, 13}, 1001).separation_cycles());
+  // An 800 px projector: every column incl. the outer half pixels.
+  CheckNoisyUnwrapping({7, 11, 13}, 800, -0.5, 799.5);
+  // Width = code period (1001 px): u = -0.5 and 1000.5 are the same code, so the outermost
+  // 6 sigma_u (0.3 px) alias; everything inside is recovered.
+  CheckNoisyUnwrapping({7, 11, 13}, 1001, -0.2, 1000.2);
+}
+
+TEST(TemporalUnwrapper, InconsistentPhasesAreFlagged) {
+  // Random phases (a pixel mixing two surfaces, or no signal): the residual exposes them unless
+  // they happen to fall within the 4-sigma acceptance tube around one of the 1001 valid codes.
+  // The tube's share of the code space scales with sigma^2: ~5 % at sigma = 0.005 rad.
+  const std::vector<double> periods = {7, 11, 13};
+  const TemporalUnwrapper unwrapper(periods, 1001);
+  const double sigma = 0.005;
+  const std::vector<double> w(3, 1.0 / (sigma * sigma));
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> uni(0.0, kTwoPi);
+  int flagged = 0;
+  const int n = 4000;
+  for (int i = 0; i < n; ++i) {
+    const double t[3] = {uni(rng), uni(rng), uni(rng)};
+    flagged += !unwrapper.Unwrap(t, w.data()).valid;
+  }
+  std::printf("random phases flagged: %.1f %%\n", 100.0 * flagged / n);
+  EXPECT_GE(flagged, n * 9 / 10);
+  // A single corrupted period (half a period off) is flagged too.
+  auto t = PhasesAt(500.3, periods);
+  t[1] = std::fmod(t[1] + kTwoPi / 2, kTwoPi);
+  EXPECT_FALSE(unwrapper.Unwrap(t.data(), w.data()).valid);
+  // Non-finite input or weight <= 0.
+  const double bad[3] = {std::nan(""), 1.0, 1.0};
+  EXPECT_FALSE(unwrapper.Unwrap(bad, w.data()).valid);
+  const double zero_w[3] = {1.0, 0.0, 1.0};
+  EXPECT_FALSE(unwrapper.Unwrap(t.data(), zero_w).valid);
+}
+
+TEST(TemporalUnwrapper, HierarchicalCuePlusShortPeriods) {
+  // A cue period >= the width gives u coarsely; 64 and 16 px refine it (chained coarse to fine).
+  const std::vector<double> periods = {1024, 64, 16};
+  const TemporalUnwrapper unwrapper(periods, 1000);
+  const std::vector<double> sigma = {0.02, 0.02, 0.02};
+  std::vector<double> w;
+  for (double s : sigma) w.push_back(1.0 / (s * s));
+  std::mt19937_64 rng(6);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  for (double u = -0.4; u < 999.5; u += 0.37) {
+    auto t0 = PhasesAt(u, periods);
+    const UnwrapResult exact = unwrapper.Unwrap(t0.data(), w.data());
+    ASSERT_TRUE(exact.valid) << u;
+    ASSERT_NEAR(exact.u, u, 1e-9);
+    for (int i = 0; i < 3; ++i) t0[i] = std::fmod(t0[i] + sigma[i] * noise(rng) + kTwoPi, kTwoPi);
+    const UnwrapResult r = unwrapper.Unwrap(t0.data(), w.data());
+    ASSERT_TRUE(r.valid) << u;
+    // sigma_u ~ 16 / 2 pi * 0.02 = 0.05 px: a wrong fringe order would be >= 16 px off.
+    ASSERT_NEAR(r.u, u, 0.3) << u;
+  }
+  // Two periods only: cue + fine (the plain hierarchical scanner).
+  const TemporalUnwrapper two({800, 20}, 800);
+  for (double u = 0; u < 799.5; u += 1.3) {
+    const auto t = PhasesAt(u, {800, 20});
+    const double w2[2] = {1e4, 1e4};
+    const UnwrapResult r = two.Unwrap(t.data(), w2);
+    ASSERT_TRUE(r.valid) << u;
+    ASSERT_NEAR(r.u, u, 1e-9) << u;
+  }
+}
+
+TEST(TemporalUnwrapper, SinglePeriodAndRejectedSets) {
+  // One period >= width: the wrapped phase is the answer.
+  const TemporalUnwrapper one({1200}, 1000);
+  const double t = kTwoPi * 333.25 / 1200, w = 1e4;
+  const UnwrapResult r = one.Unwrap(&t, &w);
+  EXPECT_TRUE(r.valid);
+  EXPECT_NEAR(r.u, 333.25, 1e-9);
+  EXPECT_EQ(r.residual, 0.0);
+  // Periods that cannot tell all columns apart.
+  EXPECT_THROW(TemporalUnwrapper({8, 12}, 1000), Error);  // repeats every 24 px
+  EXPECT_THROW(TemporalUnwrapper({16}, 1000), Error);
+  EXPECT_THROW(TemporalUnwrapper({512, 16}, 800), Error);  // 512 and 16 align at 512 px
+  EXPECT_THROW(TemporalUnwrapper({}, 1000), Error);
+  EXPECT_THROW(TemporalUnwrapper({7, -11}, 1000), Error);
+  EXPECT_NO_THROW(TemporalUnwrapper({7, 11, 13}, 1001));
+}
+
+}  // namespace
+}  // namespace mesoscan
