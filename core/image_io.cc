@@ -148,8 +148,9 @@ void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::
   WriteWithOiio(path, spec, oiio::TypeFloat, inter.data());
 }
 
-void WritePng16(const fs::path& path, const ImageU16& image) {
+void WritePng16(const fs::path& path, const ImageU16& image, int compression_level) {
   oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt16);
+  if (compression_level >= 0) spec.attribute("png:compressionLevel", std::min(compression_level, 9));
   const std::vector<uint16_t> inter = Interleave(image);
   WriteWithOiio(path, spec, oiio::TypeUInt16, inter.data());
 }

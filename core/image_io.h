@@ -40,8 +40,11 @@ void WriteExr(const std::filesystem::path& path, const ImageF& image,
               const std::map<std::string, double>& float_attributes = {},
               const std::map<std::string, std::string>& string_attributes = {});
 
-// 16-bit PNG (1, 2, 3 or 4 channels), values already quantised.
-void WritePng16(const std::filesystem::path& path, const ImageU16& image);
+// 16-bit PNG (1, 2, 3 or 4 channels), values already quantised. compression_level: zlib level
+// 0..9, or -1 for the library default (6). Level 1 writes noisy 16-bit frames ~2.5x faster than
+// the default for ~2% larger files.
+void WritePng16(const std::filesystem::path& path, const ImageU16& image,
+                int compression_level = -1);
 // 8-bit PNG (1, 3 or 4 channels).
 void WritePng8(const std::filesystem::path& path, const ImageU8& image);
 
