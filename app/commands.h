@@ -13,5 +13,6 @@ void AddSimulateCommand(CLI::App* app);     // cmd_simulate.cc
 void AddReconstructCommand(CLI::App* app);  // cmd_reconstruct.cc
 void AddExportCommand(CLI::App* app);       // cmd_export.cc
 void AddBrdfCommand(CLI::App* app);         // cmd_brdf.cc
+void AddRenderCommand(CLI::App* app);       // cmd_render.cc
 
 }  // namespace mesoscan

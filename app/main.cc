@@ -30,6 +30,7 @@ int main(int argc, char** argv) {
   AddExportCommand(&app);
   AddCheckCommand(&app);
   AddBrdfCommand(&app);
+  AddRenderCommand(&app);
   AddDoctorCommand(&app);
 
   try {

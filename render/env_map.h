@@ -1,0 +1,58 @@
+#pragma once
+// Environment lighting for the preview renderer: an equirectangular (lat-long) HDR map in the
+// z-up world, importance-sampled by luminance x sin(theta) through brdf/warp2d.h (the same exact
+// bilinear warp the RGL BRDFs use), or a constant radiance that is not importance-sampled.
+//
+// Direction <-> image, Blender's world convention (so Blender's studio lights look the same):
+//   u = 0.5 - atan2(y, x) / (2 pi), row v = theta / pi with theta the angle from +z (v = 0 is
+//   the zenith, the top row of the image).
+
+#include <filesystem>
+#include <optional>
+
+#include "brdf/common.h"
+#include "brdf/warp2d.h"
+#include "core/image.h"
+
+namespace mesoscan {
+
+struct EnvSample {
+  Vec3 wi;     // world direction towards the light
+  Rgb Le;      // radiance arriving from wi, W/(m^2 sr) in the map's units
+  double pdf;  // per unit solid angle, > 0
+};
+
+class EnvironmentMap {
+ public:
+  // Uniform radiance from every direction.
+  static EnvironmentMap Constant(const Rgb& radiance);
+  // From an RGB lat-long image (>= 2x2, 3 channels, linear). Negative values (lossy EXR
+  // compression) are clamped to 0. `scale` multiplies the radiance.
+  static EnvironmentMap FromImage(const ImageF& rgb, double scale = 1.0);
+  // Reads an EXR/HDR lat-long map; throws Error naming the file.
+  static EnvironmentMap Load(const std::filesystem::path& path, double scale = 1.0);
+  // A procedural clear sky with a sun: a smooth zenith-to-horizon gradient, a dim ground, and a
+  // small bright sun disk at (sun_elevation_deg, sun_azimuth_deg from +x towards +y). Generated
+  // by the project itself, so the demo needs no downloaded asset. width x width/2 pixels.
+  static EnvironmentMap Sky(double sun_elevation_deg = 25.0, double sun_azimuth_deg = 200.0,
+                            int width = 512);
+
+  bool is_constant() const { return constant_; }
+  // Radiance arriving from world direction w (unit).
+  Rgb Le(const Vec3& w) const;
+  // Importance-samples a direction (not available for a constant map: returns nullopt, the
+  // renderer then relies on BRDF sampling alone).
+  std::optional<EnvSample> Sample(const Vec2& u) const;
+  // Solid-angle density of Sample() at w; 0 for a constant map.
+  double Pdf(const Vec3& w) const;
+  const ImageF& image() const { return rgb_; }
+
+ private:
+  Rgb Lookup(double u, double v) const;
+  bool constant_ = true;
+  Rgb constant_radiance_ = Rgb::Zero();
+  ImageF rgb_;
+  Warp2D warp_;
+};
+
+}  // namespace mesoscan
