@@ -429,27 +429,20 @@ std::string FramePlan::Describe(const Rig& rig) const {
   for (char axis : {'x', 'y'}) {
     const std::vector<double> periods = Periods(axis);
     if (periods.empty()) continue;
-    // "periods 7,11,13 x 3 phases" when every period has the same phase count.
-    bool same_count = true;
+    // "periods 7,11,13 x 3 phases" when every period has the same phase count, else
+    // "periods 7 x 3,11 x 4 phases".
+    std::vector<size_t> counts;
     for (const auto& s : sine)
-      if (s.axis == axis && s.phases.size() != sine.front().phases.size()) same_count = false;
+      if (s.axis == axis) counts.push_back(s.phases.size());
+    const bool same_count =
+        std::all_of(counts.begin(), counts.end(), [&](size_t c) { return c == counts.front(); });
     out << "phase shift (axis " << axis << "): period" << (periods.size() > 1 ? "s " : " ");
-    bool first = true;
-    for (const auto& s : sine) {
-      if (s.axis != axis) continue;
-      out << (first ? "" : ",") << Num(s.period_px);
-      if (!same_count) out << " x " << s.phases.size();
-      first = false;
+    for (size_t i = 0; i < periods.size(); ++i) {
+      out << (i ? "," : "") << Num(periods[i]);
+      if (!same_count) out << " x " << counts[i];
     }
-    if (same_count) {
-      for (const auto& s : sine)
-        if (s.axis == axis) {
-          out << " x " << s.phases.size() << " phases";
-          break;
-        }
-    } else {
-      out << " phases";
-    }
+    if (same_count) out << " x " << counts.front();
+    out << " phases";
     const double extent = axis == 'x' ? rig.projector.width : rig.projector.height;
     const double range = UnambiguousRangePx(periods, 1e6);
     out << "; unambiguous over " << (range >= 1e6 ? ">= 1e6" : Num(range)) << " px (projector "

@@ -187,6 +187,23 @@ TEST_F(SessionTest, ConformanceCoinEdgeExample) {
   }
 }
 
+TEST_F(SessionTest, DescribeFramePlan) {
+  Session s = ParseSession(*valid_, *dir_);
+  EXPECT_EQ(MakeFramePlan(s.frames).Describe(s.rig),
+            "phase shift (axis x): periods 7,11 x 3 phases; unambiguous over 77 px (projector "
+            "width 60 px)\n"
+            "lens shift: 4 frames at 4 positions over -2048..1024 steps (-1..0.5 px, axis x)\n"
+            "white: yes; black: yes\n");
+  Frame extra = s.frames[3];
+  extra.file = "frames/ps11_3.png";
+  extra.pattern.phase = 1.0;
+  s.frames.push_back(extra);
+  s.frames.erase(s.frames.end() - 3);  // white
+  const std::string d = MakeFramePlan(s.frames).Describe(s.rig);
+  EXPECT_NE(d.find("periods 7 x 3,11 x 4 phases"), std::string::npos) << d;
+  EXPECT_NE(d.find("white: no (optional: albedo texture); black: yes"), std::string::npos) << d;
+}
+
 // ---- One test per reader error, asserting the exact one-line message. ----
 
 TEST_F(SessionTest, ErrorMissingSessionJson) {
