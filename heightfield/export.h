@@ -21,6 +21,7 @@
 // Every file is written to a temporary name and renamed.
 
 #include <filesystem>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -73,7 +74,8 @@ struct ExportSummary {
   Json manifest;
   int64_t triangles = 0, vertices = 0;  // GLB mesh (0 if not written)
   double max_height_error_m = 0.0;      // GLB mesh vs the height samples
-  double seconds = 0.0;
+  double seconds = 0.0;                              // the whole export, wall time
+  std::map<std::string, double> seconds_per_file;    // each writer's wall time (run in parallel)
   std::string BriefReport() const;
 };
 
