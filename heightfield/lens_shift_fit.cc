@@ -64,11 +64,29 @@ double WrapPhase(double phi) {
   return phi;
 }
 
-// Horner evaluation of p(e) = sum c_m e^m and its first two derivatives.
+// Order needed for a Taylor series in r = |argument| whose m-th coefficient is bounded by
+// (scale) / m!: the smallest K with r^(K+1) / (K+1)! <= 1e-12, capped at max_order. Late
+// Newton iterations (small eps') then skip most of the terms.
+int NeededOrder(double r, int max_order) {
+  static const std::array<double, 24> kMaxR = [] {
+    std::array<double, 24> t{};
+    double fact = 1.0;
+    for (int k = 0; k < 24; ++k) {
+      fact *= k + 1;  // (k + 1)!
+      t[k] = std::pow(fact * 1e-12, 1.0 / (k + 1));
+    }
+    return t;
+  }();
+  for (int k = 0; k < max_order; ++k)
+    if (r <= kMaxR[k]) return k;
+  return max_order;
+}
+
+// Horner evaluation of p(e) = sum_{m <= top} c_m e^m and its first two derivatives.
 template <int kN>
-void Horner(const std::array<Cd, kN>& c, double e, Cd* p, Cd* p1, Cd* p2) {
-  Cd v = c[kN - 1], d1 = 0.0, d2 = 0.0;
-  for (int m = kN - 2; m >= 0; --m) {
+void Horner(const std::array<Cd, kN>& c, double e, int top, Cd* p, Cd* p1, Cd* p2) {
+  Cd v = c[top], d1 = 0.0, d2 = 0.0;
+  for (int m = top - 1; m >= 0; --m) {
     d2 = d2 * e + 2.0 * d1;
     d1 = d1 * e + v;
     v = v * e + c[m];
@@ -79,9 +97,9 @@ void Horner(const std::array<Cd, kN>& c, double e, Cd* p, Cd* p1, Cd* p2) {
 }
 
 template <int kN>
-Cd HornerValue(const std::array<Cd, kN>& c, double e) {
-  Cd v = c[kN - 1];
-  for (int m = kN - 2; m >= 0; --m) v = v * e + c[m];
+Cd HornerValue(const std::array<Cd, kN>& c, double e, int top) {
+  Cd v = c[top];
+  for (int m = top - 1; m >= 0; --m) v = v * e + c[m];
   return v;
 }
 
@@ -364,29 +382,40 @@ Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
                    bool derivatives) {
   Objective o;
   Cd z, z1 = 0.0, z2 = 0.0, e1, e11 = 0.0, e12 = 0.0, e2, e21 = 0.0, e22 = 0.0;
-  if (derivatives) {
-    Horner<kOrder + 1>(z_coef, eps, &z, &z1, &z2);
-    // E1 and E2 in one loop: two independent dependency chains.
-    Cd v1 = e1c[kGramOrder], v2 = e2c[kGramOrder];
-    for (int m = kGramOrder - 1; m >= 0; --m) {
-      e12 = e12 * eps + 2.0 * e11;
-      e22 = e22 * eps + 2.0 * e21;
-      e11 = e11 * eps + v1;
-      e21 = e21 * eps + v2;
-      v1 = v1 * eps + e1c[m];
-      v2 = v2 * eps + e2c[m];
-    }
-    e1 = v1;
-    e2 = v2;
+  if (derivatives && eps == 0.0) {
+    // The usual start (f = f0 on a grid point): the polynomials' low coefficients.
+    z = z_coef[0], z1 = z_coef[1], z2 = 2.0 * z_coef[2];
+    e1 = e1c[0], e11 = e1c[1], e12 = 2.0 * e1c[2];
+    e2 = e2c[0], e21 = e2c[1], e22 = 2.0 * e2c[2];
   } else {
-    z = HornerValue<kOrder + 1>(z_coef, eps);
-    Cd v1 = e1c[kGramOrder], v2 = e2c[kGramOrder];
-    for (int m = kGramOrder - 1; m >= 0; --m) {
-      v1 = v1 * eps + e1c[m];
-      v2 = v2 * eps + e2c[m];
+    // Derivatives need two more terms than the value for the same accuracy.
+    const int extra = derivatives ? 2 : 0;
+    const int top_z = std::min(NeededOrder(std::abs(eps), kOrder) + extra, kOrder);
+    const int top_g = std::min(NeededOrder(2.0 * std::abs(eps), kGramOrder) + extra, kGramOrder);
+    if (derivatives) {
+      Horner<kOrder + 1>(z_coef, eps, top_z, &z, &z1, &z2);
+      // E1 and E2 in one loop: two independent dependency chains.
+      Cd v1 = e1c[top_g], v2 = e2c[top_g];
+      for (int m = top_g - 1; m >= 0; --m) {
+        e12 = e12 * eps + 2.0 * e11;
+        e22 = e22 * eps + 2.0 * e21;
+        e11 = e11 * eps + v1;
+        e21 = e21 * eps + v2;
+        v1 = v1 * eps + e1c[m];
+        v2 = v2 * eps + e2c[m];
+      }
+      e1 = v1;
+      e2 = v2;
+    } else {
+      z = HornerValue<kOrder + 1>(z_coef, eps, top_z);
+      Cd v1 = e1c[top_g], v2 = e2c[top_g];
+      for (int m = top_g - 1; m >= 0; --m) {
+        v1 = v1 * eps + e1c[m];
+        v2 = v2 * eps + e2c[m];
+      }
+      e1 = v1;
+      e2 = v2;
     }
-    e1 = v1;
-    e2 = v2;
   }
   const double inv_n = 1.0 / n;
   const double C = e1.real(), E = e1.imag();
