@@ -202,10 +202,12 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
 
 std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,
                                        const std::vector<uint32_t>& pixels, int iterations) {
-  // With h_k = 1 / g_k the model h_k I_k(i) = (M c(i))_k is linear. Eliminating c(i) per pixel
-  // leaves min_h sum_i |Q diag(I(i)) h|^2, Q = 1 - M pinv(M): h^T (Q o G) h with G the Gram
-  // matrix of the frames over the pixels (o: element-wise), subject to sum h = K. A tiny ridge
-  // keeps directions the per-pixel model absorbs (not identifiable) at h = 1.
+  // Alternating least squares from g = 1: per-pixel coefficients with the current gains (one
+  // shared pseudo-inverse), then g_k = sum I m / sum m^2 over the inlier pixels. A few steps
+  // recover the gain patterns the per-pixel model cannot absorb; patterns it can nearly absorb
+  // (e.g. a cosine in the frame index for a sinusoid model) are identifiable only through the
+  // noise and are deliberately left near 1: iterating to the joint minimum lets the noise
+  // (errors in variables) bias them, which costs more phase accuracy than it gains.
   const int nk = static_cast<int>(model.frames.size());
   std::vector<double> gains(nk, 1.0);
   if (nk == 0 || pixels.empty()) return gains;
@@ -214,39 +216,26 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
   Eigen::MatrixXd M(nk, np);
   for (int k = 0; k < nk; ++k)
     for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
-  const Eigen::MatrixXd Q = Eigen::MatrixXd::Identity(nk, nk) -
-                            M * (M.transpose() * M).ldlt().solve(M.transpose());
   const size_t n = pixels.size();
   Eigen::MatrixXd I(nk, n);  // samples, frame-major
   for (int k = 0; k < nk; ++k)
     for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], pixels[j]);
   std::vector<uint8_t> use(n, 1);
-  Eigen::VectorXd h = Eigen::VectorXd::Ones(nk);
-  for (int it = 0; it < std::max(1, iterations); ++it) {
-    Eigen::MatrixXd G = Eigen::MatrixXd::Zero(nk, nk);
-    Eigen::VectorXd col(nk);
-    for (size_t j = 0; j < n; ++j)
-      if (use[j]) G.selfadjointView<Eigen::Lower>().rankUpdate(I.col(j));
-    G = G.selfadjointView<Eigen::Lower>();
-    Eigen::MatrixXd A = Q.cwiseProduct(G);
-    const double ridge = 1e-9 * A.trace() / nk + 1e-300;
-    // KKT: [2(A + ridge) 1; 1^T 0] [h; lambda] = [2 ridge 1; K] (ridge pulls towards h = 1).
-    Eigen::MatrixXd kkt = Eigen::MatrixXd::Zero(nk + 1, nk + 1);
-    kkt.topLeftCorner(nk, nk) = 2 * (A + ridge * Eigen::MatrixXd::Identity(nk, nk));
-    kkt.block(0, nk, nk, 1).setOnes();
-    kkt.block(nk, 0, 1, nk).setOnes();
-    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(nk + 1);
-    rhs.head(nk).setConstant(2 * ridge);
-    rhs(nk) = nk;
-    const Eigen::VectorXd sol = kkt.fullPivLu().solve(rhs);
-    if (!sol.allFinite() || (sol.head(nk).array() <= 0).any()) break;
-    h = sol.head(nk);
-    if (it + 1 == iterations) break;
+  for (int it = 0; it < iterations; ++it) {
+    Eigen::MatrixXd Mg = M;
+    for (int k = 0; k < nk; ++k) Mg.row(k) *= gains[k];
+    const Eigen::MatrixXd pinv = (Mg.transpose() * Mg).ldlt().solve(Mg.transpose());
+    const Eigen::MatrixXd model_val = M * (pinv * I);  // ungained model, nk x n
     // Robust: drop pixels whose relative residual is an outlier (> median + 4 MAD).
     std::vector<double> rel(n);
     for (size_t j = 0; j < n; ++j) {
-      const Eigen::VectorXd v = I.col(j).cwiseProduct(h);
-      rel[j] = (Q * v).norm() / std::max(1e-30, v.norm());
+      double r2 = 0.0, m2 = 0.0;
+      for (int k = 0; k < nk; ++k) {
+        const double r = I(k, j) - gains[k] * model_val(k, j);
+        r2 += r * r;
+        m2 += model_val(k, j) * model_val(k, j);
+      }
+      rel[j] = m2 > 0 ? std::sqrt(r2 / m2) : std::numeric_limits<double>::infinity();
     }
     std::vector<double> sorted = rel;
     std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
@@ -255,11 +244,20 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
     std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
     const double mad = sorted[n / 2];
     for (size_t j = 0; j < n; ++j) use[j] = std::isfinite(rel[j]) && rel[j] <= med + 4 * 1.4826 * mad;
+    for (int k = 0; k < nk; ++k) {
+      double num = 0.0, den = 0.0;
+      for (size_t j = 0; j < n; ++j) {
+        if (!use[j]) continue;
+        num += I(k, j) * model_val(k, j);
+        den += model_val(k, j) * model_val(k, j);
+      }
+      if (den > 0) gains[k] = num / den;
+    }
+    double mean = 0.0;
+    for (double g : gains) mean += g;
+    mean /= nk;
+    for (double& g : gains) g /= mean;
   }
-  double mean = 0.0;
-  for (int k = 0; k < nk; ++k) mean += gains[k] = 1.0 / h(k);
-  mean /= nk;
-  for (double& g : gains) g /= mean;
   return gains;
 }
 

@@ -75,11 +75,10 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
 
 // Per-frame luminance gains (Ritz et al. 2012, Sec. 5.1). A group of frames shares a per-pixel
 // linear model I_k(i) = g_k * sum_p M(k, p) c_p(i) (e.g. DC + cos + sin of a sinusoid at known
-// positions). With h = 1/g the model is linear, the per-pixel coefficients are eliminated in
-// closed form and h minimises a quadratic form built from the frames' Gram matrix over `pixels`
-// (indices into the stack), with sum(h) fixed; pixels whose residual is an outlier (> median +
-// 4 MAD) are dropped and the solve repeated (`iterations` solves). Returns g normalised to mean 1
-// over the group. Gain patterns the per-pixel model can absorb are not identifiable and stay 1.
+// positions). Alternating least squares from g = 1 on `pixels` (indices into the stack): per-pixel
+// coefficients c(i) with the current gains, then g_k = sum I m / sum m^2 over the pixels whose
+// relative residual is not an outlier (> median + 4 MAD). Returns g normalised to mean 1.
+// Gain patterns the per-pixel model can (nearly) absorb are left near 1 on purpose (see .cc).
 struct GainModel {
   std::vector<int> frames;         // stack frame indices of the group
   std::vector<std::vector<double>> design;  // design[k][p] for frame frames[k]

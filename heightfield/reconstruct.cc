@@ -3,6 +3,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <Eigen/Dense>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -71,6 +73,59 @@ struct PeriodSet {
   std::vector<double> deltas;
 };
 
+// A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),
+// evaluated everywhere; empty if there are too few values. Two rounds drop values beyond
+// 4 MADs of the residual.
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h) {
+  std::vector<size_t> idx;
+  for (size_t i = 0; i < f.size(); ++i)
+    if (std::isfinite(f[i])) idx.push_back(i);
+  if (idx.size() < 50) return {};
+  const size_t stride = std::max<size_t>(1, idx.size() / 50000);
+  std::vector<size_t> sample;
+  for (size_t k = 0; k < idx.size(); k += stride) sample.push_back(idx[k]);
+  const double sx = 2.0 / std::max(1, w), sy = 2.0 / std::max(1, h);
+  auto terms = [&](size_t i, double* t) {
+    const double x = (static_cast<double>(i % w) + 0.5) * sx - 1.0;
+    const double y = (static_cast<double>(i / w) + 0.5) * sy - 1.0;
+    t[0] = 1; t[1] = x; t[2] = y; t[3] = x * x; t[4] = x * y; t[5] = y * y;
+  };
+  std::vector<uint8_t> use(sample.size(), 1);
+  Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
+  for (int round = 0; round < 3; ++round) {
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+    for (size_t k = 0; k < sample.size(); ++k) {
+      if (!use[k]) continue;
+      Eigen::Matrix<double, 6, 1> t;
+      terms(sample[k], t.data());
+      A += t * t.transpose();
+      b += t * static_cast<double>(f[sample[k]]);
+    }
+    c = A.ldlt().solve(b);
+    if (!c.allFinite()) return {};
+    std::vector<double> r(sample.size());
+    for (size_t k = 0; k < sample.size(); ++k) {
+      Eigen::Matrix<double, 6, 1> t;
+      terms(sample[k], t.data());
+      r[k] = std::abs(f[sample[k]] - t.dot(c));
+    }
+    std::vector<double> sorted = r;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double mad = 1.4826 * sorted[sorted.size() / 2];
+    for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
+  }
+  std::vector<float> out(f.size());
+  for (size_t i = 0; i < f.size(); ++i) {
+    double t[6];
+    terms(i, t);
+    double v = 0;
+    for (int q = 0; q < 6; ++q) v += t[q] * c(q);
+    out[i] = static_cast<float>(v);
+  }
+  return out;
+}
+
 }  // namespace
 
 void ReconstructOptions::Check() const {
@@ -105,6 +160,7 @@ Json ReconstructOptions::ToJson() const {
   j["normalize_luminance"] = normalize_luminance;
   j["lens_shift_box_filter"] = lens_shift_box_filter;
   j["fit_frequency"] = fit_frequency;
+  j["smooth_frequency"] = smooth_frequency;
   j["min_lit"] = min_lit;
   j["min_modulation"] = min_modulation;
   j["max_unwrap_residual"] = max_unwrap_residual;
@@ -307,12 +363,15 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
       }
     apply(ps, EstimateFrameGains(stack, ps, sample));
     if (use_ls) {
-      GainModel ls;
+      // Lens-shift frames: DC plus the nominal sinusoid and its first two derivatives by
+      // frequency (x^m cos, x^m sin; the per-pixel frequency deviates from nominal by several
+      // percent, which the gains must not absorb). Note: jitter along the sinusoid itself
+      // (the part that biases the phase, ~jitter * sqrt(2/N) * d/a rad) is absorbed by each
+      // pixel's fit and cannot be told from the pattern without a spatial assumption; frame
+      // averages were tried and are worse unless the view holds hundreds of stripe periods.
       const double centre =
           std::accumulate(ls_shift_px.begin(), ls_shift_px.end(), 0.0) / ls_shift_px.size();
-      // DC plus the nominal sinusoid and its first two derivatives by frequency (x^m cos,
-      // x^m sin): the per-pixel frequency deviates from nominal by several percent, which the
-      // gains must not absorb.
+      GainModel ls;
       for (size_t k = 0; k < ls_stack.size(); ++k) {
         const double x = ls_shift_px[k] - centre, ph = kPi * x;
         ls.frames.push_back(ls_stack[k]);
@@ -406,45 +465,60 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
     LensShiftFitOptions fo;
     fo.fitter = options.fitter;
     fo.fit_frequency = options.fit_frequency;
-    const LensShiftBatchFitter fitter(x, 0.5, fo);
     const int nx = static_cast<int>(x.size());
-    Progress progress("fit lens shift", h);
-    ParallelForRows(h, [&](int y0, int y1) {
-      const size_t i0 = static_cast<size_t>(y0) * w, n = static_cast<size_t>(y1 - y0) * w;
-      std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
-      for (int k = 0; k < nls; ++k) {
-        stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
-        const float g = inv_gain[ls_stack[k]];
-        for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
-      }
-      for (size_t j = 0; j < n; ++j) {
-        const size_t i = i0 + j;
-        if (state[i] != kActive) continue;
-        LensShiftFit fit;
-        if (box) {
-          for (int k = 0; k < nx; ++k) {
-            float s = 0;
-            for (int q = 0; q < 5; ++q) s += buf[(k + q) * n + j];
-            prof[k] = s / 5;
+    // One pass over the active pixels; f_map (if given) is the per-pixel frequency held fixed.
+    auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
+                        const char* label) {
+      Progress progress(label, h);
+      ParallelForRows(h, [&](int y0, int y1) {
+        const size_t i0 = static_cast<size_t>(y0) * w, n = static_cast<size_t>(y1 - y0) * w;
+        std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
+        for (int k = 0; k < nls; ++k) {
+          stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+          const float g = inv_gain[ls_stack[k]];
+          for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+        }
+        for (size_t j = 0; j < n; ++j) {
+          const size_t i = i0 + j;
+          if (state[i] != kActive) continue;
+          const float* b = buf.data() + j;
+          int stride = static_cast<int>(n);
+          if (box) {
+            for (int k = 0; k < nx; ++k) {
+              float sm = 0;
+              for (int q = 0; q < 5; ++q) sm += buf[(k + q) * n + j];
+              prof[k] = sm / 5;
+            }
+            b = prof.data();
+            stride = 1;
           }
-          fit = fitter.Fit(prof.data(), 1);
-        } else {
-          fit = fitter.Fit(buf.data() + j, static_cast<int>(n));
+          const LensShiftFit fit = f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
+          if (!fit.valid) {
+            state[i] = kFitFailed;
+            continue;
+          }
+          // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
+          ls_phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
+          ls_amp[i] = static_cast<float>(fit.amplitude);
+          ls_freq[i] = static_cast<float>(fit.frequency);
+          ls_off[i] = static_cast<float>(fit.offset);
+          ls_rms[i] = static_cast<float>(fit.residual_rms);
+          ls_n[i] = static_cast<float>(fit.samples_used);
         }
-        if (!fit.valid) {
-          state[i] = kFitFailed;
-          continue;
-        }
-        // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
-        ls_phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
-        ls_amp[i] = static_cast<float>(fit.amplitude);
-        ls_freq[i] = static_cast<float>(fit.frequency);
-        ls_off[i] = static_cast<float>(fit.offset);
-        ls_rms[i] = static_cast<float>(fit.residual_rms);
-        ls_n[i] = static_cast<float>(fit.samples_used);
+        progress.Advance(y1 - y0);
+      });
+    };
+    fit_pass(LensShiftBatchFitter(x, 0.5, fo), nullptr, "fit lens shift");
+    if (options.fit_frequency && options.smooth_frequency) {
+      // The shifter's gain varies smoothly over the image: a robust quadratic of the fitted
+      // frequencies, then the phase again with f held there (3 parameters: lower variance).
+      std::vector<float> f_map = SmoothFrequencyMap(ls_freq, w, h);
+      if (!f_map.empty()) {
+        LensShiftFitOptions fo2 = fo;
+        fo2.fit_frequency = false;
+        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, "refit lens shift");
       }
-      progress.Advance(y1 - y0);
-    });
+    }
   }
   for (size_t i = 0; i < np; ++i)
     sum.pixels_fitted += state[i] == kActive || state[i] == kFitFailed;
@@ -462,7 +536,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
       // (model errors: harmonics, defocus, jitter) proportional to the modulation.
       double sigma = 0.01 * level[i];
       if (use_ls && ls_n[i] > 4) {
-        sigma = ls_rms[i] * std::sqrt(ls_n[i] / (ls_n[i] - (options.fit_frequency ? 4 : 3)));
+        const bool four = options.fit_frequency && !options.smooth_frequency;
+        sigma = ls_rms[i] * std::sqrt(ls_n[i] / (ls_n[i] - (four ? 4 : 3)));
       } else {
         double s2 = 0;
         int cnt = 0;

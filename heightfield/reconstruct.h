@@ -50,6 +50,10 @@ struct ReconstructOptions {
   bool lens_shift_box_filter = false;
   // Fit the per-pixel lens-shift frequency (4-parameter model, paper Eq. 1).
   bool fit_frequency = true;
+  // With fit_frequency: replace the per-pixel frequencies by a robust quadratic over the image
+  // (the shifter's gain varies smoothly with the optics) and fit the phase again with f held
+  // there: the 3-parameter fit has lower variance where the 4-parameter one gains nothing.
+  bool smooth_frequency = true;
 
   // Thresholds, all in normalised units: frame values divided by the pixel's white level
   // (white - black frame, or twice the phase-shift mean when there are no white/black frames).
