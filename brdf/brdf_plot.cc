@@ -33,15 +33,6 @@ void Text(cv::Mat &img, const std::string &s, cv::Point p, double scale, const c
   cv::putText(img, s, p, kFont, scale, c, 1, cv::LINE_AA);
 }
 
-// Radius of a "nice" ring spacing (1, 2, 5 x 10^k) for data up to vmax with
-// about 4 rings.
-double NiceStep(double vmax) {
-  const double raw = vmax / 4, p = std::pow(10.0, std::floor(std::log10(raw)));
-  for (double m : {1.0, 2.0, 5.0, 10.0})
-    if (m * p >= raw) return m * p;
-  return 10 * p;
-}
-
 // Polar plot of f cos in the plane of incidence: wo on the right (phi = 0),
 // signed wi angle.
 void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
@@ -57,13 +48,30 @@ void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
   }
   const cv::Point c(area.x + area.width / 2, area.y + area.height - 30);
   const int radius = std::min(area.width / 2 - 28, area.height - 60);
-  const double step = vmax > 0 ? NiceStep(vmax) : 1.0;
-  const double scale_max = vmax > 0 ? std::ceil(vmax / step) * step : 1.0;
-  // Rings with their values, and angle spokes every 30 degrees.
-  for (double v = step; v <= scale_max + 1e-12; v += step) {
-    const int r = static_cast<int>(std::lround(radius * v / scale_max));
+  // Logarithmic radius from a tenth of the median (the diffuse level) up to the next power of
+  // ten above the peak, so a diffuse base and a sharp highlight are both visible; rings at
+  // every decade.
+  std::vector<double> positive;
+  for (const Rgb &v : values)
+    if (v.allFinite() && Luminance(v) > 0) positive.push_back(Luminance(v));
+  double median = vmax;
+  if (!positive.empty()) {
+    std::nth_element(positive.begin(), positive.begin() + positive.size() / 2, positive.end());
+    median = positive[positive.size() / 2];
+  }
+  const double top = vmax > 0 ? std::ceil(std::log10(vmax)) : 0.0;
+  const int kDecades =
+      median > 0 ? std::clamp(static_cast<int>(top - std::floor(std::log10(0.1 * median))), 2, 6)
+                 : 4;
+  auto radius_of = [&](double v) {
+    if (!(v > 0)) return 0.0;
+    return radius * std::clamp((std::log10(v) - (top - kDecades)) / kDecades, 0.0, 1.0);
+  };
+  for (int d = 0; d < kDecades; ++d) {
+    const int r = static_cast<int>(std::lround(radius * (d + 1.0) / kDecades));
     cv::ellipse(img, c, cv::Size(r, r), 0, 180, 360, kGrey, 1, cv::LINE_AA);
-    Text(img, Fmt("%.3g", v), cv::Point(c.x + 3, c.y - r - 2), 0.33, kLight);
+    Text(img, Fmt("%g", std::pow(10.0, top - kDecades + d + 1)), cv::Point(c.x + 3, c.y - r - 2),
+         0.33, kLight);
   }
   for (int deg = -90; deg <= 90; deg += 30) {
     const double a = deg * kPi / 180;
@@ -79,14 +87,14 @@ void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
   const cv::Point wo_tip(c.x + static_cast<int>(radius * std::sin(theta_o)),
                          c.y - static_cast<int>(radius * std::cos(theta_o)));
   cv::arrowedLine(img, wo_tip, c, cv::Scalar(0, 200, 255), 1, cv::LINE_AA, 0, 0.06);
-  Text(img, "wo", wo_tip + cv::Point(4, -4), 0.4, cv::Scalar(0, 200, 255));
+  Text(img, "wo", wo_tip + cv::Point(6, 12), 0.4, cv::Scalar(0, 200, 255));
   // The three channel curves.
   for (int ch = 0; ch < 3; ++ch) {
     std::vector<cv::Point> pts;
     for (int i = 0; i < kSteps; ++i) {
       const double t = -kPi / 2 + kPi * i / (kSteps - 1);
       const double v = std::isfinite(values[i][ch]) ? values[i][ch] : 0.0;
-      const double r = radius * std::min(1.0, v / scale_max);
+      const double r = radius_of(v);
       pts.emplace_back(c.x + static_cast<int>(std::lround(r * std::sin(t))),
                        c.y - static_cast<int>(std::lround(r * std::cos(t))));
     }
@@ -94,8 +102,8 @@ void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
   }
   Text(img, "theta_o = " + Fmt("%.0f", theta_o * 180 / kPi) + " deg", cv::Point(c.x, area.y + 18),
        0.5, kWhite, true);
-  Text(img, "f*cos(theta_i) [1/sr], plane of incidence", cv::Point(c.x, area.y + 36), 0.36, kLight,
-       true);
+  Text(img, "f*cos(theta_i) [1/sr], log radius, plane of incidence", cv::Point(c.x, area.y + 36),
+       0.36, kLight, true);
 }
 
 // Hemisphere seen from above (orthographic): RGB of f cos, exposure set by the

@@ -1,0 +1,106 @@
+// mesoscan brdf info|plot|tabulate through the executable: every shared RGL file gets an info
+// line and a readable plot; a MERL-layout table written by `tabulate` reads back; bad input is
+// one line and exit code 3.
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <algorithm>
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "core/image_io.h"
+
+namespace {
+namespace fs = std::filesystem;
+
+const fs::path kDataDir = fs::path(MESOSCAN_SHARED_DIR) / "data" / "brdf";
+
+struct CliRun {
+  int code = -1;
+  std::string out;  // stdout and stderr together
+};
+
+CliRun Mesoscan(const std::string& args) {
+  const std::string cmd = std::string(MESOSCAN_EXE) + " -q " + args + " 2>&1";
+  CliRun r;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return r;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+  const int status = pclose(p);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+fs::path TempDir(const std::string& name) {
+  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_cli_test_" + name);
+  fs::remove_all(p);
+  fs::create_directories(p);
+  return p;
+}
+
+TEST(BrdfCli, InfoAndPlotForEverySharedFile) {
+  if (!fs::is_directory(kDataDir)) GTEST_SKIP() << kDataDir << " is absent";
+  const fs::path out = TempDir("plots");
+  int files = 0;
+  for (const auto& e : fs::directory_iterator(kDataDir)) {
+    if (e.path().extension() != ".bsdf") continue;
+    ++files;
+    const CliRun info = Mesoscan("brdf info " + e.path().string());
+    ASSERT_EQ(info.code, 0) << info.out;
+    EXPECT_NE(info.out.find("RGL tensor_file"), std::string::npos) << info.out;
+    EXPECT_NE(info.out.find("8 theta_i"), std::string::npos) << info.out;
+    EXPECT_NE(info.out.find("albedo:"), std::string::npos) << info.out;
+    const fs::path png = out / (e.path().stem().string() + ".png");
+    const CliRun plot = Mesoscan("brdf plot " + e.path().string() + " --out " + png.string());
+    ASSERT_EQ(plot.code, 0) << plot.out;
+    mesoscan::ImageInfo ii;
+    const mesoscan::ImageF im = mesoscan::ReadImage(png, &ii);
+    EXPECT_EQ(ii.channels, 3);
+    EXPECT_EQ(ii.bits_per_sample, 8);
+    EXPECT_EQ(im.width(), 4 * 360);
+    EXPECT_GT(im.height(), 500);
+  }
+  EXPECT_EQ(files, 7);
+  fs::remove_all(out);
+}
+
+TEST(BrdfCli, TabulatedMerlReadsBack) {
+  const fs::path dir = TempDir("merl");
+  const fs::path merl = dir / "ggx.binary";
+  const CliRun tab = Mesoscan(
+      "brdf tabulate --alpha 0.25 --fresnel conductor --diffuse 0.2 0.1 0.05 "
+      "--out " +
+      merl.string());
+  ASSERT_EQ(tab.code, 0) << tab.out;
+  EXPECT_EQ(fs::file_size(merl), 34992012u);
+  const CliRun info = Mesoscan("brdf info " + merl.string());
+  ASSERT_EQ(info.code, 0) << info.out;
+  EXPECT_NE(info.out.find("MERL binary"), std::string::npos) << info.out;
+  const CliRun plot =
+      Mesoscan("brdf plot " + merl.string() + " --theta 0 60 --out " + (dir / "merl.png").string());
+  ASSERT_EQ(plot.code, 0) << plot.out;
+  EXPECT_TRUE(fs::exists(dir / "merl.png"));
+  fs::remove_all(dir);
+}
+
+TEST(BrdfCli, BadInputIsOneLineAndExitCode3) {
+  const fs::path dir = TempDir("bad");
+  std::ofstream(dir / "junk.binary", std::ios::binary) << "not a brdf";
+  const CliRun r = Mesoscan("brdf info " + (dir / "junk.binary").string());
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("junk.binary"), std::string::npos) << r.out;
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+  const CliRun missing = Mesoscan("brdf plot " + (dir / "none.bsdf").string() + " --out x.png");
+  EXPECT_EQ(missing.code, 3) << missing.out;
+  const CliRun usage = Mesoscan("brdf plot");
+  EXPECT_EQ(usage.code, 2) << usage.out;
+  fs::remove_all(dir);
+}
+
+}  // namespace
