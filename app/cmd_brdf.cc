@@ -1,5 +1,4 @@
-// mesoscan brdf info|plot|tabulate: inspect measured BRDFs and write
-// MERL-layout tables.
+// mesoscan brdf info|plot|tabulate: inspect measured BRDFs and write MERL-layout tables.
 
 #include <cstdio>
 #include <string>
@@ -14,7 +13,7 @@
 namespace mesoscan {
 namespace {
 
-std::string Triple(const Rgb &c) {
+std::string Triple(const Rgb& c) {
   char buf[96];
   std::snprintf(buf, sizeof(buf), "(%.3f, %.3f, %.3f)", c[0], c[1], c[2]);
   return buf;
@@ -28,12 +27,12 @@ MerlOptions MerlOptionsFrom(bool accept_invalid) {
 
 }  // namespace
 
-void AddBrdfCommand(CLI::App *app) {
-  auto *cmd = app->add_subcommand("brdf", "Inspect measured BRDFs (RGL .bsdf, MERL .binary)");
+void AddBrdfCommand(CLI::App* app) {
+  auto* cmd = app->add_subcommand("brdf", "Inspect measured BRDFs (RGL .bsdf, MERL .binary)");
   cmd->require_subcommand(1);
 
   // brdf info FILE
-  auto *info = cmd->add_subcommand("info", "Format, resolution and albedo range of a BRDF file");
+  auto* info = cmd->add_subcommand("info", "Format, resolution and albedo range of a BRDF file");
   static std::string info_file;
   static bool info_accept = false;
   info->add_option("file", info_file, "RGL .bsdf or MERL .binary file")->required();
@@ -55,7 +54,7 @@ void AddBrdfCommand(CLI::App *app) {
   });
 
   // brdf plot FILE --out x.png
-  auto *plot = cmd->add_subcommand("plot", "Polar plots and hemisphere maps of f*cos as a PNG");
+  auto* plot = cmd->add_subcommand("plot", "Polar plots and hemisphere maps of f*cos as a PNG");
   static std::string plot_file, plot_out;
   static BrdfPlotOptions plot_options;
   static bool plot_accept = false;
@@ -71,16 +70,15 @@ void AddBrdfCommand(CLI::App *app) {
     const Brdf brdf = LoadBrdf(plot_file, MerlOptionsFrom(plot_accept));
     BrdfPlotOptions o = plot_options;
     std::string name = std::filesystem::path(plot_file).filename().string();
-    if (const auto *rgl = brdf.Get<RglBrdf>(); rgl && !rgl->description().empty())
+    if (const auto* rgl = brdf.Get<RglBrdf>(); rgl && !rgl->description().empty())
       name += ": " + rgl->description();
     o.title = name;
     WritePng8(plot_out, PlotBrdf(brdf, o));
     MESOSCAN_LOG(kInfo) << "wrote " << plot_out;
   });
 
-  // brdf tabulate --alpha A --out x.binary: an analytic GGX in the MERL layout
-  // (demo data).
-  auto *tab = cmd->add_subcommand("tabulate",
+  // brdf tabulate --alpha A --out x.binary: an analytic GGX in the MERL layout (demo data).
+  auto* tab = cmd->add_subcommand("tabulate",
                                   "Write an analytic GGX (optionally over "
                                   "Lambert) as a MERL-layout .binary");
   static std::string tab_out;
@@ -112,7 +110,7 @@ void AddBrdfCommand(CLI::App *app) {
     if ((diffuse.albedo() < 0).any() || (diffuse.albedo() > 1).any())
       MESOSCAN_BAD_INPUT("--diffuse: each albedo must be in [0, 1]");
     const auto table = MerlBrdf::Tabulate(
-        [&](const Vec3 &wo, const Vec3 &wi) { return Rgb(ggx.f(wo, wi) + diffuse.f(wo, wi)); });
+        [&](const Vec3& wo, const Vec3& wi) { return Rgb(ggx.f(wo, wi) + diffuse.f(wo, wi)); });
     table->Write(tab_out);
     MESOSCAN_LOG(kInfo) << "wrote " << tab_out;
   });

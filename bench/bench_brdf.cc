@@ -1,5 +1,5 @@
-// Evaluations and importance samples per second for every BRDF model (closing-note figures).
-// Each benchmark reports items/s; one "item" is one f() call, one Sample() or one Pdf().
+// Evaluations and importance samples per second for every BRDF model (closing-note figures). Each
+// benchmark reports items/s; one "item" is one f() call, one Sample() or one Pdf().
 
 #include <benchmark/benchmark.h>
 

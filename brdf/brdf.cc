@@ -21,7 +21,7 @@ std::string Brdf::Kind() const {
   }
 }
 
-Brdf LoadBrdf(const std::filesystem::path &path, const MerlOptions &merl_options) {
+Brdf LoadBrdf(const std::filesystem::path& path, const MerlOptions& merl_options) {
   std::ifstream in(path, std::ios::binary);
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
   char magic[12] = {};
@@ -31,7 +31,7 @@ Brdf LoadBrdf(const std::filesystem::path &path, const MerlOptions &merl_options
   return Brdf(MerlBrdf::Load(path, merl_options));
 }
 
-Rgb DirectionalAlbedo(const Brdf &brdf, const Vec3 &wo, int n) {
+Rgb DirectionalAlbedo(const Brdf& brdf, const Vec3& wo, int n) {
   Rgb sum = Rgb::Zero();
   for (int j = 0; j < n; ++j)
     for (int i = 0; i < n; ++i) {
@@ -41,16 +41,16 @@ Rgb DirectionalAlbedo(const Brdf &brdf, const Vec3 &wo, int n) {
   return sum / (static_cast<double>(n) * n);
 }
 
-BrdfInfo DescribeBrdf(const Brdf &brdf) {
+BrdfInfo DescribeBrdf(const Brdf& brdf) {
   BrdfInfo info;
   std::ostringstream res;
-  if (const auto *rgl = brdf.Get<RglBrdf>()) {
+  if (const auto* rgl = brdf.Get<RglBrdf>()) {
     info.format = "RGL tensor_file (Dupuy & Jakob 2018), RGB";
     info.description = rgl->description();
     res << rgl->theta_i_count() << " theta_i x " << rgl->phi_i_count() << " phi_i, vndf "
         << rgl->vndf_resolution() << "^2, rgb " << rgl->rgb_resolution() << "^2, "
         << (rgl->isotropic() ? "isotropic" : "anisotropic");
-  } else if (const auto *merl = brdf.Get<MerlBrdf>()) {
+  } else if (const auto* merl = brdf.Get<MerlBrdf>()) {
     info.format = "MERL binary";
     res << MerlBrdf::kThetaH << " theta_h x " << MerlBrdf::kThetaD << " theta_d x "
         << MerlBrdf::kPhiD << " phi_d, isotropic";

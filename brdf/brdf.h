@@ -1,13 +1,11 @@
 #pragma once
-// The closed set of BRDF models the renderer samples, behind one value type
-// (pbrt-v4's TaggedPointer idea with std::variant): dispatch is a switch per
-// call, no virtual call, and a Brdf is cheap to copy (measured tables are
-// shared, immutable).
+// The closed set of BRDF models the renderer samples, behind one value type (pbrt-v4's
+// TaggedPointer idea with std::variant): dispatch is a switch per call, no virtual call, and a Brdf
+// is cheap to copy (measured tables are shared, immutable).
 //
-//   Brdf b = LoadBrdf("paper.bsdf");          // or Brdf(LambertBrdf(...)),
-//   Brdf(GgxBrdf<double>...) Rgb f = b.f(wo, wi);                       //
-//   local frame, z = normal, no cosine if (auto s = b.Sample(wo, u)) L += s->f
-//   * s->wi.z() / s->pdf * Li(s->wi);
+//   Brdf b = LoadBrdf("paper.bsdf");  // or Brdf(LambertBrdf(...)), Brdf(GgxBrdf<double>(...))
+//   Rgb f = b.f(wo, wi);               // local frame, z = normal, no cosine
+//   if (auto s = b.Sample(wo, u)) L += s->f * s->wi.z() / s->pdf * Li(s->wi);
 
 #include <filesystem>
 #include <memory>
@@ -35,58 +33,56 @@ class Brdf {
   }
   Brdf(std::shared_ptr<const RglBrdf> m) : model_(std::move(m)) { MESOSCAN_CHECK(Get<RglBrdf>()); }
 
-  Rgb f(const Vec3 &wo, const Vec3 &wi) const {
-    return std::visit([&](const auto &m) { return Deref(m).f(wo, wi); }, model_);
+  Rgb f(const Vec3& wo, const Vec3& wi) const {
+    return std::visit([&](const auto& m) { return Deref(m).f(wo, wi); }, model_);
   }
-  std::optional<BrdfSample> Sample(const Vec3 &wo, const Vec2 &u) const {
-    return std::visit([&](const auto &m) { return Deref(m).Sample(wo, u); }, model_);
+  std::optional<BrdfSample> Sample(const Vec3& wo, const Vec2& u) const {
+    return std::visit([&](const auto& m) { return Deref(m).Sample(wo, u); }, model_);
   }
-  double Pdf(const Vec3 &wo, const Vec3 &wi) const {
-    return std::visit([&](const auto &m) { return Deref(m).Pdf(wo, wi); }, model_);
+  double Pdf(const Vec3& wo, const Vec3& wi) const {
+    return std::visit([&](const auto& m) { return Deref(m).Pdf(wo, wi); }, model_);
   }
 
   // "lambert", "ggx", "merl", "rgl".
   std::string Kind() const;
-  const Model &model() const { return model_; }
+  const Model& model() const { return model_; }
   // The measured table, or nullptr when the model is another kind.
   template <typename T>
-  const T *Get() const {
+  const T* Get() const {
     if (auto p = std::get_if<std::shared_ptr<const T>>(&model_)) return p->get();
     return nullptr;
   }
 
  private:
   template <typename T>
-  static const T &Deref(const T &m) {
+  static const T& Deref(const T& m) {
     return m;
   }
   template <typename T>
-  static const T &Deref(const std::shared_ptr<const T> &m) {
+  static const T& Deref(const std::shared_ptr<const T>& m) {
     return *m;
   }
 
   Model model_;
 };
 
-// Loads a measured BRDF by content: "tensor_file" magic -> RGL .bsdf, else a
-// MERL .binary. Throws Error(kBadInput) naming the file.
-Brdf LoadBrdf(const std::filesystem::path &path, const MerlOptions &merl_options = {});
+// Loads a measured BRDF by content: "tensor_file" magic -> RGL .bsdf, else a MERL .binary. Throws
+// Error(kBadInput) naming the file.
+Brdf LoadBrdf(const std::filesystem::path& path, const MerlOptions& merl_options = {});
 
-// Directional albedo rho(wo) = int f(wo, wi) cos(theta_i) dwi per channel,
-// estimated with the model's own importance sampling on a fixed stratified grid
-// of n x n samples (deterministic).
-Rgb DirectionalAlbedo(const Brdf &brdf, const Vec3 &wo, int n = 64);
+// Directional albedo rho(wo) = int f(wo, wi) cos(theta_i) dwi per channel, estimated with the
+// model's own importance sampling on a fixed stratified grid of n x n samples (deterministic).
+Rgb DirectionalAlbedo(const Brdf& brdf, const Vec3& wo, int n = 64);
 
 struct BrdfInfo {
   std::string format;       // "RGL tensor_file (Dupuy & Jakob 2018)", "MERL binary", ...
   std::string description;  // the file's own description, if any
   std::string resolution;   // human-readable table sizes
-  // Directional albedo over incident elevations 0..85 degrees (step 5), per
-  // channel.
+  // Directional albedo over incident elevations 0..85 degrees (step 5), per channel.
   Rgb albedo_min, albedo_max;
   double albedo_min_theta_deg = 0,
          albedo_max_theta_deg = 0;  // where the luminance extremes are
 };
-BrdfInfo DescribeBrdf(const Brdf &brdf);
+BrdfInfo DescribeBrdf(const Brdf& brdf);
 
 }  // namespace mesoscan

@@ -17,13 +17,13 @@ const cv::Scalar kChannel[3] = {cv::Scalar(40, 40, 230), cv::Scalar(40, 170, 40)
                                 cv::Scalar(230, 80, 30)};
 constexpr int kFont = cv::FONT_HERSHEY_SIMPLEX;
 
-std::string Fmt(const char *fmt, double v) {
+std::string Fmt(const char* fmt, double v) {
   char buf[64];
   std::snprintf(buf, sizeof(buf), fmt, v);
   return buf;
 }
 
-void Text(cv::Mat &img, const std::string &s, cv::Point p, double scale, const cv::Scalar &c,
+void Text(cv::Mat& img, const std::string& s, cv::Point p, double scale, const cv::Scalar& c,
           bool centred = false) {
   if (centred) {
     int base = 0;
@@ -33,9 +33,8 @@ void Text(cv::Mat &img, const std::string &s, cv::Point p, double scale, const c
   cv::putText(img, s, p, kFont, scale, c, 1, cv::LINE_AA);
 }
 
-// Polar plot of f cos in the plane of incidence: wo on the right (phi = 0),
-// signed wi angle.
-void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
+// Polar plot of f cos in the plane of incidence: wo on the right (phi = 0), signed wi angle.
+void DrawPolar(cv::Mat& img, cv::Rect area, const Brdf& brdf, double theta_o) {
   constexpr int kSteps = 721;
   const Vec3 wo = SphericalDirection(theta_o, 0.0);
   std::vector<Rgb> values(kSteps);
@@ -48,11 +47,11 @@ void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
   }
   const cv::Point c(area.x + area.width / 2, area.y + area.height - 30);
   const int radius = std::min(area.width / 2 - 28, area.height - 60);
-  // Logarithmic radius from a tenth of the median (the diffuse level) up to the next power of
-  // ten above the peak, so a diffuse base and a sharp highlight are both visible; rings at
-  // every decade.
+  // Logarithmic radius from a tenth of the median (the diffuse level) up to the next power of ten
+  // above the peak, so a diffuse base and a sharp highlight are both visible; rings at every
+  // decade.
   std::vector<double> positive;
-  for (const Rgb &v : values)
+  for (const Rgb& v : values)
     if (v.allFinite() && Luminance(v) > 0) positive.push_back(Luminance(v));
   double median = vmax;
   if (!positive.empty()) {
@@ -106,10 +105,9 @@ void DrawPolar(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
        0.36, kLight, true);
 }
 
-// Hemisphere seen from above (orthographic): RGB of f cos, exposure set by the
-// panel's 99th percentile of the largest channel (so colours do not clip),
-// sRGB-encoded.
-void DrawHemisphere(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_o) {
+// Hemisphere seen from above (orthographic): RGB of f cos, exposure set by the panel's 99th
+// percentile of the largest channel (so colours do not clip), sRGB-encoded.
+void DrawHemisphere(cv::Mat& img, cv::Rect area, const Brdf& brdf, double theta_o) {
   const int radius = std::min(area.width, area.height - 40) / 2 - 8;
   const cv::Point c(area.x + area.width / 2, area.y + 24 + radius);
   const Vec3 wo = SphericalDirection(theta_o, 0.0);
@@ -129,7 +127,7 @@ void DrawHemisphere(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_
       }
   });
   std::vector<double> lum;
-  for (const Rgb &v : vals)
+  for (const Rgb& v : vals)
     if (v[0] >= 0) lum.push_back(v.maxCoeff());
   double exposure = 1;
   if (!lum.empty()) {
@@ -144,15 +142,14 @@ void DrawHemisphere(cv::Mat &img, cv::Rect area, const Brdf &brdf, double theta_
   };
   for (int py = 0; py < n; ++py)
     for (int px = 0; px < n; ++px) {
-      const Rgb &v = vals[static_cast<size_t>(py) * n + px];
+      const Rgb& v = vals[static_cast<size_t>(py) * n + px];
       if (v[0] < 0) continue;
       const cv::Point p(c.x - radius + px, c.y - radius + py);
       img.at<cv::Vec3b>(p) =
           cv::Vec3b(encode(v[2] * exposure), encode(v[1] * exposure), encode(v[0] * exposure));
     }
   cv::circle(img, c, radius, kGrey, 1, cv::LINE_AA);
-  // Mirror direction of wo (where a highlight is expected) and the direction of
-  // wo itself.
+  // Mirror direction of wo (where a highlight is expected) and the direction of wo itself.
   const cv::Point mirror(c.x - static_cast<int>(radius * std::sin(theta_o)), c.y);
   const cv::Point wo_p(c.x + static_cast<int>(radius * std::sin(theta_o)), c.y);
   cv::drawMarker(img, wo_p, cv::Scalar(0, 200, 255), cv::MARKER_CROSS, 10, 1);
@@ -172,7 +169,7 @@ void BrdfPlotOptions::Check() const {
   if (panel_px < 200) MESOSCAN_BAD_INPUT("plot: panel_px " << panel_px << " < 200");
 }
 
-ImageU8 PlotBrdf(const Brdf &brdf, const BrdfPlotOptions &options) {
+ImageU8 PlotBrdf(const Brdf& brdf, const BrdfPlotOptions& options) {
   options.Check();
   const int cols = static_cast<int>(options.theta_o_deg.size());
   const int w = options.panel_px, title_h = 34, polar_h = w * 2 / 3, hemi_h = w;
@@ -185,7 +182,7 @@ ImageU8 PlotBrdf(const Brdf &brdf, const BrdfPlotOptions &options) {
   }
   // Legend for the curve colours.
   const int ly = img.rows - 8;
-  const char *names[3] = {"R", "G", "B"};
+  const char* names[3] = {"R", "G", "B"};
   for (int ch = 0; ch < 3; ++ch) {
     const int x = 10 + ch * 60;
     cv::line(img, cv::Point(x, ly - 4), cv::Point(x + 24, ly - 4), kChannel[ch], 2);

@@ -1,8 +1,7 @@
 #pragma once
-// A picture of a BRDF a person can read: for a few incident elevations, a polar
-// plot of f * cos(theta_i) in the plane of incidence (R, G, B curves, linear
-// radius with labelled rings) above a false-colour hemisphere map (orthographic
-// view from above) of f * cos in RGB.
+// A picture of a BRDF a person can read: for a few incident elevations, a polar plot of f *
+// cos(theta_i) in the plane of incidence (R, G, B curves, linear radius with labelled rings) above
+// a false-colour hemisphere map (orthographic view from above) of f * cos in RGB.
 
 #include <string>
 #include <vector>
@@ -13,11 +12,9 @@
 namespace mesoscan {
 
 struct BrdfPlotOptions {
-  // Elevations of the fixed direction wo, in degrees in [0, 89]; one column
-  // each.
+  // Elevations of the fixed direction wo, in degrees in [0, 89]; one column each.
   std::vector<double> theta_o_deg = {0, 30, 60, 75};
-  // Width of one column in pixels, >= 200. The image is columns * panel_px
-  // wide.
+  // Width of one column in pixels, >= 200. The image is columns * panel_px wide.
   int panel_px = 360;
   // Title printed at the top (e.g. the file name and its description).
   std::string title;
@@ -26,6 +23,6 @@ struct BrdfPlotOptions {
 };
 
 // 8-bit RGB image (3 channels) of the plots.
-ImageU8 PlotBrdf(const Brdf &brdf, const BrdfPlotOptions &options);
+ImageU8 PlotBrdf(const Brdf& brdf, const BrdfPlotOptions& options);
 
 }  // namespace mesoscan

@@ -7,9 +7,8 @@
 namespace mesoscan {
 namespace {
 
-// Fraction of pixels inside `rows` x all columns that differ from the
-// background.
-double InkFraction(const ImageU8 &im, int y0, int y1) {
+// Fraction of pixels inside `rows` x all columns that differ from the background.
+double InkFraction(const ImageU8& im, int y0, int y1) {
   size_t ink = 0, all = 0;
   for (int y = y0; y < y1; ++y)
     for (int x = 0; x < im.width(); ++x, ++all)

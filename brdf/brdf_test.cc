@@ -29,15 +29,14 @@ TEST(Brdf, ChiSquareSamplingMatchesPdf) {
   const std::vector<double> thetas = {5, 40, 75};
   const int tests = static_cast<int>(models.size() * thetas.size());
   uint32_t seed = 1;
-  for (const auto &[name, brdf] : models)
+  for (const auto& [name, brdf] : models)
     for (double deg : thetas) {
       const Vec3 wo = SphericalDirection(deg * kPi / 180, 0.4);
       const auto r = ChiSquareTest(brdf, wo, 40000 * kSampleScale, tests, seed++);
       EXPECT_GT(r.p_value, r.significance) << name << " theta_o " << deg << " dof " << r.dof;
       EXPECT_FALSE(r.sample_outside_support) << name << " theta_o " << deg;
-      // Sampled mass that stays above the horizon equals the pdf's integral
-      // there (binomial noise of the success fraction, 5 sigma, plus quadrature
-      // error).
+      // Sampled mass that stays above the horizon equals the pdf's integral there (binomial noise
+      // of the success fraction, 5 sigma, plus quadrature error).
       const double sigma =
           std::sqrt(r.success_fraction * (1 - r.success_fraction) / r.samples) + 1e-3;
       EXPECT_NEAR(r.pdf_integral, r.success_fraction, 5 * sigma) << name << " theta_o " << deg;
@@ -53,11 +52,10 @@ TEST(Brdf, LambertPdfIntegratesToOne) {
 }
 
 TEST(Brdf, WhiteFurnaceAlbedoAtMostOne) {
-  for (const auto &[name, brdf] : AnalyticModels()) {
+  for (const auto& [name, brdf] : AnalyticModels()) {
     double worst_deg = 0;
     const double a = MaxDirectionalAlbedo(brdf, 48, &worst_deg);
-    // Stratified importance sampling of a bounded integrand: error well under
-    // 1%.
+    // Stratified importance sampling of a bounded integrand: error well under 1%.
     EXPECT_LE(a, 1.0 + 1e-2) << name << " at theta_o " << worst_deg;
   }
   // A white Lambertian reflector is exactly 1.
@@ -66,9 +64,8 @@ TEST(Brdf, WhiteFurnaceAlbedoAtMostOne) {
 }
 
 TEST(Brdf, GgxConductorWithIdealMetalIsNearlyLossless) {
-  // A perfect mirror-like conductor (huge k) on a smooth surface reflects
-  // nearly everything at normal incidence: single-scattering GGX loses < 2% at
-  // alpha 0.05 (Heitz 2016 fig. 2).
+  // A perfect mirror-like conductor (huge k) on a smooth surface reflects nearly everything at
+  // normal incidence: single-scattering GGX loses < 2% at alpha 0.05 (Heitz 2016 fig. 2).
   const GgxBrdf<double> ggx =
       GgxBrdf<double>::Conductor(0.05, Rgb::Constant(1.0), Rgb::Constant(1e4));
   Rgb sum = Rgb::Zero();
@@ -83,7 +80,7 @@ TEST(Brdf, GgxConductorWithIdealMetalIsNearlyLossless) {
 
 TEST(Brdf, Reciprocity) {
   std::mt19937 rng(3);
-  for (const auto &[name, brdf] : AnalyticModels())
+  for (const auto& [name, brdf] : AnalyticModels())
     for (int i = 0; i < 2000; ++i) {
       const Vec3 a = RandomUpperDirection(rng), b = RandomUpperDirection(rng);
       const Rgb fab = brdf.f(a, b), fba = brdf.f(b, a);
@@ -111,7 +108,7 @@ TEST(Brdf, GgxCheckRejectsBadParameters) {
 }
 
 TEST(Brdf, BelowHorizonIsZero) {
-  for (const auto &[name, brdf] : AnalyticModels()) {
+  for (const auto& [name, brdf] : AnalyticModels()) {
     const Vec3 up(0, 0.6, 0.8), down(0, 0.6, -0.8);
     EXPECT_EQ(brdf.f(up, down).maxCoeff(), 0.0) << name;
     EXPECT_EQ(brdf.Pdf(down, up), 0.0) << name;

@@ -1,6 +1,5 @@
 #pragma once
-// Statistical checks shared by the BRDF unit tests (pbrt-v4 bsdfs_test.cpp
-// style). Test-only.
+// Statistical checks shared by the BRDF unit tests (pbrt-v4 bsdfs_test.cpp style). Test-only.
 
 #include <Eigen/Core>
 #include <functional>
@@ -12,22 +11,20 @@
 
 namespace mesoscan::testing {
 
-// Sample counts: the full figures under NDEBUG, a fifth in debug / sanitizer
-// builds (the assertions stay the same; the chi-square test is valid at any
-// count).
+// Sample counts: the full figures under NDEBUG, a fifth in debug / sanitizer builds (the assertions
+// stay the same; the chi-square test is valid at any count).
 #ifdef NDEBUG
 inline constexpr int kSampleScale = 5;
 #else
 inline constexpr int kSampleScale = 1;
 #endif
 
-// Integral of f over [a, b]: adaptive Simpson started from `pieces` equal
-// parts, each refined until its error estimate is below eps (pbrt-v3
-// AdaptiveSimpson).
+// Integral of f over [a, b]: adaptive Simpson started from `pieces` equal parts, each refined until
+// its error estimate is below eps (pbrt-v3 AdaptiveSimpson).
 template <typename F>
-double AdaptiveSimpson(const F &f, double a, double b, double eps = 1e-7, int max_depth = 8,
+double AdaptiveSimpson(const F& f, double a, double b, double eps = 1e-7, int max_depth = 8,
                        int pieces = 4) {
-  auto rec = [&](auto &&self, double a0, double b0, double fa, double fm, double fb, double whole,
+  auto rec = [&](auto&& self, double a0, double b0, double fa, double fm, double fb, double whole,
                  double tol, int depth) -> double {
     const double m = 0.5 * (a0 + b0), lm = 0.5 * (a0 + m), rm = 0.5 * (m + b0);
     const double flm = f(lm), frm = f(rm);
@@ -58,12 +55,11 @@ struct ChiSquareResult {
   bool sample_outside_support = false;  // a sample landed in a bin where the pdf is zero
 };
 
-// Chi-square goodness of fit of Sample against Pdf for one wo, on a theta x phi
-// grid over the upper hemisphere; cells with expected count < 5 are pooled
-// (pbrt-v4 ChiSquareTest). `tests` is the number of such tests in the suite
-// (Sidak correction of the 1% level).
+// Chi-square goodness of fit of Sample against Pdf for one wo, on a theta x phi grid over the upper
+// hemisphere; cells with expected count < 5 are pooled (pbrt-v4 ChiSquareTest). `tests` is the
+// number of such tests in the suite (Sidak correction of the 1% level).
 template <typename Model>
-ChiSquareResult ChiSquareTest(const Model &m, const Vec3 &wo, int samples, int tests, uint32_t seed,
+ChiSquareResult ChiSquareTest(const Model& m, const Vec3& wo, int samples, int tests, uint32_t seed,
                               int theta_res = 10, int phi_res = 20) {
   ChiSquareResult r;
   r.samples = samples;
@@ -84,9 +80,8 @@ ChiSquareResult ChiSquareTest(const Model &m, const Vec3 &wo, int samples, int t
     observed[ti * phi_res + pi] += 1;
   }
   r.success_fraction = static_cast<double>(ok) / samples;
-  // Expected counts: nested adaptive Simpson over each cell in (theta, phi)
-  // with the sin(theta) factor (pbrt-v3 AdaptiveSimpson2D), so narrow
-  // highlights are integrated accurately.
+  // Expected counts: nested adaptive Simpson over each cell in (theta, phi) with the sin(theta)
+  // factor (pbrt-v3 AdaptiveSimpson2D), so narrow highlights are integrated accurately.
   double integral = 0;
   for (int ti = 0; ti < theta_res; ++ti)
     for (int pi = 0; pi < phi_res; ++pi) {
@@ -143,10 +138,10 @@ ChiSquareResult ChiSquareTest(const Model &m, const Vec3 &wo, int samples, int t
   return r;
 }
 
-// Largest directional albedo over channels and over elevations 0..88 degrees
-// (and a few azimuths), estimated with `n` x `n` stratified importance samples.
+// Largest directional albedo over channels and over elevations 0..88 degrees (and a few azimuths),
+// estimated with `n` x `n` stratified importance samples.
 template <typename Model>
-double MaxDirectionalAlbedo(const Model &m, int n, double *worst_theta_deg = nullptr) {
+double MaxDirectionalAlbedo(const Model& m, int n, double* worst_theta_deg = nullptr) {
   double worst = 0;
   for (int deg = 0; deg <= 88; deg += 4) {
     for (double phi : {0.0, 1.1, 2.5}) {
@@ -168,7 +163,7 @@ double MaxDirectionalAlbedo(const Model &m, int n, double *worst_theta_deg = nul
 }
 
 // Random direction in the upper hemisphere with cos(theta) >= min_cos.
-inline Vec3 RandomUpperDirection(std::mt19937 &rng, double min_cos = 0.0) {
+inline Vec3 RandomUpperDirection(std::mt19937& rng, double min_cos = 0.0) {
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   const double z = min_cos + (1 - min_cos) * uni(rng);
   const double phi = 2 * kPi * uni(rng);

@@ -1,14 +1,12 @@
 #pragma once
-// GGX (Trowbridge-Reitz) microfacet reflection with the height-correlated Smith
-// masking-shadowing term and an exact dielectric or conductor Fresnel factor
-// (Walter et al. 2007; Heitz 2014, "Understanding the masking-shadowing
-// function", eq. 99). Sampling draws visible normals (Heitz 2018, "Sampling the
-// GGX distribution of visible normals").
+// GGX (Trowbridge-Reitz) microfacet reflection with the height-correlated Smith masking-shadowing
+// term and an exact dielectric or conductor Fresnel factor (Walter et al. 2007; Heitz 2014,
+// "Understanding the masking-shadowing function", eq. 99). Sampling draws visible normals (Heitz
+// 2018, "Sampling the GGX distribution of visible normals").
 //
-// Everything is templated on the scalar T so that Ceres can fit alpha / eta / k
-// with autodiff through exactly the code the renderer evaluates (COLMAP
-// camera-model style). Only +, *, /, sqrt and comparisons are used on T, all of
-// which ceres::Jet supports.
+// Everything is templated on the scalar T so that Ceres can fit alpha / eta / k with autodiff
+// through exactly the code the renderer evaluates (COLMAP camera-model style). Only +, *, /, sqrt
+// and comparisons are used on T, all of which ceres::Jet supports.
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -28,9 +26,8 @@ using Rgb_ = Eigen::Array<T, 3, 1>;
 template <typename T>
 using Vec3_ = Eigen::Matrix<T, 3, 1>;
 
-// Unpolarised Fresnel reflectance of a dielectric interface seen from the
-// outside; eta is the relative index n_inside / n_outside (> 0). Total internal
-// reflection cannot happen from outside.
+// Unpolarised Fresnel reflectance of a dielectric interface seen from the outside; eta is the
+// relative index n_inside / n_outside (> 0). Total internal reflection cannot happen from outside.
 template <typename T>
 T FresnelDielectric(T cos_i, T eta) {
   using std::sqrt;
@@ -41,9 +38,8 @@ T FresnelDielectric(T cos_i, T eta) {
   return T(0.5) * (r_parl * r_parl + r_perp * r_perp);
 }
 
-// Unpolarised Fresnel reflectance of a conductor with complex index eta + i k,
-// in real arithmetic (Born & Wolf 1999, sec. 14.4.1; the same formula as
-// pbrt-v4's FrComplex).
+// Unpolarised Fresnel reflectance of a conductor with complex index eta + i k, in real arithmetic
+// (Born & Wolf 1999, sec. 14.4.1; the same formula as pbrt-v4's FrComplex).
 template <typename T>
 T FresnelConductor(T cos_i, T eta, T k) {
   using std::sqrt;
@@ -66,13 +62,13 @@ class GgxBrdf {
   // eta only (k ignored);
   //   kConductor uses both (e.g. gold ~ eta (0.18, 0.42, 1.37), k
   //   (3.42, 2.35, 1.77)).
-  GgxBrdf(T alpha, FresnelKind kind, const Rgb_<T> &eta, const Rgb_<T> &k = Rgb_<T>::Zero())
+  GgxBrdf(T alpha, FresnelKind kind, const Rgb_<T>& eta, const Rgb_<T>& k = Rgb_<T>::Zero())
       : alpha_(alpha), kind_(kind), eta_(eta), k_(k) {}
 
   static GgxBrdf Dielectric(T alpha, T eta) {
     return GgxBrdf(alpha, FresnelKind::kDielectric, Rgb_<T>::Constant(eta));
   }
-  static GgxBrdf Conductor(T alpha, const Rgb_<T> &eta, const Rgb_<T> &k) {
+  static GgxBrdf Conductor(T alpha, const Rgb_<T>& eta, const Rgb_<T>& k) {
     return GgxBrdf(alpha, FresnelKind::kConductor, eta, k);
   }
 
@@ -86,23 +82,23 @@ class GgxBrdf {
     }
   }
 
-  // Microfacet distribution D(wm), normalised so that int D cos(theta_m) dw = 1
-  // (Walter 2007 eq. 33).
-  T D(const Vec3_<T> &wm) const {
+  // Microfacet distribution D(wm), normalised so that int D cos(theta_m) dw = 1 (Walter 2007 eq.
+  // 33).
+  T D(const Vec3_<T>& wm) const {
     const T a2 = alpha_ * alpha_;
     const T c2 = wm.z() * wm.z();
     const T d = c2 * (a2 - T(1)) + T(1);
     return a2 / (T(kPi) * d * d);
   }
   // Smith Lambda for GGX (Heitz 2014 eq. 72).
-  T Lambda(const Vec3_<T> &w) const {
+  T Lambda(const Vec3_<T>& w) const {
     using std::sqrt;
     const T c2 = w.z() * w.z();
     const T tan2 = (T(1) - c2) / c2;
     return (sqrt(T(1) + alpha_ * alpha_ * tan2) - T(1)) * T(0.5);
   }
-  T G1(const Vec3_<T> &w) const { return T(1) / (T(1) + Lambda(w)); }
-  T G(const Vec3_<T> &wo, const Vec3_<T> &wi) const {
+  T G1(const Vec3_<T>& w) const { return T(1) / (T(1) + Lambda(w)); }
+  T G(const Vec3_<T>& wo, const Vec3_<T>& wi) const {
     return T(1) / (T(1) + Lambda(wo) + Lambda(wi));
   }
   Rgb_<T> Fresnel(T cos_d) const {
@@ -113,9 +109,8 @@ class GgxBrdf {
     return f;
   }
 
-  // f = D G F / (4 cos_o cos_i) (Walter 2007 eq. 20); zero unless both are
-  // above the surface.
-  Rgb_<T> f(const Vec3_<T> &wo, const Vec3_<T> &wi) const {
+  // f = D G F / (4 cos_o cos_i) (Walter 2007 eq. 20); zero unless both are above the surface.
+  Rgb_<T> f(const Vec3_<T>& wo, const Vec3_<T>& wi) const {
     if (!(wo.z() > T(0) && wi.z() > T(0))) return Rgb_<T>::Zero();
     Vec3_<T> wm = wo + wi;
     const T n2 = wm.squaredNorm();
@@ -126,9 +121,8 @@ class GgxBrdf {
     return Fresnel(cos_d) * (D(wm) * G(wo, wi) / (T(4) * wo.z() * wi.z()));
   }
 
-  // Density of visible normals, then the reflection Jacobian 1 / (4 wo.wm)
-  // (Heitz 2018 eq. 17).
-  T Pdf(const Vec3_<T> &wo, const Vec3_<T> &wi) const {
+  // Density of visible normals, then the reflection Jacobian 1 / (4 wo.wm) (Heitz 2018 eq. 17).
+  T Pdf(const Vec3_<T>& wo, const Vec3_<T>& wi) const {
     if (!(wo.z() > T(0) && wi.z() > T(0))) return T(0);
     Vec3_<T> wm = wo + wi;
     using std::sqrt;
@@ -138,8 +132,8 @@ class GgxBrdf {
     return G1(wo) * D(wm) / (T(4) * wo.z());
   }
 
-  std::optional<BrdfSample> Sample(const Vec3 &wo,
-                                   const Vec2 &u) const requires std::is_same_v<T, double> {
+  std::optional<BrdfSample> Sample(const Vec3& wo,
+                                   const Vec2& u) const requires std::is_same_v<T, double> {
     if (wo.z() <= 0) return std::nullopt;
     const Vec3 wm = SampleVisibleNormal(wo, u);
     const Vec3 wi = Reflect(wo, wm);
@@ -151,12 +145,12 @@ class GgxBrdf {
 
   T alpha() const { return alpha_; }
   FresnelKind kind() const { return kind_; }
-  const Rgb_<T> &eta() const { return eta_; }
-  const Rgb_<T> &k() const { return k_; }
+  const Rgb_<T>& eta() const { return eta_; }
+  const Rgb_<T>& k() const { return k_; }
 
  private:
   // Heitz 2018, listing 1 (isotropic alpha).
-  Vec3 SampleVisibleNormal(const Vec3 &wo, const Vec2 &u) const {
+  Vec3 SampleVisibleNormal(const Vec3& wo, const Vec2& u) const {
     const Vec3 vh = Vec3(alpha_ * wo.x(), alpha_ * wo.y(), wo.z()).normalized();
     const double lensq = vh.x() * vh.x() + vh.y() * vh.y();
     const Vec3 t1 = lensq > 0 ? Vec3(-vh.y(), vh.x(), 0) / std::sqrt(lensq) : Vec3(1, 0, 0);

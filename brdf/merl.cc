@@ -13,9 +13,8 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-// Half-vector parameterisation of the sampling table (the same as the RGL files
-// use, Dupuy & Jakob 2018 sec. 5): u = sqrt(2 theta / pi) resolves highlights
-// near the mirror direction.
+// Half-vector parameterisation of the sampling table (the same as the RGL files use, Dupuy & Jakob
+// 2018 sec. 5): u = sqrt(2 theta / pi) resolves highlights near the mirror direction.
 double U2Theta(double u) { return u * u * (kPi / 2); }
 double U2Phi(double u) { return (2 * u - 1) * kPi; }
 double Theta2U(double theta) { return std::sqrt(theta * (2 / kPi)); }
@@ -23,8 +22,7 @@ double Phi2U(double phi) { return (phi + kPi) * (0.5 / kPi); }
 double HalfVectorJacobian(double u_theta, double sin_theta_m, double wo_dot_wm) {
   return std::max(2 * kPi * kPi * u_theta * sin_theta_m, 1e-6) * 4 * wo_dot_wm;
 }
-// Largest outgoing elevation with its own sampling slice; steeper wo reuse the
-// last slice.
+// Largest outgoing elevation with its own sampling slice; steeper wo reuse the last slice.
 constexpr double kMaxSamplingThetaO = 89.0 * kPi / 180.0;
 
 // Continuous table coordinate of each angle (entry i sits at coordinate i).
@@ -37,9 +35,8 @@ double PhiDCoord(double phi_d) {
   return phi_d / kPi * MerlBrdf::kPhiD;
 }
 
-// Directions (wi, wo) of half/difference angles with phi_h = 0 (inverse of
-// HalfDiffAngles).
-void DirectionsFromHalfDiff(double theta_h, double theta_d, double phi_d, Vec3 *wi, Vec3 *wo) {
+// Directions (wi, wo) of half/difference angles with phi_h = 0 (inverse of HalfDiffAngles).
+void DirectionsFromHalfDiff(double theta_h, double theta_d, double phi_d, Vec3* wi, Vec3* wo) {
   const Vec3 d = SphericalDirection(theta_d, phi_d);
   const double c = std::cos(theta_h), s = std::sin(theta_h);
   *wi = Vec3(d.x() * c + d.z() * s, d.y(), -d.x() * s + d.z() * c);
@@ -54,13 +51,12 @@ void MerlOptions::Check() const {
     MESOSCAN_BAD_INPUT("MerlOptions: sampling_*_nodes must be >= 2");
 }
 
-void HalfDiffAngles(const Vec3 &wi, const Vec3 &wo, double *theta_h, double *theta_d,
-                    double *phi_d) {
+void HalfDiffAngles(const Vec3& wi, const Vec3& wo, double* theta_h, double* theta_d,
+                    double* phi_d) {
   const Vec3 h = (wi + wo).normalized();
   *theta_h = Elevation(h);
   const double phi_h = std::atan2(h.y(), h.x());
-  // Rotate wi by -phi_h about the normal, then by -theta_h about the binormal
-  // (y).
+  // Rotate wi by -phi_h about the normal, then by -theta_h about the binormal (y).
   const double cp = std::cos(phi_h), sp = std::sin(phi_h);
   const Vec3 t(wi.x() * cp + wi.y() * sp, -wi.x() * sp + wi.y() * cp, wi.z());
   const double ct = std::cos(*theta_h), st = std::sin(*theta_h);
@@ -69,7 +65,7 @@ void HalfDiffAngles(const Vec3 &wi, const Vec3 &wo, double *theta_h, double *the
   *phi_d = std::atan2(d.y(), d.x());
 }
 
-std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path &path, const MerlOptions &options) {
+std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlOptions& options) {
   options.Check();
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
@@ -79,7 +75,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path &path, const MerlO
     MESOSCAN_BAD_INPUT(path.string()
                        << ": truncated MERL file: " << size << " bytes, expected " << kFileBytes);
   int32_t dims[3];
-  in.read(reinterpret_cast<char *>(dims), sizeof(dims));
+  in.read(reinterpret_cast<char*>(dims), sizeof(dims));
   if (dims[0] != kThetaH || dims[1] != kThetaD || dims[2] != kPhiD)
     MESOSCAN_BAD_INPUT(path.string() << ": MERL dimensions " << dims[0] << " x " << dims[1] << " x "
                                      << dims[2] << ", expected 90 x 90 x 180");
@@ -87,7 +83,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path &path, const MerlO
     MESOSCAN_BAD_INPUT(path.string() << ": MERL file has " << size << " bytes, expected "
                                      << kFileBytes << (size < kFileBytes ? " (truncated)" : ""));
   std::vector<double> raw(3 * kEntries);
-  in.read(reinterpret_cast<char *>(raw.data()), raw.size() * sizeof(double));
+  in.read(reinterpret_cast<char*>(raw.data()), raw.size() * sizeof(double));
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": read error");
 
   auto brdf = std::shared_ptr<MerlBrdf>(new MerlBrdf());
@@ -124,7 +120,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path &path, const MerlO
 }
 
 std::shared_ptr<const MerlBrdf> MerlBrdf::Tabulate(
-    const std::function<Rgb(const Vec3 &wo, const Vec3 &wi)> &model, const MerlOptions &options) {
+    const std::function<Rgb(const Vec3& wo, const Vec3& wi)>& model, const MerlOptions& options) {
   options.Check();
   auto brdf = std::shared_ptr<MerlBrdf>(new MerlBrdf());
   brdf->options_ = options;
@@ -138,8 +134,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Tabulate(
         const double phi_d = ip * kPi / kPhiD;
         Vec3 wi, wo;
         DirectionsFromHalfDiff(theta_h, theta_d, phi_d, &wi, &wo);
-        // Below-horizon nodes: evaluate at the nearest configuration just above
-        // it.
+        // Below-horizon nodes: evaluate at the nearest configuration just above it.
         constexpr double kMinZ = 1e-3;
         if (wi.z() < kMinZ)
           wi = Vec3(wi.x(), wi.y(), 0).normalized() * std::sqrt(1 - kMinZ * kMinZ) +
@@ -158,15 +153,15 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Tabulate(
   return brdf;
 }
 
-void MerlBrdf::Write(const fs::path &path) const {
-  WriteAtomically(path, [&](const fs::path &tmp) {
+void MerlBrdf::Write(const fs::path& path) const {
+  WriteAtomically(path, [&](const fs::path& tmp) {
     std::ofstream out(tmp, std::ios::binary);
     if (!out) MESOSCAN_BAD_INPUT(tmp.string() << ": cannot create file");
     const int32_t dims[3] = {kThetaH, kThetaD, kPhiD};
-    out.write(reinterpret_cast<const char *>(dims), sizeof(dims));
+    out.write(reinterpret_cast<const char*>(dims), sizeof(dims));
     std::vector<double> raw(rgb_.size());
     for (size_t i = 0; i < raw.size(); ++i) raw[i] = rgb_[i] / kScale[i / kEntries];
-    out.write(reinterpret_cast<const char *>(raw.data()), raw.size() * sizeof(double));
+    out.write(reinterpret_cast<const char*>(raw.data()), raw.size() * sizeof(double));
     if (!out) MESOSCAN_BAD_INPUT(tmp.string() << ": write failed");
   });
 }
@@ -183,8 +178,7 @@ Rgb MerlBrdf::Lookup(double theta_h, double theta_d, double phi_d) const {
                 std::clamp(static_cast<int>(xd), 0, kThetaD - 1),
                 std::clamp(static_cast<int>(xp), 0, kPhiD - 1));
   }
-  // Trilinear; theta coordinates clamp at the last node, phi_d wraps (period
-  // pi).
+  // Trilinear; theta coordinates clamp at the last node, phi_d wraps (period pi).
   const int ih = std::clamp(static_cast<int>(std::floor(xh)), 0, kThetaH - 2);
   const int id = std::clamp(static_cast<int>(std::floor(xd)), 0, kThetaD - 2);
   const double th = std::clamp(xh - ih, 0.0, 1.0), td = std::clamp(xd - id, 0.0, 1.0);
@@ -201,7 +195,7 @@ Rgb MerlBrdf::Lookup(double theta_h, double theta_d, double phi_d) const {
   return v;
 }
 
-Rgb MerlBrdf::f(const Vec3 &wo, const Vec3 &wi) const {
+Rgb MerlBrdf::f(const Vec3& wo, const Vec3& wi) const {
   if (!SameHemisphereUp(wo, wi)) return Rgb::Zero();
   double theta_h, theta_d, phi_d;
   HalfDiffAngles(wi, wo, &theta_h, &theta_d, &phi_d);
@@ -216,12 +210,11 @@ void MerlBrdf::BuildSamplingTable() {
   std::vector<double> table(static_cast<size_t>(nw) * nx * ny, 0.0);
   ParallelFor(nw, [&](int64_t k) {
     const Vec3 wo = SphericalDirection(theta_o[k], 0.0);
-    double *slice = table.data() + k * static_cast<size_t>(nx) * ny;
+    double* slice = table.data() + k * static_cast<size_t>(nx) * ny;
     std::vector<double> jac(static_cast<size_t>(nx) * ny, 0.0);
     double lum_sum = 0;
     int valid = 0;
-    // Density over (u_theta_m, u_phi_m) proportional to luminance(f)
-    // cos(theta_i) |dwi/du|.
+    // Density over (u_theta_m, u_phi_m) proportional to luminance(f) cos(theta_i) |dwi/du|.
     for (int y = 0; y < ny; ++y)
       for (int x = 0; x < nx; ++x) {
         const double ux = static_cast<double>(x) / (nx - 1), uy = static_cast<double>(y) / (ny - 1);
@@ -238,8 +231,7 @@ void MerlBrdf::BuildSamplingTable() {
         lum_sum += lum;
         ++valid;
       }
-    // A floor of 1% of the mean keeps pdf > 0 wherever f may be > 0 (unbiased
-    // rendering).
+    // A floor of 1% of the mean keeps pdf > 0 wherever f may be > 0 (unbiased rendering).
     const double floor = valid > 0 && lum_sum > 0 ? 0.01 * lum_sum / valid : 1.0;
     for (size_t i = 0; i < jac.size(); ++i)
       slice[i] = jac[i] > 0 ? (slice[i] + floor) * jac[i] : 0.0;
@@ -247,7 +239,7 @@ void MerlBrdf::BuildSamplingTable() {
   sampling_ = Warp2D(nx, ny, std::move(table), {theta_o}, true, "MERL sampling table");
 }
 
-std::optional<BrdfSample> MerlBrdf::Sample(const Vec3 &wo, const Vec2 &u) const {
+std::optional<BrdfSample> MerlBrdf::Sample(const Vec3& wo, const Vec2& u) const {
   if (wo.z() <= 0) return std::nullopt;
   const double theta_o = Elevation(wo), phi_o = std::atan2(wo.y(), wo.x());
   const auto [u_wm, pdf_u] = sampling_.Sample(u, &theta_o);
@@ -261,7 +253,7 @@ std::optional<BrdfSample> MerlBrdf::Sample(const Vec3 &wo, const Vec2 &u) const 
   return BrdfSample{wi, f(wo, wi), pdf};
 }
 
-double MerlBrdf::Pdf(const Vec3 &wo, const Vec3 &wi) const {
+double MerlBrdf::Pdf(const Vec3& wo, const Vec3& wi) const {
   if (!SameHemisphereUp(wo, wi)) return 0.0;
   const Vec3 wm = (wo + wi).normalized();
   const double wo_dot_wm = wo.dot(wm);

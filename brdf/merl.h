@@ -1,19 +1,17 @@
 #pragma once
-// Isotropic tabulated BRDFs in the MERL layout (Matusik et al. 2003, "A
-// Data-Driven Reflectance Model"): 90 x 90 x 180 samples over (theta_h,
-// theta_d, phi_d) of the Rusinkiewicz half/difference parameterisation, theta_h
-// indexed non-linearly (index = 90 sqrt(theta_h / (pi/2))), phi_d over [0, pi)
-// by reciprocity.
+// Isotropic tabulated BRDFs in the MERL layout (Matusik et al. 2003, "A Data-Driven Reflectance
+// Model"): 90 x 90 x 180 samples over (theta_h, theta_d, phi_d) of the Rusinkiewicz half/difference
+// parameterisation, theta_h indexed non-linearly (index = 90 sqrt(theta_h / (pi/2))), phi_d over
+// [0, pi) by reciprocity.
 //
-// File (.binary): three int32 dims (90, 90, 180), then 3 x 1,458,000 doubles:
-// all red, all green, all blue, each scaled by 1/1500, 1.15/1500, 1.66/1500
-// (the reader multiplies); negative entries mark unmeasured samples.
+// File (.binary): three int32 dims (90, 90, 180), then 3 x 1,458,000 doubles: all red, all green,
+// all blue, each scaled by 1/1500, 1.15/1500, 1.66/1500 (the reader multiplies); negative entries
+// mark unmeasured samples.
 //
-// MerlBrdf is also the project's own "tabulated" BRDF: Tabulate() samples any
-// analytic model at the table's nodes and Write() stores it in the MERL layout,
-// so the measured path can be exercised without external data. Importance
-// sampling uses a per-wo table of f * cos over the half vector (a Warp2D, the
-// same exact bilinear warp as the RGL reader), so Pdf() is exact for Sample().
+// MerlBrdf is also the project's own "tabulated" BRDF: Tabulate() samples any analytic model at the
+// table's nodes and Write() stores it in the MERL layout, so the measured path can be exercised
+// without external data. Importance sampling uses a per-wo table of f * cos over the half vector (a
+// Warp2D, the same exact bilinear warp as the RGL reader), so Pdf() is exact for Sample().
 
 #include <filesystem>
 #include <functional>
@@ -35,12 +33,11 @@ enum class MerlInterpolation {
 struct MerlOptions {
   // How f() reads the table between nodes.
   MerlInterpolation interpolation = MerlInterpolation::kLinear;
-  // Unmeasured entries (negative in the file) are an error unless this is true;
-  // then they read as 0 and a warning names how many there were.
+  // Unmeasured entries (negative in the file) are an error unless this is true; then they read as 0
+  // and a warning names how many there were.
   bool accept_invalid_entries = false;
-  // Importance-sampling table: half-vector grid (theta x phi nodes, >= 2 each)
-  // per tabulated outgoing elevation (>= 2). Larger resolves sharper
-  // highlights, costs memory and load time.
+  // Importance-sampling table: half-vector grid (theta x phi nodes, >= 2 each) per tabulated
+  // outgoing elevation (>= 2). Larger resolves sharper highlights, costs memory and load time.
   int sampling_theta_nodes = 64;
   int sampling_phi_nodes = 64;
   int sampling_wo_nodes = 24;
@@ -56,30 +53,28 @@ class MerlBrdf {
   static constexpr size_t kFileBytes = 12 + 3 * kEntries * sizeof(double);
   static constexpr double kScale[3] = {1.0 / 1500, 1.15 / 1500, 1.66 / 1500};
 
-  // Reads a .binary file; throws Error(kBadInput) naming the file and what is
-  // wrong (size, dimensions, NaN/Inf, negative entries unless accepted).
-  static std::shared_ptr<const MerlBrdf> Load(const std::filesystem::path &path,
-                                              const MerlOptions &options = {});
-  // Samples an analytic BRDF f(wo, wi) (no cosine) at every node. Nodes whose
-  // directions fall below the horizon keep the model's value at the closest
-  // valid configuration (clamped elevation), so interpolation near grazing
-  // angles stays smooth.
+  // Reads a .binary file; throws Error(kBadInput) naming the file and what is wrong (size,
+  // dimensions, NaN/Inf, negative entries unless accepted).
+  static std::shared_ptr<const MerlBrdf> Load(const std::filesystem::path& path,
+                                              const MerlOptions& options = {});
+  // Samples an analytic BRDF f(wo, wi) (no cosine) at every node. Nodes whose directions fall below
+  // the horizon keep the model's value at the closest valid configuration (clamped elevation), so
+  // interpolation near grazing angles stays smooth.
   static std::shared_ptr<const MerlBrdf> Tabulate(
-      const std::function<Rgb(const Vec3 &wo, const Vec3 &wi)> &model,
-      const MerlOptions &options = {});
+      const std::function<Rgb(const Vec3& wo, const Vec3& wi)>& model,
+      const MerlOptions& options = {});
   // Writes the table in the MERL layout (scaled), atomically.
-  void Write(const std::filesystem::path &path) const;
+  void Write(const std::filesystem::path& path) const;
 
-  Rgb f(const Vec3 &wo, const Vec3 &wi) const;
-  std::optional<BrdfSample> Sample(const Vec3 &wo, const Vec2 &u) const;
-  double Pdf(const Vec3 &wo, const Vec3 &wi) const;
+  Rgb f(const Vec3& wo, const Vec3& wi) const;
+  std::optional<BrdfSample> Sample(const Vec3& wo, const Vec2& u) const;
+  double Pdf(const Vec3& wo, const Vec3& wi) const;
 
-  // Table value at half/difference angles (radians), with the configured
-  // interpolation.
+  // Table value at half/difference angles (radians), with the configured interpolation.
   Rgb Lookup(double theta_h, double theta_d, double phi_d) const;
   // Raw node value (unscaled units: 1/sr).
   Rgb Node(int i_theta_h, int i_theta_d, int i_phi_d) const;
-  const MerlOptions &options() const { return options_; }
+  const MerlOptions& options() const { return options_; }
   size_t invalid_entries() const { return invalid_entries_; }
 
  private:
@@ -92,9 +87,8 @@ class MerlBrdf {
   Warp2D sampling_;  // density over (u_theta_m, u_phi_m) per wo elevation
 };
 
-// Rusinkiewicz half/difference angles of a direction pair (MERL BRDFRead.cpp
-// convention).
-void HalfDiffAngles(const Vec3 &wi, const Vec3 &wo, double *theta_h, double *theta_d,
-                    double *phi_d);
+// Rusinkiewicz half/difference angles of a direction pair (MERL BRDFRead.cpp convention).
+void HalfDiffAngles(const Vec3& wi, const Vec3& wo, double* theta_h, double* theta_d,
+                    double* phi_d);
 
 }  // namespace mesoscan

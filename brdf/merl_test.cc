@@ -19,7 +19,7 @@ using testing::RandomUpperDirection;
 
 const Rgb kCopperEta(0.200, 0.924, 1.102), kCopperK(3.912, 2.452, 2.142);
 
-fs::path TempDir(const std::string &name) {
+fs::path TempDir(const std::string& name) {
   fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_test_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
@@ -32,7 +32,7 @@ class MerlTest : public ::testing::Test {
     ggx_ = new GgxBrdf<double>(GgxBrdf<double>::Conductor(0.3, kCopperEta, kCopperK));
     dir_ = new fs::path(TempDir("merl"));
     const auto table =
-        MerlBrdf::Tabulate([](const Vec3 &wo, const Vec3 &wi) { return Rgb(ggx_->f(wo, wi)); });
+        MerlBrdf::Tabulate([](const Vec3& wo, const Vec3& wi) { return Rgb(ggx_->f(wo, wi)); });
     table->Write(*dir_ / "ggx.binary");
     loaded_ = MerlBrdf::Load(*dir_ / "ggx.binary");
   }
@@ -43,8 +43,8 @@ class MerlTest : public ::testing::Test {
     loaded_.reset();
   }
   // A copy of the written file with `edit` applied to its bytes.
-  static fs::path EditedCopy(const std::string &name,
-                             const std::function<void(std::vector<char> &)> &edit) {
+  static fs::path EditedCopy(const std::string& name,
+                             const std::function<void(std::vector<char>&)>& edit) {
     std::ifstream in(*dir_ / "ggx.binary", std::ios::binary);
     std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     edit(bytes);
@@ -52,16 +52,15 @@ class MerlTest : public ::testing::Test {
     std::ofstream(p, std::ios::binary).write(bytes.data(), bytes.size());
     return p;
   }
-  static void SetEntry(std::vector<char> &bytes, size_t index, double v) {
+  static void SetEntry(std::vector<char>& bytes, size_t index, double v) {
     std::memcpy(bytes.data() + 12 + index * sizeof(double), &v, sizeof(double));
   }
-  // Expects Load to throw Error(kBadInput) whose one-line message contains
-  // `needle`.
-  static void ExpectBadInput(const fs::path &p, const std::string &needle) {
+  // Expects Load to throw Error(kBadInput) whose one-line message contains `needle`.
+  static void ExpectBadInput(const fs::path& p, const std::string& needle) {
     try {
       MerlBrdf::Load(p);
       ADD_FAILURE() << "no error for " << p;
-    } catch (const Error &e) {
+    } catch (const Error& e) {
       EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
       EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
       EXPECT_NE(std::string(e.what()).find(p.filename().string()), std::string::npos) << e.what();
@@ -69,8 +68,8 @@ class MerlTest : public ::testing::Test {
     }
   }
 
-  static inline GgxBrdf<double> *ggx_ = nullptr;
-  static inline fs::path *dir_ = nullptr;
+  static inline GgxBrdf<double>* ggx_ = nullptr;
+  static inline fs::path* dir_ = nullptr;
   static inline std::shared_ptr<const MerlBrdf> loaded_;
 };
 
@@ -78,14 +77,13 @@ TEST_F(MerlTest, FileHasTheMerlLayout) {
   EXPECT_EQ(fs::file_size(*dir_ / "ggx.binary"), 34992012u);
   std::ifstream in(*dir_ / "ggx.binary", std::ios::binary);
   int32_t dims[3];
-  in.read(reinterpret_cast<char *>(dims), sizeof(dims));
+  in.read(reinterpret_cast<char*>(dims), sizeof(dims));
   EXPECT_EQ(dims[0], 90);
   EXPECT_EQ(dims[1], 90);
   EXPECT_EQ(dims[2], 180);
-  // The first red entry is f at theta_h = theta_d = 0 (normal incidence),
-  // divided by 1/1500.
+  // The first red entry is f at theta_h = theta_d = 0 (normal incidence), divided by 1/1500.
   double first;
-  in.read(reinterpret_cast<char *>(&first), sizeof(first));
+  in.read(reinterpret_cast<char*>(&first), sizeof(first));
   const Vec3 n(0, 0, 1);
   EXPECT_NEAR(first / 1500.0, ggx_->f(n, n)[0], 1e-6 * ggx_->f(n, n)[0]);
 }
@@ -95,8 +93,7 @@ TEST_F(MerlTest, RoundTripAgreesWithAnalyticGgxWithinOnePercent) {
   double worst = 0;
   int n = 0;
   for (int i = 0; i < 20000; ++i) {
-    // Directions up to 78 degrees, so no trilinear stencil reaches below the
-    // horizon.
+    // Directions up to 78 degrees, so no trilinear stencil reaches below the horizon.
     const Vec3 wo = RandomUpperDirection(rng, 0.2), wi = RandomUpperDirection(rng, 0.2);
     const Rgb ref = ggx_->f(wo, wi), got = loaded_->f(wo, wi);
     for (int c = 0; c < 3; ++c) {
@@ -116,8 +113,7 @@ TEST_F(MerlTest, NearestLookupIsTheReferenceIndexing) {
   MerlOptions nearest;
   nearest.interpolation = MerlInterpolation::kNearest;
   const auto t = MerlBrdf::Load(*dir_ / "ggx.binary", nearest);
-  // theta_h just below node 40's upper edge reads node 40 (index = floor(90
-  // sqrt(th / (pi/2))));
+  // theta_h just below node 40's upper edge reads node 40 (index = floor(90 sqrt(th / (pi/2))));
   const double th = std::pow(40.99 / 90, 2) * kPi / 2, td = 10.5 * kPi / 180, pd = 20.5 * kPi / 180;
   EXPECT_TRUE((t->Lookup(th, td, pd) == t->Node(40, 10, 20)).all());
   // phi_d < 0 maps to phi_d + pi (reciprocity).
@@ -177,24 +173,24 @@ TEST_F(MerlTest, LoadBrdfDetectsMerl) {
 }
 
 TEST_F(MerlTest, BadInputIsOneClearError) {
-  ExpectBadInput(EditedCopy("truncated.binary", [](auto &b) { b.resize(b.size() / 2); }),
+  ExpectBadInput(EditedCopy("truncated.binary", [](auto& b) { b.resize(b.size() / 2); }),
                  "truncated");
-  ExpectBadInput(EditedCopy("tiny.binary", [](auto &b) { b.resize(7); }), "truncated");
+  ExpectBadInput(EditedCopy("tiny.binary", [](auto& b) { b.resize(7); }), "truncated");
   ExpectBadInput(EditedCopy("dims.binary",
-                            [](auto &b) {
+                            [](auto& b) {
                               const int32_t d = 91;
                               std::memcpy(b.data(), &d, 4);
                             }),
                  "dimensions 91 x 90 x 180");
-  ExpectBadInput(EditedCopy("nan.binary", [](auto &b) { SetEntry(b, 12345, NAN); }),
+  ExpectBadInput(EditedCopy("nan.binary", [](auto& b) { SetEntry(b, 12345, NAN); }),
                  "entry 12345 of channel 0");
   ExpectBadInput(
-      EditedCopy("inf.binary", [](auto &b) { SetEntry(b, MerlBrdf::kEntries + 7, INFINITY); }),
+      EditedCopy("inf.binary", [](auto& b) { SetEntry(b, MerlBrdf::kEntries + 7, INFINITY); }),
       "entry 7 of channel 1");
   const fs::path negative =
-      EditedCopy("negative.binary", [](auto &b) { SetEntry(b, 2 * MerlBrdf::kEntries + 3, -1); });
+      EditedCopy("negative.binary", [](auto& b) { SetEntry(b, 2 * MerlBrdf::kEntries + 3, -1); });
   ExpectBadInput(negative, "negative");
-  ExpectBadInput(EditedCopy("long.binary", [](auto &b) { b.push_back(0); }), "bytes, expected");
+  ExpectBadInput(EditedCopy("long.binary", [](auto& b) { b.push_back(0); }), "bytes, expected");
   ExpectBadInput(*dir_ / "missing.binary", "cannot open");
   // Unmeasured entries are accepted on request and read as 0.
   MerlOptions accept;

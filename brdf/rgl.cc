@@ -12,8 +12,7 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-// Element types of the tensor_file format (Mitsuba 0.6 Struct::EType
-// numbering).
+// Element types of the tensor_file format (Mitsuba 0.6 Struct::EType numbering).
 constexpr uint8_t kTypeUInt8 = 1;
 constexpr uint8_t kTypeFloat32 = 10;
 constexpr size_t TypeSize(uint8_t t) {
@@ -41,7 +40,7 @@ constexpr size_t TypeSize(uint8_t t) {
 struct Field {
   uint8_t dtype = 0;
   std::vector<uint64_t> shape;
-  const uint8_t *data = nullptr;
+  const uint8_t* data = nullptr;
   size_t count() const {
     size_t n = 1;
     for (uint64_t s : shape) n *= s;
@@ -52,9 +51,9 @@ struct Field {
 // Bounds-checked little-endian reader over the file's bytes.
 class Reader {
  public:
-  Reader(const std::vector<uint8_t> &bytes, const fs::path &path) : bytes_(bytes), path_(path) {}
+  Reader(const std::vector<uint8_t>& bytes, const fs::path& path) : bytes_(bytes), path_(path) {}
   template <typename T>
-  T Get(const char *what) {
+  T Get(const char* what) {
     if (pos_ + sizeof(T) > bytes_.size())
       MESOSCAN_BAD_INPUT(path_.string() << ": truncated header while reading " << what);
     T v;
@@ -62,22 +61,22 @@ class Reader {
     pos_ += sizeof(T);
     return v;
   }
-  std::string GetString(size_t n, const char *what) {
+  std::string GetString(size_t n, const char* what) {
     if (pos_ + n > bytes_.size())
       MESOSCAN_BAD_INPUT(path_.string() << ": truncated header while reading " << what);
-    std::string s(reinterpret_cast<const char *>(bytes_.data() + pos_), n);
+    std::string s(reinterpret_cast<const char*>(bytes_.data() + pos_), n);
     pos_ += n;
     return s;
   }
 
  private:
-  const std::vector<uint8_t> &bytes_;
-  const fs::path &path_;
+  const std::vector<uint8_t>& bytes_;
+  const fs::path& path_;
   size_t pos_ = 0;
 };
 
-std::map<std::string, Field> ParseTensorFile(const std::vector<uint8_t> &bytes,
-                                             const fs::path &path) {
+std::map<std::string, Field> ParseTensorFile(const std::vector<uint8_t>& bytes,
+                                             const fs::path& path) {
   static const char kMagic[] = "tensor_file";  // followed by its NUL: 12 bytes
   if (bytes.size() < 12 || std::memcmp(bytes.data(), kMagic, 12) != 0)
     MESOSCAN_BAD_INPUT(path.string() << ": not a tensor_file (.bsdf) file: bad magic");
@@ -113,8 +112,8 @@ std::map<std::string, Field> ParseTensorFile(const std::vector<uint8_t> &bytes,
   return fields;
 }
 
-const Field &Require(const std::map<std::string, Field> &fields, const std::string &name,
-                     uint8_t dtype, size_t ndim, const fs::path &path) {
+const Field& Require(const std::map<std::string, Field>& fields, const std::string& name,
+                     uint8_t dtype, size_t ndim, const fs::path& path) {
   auto it = fields.find(name);
   if (it == fields.end()) {
     if (name == "rgb" && fields.count("spectra"))
@@ -130,7 +129,7 @@ const Field &Require(const std::map<std::string, Field> &fields, const std::stri
   return it->second;
 }
 
-std::vector<double> Floats(const Field &f, size_t begin = 0, size_t count = SIZE_MAX) {
+std::vector<double> Floats(const Field& f, size_t begin = 0, size_t count = SIZE_MAX) {
   count = std::min(count, f.count() - begin);
   std::vector<double> out(count);
   for (size_t i = 0; i < count; ++i) {
@@ -141,43 +140,40 @@ std::vector<double> Floats(const Field &f, size_t begin = 0, size_t count = SIZE
   return out;
 }
 
-// Dupuy & Jakob 2018 sec. 5: theta is stored as u = sqrt(2 theta / pi) to
-// resolve the pole.
+// Dupuy & Jakob 2018 sec. 5: theta is stored as u = sqrt(2 theta / pi) to resolve the pole.
 double U2Theta(double u) { return u * u * (kPi / 2); }
 double U2Phi(double u) { return (2 * u - 1) * kPi; }
 double Theta2U(double theta) { return std::sqrt(theta * (2 / kPi)); }
 double Phi2U(double phi) { return (phi + kPi) * (0.5 / kPi); }
 
-// x with its sign flipped when s >= 0 (folds a direction into the half space s
-// < 0).
+// x with its sign flipped when s >= 0 (folds a direction into the half space s < 0).
 double MulSignNeg(double x, double s) { return s >= 0 ? -x : x; }
 
-// Solid-angle Jacobian of the (u_theta, u_phi) half-vector parameterisation
-// times that of the reflection wm -> wi (4 wo.wm), Dupuy & Jakob 2018 eq. 9;
-// floored like the reference.
+// Solid-angle Jacobian of the (u_theta, u_phi) half-vector parameterisation times that of the
+// reflection wm -> wi (4 wo.wm), Dupuy & Jakob 2018 eq. 9; floored like the reference.
 double HalfVectorJacobian(double u_theta, double sin_theta_m, double wo_dot_wm) {
   return std::max(2 * kPi * kPi * u_theta * sin_theta_m, 1e-6) * 4 * wo_dot_wm;
 }
 
 }  // namespace
 
-std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path &path) {
+std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
   std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
                              std::istreambuf_iterator<char>());
   const auto fields = ParseTensorFile(bytes, path);
 
-  const Field &theta_i = Require(fields, "theta_i", kTypeFloat32, 1, path);
-  const Field &phi_i = Require(fields, "phi_i", kTypeFloat32, 1, path);
-  const Field &ndf = Require(fields, "ndf", kTypeFloat32, 2, path);
-  const Field &sigma = Require(fields, "sigma", kTypeFloat32, 2, path);
-  const Field &vndf = Require(fields, "vndf", kTypeFloat32, 4, path);
-  const Field &luminance = Require(fields, "luminance", kTypeFloat32, 4, path);
-  const Field &rgb = Require(fields, "rgb", kTypeFloat32, 5, path);
-  const Field &jacobian = Require(fields, "jacobian", kTypeUInt8, 1, path);
+  const Field& theta_i = Require(fields, "theta_i", kTypeFloat32, 1, path);
+  const Field& phi_i = Require(fields, "phi_i", kTypeFloat32, 1, path);
+  const Field& ndf = Require(fields, "ndf", kTypeFloat32, 2, path);
+  const Field& sigma = Require(fields, "sigma", kTypeFloat32, 2, path);
+  const Field& vndf = Require(fields, "vndf", kTypeFloat32, 4, path);
+  const Field& luminance = Require(fields, "luminance", kTypeFloat32, 4, path);
+  const Field& rgb = Require(fields, "rgb", kTypeFloat32, 5, path);
+  const Field& jacobian = Require(fields, "jacobian", kTypeUInt8, 1, path);
   const size_t n_phi = phi_i.shape[0], n_theta = theta_i.shape[0];
-  auto expect = [&](bool ok, const char *field, const char *what) {
+  auto expect = [&](bool ok, const char* field, const char* what) {
     if (!ok) MESOSCAN_BAD_INPUT(path.string() << ": field '" << field << "': expected " << what);
   };
   expect(n_phi >= 1 && n_theta >= 2, "theta_i", ">= 2 theta_i and >= 1 phi_i values");
@@ -200,12 +196,11 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path &path) {
   for (double t : theta_v) expect(std::isfinite(t), "theta_i", "finite angles");
   for (double p : phi_v) expect(std::isfinite(p), "phi_i", "finite angles");
   if (!brdf->isotropic_) {
-    // Anisotropic files store one symmetric wedge of phi_i (the full circle
-    // over 1, 2 or 4).
+    // Anisotropic files store one symmetric wedge of phi_i (the full circle over 1, 2 or 4).
     brdf->reduction_ = static_cast<int>(std::lround(2 * kPi / (phi_v.back() - phi_v.front())));
   }
   if (auto it = fields.find("description"); it != fields.end() && it->second.dtype == kTypeUInt8)
-    brdf->description_.assign(reinterpret_cast<const char *>(it->second.data), it->second.count());
+    brdf->description_.assign(reinterpret_cast<const char*>(it->second.data), it->second.count());
 
   try {
     const std::vector<std::vector<double>> params = {phi_v, theta_v};
@@ -218,8 +213,7 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path &path) {
     brdf->luminance_ =
         Warp2D(static_cast<int>(luminance.shape[3]), static_cast<int>(luminance.shape[2]),
                Floats(luminance), params, true, "luminance");
-    // rgb is [phi_i][theta_i][channel][n][n]: split it into one interpolant per
-    // channel.
+    // rgb is [phi_i][theta_i][channel][n][n]: split it into one interpolant per channel.
     const size_t n = rgb.shape[3] * rgb.shape[4];
     const std::vector<double> all = Floats(rgb);
     size_t negatives = 0;
@@ -231,8 +225,7 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path &path) {
           double v = all[(s * 3 + c) * n + i];
           if (!std::isfinite(v))
             MESOSCAN_BAD_INPUT("rgb: entry " << (s * 3 + c) * n + i << " is not finite");
-          // Spectral-to-RGB conversion leaves small out-of-gamut negatives; a
-          // BRDF is >= 0.
+          // Spectral-to-RGB conversion leaves small out-of-gamut negatives; a BRDF is >= 0.
           if (v < 0) {
             ++negatives;
             v = 0;
@@ -245,13 +238,13 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path &path) {
     if (negatives)
       MESOSCAN_LOG(kDebug) << path.string() << ": clamped " << negatives
                            << " out-of-gamut negative rgb entries to 0";
-  } catch (const Error &e) {
+  } catch (const Error& e) {
     MESOSCAN_BAD_INPUT(path.string() << ": " << e.what());
   }
   return brdf;
 }
 
-std::optional<RglBrdf::Query> RglBrdf::MakeQuery(const Vec3 &wo_in, const Vec3 &wi_in) const {
+std::optional<RglBrdf::Query> RglBrdf::MakeQuery(const Vec3& wo_in, const Vec3& wi_in) const {
   if (wo_in.z() <= 0 || wi_in.z() <= 0) return std::nullopt;
   Query q;
   q.wo = wo_in;
@@ -274,11 +267,10 @@ std::optional<RglBrdf::Query> RglBrdf::MakeQuery(const Vec3 &wo_in, const Vec3 &
   return q;
 }
 
-Rgb RglBrdf::Value(const Vec2 &sample, const Vec2 &u_wm, const Vec2 &u_wo,
-                   const double *params) const {
+Rgb RglBrdf::Value(const Vec2& sample, const Vec2& u_wm, const Vec2& u_wo,
+                   const double* params) const {
   Rgb v(rgb_[0].Eval(sample, params), rgb_[1].Eval(sample, params), rgb_[2].Eval(sample, params));
-  // With the jacobian flag the tables hold f / (D / (4 sigma)) (paper eq. 12):
-  // undo it.
+  // With the jacobian flag the tables hold f / (D / (4 sigma)) (paper eq. 12): undo it.
   if (jacobian_) {
     const double sigma = sigma_.Eval(u_wo);
     v *= sigma > 0 ? ndf_.Eval(u_wm) / (4 * sigma) : 0.0;
@@ -286,7 +278,7 @@ Rgb RglBrdf::Value(const Vec2 &sample, const Vec2 &u_wm, const Vec2 &u_wo,
   return v;
 }
 
-Rgb RglBrdf::f(const Vec3 &wo, const Vec3 &wi) const {
+Rgb RglBrdf::f(const Vec3& wo, const Vec3& wi) const {
   const auto q = MakeQuery(wo, wi);
   if (!q) return Rgb::Zero();
   const Vec2 sample = vndf_.Invert(q->u_wm, q->params).first;
@@ -294,7 +286,7 @@ Rgb RglBrdf::f(const Vec3 &wo, const Vec3 &wi) const {
   return Value(sample, q->u_wm, q->u_wo, q->params) / q->wi.z();
 }
 
-double RglBrdf::Pdf(const Vec3 &wo, const Vec3 &wi) const {
+double RglBrdf::Pdf(const Vec3& wo, const Vec3& wi) const {
   const auto q = MakeQuery(wo, wi);
   if (!q) return 0.0;
   const double wo_dot_wm = q->wo.dot(q->wm);
@@ -305,7 +297,7 @@ double RglBrdf::Pdf(const Vec3 &wo, const Vec3 &wi) const {
   return vndf_pdf * lum_pdf / HalfVectorJacobian(q->u_wm.x(), sin_theta_m, wo_dot_wm);
 }
 
-std::optional<BrdfSample> RglBrdf::Sample(const Vec3 &wo_in, const Vec2 &u) const {
+std::optional<BrdfSample> RglBrdf::Sample(const Vec3& wo_in, const Vec2& u) const {
   if (wo_in.z() <= 0) return std::nullopt;
   Vec3 wo = wo_in;
   double sx = -1, sy = -1;  // MulSignNeg(x, -1) = x: no folding

@@ -1,16 +1,14 @@
 #pragma once
-// Measured BRDFs of the RGL EPFL material database (Dupuy & Jakob 2018, "An
-// Adaptive Parameterization for Efficient Material Acquisition and Rendering"),
-// read from their "tensor_file" .bsdf files (RGB variants).
+// Measured BRDFs of the RGL EPFL material database (Dupuy & Jakob 2018, "An Adaptive
+// Parameterization for Efficient Material Acquisition and Rendering"), read from their
+// "tensor_file" .bsdf files (RGB variants).
 //
-// The file tabulates, per incident direction (theta_i, phi_i), the BRDF on a
-// grid that is warped by the visible-normal distribution (vndf) and by
-// luminance, so sampling is two exact 2-D warps (luminance, then vndf) and
-// evaluation is the inverse vndf warp plus a bilinear lookup. The stored values
-// include the cosine of the sampled direction (checked by the white-furnace
-// test in rgl_test.cc), so f() divides it out. The file's theta_i/phi_i
-// describe our wo (the fixed direction); our wi is the direction the tables
-// sample.
+// The file tabulates, per incident direction (theta_i, phi_i), the BRDF on a grid that is warped by
+// the visible-normal distribution (vndf) and by luminance, so sampling is two exact 2-D warps
+// (luminance, then vndf) and evaluation is the inverse vndf warp plus a bilinear lookup. The stored
+// values include the cosine of the sampled direction (checked by the white-furnace test in
+// rgl_test.cc), so f() divides it out. The file's theta_i/phi_i describe our wo (the fixed
+// direction); our wi is the direction the tables sample.
 
 #include <filesystem>
 #include <memory>
@@ -24,17 +22,16 @@ namespace mesoscan {
 
 class RglBrdf {
  public:
-  // Reads and validates a tensor file; throws Error(kBadInput) naming the file
-  // and the field (missing, wrong type or shape, truncated data, non-finite or
-  // negative densities). Spectral files (fields "spectra"/"wavelengths" instead
-  // of "rgb") are refused.
-  static std::shared_ptr<const RglBrdf> Load(const std::filesystem::path &path);
+  // Reads and validates a tensor file; throws Error(kBadInput) naming the file and the field
+  // (missing, wrong type or shape, truncated data, non-finite or negative densities). Spectral
+  // files (fields "spectra"/"wavelengths" instead of "rgb") are refused.
+  static std::shared_ptr<const RglBrdf> Load(const std::filesystem::path& path);
 
-  Rgb f(const Vec3 &wo, const Vec3 &wi) const;
-  std::optional<BrdfSample> Sample(const Vec3 &wo, const Vec2 &u) const;
-  double Pdf(const Vec3 &wo, const Vec3 &wi) const;
+  Rgb f(const Vec3& wo, const Vec3& wi) const;
+  std::optional<BrdfSample> Sample(const Vec3& wo, const Vec2& u) const;
+  double Pdf(const Vec3& wo, const Vec3& wi) const;
 
-  const std::string &description() const { return description_; }
+  const std::string& description() const { return description_; }
   bool isotropic() const { return isotropic_; }
   int theta_i_count() const { return theta_i_count_; }
   int phi_i_count() const { return phi_i_count_; }
@@ -43,15 +40,15 @@ class RglBrdf {
 
  private:
   RglBrdf() = default;
-  // The part of eval/pdf shared by both: folds the directions by the file's
-  // symmetry and maps the half vector into the unit square.
+  // The part of eval/pdf shared by both: folds the directions by the file's symmetry and maps the
+  // half vector into the unit square.
   struct Query {
     Vec3 wo, wi, wm;
     Vec2 u_wo, u_wm;
     double params[2];
   };
-  std::optional<Query> MakeQuery(const Vec3 &wo, const Vec3 &wi) const;
-  Rgb Value(const Vec2 &sample, const Vec2 &u_wm, const Vec2 &u_wo, const double *params) const;
+  std::optional<Query> MakeQuery(const Vec3& wo, const Vec3& wi) const;
+  Rgb Value(const Vec2& sample, const Vec2& u_wm, const Vec2& u_wo, const double* params) const;
 
   std::string description_;
   bool isotropic_ = true;

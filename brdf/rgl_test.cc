@@ -20,7 +20,7 @@ const fs::path kDataDir = fs::path(MESOSCAN_SHARED_DIR) / "data" / "brdf";
 std::vector<fs::path> RglFiles() {
   std::vector<fs::path> files;
   if (fs::is_directory(kDataDir))
-    for (const auto &e : fs::directory_iterator(kDataDir))
+    for (const auto& e : fs::directory_iterator(kDataDir))
       if (e.path().extension() == ".bsdf") files.push_back(e.path());
   std::sort(files.begin(), files.end());
   return files;
@@ -30,7 +30,7 @@ std::vector<fs::path> RglFiles() {
   if (RglFiles().empty())   \
   GTEST_SKIP() << "no .bsdf files in " << kDataDir << " (the shared data folder is absent)"
 
-fs::path TempDir(const std::string &name) {
+fs::path TempDir(const std::string& name) {
   fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_test_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
@@ -38,7 +38,7 @@ fs::path TempDir(const std::string &name) {
 }
 
 // Directional albedo per channel from n x n stratified importance samples.
-Rgb Albedo(const RglBrdf &b, const Vec3 &wo, int n) {
+Rgb Albedo(const RglBrdf& b, const Vec3& wo, int n) {
   Rgb sum = Rgb::Zero();
   for (int j = 0; j < n; ++j)
     for (int i = 0; i < n; ++i)
@@ -51,7 +51,7 @@ TEST(Rgl, EveryFileLoadsAndIsFiniteAndNonNegative) {
   SKIP_WITHOUT_DATA();
   EXPECT_EQ(RglFiles().size(), 7u) << "the README lists seven files";
   std::mt19937 rng(21);
-  for (const fs::path &p : RglFiles()) {
+  for (const fs::path& p : RglFiles()) {
     const auto b = RglBrdf::Load(p);
     EXPECT_FALSE(b->description().empty()) << p;
     EXPECT_TRUE(b->isotropic()) << p;
@@ -70,9 +70,9 @@ TEST(Rgl, EveryFileLoadsAndIsFiniteAndNonNegative) {
   }
 }
 
-// The files store f * cos(theta) of the sampled direction, not f: white paper
-// is close to Lambertian (f nearly constant) only under that reading; read as
-// f, f * cos(60)/cos(10) would halve between 10 and 60 degrees.
+// The files store f * cos(theta) of the sampled direction, not f: white paper is close to
+// Lambertian (f nearly constant) only under that reading; read as f, f * cos(60)/cos(10) would
+// halve between 10 and 60 degrees.
 TEST(Rgl, StoredValuesIncludeTheCosine) {
   SKIP_WITHOUT_DATA();
   const auto paper = RglBrdf::Load(kDataDir / "paper_white_rgb.bsdf");
@@ -95,11 +95,10 @@ TEST(Rgl, StoredValuesIncludeTheCosine) {
 
 TEST(Rgl, WhiteFurnaceEnergyConserving) {
   SKIP_WITHOUT_DATA();
-  // Within the measured range (the last tabulated theta_i, 90 deg, cannot be
-  // measured and is extrapolated in the files): albedo <= 1 up to the 1% that
-  // stratified sampling and table interpolation leave. Above 70 degrees the
-  // figures are printed, not asserted.
-  for (const fs::path &p : RglFiles()) {
+  // Within the measured range (the last tabulated theta_i, 90 deg, cannot be measured and is
+  // extrapolated in the files): albedo <= 1 up to the 1% that stratified sampling and table
+  // interpolation leave. Above 70 degrees the figures are printed, not asserted.
+  for (const fs::path& p : RglFiles()) {
     const auto b = RglBrdf::Load(p);
     double worst_measured = 0, worst_all = 0, worst_deg = 0;
     for (int deg = 0; deg <= 88; deg += 2) {
@@ -122,7 +121,7 @@ TEST(Rgl, ChiSquareSamplingMatchesPdf) {
   const std::vector<double> thetas = {10, 45, 70};
   const int tests = static_cast<int>(files.size() * thetas.size());
   uint32_t seed = 300;
-  for (const fs::path &p : files) {
+  for (const fs::path& p : files) {
     const auto b = RglBrdf::Load(p);
     for (double deg : thetas) {
       const auto r = ChiSquareTest(*b, SphericalDirection(deg * kPi / 180, 0.3),
@@ -143,15 +142,15 @@ TEST(Rgl, BadInputIsOneClearError) {
   std::ifstream in(kDataDir / "paper_white_rgb.bsdf", std::ios::binary);
   const std::vector<char> bytes((std::istreambuf_iterator<char>(in)),
                                 std::istreambuf_iterator<char>());
-  auto write = [&](const std::string &name, std::vector<char> b) {
+  auto write = [&](const std::string& name, std::vector<char> b) {
     std::ofstream(dir / name, std::ios::binary).write(b.data(), b.size());
     return dir / name;
   };
-  auto expect_error = [](const fs::path &p, const std::string &needle) {
+  auto expect_error = [](const fs::path& p, const std::string& needle) {
     try {
       RglBrdf::Load(p);
       ADD_FAILURE() << "no error for " << p;
-    } catch (const Error &e) {
+    } catch (const Error& e) {
       const std::string msg = e.what();
       EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
       EXPECT_NE(msg.find(p.filename().string()), std::string::npos) << msg;
@@ -165,8 +164,7 @@ TEST(Rgl, BadInputIsOneClearError) {
   std::vector<char> magic = bytes;
   magic[0] = 'X';
   expect_error(write("magic.bsdf", magic), "magic");
-  // 0xff bytes are NaN floats: inside the vndf table of every file of this
-  // layout.
+  // 0xff bytes are NaN floats: inside the vndf table of every file of this layout.
   std::vector<char> nan = bytes;
   std::fill(nan.begin() + 3000, nan.begin() + 3100, static_cast<char>(0xff));
   expect_error(write("nan.bsdf", nan), "vndf");

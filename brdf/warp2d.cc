@@ -8,10 +8,10 @@
 namespace mesoscan {
 namespace {
 
-// Largest i in [0, size-2] with pred(i) true, for a predicate that is true then
-// false (pbrt-v4 FindInterval).
+// Largest i in [0, size-2] with pred(i) true, for a predicate that is true then false (pbrt-v4
+// FindInterval).
 template <typename Pred>
-int FindInterval(int size, const Pred &pred) {
+int FindInterval(int size, const Pred& pred) {
   int first = 1, len = size - 2;
   while (len > 0) {
     const int half = len >> 1, middle = first + half;
@@ -25,9 +25,8 @@ int FindInterval(int size, const Pred &pred) {
   return std::clamp(first - 1, 0, size - 2);
 }
 
-// Inverts the CDF of the linear density a (1 - t) + b t on t in [0, 1] at mass
-// s: a t + (b - a) t^2 / 2 = s, written in the cancellation-free form 2 s / (a
-// + sqrt(disc)).
+// Inverts the CDF of the linear density a (1 - t) + b t on t in [0, 1] at mass s: a t + (b - a) t^2
+// / 2 = s, written in the cancellation-free form 2 s / (a + sqrt(disc)).
 double SolveLinearCdf(double a, double b, double s) {
   const double disc = std::max(0.0, a * a + 2 * s * (b - a));
   const double den = a + std::sqrt(disc);
@@ -52,7 +51,7 @@ Warp2D::Warp2D(int width, int height, std::vector<double> data,
   size_t slices = 1;
   param_strides_.assign(param_values_.size(), 0);
   for (int d = static_cast<int>(param_values_.size()) - 1; d >= 0; --d) {
-    const auto &v = param_values_[d];
+    const auto& v = param_values_[d];
     if (v.empty()) MESOSCAN_BAD_INPUT(name << ": parameter " << d << " has no values");
     for (size_t i = 0; i + 1 < v.size(); ++i)
       if (!(v[i + 1] > v[i]))
@@ -77,11 +76,10 @@ Warp2D::Warp2D(int width, int height, std::vector<double> data,
   marginal_cdf_.resize(slices * h);
   conditional_cdf_.resize(data.size());
   for (size_t s = 0; s < slices; ++s) {
-    const double *in = data.data() + s * slice_size_;
-    double *cond = conditional_cdf_.data() + s * slice_size_;
-    double *marg = marginal_cdf_.data() + s * h;
-    // Conditional CDFs: the integral of each row's linear interpolant, in node
-    // units.
+    const double* in = data.data() + s * slice_size_;
+    double* cond = conditional_cdf_.data() + s * slice_size_;
+    double* marg = marginal_cdf_.data() + s * h;
+    // Conditional CDFs: the integral of each row's linear interpolant, in node units.
     for (size_t y = 0; y < h; ++y) {
       double sum = 0;
       cond[y * w] = 0;
@@ -90,8 +88,7 @@ Warp2D::Warp2D(int width, int height, std::vector<double> data,
         cond[y * w + x + 1] = sum;
       }
     }
-    // Marginal CDF over rows: the row totals are themselves linear between
-    // rows.
+    // Marginal CDF over rows: the row totals are themselves linear between rows.
     double sum = 0;
     marg[0] = 0;
     for (size_t y = 0; y + 1 < h; ++y) {
@@ -108,10 +105,10 @@ Warp2D::Warp2D(int width, int height, std::vector<double> data,
   }
 }
 
-Warp2D::Blend Warp2D::Interpolate(const double *params) const {
+Warp2D::Blend Warp2D::Interpolate(const double* params) const {
   Blend b;
   for (size_t d = 0; d < param_values_.size(); ++d) {
-    const auto &v = param_values_[d];
+    const auto& v = param_values_[d];
     if (v.size() == 1) continue;
     const double x = params[d];
     const int n = static_cast<int>(v.size());
@@ -136,7 +133,7 @@ Warp2D::Blend Warp2D::Interpolate(const double *params) const {
   return b;
 }
 
-double Warp2D::Eval(const Eigen::Vector2d &pos, const double *params) const {
+double Warp2D::Eval(const Eigen::Vector2d& pos, const double* params) const {
   const Blend b = Interpolate(params);
   const double x = std::clamp(pos.x(), 0.0, 1.0) * (width_ - 1);
   const double y = std::clamp(pos.y(), 0.0, 1.0) * (height_ - 1);
@@ -152,20 +149,18 @@ double Warp2D::Eval(const Eigen::Vector2d &pos, const double *params) const {
   return sampling_ ? v * (width_ - 1) * (height_ - 1) : v;
 }
 
-std::pair<Eigen::Vector2d, double> Warp2D::Sample(const Eigen::Vector2d &u,
-                                                  const double *params) const {
+std::pair<Eigen::Vector2d, double> Warp2D::Sample(const Eigen::Vector2d& u,
+                                                  const double* params) const {
   MESOSCAN_DCHECK(sampling_);
   const Blend b = Interpolate(params);
   const size_t w = width_, h = height_;
   const double ux = std::clamp(u.x(), 0.0, 1.0), uy = std::clamp(u.y(), 0.0, 1.0);
-  // Row: invert the marginal CDF, then the linear marginal density within the
-  // row interval.
+  // Row: invert the marginal CDF, then the linear marginal density within the row interval.
   const int row = FindInterval(height_, [&](int k) { return Lookup(marginal_cdf_, b, h, k) < uy; });
   const double r0 = Lookup(conditional_cdf_, b, slice_size_, row * w + w - 1);
   const double r1 = Lookup(conditional_cdf_, b, slice_size_, (row + 1) * w + w - 1);
   const double ty = SolveLinearCdf(r0, r1, uy - Lookup(marginal_cdf_, b, h, row));
-  // Column: the conditional CDF at this fractional row is the blend of its two
-  // neighbours.
+  // Column: the conditional CDF at this fractional row is the blend of its two neighbours.
   const double target = ux * ((1 - ty) * r0 + ty * r1);
   auto cond = [&](int k) {
     return (1 - ty) * Lookup(conditional_cdf_, b, slice_size_, row * w + k) +
@@ -184,8 +179,8 @@ std::pair<Eigen::Vector2d, double> Warp2D::Sample(const Eigen::Vector2d &u,
   return {pos, pdf};
 }
 
-std::pair<Eigen::Vector2d, double> Warp2D::Invert(const Eigen::Vector2d &pos,
-                                                  const double *params) const {
+std::pair<Eigen::Vector2d, double> Warp2D::Invert(const Eigen::Vector2d& pos,
+                                                  const double* params) const {
   MESOSCAN_DCHECK(sampling_);
   const Blend b = Interpolate(params);
   const size_t w = width_, h = height_;
@@ -201,8 +196,7 @@ std::pair<Eigen::Vector2d, double> Warp2D::Invert(const Eigen::Vector2d &pos,
   const double v11 = Lookup(data_, b, slice_size_, i00 + w + 1);
   const double c0 = (1 - fy) * v00 + fy * v01, c1 = (1 - fy) * v10 + fy * v11;
   const double pdf = ((1 - fx) * c0 + fx * c1) * (width_ - 1) * (height_ - 1);
-  // Column: CDF at the patch start plus the integral of the linear conditional
-  // inside it.
+  // Column: CDF at the patch start plus the integral of the linear conditional inside it.
   double sx = fx * (c0 + 0.5 * fx * (c1 - c0));
   sx += (1 - fy) * Lookup(conditional_cdf_, b, slice_size_, i00) +
         fy * Lookup(conditional_cdf_, b, slice_size_, i00 + w);
@@ -210,8 +204,7 @@ std::pair<Eigen::Vector2d, double> Warp2D::Invert(const Eigen::Vector2d &pos,
   const double r1 = Lookup(conditional_cdf_, b, slice_size_, (iy + 1) * w + w - 1);
   const double row_total = (1 - fy) * r0 + fy * r1;
   const double ux = row_total > 0 ? sx / row_total : 0.0;
-  // Row: marginal CDF at the row start plus the integral of the linear marginal
-  // inside it.
+  // Row: marginal CDF at the row start plus the integral of the linear marginal inside it.
   const double uy = fy * (r0 + 0.5 * fy * (r1 - r0)) + Lookup(marginal_cdf_, b, h, iy);
   return {Eigen::Vector2d(ux, uy), pdf};
 }

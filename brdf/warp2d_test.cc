@@ -38,8 +38,8 @@ TEST(Warp2D, SampleAndInvertAreInverse) {
 TEST(Warp2D, DensityIntegratesToOne) {
   const Warp2D w = MakeWarp();
   const double params[2] = {0.3, 1.2};
-  // The bilinear interpolant is integrated exactly by a midpoint rule aligned
-  // to its patches only in the limit; 600^2 points give ~1e-6.
+  // The bilinear interpolant is integrated exactly by a midpoint rule aligned to its patches only
+  // in the limit; 600^2 points give ~1e-6.
   const int n = 600;
   double sum = 0;
   for (int j = 0; j < n; ++j)

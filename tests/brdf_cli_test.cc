@@ -1,6 +1,6 @@
-// mesoscan brdf info|plot|tabulate through the executable: every shared RGL file gets an info
-// line and a readable plot; a MERL-layout table written by `tabulate` reads back; bad input is
-// one line and exit code 3.
+// mesoscan brdf info|plot|tabulate through the executable: every shared RGL file gets an info line
+// and a readable plot; a MERL-layout table written by `tabulate` reads back; bad input is one line
+// and exit code 3.
 
 #include <gtest/gtest.h>
 #include <sys/wait.h>
