@@ -222,18 +222,29 @@ ImageF RenderHeightField(const HeightField& hf_in, const Brdf& brdf, const Envir
 }
 
 ImageU8 ToneMapForDisplay(const ImageF& radiance) {
-  std::vector<float> lum(radiance.pixels());
-  for (size_t i = 0; i < lum.size(); ++i)
+  // Exposure from the log-average luminance (key 0.18, Reinhard et al. 2002), then the extended
+  // Reinhard curve per channel with the white point at the 99.5th percentile, so a sun glint
+  // neither blows out the image nor darkens everything else; sRGB encoding last.
+  const size_t n = radiance.pixels();
+  std::vector<float> lum(n);
+  double log_sum = 0;
+  for (size_t i = 0; i < n; ++i) {
     lum[i] = static_cast<float>(Luminance(
         Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i])));
-  std::vector<float> sorted = lum;
-  const size_t k = static_cast<size_t>(0.99 * (sorted.size() - 1));
-  std::nth_element(sorted.begin(), sorted.begin() + k, sorted.end());
-  const float p99 = sorted.empty() ? 1.0f : sorted[k];
-  const float exposure = p99 > 0 ? 0.9f / p99 : 1.0f;
-  ImageF scaled = radiance;
-  for (float& v : scaled.data()) v *= exposure;
-  return QuantizeU8(scaled, /*srgb_encode=*/true);
+    log_sum += std::log(1e-6 + std::max(0.0f, lum[i]));
+  }
+  const double log_avg = n ? std::exp(log_sum / n) : 1.0;
+  const double exposure = log_avg > 0 ? 0.18 / log_avg : 1.0;
+  const size_t k = n ? static_cast<size_t>(0.995 * (n - 1)) : 0;
+  if (n) std::nth_element(lum.begin(), lum.begin() + k, lum.end());
+  const double white = std::max(1.0, n ? lum[k] * exposure : 1.0);
+  ImageF mapped(radiance.width(), radiance.height(), 3);
+  for (int c = 0; c < 3; ++c)
+    for (size_t i = 0; i < n; ++i) {
+      const double v = std::max(0.0, radiance.channel(c)[i] * exposure);
+      mapped.channel(c)[i] = static_cast<float>(v * (1 + v / (white * white)) / (1 + v));
+    }
+  return QuantizeU8(mapped, /*srgb_encode=*/true);
 }
 
 }  // namespace mesoscan

@@ -41,7 +41,8 @@ struct RenderSummary {
 ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
                          const RenderOptions& options, RenderSummary* summary = nullptr);
 
-// Linear radiance -> display PNG (exposure so the 99th percentile luminance maps to 0.9, sRGB).
+// Linear radiance -> display PNG: exposure from the log-average luminance, extended Reinhard
+// tone curve (white at the 99.5th percentile), sRGB.
 ImageU8 ToneMapForDisplay(const ImageF& radiance);
 
 }  // namespace mesoscan
