@@ -1,0 +1,321 @@
+// Reconstruction benchmark (figures, not assertions):
+//  1. The paper's Table 1 rerun on the virtual rig (Ritz et al. 2012): PS 9, PS 21, and
+//     LS 15/25/50/100/200 (+ PS 9) with the fast, LM and Ceres fitters, on a crop of the tilted
+//     bar near the projector's focus. Per row: wall time of the reconstruction and of the lens-shift
+//     fit, depth RMS vs ground truth, repeatability D (paper Eq. 3: RMS of the difference of two
+//     scans of the same object with different noise seeds, divided by sqrt 2 so it is a per-scan
+//     figure) and the ratio of the RMS to the Cramer-Rao floor of the simulator's noise model.
+//     Written to table1.csv and plotted (error against run time) in table1.png.
+//  2. Full resolution (2176 x 1434, 9 + 50 + 2 frames, the coin): bare PNG decode time of the
+//     frames, compute time (frames in memory to height field), end-to-end (read session,
+//     reconstruct, write the scan folder) and peak RSS of the reconstruction, measured in a child
+//     process. Written to fullres.csv. Skipped with MESOSCAN_BENCH_QUICK=1.
+// Output folder: $MESOSCAN_BENCH_OUT (default: current folder).
+
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <numeric>
+#include <opencv2/imgproc.hpp>
+#include <string>
+#include <vector>
+
+#include "capture/session.h"
+#include "core/fs.h"
+#include "core/image_io.h"
+#include "core/parallel.h"
+#include "core/progress.h"
+#include "core/scan_folder.h"
+#include "heightfield/lens_shift_fit.h"
+#include "heightfield/reconstruct.h"
+#include "sim/virtual_rig.h"
+
+namespace mesoscan {
+namespace {
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double Since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+struct Row {
+  std::string config, fitter;
+  int frames = 0;
+  double seconds = 0, fit_seconds = 0, rms_um = 0, repeat_um = 0, crlb_um = 0, coverage = 0;
+};
+
+// Crop of the paper rig on the tilted bar 3 mm from its low end (as tests/reconstruct_sim_test).
+SimulateOptions PlaneOptions(int w, int h, uint64_t seed) {
+  SimulateOptions o;
+  o.object = "plane";
+  const int cx = static_cast<int>(std::lround(1087.5 - 17e-3 / 55e-6));
+  o.crop = std::array<int, 4>{w, h, cx - w / 2, 717 - h / 2};
+  o.seed = seed;
+  return o;
+}
+
+// Cramer-Rao floor of the depth RMS (lens shift: var(phi) from the Fisher information with the
+// simulator's noise at the fitted offset and amplitude; phase shifting alone: the pipeline's
+// own prediction from the residuals).
+double CrlbDepthRms(const Session& s, const SimulateOptions& so, const ReconstructSummary& sum,
+                    const GroundTruthErrors& e) {
+  const auto& d = sum.diagnostics;
+  if (!sum.used_lens_shift || d.ls_amplitude.empty()) return sum.predicted_depth_rms_m;
+  std::vector<double> x;
+  for (const Frame& f : s.frames)
+    if (f.pattern.type == PatternType::kStripes) x.push_back(f.shift_steps / 2048.0);
+  const double centre = std::accumulate(x.begin(), x.end(), 0.0) / x.size();
+  for (double& v : x) v -= centre;
+  const NoiseModel noise = MakeNoiseModel(so);
+  double s2 = 0;
+  int64_t n = 0;
+  for (int y = 0; y < d.u.height(); ++y)
+    for (int xx = 0; xx < d.u.width(); ++xx) {
+      if (!std::isfinite(e.error(xx, y)) || !std::isfinite(d.dz_du(xx, y))) continue;
+      const double var_phi = LensShiftPhaseCrlb(noise.Sigma(d.ls_offset(xx, y)),
+                                                d.ls_amplitude(xx, y), x, d.ls_frequency(xx, y),
+                                                /*fit_frequency=*/false);
+      s2 += var_phi / (M_PI * M_PI) * std::pow(d.dz_du(xx, y), 2);
+      ++n;
+    }
+  return n ? std::sqrt(s2 / n) : 0.0;
+}
+
+std::vector<Row> Table1(const fs::path& work) {
+  struct Config {
+    std::string name;
+    int phases, ls;
+  };
+  const std::vector<Config> configs = {{"PS 9", 3, 0},          {"PS 21", 7, 0},
+                                       {"LS 15 + PS 9", 3, 15},  {"LS 25 + PS 9", 3, 25},
+                                       {"LS 50 + PS 9", 3, 50},  {"LS 100 + PS 9", 3, 100},
+                                       {"LS 200 + PS 9", 3, 200}};
+  std::vector<Row> rows;
+  for (const Config& c : configs) {
+    Session sessions[2];
+    SimulateOptions so[2];
+    for (int k = 0; k < 2; ++k) {
+      so[k] = PlaneOptions(128, 96, 21 + k);
+      so[k].ps_phases = c.phases;
+      so[k].ls_frames = c.ls;
+      const fs::path dir = work / ("t1_" + std::to_string(c.phases) + "_" + std::to_string(c.ls) +
+                                   "_" + std::to_string(k));
+      if (!fs::exists(dir / "session.json")) Simulate(so[k], dir);
+      sessions[k] = ReadSession(dir);
+    }
+    const std::vector<LensShiftFitter> fitters =
+        c.ls ? std::vector<LensShiftFitter>{LensShiftFitter::kFast, LensShiftFitter::kLm,
+                                            LensShiftFitter::kCeres}
+             : std::vector<LensShiftFitter>{LensShiftFitter::kFast};
+    for (LensShiftFitter fitter : fitters) {
+      Row r;
+      r.config = c.name;
+      r.fitter = c.ls == 0                              ? "-"
+                 : fitter == LensShiftFitter::kFast ? "fast"
+                 : fitter == LensShiftFitter::kLm   ? "lm"
+                                                    : "ceres";
+      r.frames = static_cast<int>(sessions[0].frames.size());
+      ReconstructOptions ro;
+      ro.fitter = fitter;
+      ro.keep_diagnostics = true;
+      ReconstructSummary sum[2];
+      Scan scans[2];
+      for (int k = 0; k < 2; ++k) scans[k] = Reconstruct(sessions[k], ro, &sum[k]);
+      r.seconds = sum[0].total_s;
+      r.fit_seconds = sum[0].Seconds("lens_shift");
+      const GroundTruthErrors e = EvaluateAgainstGroundTruth(sessions[0], scans[0].points);
+      r.rms_um = e.rms_m * 1e6;
+      r.coverage = e.coverage;
+      // Repeatability: the two seeds' Z differences at pixels valid in both.
+      double s2 = 0;
+      int64_t n = 0;
+      const ImageF& za = scans[0].points.xyz;
+      const ImageF& zb = scans[1].points.xyz;
+      for (size_t i = 0; i < za.pixels(); ++i) {
+        const float a = za.channel(2)[i], b = zb.channel(2)[i];
+        if (std::isfinite(a) && std::isfinite(b)) {
+          s2 += (a - b) * (a - b);
+          ++n;
+        }
+      }
+      r.repeat_um = n ? std::sqrt(s2 / n / 2) * 1e6 : NAN;
+      r.crlb_um = CrlbDepthRms(sessions[0], so[0], sum[0], e) * 1e6;
+      std::printf("%-14s %-6s frames %3d  total %7.3f s  fit %7.3f s  RMS %6.3f um  D %6.3f um  "
+                  "RMS/CRLB %5.3f  coverage %.4f\n",
+                  r.config.c_str(), r.fitter.c_str(), r.frames, r.seconds, r.fit_seconds, r.rms_um,
+                  r.repeat_um, r.rms_um / r.crlb_um, r.coverage);
+      std::fflush(stdout);
+      rows.push_back(r);
+    }
+  }
+  return rows;
+}
+
+// Error against run time, log-x, one marker colour per fitter, each point labelled.
+void PlotTable1(const std::vector<Row>& rows, const fs::path& png) {
+  const int W = 900, H = 600, L = 90, R = 30, T = 50, B = 70;
+  cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
+  double tmin = 1e30, tmax = 0, emax = 0;
+  for (const Row& r : rows) {
+    tmin = std::min(tmin, r.seconds);
+    tmax = std::max(tmax, r.seconds);
+    if (std::isfinite(r.rms_um)) emax = std::max(emax, r.rms_um);
+  }
+  const double lx0 = std::floor(std::log10(std::max(tmin, 1e-4))), lx1 = std::ceil(std::log10(tmax));
+  const double ey1 = emax * 1.1;
+  auto px = [&](double t) {
+    return L + static_cast<int>((std::log10(t) - lx0) / std::max(lx1 - lx0, 1e-9) * (W - L - R));
+  };
+  auto py = [&](double e) { return H - B - static_cast<int>(e / ey1 * (H - T - B)); };
+  const cv::Scalar black(0, 0, 0), grey(200, 200, 200);
+  cv::rectangle(img, {L, T}, {W - R, H - B}, black, 1);
+  for (double lx = lx0; lx <= lx1 + 1e-9; lx += 1) {
+    const int x = px(std::pow(10, lx));
+    cv::line(img, {x, T}, {x, H - B}, grey, 1);
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%g s", std::pow(10, lx));
+    cv::putText(img, buf, {x - 20, H - B + 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv::LINE_AA);
+  }
+  for (int k = 0; k <= 5; ++k) {
+    const double e = ey1 * k / 5;
+    const int y = py(e);
+    cv::line(img, {L, y}, {W - R, y}, grey, 1);
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.1f", e);
+    cv::putText(img, buf, {L - 45, y + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv::LINE_AA);
+  }
+  cv::putText(img, "reconstruction wall time (log scale)", {W / 2 - 160, H - 25},
+              cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1, cv::LINE_AA);
+  cv::putText(img, "depth RMS vs ground truth (um)", {10, T - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.6,
+              black, 1, cv::LINE_AA);
+  cv::putText(img, "Table 1 rerun, tilted bar, 128x96 px", {W / 2 - 60, T - 15},
+              cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1, cv::LINE_AA);
+  auto colour = [](const std::string& f) {
+    return f == "fast" ? cv::Scalar(40, 160, 40)
+           : f == "lm" ? cv::Scalar(200, 100, 20)
+           : f == "ceres" ? cv::Scalar(30, 30, 220)
+                          : cv::Scalar(80, 80, 80);
+  };
+  for (const Row& r : rows) {
+    if (!std::isfinite(r.rms_um)) continue;
+    const cv::Point p(px(r.seconds), py(r.rms_um));
+    cv::circle(img, p, 5, colour(r.fitter), cv::FILLED, cv::LINE_AA);
+    if (r.fitter == "fast" || r.fitter == "-")
+      cv::putText(img, r.config, p + cv::Point(8, -6), cv::FONT_HERSHEY_SIMPLEX, 0.42, black, 1,
+                  cv::LINE_AA);
+  }
+  int ly = T + 20;
+  for (const char* f : {"fast", "lm", "ceres", "-"}) {
+    cv::circle(img, {W - R - 150, ly - 4}, 5, colour(f), cv::FILLED, cv::LINE_AA);
+    cv::putText(img, std::string(f) == "-" ? "phase shift only" : std::string(f) + " fitter",
+                {W - R - 138, ly}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv::LINE_AA);
+    ly += 20;
+  }
+  ImageU8 out(W, H, 3);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const cv::Vec3b v = img.at<cv::Vec3b>(y, x);
+      for (int c = 0; c < 3; ++c) out(x, y, c) = v[2 - c];  // BGR -> RGB
+    }
+  WritePng8(png, out);
+}
+
+// Full resolution: simulate once, then measure decode / compute / end-to-end / RSS in a child.
+void FullResolution(const fs::path& work, const fs::path& out) {
+  const fs::path dir = work / "fullres_coin";
+  if (!fs::exists(dir / "session.json")) {
+    SimulateOptions so;
+    so.object = "coin";
+    std::printf("full resolution: simulating the paper rig (2176x1434) ...\n");
+    std::fflush(stdout);
+    const auto t = Clock::now();
+    Simulate(so, dir);
+    std::printf("full resolution: simulation %.1f s\n", Since(t));
+  }
+  int pipefd[2];
+  if (pipe(pipefd) != 0) return;
+  const pid_t pid = fork();
+  if (pid == 0) {
+    close(pipefd[0]);
+    double decode = 0, compute = 0, e2e = 0, rms = 0;
+    {
+      const Session s = ReadSession(dir);
+      auto t = Clock::now();
+      ParallelFor(static_cast<int64_t>(s.frames.size()),
+                  [&](int64_t i) { (void)ReadImage(s.FramePath(i)); });
+      decode = Since(t);
+    }
+    auto t = Clock::now();
+    const Session s = ReadSession(dir);
+    ReconstructSummary sum;
+    const Scan scan = Reconstruct(s, {}, &sum);
+    WriteScanFolder(work / "fullres_coin.scan", scan);
+    e2e = Since(t);
+    compute = sum.total_s - sum.Seconds("decode");
+    rms = EvaluateAgainstGroundTruth(s, scan.points).rms_m;
+    char buf[256];
+    const int n = std::snprintf(buf, sizeof buf, "%f %f %f %f %f\n", decode, compute, e2e,
+                                sum.total_s, rms);
+    (void)!write(pipefd[1], buf, n);
+    _exit(0);
+  }
+  close(pipefd[1]);
+  char buf[256] = {0};
+  (void)!read(pipefd[0], buf, sizeof buf - 1);
+  int status = 0;
+  rusage ru{};
+  wait4(pid, &status, 0, &ru);
+  double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0;
+  std::sscanf(buf, "%lf %lf %lf %lf %lf", &decode, &compute, &e2e, &total, &rms);
+  const double rss_mb = ru.ru_maxrss / 1024.0;
+  std::printf("full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute (frames in "
+              "memory -> height field) %.2f s; end-to-end %.2f s = %.2fx decode; peak RSS %.0f MB; "
+              "depth RMS %.2f um\n",
+              decode, compute, e2e, e2e / decode, rss_mb, rms * 1e6);
+  WriteTextFile(out / "fullres.csv",
+                "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um\n" +
+                    std::to_string(decode) + "," + std::to_string(compute) + "," +
+                    std::to_string(e2e) + "," + std::to_string(e2e / decode) + "," +
+                    std::to_string(rss_mb) + "," + std::to_string(rms * 1e6) + "\n");
+}
+
+}  // namespace
+}  // namespace mesoscan
+
+int main() {
+  using namespace mesoscan;
+  Progress::SetEnabled(false);
+  const char* env = std::getenv("MESOSCAN_BENCH_OUT");
+  const fs::path out = env ? fs::path(env) : fs::current_path();
+  const fs::path work = out / "reconstruct-work";
+  fs::create_directories(work);
+  try {
+    const std::vector<Row> rows = Table1(work);
+    std::string csv =
+        "config,fitter,frames,wall_s,lens_shift_fit_s,depth_rms_um,repeatability_D_um,crlb_um,"
+        "rms_over_crlb,coverage\n";
+    for (const Row& r : rows) {
+      char buf[512];
+      std::snprintf(buf, sizeof buf, "%s,%s,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f\n",
+                    r.config.c_str(), r.fitter.c_str(), r.frames, r.seconds, r.fit_seconds,
+                    r.rms_um, r.repeat_um, r.crlb_um, r.rms_um / r.crlb_um, r.coverage);
+      csv += buf;
+    }
+    WriteTextFile(out / "table1.csv", csv);
+    PlotTable1(rows, out / "table1.png");
+    std::printf("bench_reconstruct: wrote %s and %s\n", (out / "table1.csv").c_str(),
+                (out / "table1.png").c_str());
+    const char* quick = std::getenv("MESOSCAN_BENCH_QUICK");
+    if (!(quick && std::string(quick) == "1")) FullResolution(work, out);
+  } catch (const Error& e) {
+    std::fprintf(stderr, "bench_reconstruct: %s\n", e.what());
+    return e.exit_code();
+  }
+  return 0;
+}
