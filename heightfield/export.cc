@@ -508,7 +508,8 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
             {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", 0.0}, {"scale", 1.0},
             {"meaning", "metres above the mount plane z = 0"}},
         "Blender: Image Texture '" + f + "' (Color Space Non-Color) -> Displacement node or "
-        "Displace modifier (UV), Midlevel 0, Scale 1: metres");
+        "Displace modifier (UV), Midlevel 0, Scale 1: metres (the modifier clamps values below 0: "
+        "for heights under the mount plane use the node or the 16-bit PNG)");
     run(f, [&, f] {
       WriteExr(dir / f, filled, {"Y"},
                {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size},
