@@ -12,6 +12,7 @@
 #include "core/json.h"
 #include "core/log.h"
 #include "core/scan_folder.h"
+#include "heightfield/export.h"
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {
@@ -31,6 +32,7 @@ PixelRect ParseRoi(const std::string& s) {
 
 struct ReconstructArgs {
   std::string session, out, roi, mask, fitter = "fast";
+  std::string export_formats, export_dir;  // --export: formats for `mesoscan export`
   bool no_lens_shift = false, box_filter = false, no_normalize = false;
   int threads = 0;
   double pixel_size_um = 0.0;
@@ -48,6 +50,12 @@ void Run(const ReconstructArgs& a) {
   opt.normalize_luminance = !a.no_normalize;
   opt.resample.pixel_size = a.pixel_size_um * 1e-6;
   opt.Check();
+  ExportOptions export_options;
+  if (!a.export_formats.empty()) {
+    ParseExportFormats(a.export_formats, &export_options);
+    export_options.name = "scan";
+    export_options.Check();
+  }
 
   const Session session = ReadSession(a.session);
   ReconstructSummary summary;
@@ -76,6 +84,15 @@ void Run(const ReconstructArgs& a) {
                         << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross "
                         << gt->gross_fraction;
   MESOSCAN_LOG(kInfo) << "scan written to " << a.out;
+  if (!a.export_formats.empty()) {
+    // The same exports as `mesoscan export SCAN --format ...`, from the scan in memory.
+    const std::filesystem::path dir =
+        a.export_dir.empty() ? std::filesystem::path(a.out) / "export"
+                             : std::filesystem::path(a.export_dir);
+    const ExportSummary es = ExportScan(scan, export_options, dir);
+    MESOSCAN_LOG(kInfo) << es.BriefReport();
+    MESOSCAN_LOG(kInfo) << "exports written to " << dir.string() << " (manifest.json lists them)";
+  }
 }
 
 }  // namespace
@@ -98,6 +115,9 @@ void AddReconstructCommand(CLI::App* app) {
   cmd->add_option("--pixel-size-um", args->pixel_size_um,
                   "Height-field grid pixel (um); 0 = camera footprint")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--export", args->export_formats,
+                  "Also export for DCC tools, as `mesoscan export`: formats exr,png16,glb,ply");
+  cmd->add_option("--export-dir", args->export_dir, "Folder for --export (default SCAN/export)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
   cmd->callback([args] { Run(*args); });

@@ -84,6 +84,23 @@ TEST(ReconstructCli, RoiAndPhaseShiftOnly) {
   fs::remove_all(out);
 }
 
+// `reconstruct --export` writes the same exports as `mesoscan export`, from the scan in memory.
+TEST(ReconstructCli, ExportFromReconstruct) {
+  const fs::path out = TempDir("export.scan");
+  const Result r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
+                               " --roi 40,30,64,48 --export glb,png16");
+  ASSERT_EQ(r.code, 0) << r.output;
+  for (const char* f : {"export/scan.glb", "export/scan_height.png", "export/scan_height.json",
+                        "export/manifest.json"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  EXPECT_FALSE(fs::exists(out / "export/scan_height.exr"));  // only the formats asked for
+  const Result bad = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
+                                 out.string() + "2 --export tiff");
+  EXPECT_EQ(bad.code, 2) << bad.output;
+  EXPECT_FALSE(fs::exists(out.string() + "2"));  // refused before any work
+  fs::remove_all(out);
+}
+
 TEST(ReconstructCli, ErrorsAreOneLineWithExitCodes) {
   const fs::path out = TempDir("err.scan");
   Result r = RunMesoscan("reconstruct /nonexistent/session --out " + out.string());
