@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <string>
 
+#include "tests/cli_util.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
 
@@ -18,33 +19,13 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-struct Result {
-  int code = -1;
-  std::string output;  // stdout + stderr
-};
-
-Result RunMesoscan(const std::string& args) {
-  const std::string cmd = std::string(MESOSCAN_EXE) + " " + args + " 2>&1";
-  Result r;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.output.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
-
-fs::path TempDir(const std::string& name) {
-  return fs::temp_directory_path() / ("mesoscan_reconcli_" + std::to_string(getpid()) + "_" + name);
-}
+fs::path TempDir(const std::string& name) { return CliTempDir("reconcli", name); }
 
 const fs::path kCoinEdge = fs::path(MESOSCAN_SHARED_DIR) / "spec/examples/coin-edge";
 
 TEST(ReconstructCli, CoinEdgeBeatsThePlainDecoder) {
   const fs::path out = TempDir("coin_edge.scan");
-  const Result r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string());
+  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string());
   ASSERT_EQ(r.code, 0) << r.output;
   for (const char* f : {"points.exr", "height.exr", "normal.exr", "report.json", "error_map.png"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
@@ -72,7 +53,7 @@ TEST(ReconstructCli, CoinEdgeBeatsThePlainDecoder) {
 
 TEST(ReconstructCli, RoiAndPhaseShiftOnly) {
   const fs::path out = TempDir("roi.scan");
-  const Result r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
+  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
                                " --roi 40,30,64,48 --no-lens-shift --threads 1");
   ASSERT_EQ(r.code, 0) << r.output;
   const Json report = ReadJsonFile(out / "report.json");
@@ -87,14 +68,14 @@ TEST(ReconstructCli, RoiAndPhaseShiftOnly) {
 // `reconstruct --export` writes the same exports as `mesoscan export`, from the scan in memory.
 TEST(ReconstructCli, ExportFromReconstruct) {
   const fs::path out = TempDir("export.scan");
-  const Result r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
+  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
                                " --roi 40,30,64,48 --export glb,png16");
   ASSERT_EQ(r.code, 0) << r.output;
   for (const char* f : {"export/scan.glb", "export/scan_height.png", "export/scan_height.json",
                         "export/manifest.json"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
   EXPECT_FALSE(fs::exists(out / "export/scan_height.exr"));  // only the formats asked for
-  const Result bad = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
+  const CliResult bad = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
                                  out.string() + "2 --export tiff");
   EXPECT_EQ(bad.code, 2) << bad.output;
   EXPECT_FALSE(fs::exists(out.string() + "2"));  // refused before any work
@@ -103,7 +84,7 @@ TEST(ReconstructCli, ExportFromReconstruct) {
 
 TEST(ReconstructCli, ErrorsAreOneLineWithExitCodes) {
   const fs::path out = TempDir("err.scan");
-  Result r = RunMesoscan("reconstruct /nonexistent/session --out " + out.string());
+  CliResult r = RunMesoscan("reconstruct /nonexistent/session --out " + out.string());
   EXPECT_EQ(r.code, 3) << r.output;
   EXPECT_NE(r.output.find("session.json"), std::string::npos) << r.output;
   r = RunMesoscan("reconstruct " + kCoinEdge.string() + " --out " + out.string() +

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <string>
 
+#include "tests/cli_util.h"
 #include "capture/session.h"
 #include "core/image_io.h"
 #include "core/scan_folder.h"
@@ -18,27 +19,7 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-struct Result {
-  int code = -1;
-  std::string output;  // stdout + stderr
-};
-
-Result RunMesoscan(const std::string& args) {
-  const std::string cmd = std::string(MESOSCAN_EXE) + " " + args + " 2>&1";
-  Result r;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.output.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
-
-fs::path TempDir(const std::string& name) {
-  return fs::temp_directory_path() / ("mesoscan_simcli_" + std::to_string(getpid()) + "_" + name);
-}
+fs::path TempDir(const std::string& name) { return CliTempDir("simcli", name); }
 
 int Lines(const std::string& s) {
   int n = 0;
@@ -48,7 +29,7 @@ int Lines(const std::string& s) {
 
 TEST(SimulateCli, WritesAReadableSessionWithGroundTruth) {
   const fs::path out = TempDir("coin");
-  const Result r = RunMesoscan("-q simulate --object coin --rig paper --out " + out.string() +
+  const CliResult r = RunMesoscan("-q simulate --object coin --rig paper --out " + out.string() +
                        " --crop 64x48+1200+690 --ls-frames 8 --supersample 2 --seed 3"
                        " --object-pixel-size 40e-6");
   ASSERT_EQ(r.code, 0) << r.output;
@@ -80,7 +61,7 @@ TEST(SimulateCli, WritesAReadableSessionWithGroundTruth) {
 
 TEST(SimulateCli, ProjectorGammaIsRecorded) {
   const fs::path out = TempDir("gamma");
-  const Result r = RunMesoscan("-q simulate --object plane --out " + out.string() +
+  const CliResult r = RunMesoscan("-q simulate --object plane --out " + out.string() +
                        " --crop 16x16+1080+700 --ls-frames 0 --projector-gamma 2.2 --noise 0");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s = ReadSession(out);
@@ -106,7 +87,7 @@ TEST(SimulateCli, RigFileRoundTrip) {
     fwrite(text.data(), 1, text.size(), f);
     fclose(f);
   }
-  const Result r = RunMesoscan("-q simulate --object plane --rig " + rig_file.string() + " --out " +
+  const CliResult r = RunMesoscan("-q simulate --object plane --rig " + rig_file.string() + " --out " +
                        second.string() + " --ls-frames 0 --noise 0 --supersample 1");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s2 = ReadSession(second);
@@ -140,7 +121,7 @@ TEST(SimulateCli, BadValuesExitWithOneLine) {
       {"--object coin --noise -1", 2, "--noise"},
   };
   for (const Case& c : cases) {
-    const Result r = RunMesoscan("-q simulate --out " + out.string() + " " + c.args);
+    const CliResult r = RunMesoscan("-q simulate --out " + out.string() + " " + c.args);
     EXPECT_EQ(r.code, c.code) << c.args << ": " << r.output;
     EXPECT_EQ(Lines(r.output), 1) << c.args << ": " << r.output;
     EXPECT_NE(r.output.find(c.mentions), std::string::npos) << c.args << ": " << r.output;
@@ -149,7 +130,7 @@ TEST(SimulateCli, BadValuesExitWithOneLine) {
 }
 
 TEST(SimulateCli, HelpDescribesTheOptions) {
-  const Result r = RunMesoscan("simulate --help");
+  const CliResult r = RunMesoscan("simulate --help");
   EXPECT_EQ(r.code, 0);
   for (const char* opt : {"--object", "--rig", "--out", "--ps-periods", "--ps-phases", "--ls-frames",
                           "--noise", "--seed", "--crop", "--supersample", "--projector-gamma"})
