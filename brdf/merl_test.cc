@@ -1,5 +1,7 @@
 #include "brdf/merl.h"
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include <cstring>
@@ -20,7 +22,7 @@ using testing::RandomUpperDirection;
 const Rgb kCopperEta(0.200, 0.924, 1.102), kCopperK(3.912, 2.452, 2.142);
 
 fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_test_" + name);
+  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_test_" + std::to_string(getpid()) + "_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;

@@ -1,5 +1,7 @@
 #include "brdf/rgl.h"
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -31,7 +33,7 @@ std::vector<fs::path> RglFiles() {
   GTEST_SKIP() << "no .bsdf files in " << kDataDir << " (the shared data folder is absent)"
 
 fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_test_" + name);
+  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_test_" + std::to_string(getpid()) + "_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;

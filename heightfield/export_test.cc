@@ -1,5 +1,7 @@
 #include "heightfield/export.h"
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 #include <tiny_gltf.h>
 
@@ -16,7 +18,7 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_export_test_" + name);
+  fs::path p = fs::temp_directory_path() / ("mesoscan_export_test_" + std::to_string(getpid()) + "_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;

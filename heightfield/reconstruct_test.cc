@@ -6,6 +6,8 @@
 
 #include "heightfield/reconstruct.h"
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -173,7 +175,7 @@ Session WriteSynthetic(const fs::path& dir, const SyntheticOptions& o) {
 }
 
 fs::path TestDir(const std::string& name) {
-  return fs::temp_directory_path() / ("mesoscan_reconstruct_test_" + name);
+  return fs::temp_directory_path() / ("mesoscan_reconstruct_test_" + std::to_string(getpid()) + "_" + name);
 }
 
 class ReconstructTest : public ::testing::Test {

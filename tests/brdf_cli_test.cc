@@ -2,6 +2,8 @@
 // and a readable plot; a MERL-layout table written by `tabulate` reads back; bad input is one line
 // and exit code 3.
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
@@ -38,7 +40,7 @@ CliRun Mesoscan(const std::string& args) {
 }
 
 fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_cli_test_" + name);
+  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_cli_test_" + std::to_string(getpid()) + "_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;

@@ -11,6 +11,8 @@
 // Consumers are installed by `scripts/install-deps --consumers`; a missing one skips its test
 // with the command that installs it.
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include <array>
@@ -106,7 +108,8 @@ Scan MakeScan() {
 class ExportConsumers : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() / "mesoscan_export_consumers_test";
+    root_ = fs::temp_directory_path() /
+            ("mesoscan_export_consumers_test_" + std::to_string(getpid()));
     fs::remove_all(root_);
     fs::create_directories(root_);
     scan_ = new Scan(MakeScan());
