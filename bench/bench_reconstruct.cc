@@ -9,16 +9,16 @@
 //  2. Full resolution (2176 x 1434, 9 + 50 + 2 frames, the coin): bare PNG decode time of the
 //     frames, compute time (frames in memory to height field), end-to-end (read session,
 //     reconstruct, write the scan folder) and peak RSS of the reconstruction, measured in a child
-//     process. Written to fullres.csv. Skipped with MESOSCAN_BENCH_QUICK=1.
+//     process (this binary re-run with --fullres-child). Written to fullres.csv. Skipped with
+//     MESOSCAN_BENCH_QUICK=1.
 // Output folder: $MESOSCAN_BENCH_OUT (default: current folder).
 
 #include <sys/resource.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <numeric>
 #include <opencv2/imgproc.hpp>
@@ -238,41 +238,21 @@ void FullResolution(const fs::path& work, const fs::path& out) {
     Simulate(so, dir);
     std::printf("full resolution: simulation %.1f s\n", Since(t));
   }
-  int pipefd[2];
-  if (pipe(pipefd) != 0) return;
-  const pid_t pid = fork();
-  if (pid == 0) {
-    close(pipefd[0]);
-    double decode = 0, compute = 0, e2e = 0, rms = 0;
-    {
-      const Session s = ReadSession(dir);
-      auto t = Clock::now();
-      ParallelFor(static_cast<int64_t>(s.frames.size()),
-                  [&](int64_t i) { (void)ReadImage(s.FramePath(i)); });
-      decode = Since(t);
-    }
-    auto t = Clock::now();
-    const Session s = ReadSession(dir);
-    ReconstructSummary sum;
-    const Scan scan = Reconstruct(s, {}, &sum);
-    WriteScanFolder(work / "fullres_coin.scan", scan);
-    e2e = Since(t);
-    compute = sum.total_s - sum.Seconds("decode");
-    rms = EvaluateAgainstGroundTruth(s, scan.points).rms_m;
-    char buf[256];
-    const int n = std::snprintf(buf, sizeof buf, "%f %f %f %f %f\n", decode, compute, e2e,
-                                sum.total_s, rms);
-    (void)!write(pipefd[1], buf, n);
-    _exit(0);
-  }
-  close(pipefd[1]);
-  char buf[256] = {0};
-  (void)!read(pipefd[0], buf, sizeof buf - 1);
-  int status = 0;
+  // The measurement runs in a fresh process (this binary with --fullres-child): TBB's worker
+  // pool does not survive fork(), and a fresh process gives an honest peak RSS.
+  const fs::path result = work / "fullres_child.txt";
+  const std::string cmd = "/proc/self/exe --fullres-child '" + dir.string() + "' '" +
+                          (work / "fullres_coin.scan").string() + "' '" + result.string() + "'";
+  const int status = std::system(cmd.c_str());
   rusage ru{};
-  wait4(pid, &status, 0, &ru);
+  getrusage(RUSAGE_CHILDREN, &ru);
+  if (status != 0) {
+    std::printf("full resolution: the measuring process failed (status %d)\n", status);
+    return;
+  }
+  const std::string buf = ReadTextFile(result);
   double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0;
-  std::sscanf(buf, "%lf %lf %lf %lf %lf", &decode, &compute, &e2e, &total, &rms);
+  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf", &decode, &compute, &e2e, &total, &rms);
   const double rss_mb = ru.ru_maxrss / 1024.0;
   std::printf("full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute (frames in "
               "memory -> height field) %.2f s; end-to-end %.2f s = %.2fx decode; peak RSS %.0f MB; "
@@ -285,12 +265,44 @@ void FullResolution(const fs::path& work, const fs::path& out) {
                     std::to_string(rss_mb) + "," + std::to_string(rms * 1e6) + "\n");
 }
 
+// The measuring process: decode, reconstruct, write; prints the figures into `result`.
+int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs::path& result) {
+  double decode = 0;
+  {
+    const Session s = ReadSession(dir);
+    const auto t = Clock::now();
+    ParallelFor(static_cast<int64_t>(s.frames.size()),
+                [&](int64_t i) { (void)ReadImage(s.FramePath(i)); });
+    decode = Since(t);
+  }
+  const auto t = Clock::now();
+  const Session s = ReadSession(dir);
+  ReconstructSummary sum;
+  const Scan scan = Reconstruct(s, {}, &sum);
+  WriteScanFolder(scan_dir, scan);
+  const double e2e = Since(t);
+  const double compute = sum.total_s - sum.Seconds("decode");
+  const double rms = EvaluateAgainstGroundTruth(s, scan.points).rms_m;
+  char buf[256];
+  std::snprintf(buf, sizeof buf, "%f %f %f %f %f\n", decode, compute, e2e, sum.total_s, rms);
+  WriteTextFile(result, buf);
+  return 0;
+}
+
 }  // namespace
 }  // namespace mesoscan
 
-int main() {
+int main(int argc, char** argv) {
   using namespace mesoscan;
   Progress::SetEnabled(false);
+  if (argc == 5 && std::string(argv[1]) == "--fullres-child") {
+    try {
+      return FullResolutionChild(argv[2], argv[3], argv[4]);
+    } catch (const Error& e) {
+      std::fprintf(stderr, "bench_reconstruct: %s\n", e.what());
+      return e.exit_code();
+    }
+  }
   const char* env = std::getenv("MESOSCAN_BENCH_OUT");
   const fs::path out = env ? fs::path(env) : fs::current_path();
   const fs::path work = out / "reconstruct-work";
