@@ -639,9 +639,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         }
       }
   });
-  // Depth discontinuities: reject points that agree with neither side's extrapolation.
-  if (options.discontinuity_footprints > 0) {
-    const double footprint = CameraFootprint(scan.points.xyz);
+  // RMS of the predicted depth sigma (sigma_u * dZ/du) over the points still accepted.
+  auto predicted_depth_rms = [&] {
     double s2 = 0;
     int64_t n = 0;
     for (size_t i = 0; i < np; ++i)
@@ -649,7 +648,12 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         s2 += std::pow(sigma_u[i] * dz_sub[i], 2);
         ++n;
       }
-    const double sigma_z = n ? std::sqrt(s2 / n) : 0.0;
+    return n ? std::sqrt(s2 / n) : 0.0;
+  };
+  // Depth discontinuities: reject points that agree with neither side's extrapolation.
+  if (options.discontinuity_footprints > 0) {
+    const double footprint = CameraFootprint(scan.points.xyz);
+    const double sigma_z = predicted_depth_rms();
     const double tol = std::max(options.discontinuity_footprints * footprint, 8 * sigma_z);
     const ImageF& P = scan.points.xyz;
     auto z_at = [&](int x, int y) -> float {
@@ -694,16 +698,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
     sum.pixels_rejected_confidence += state[i] == kLowConfidence;
   }
   if (!use_ls) sum.pixels_fitted = sum.pixels_lit;
-  {
-    double s2 = 0;
-    int64_t n = 0;
-    for (size_t i = 0; i < np; ++i)
-      if (state[i] == kOk && std::isfinite(dz_sub[i]) && std::isfinite(sigma_u[i])) {
-        s2 += std::pow(sigma_u[i] * dz_sub[i], 2);
-        ++n;
-      }
-    sum.predicted_depth_rms_m = n ? std::sqrt(s2 / n) : 0.0;
-  }
+  sum.predicted_depth_rms_m = predicted_depth_rms();
   timer.Stage("triangulate");
 
   // ---- 7. Height field and normals.
@@ -763,6 +758,30 @@ Json GroundTruthErrors::ToJson() const {
           {"gross", gross},
           {"gross_fraction", gross_fraction},
           {"gross_threshold_m", gross_threshold_m}};
+}
+
+double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& d,
+                             const ImageF& error, const std::function<double(double)>& sigma) {
+  if (d.ls_amplitude.empty() || session.frames.empty()) return 0.0;
+  const double steps_per_px = session.rig.lens_shifter ? session.rig.lens_shifter->steps_per_px : 1.0;
+  std::vector<double> x;
+  for (const Frame& f : session.frames)
+    if (f.pattern.type == PatternType::kStripes) x.push_back(f.shift_steps / steps_per_px);
+  if (x.empty()) return 0.0;
+  const double centre = std::accumulate(x.begin(), x.end(), 0.0) / x.size();
+  for (double& v : x) v -= centre;
+  double s2 = 0;
+  int64_t n = 0;
+  for (int y = 0; y < d.u.height(); ++y)
+    for (int xx = 0; xx < d.u.width(); ++xx) {
+      if (!std::isfinite(error(xx, y)) || !std::isfinite(d.dz_du(xx, y))) continue;
+      const double var_phi = LensShiftPhaseCrlb(sigma(d.ls_offset(xx, y)), d.ls_amplitude(xx, y),
+                                                x, d.ls_frequency(xx, y),
+                                                /*fit_frequency=*/false);
+      s2 += var_phi / (M_PI * M_PI) * std::pow(d.dz_du(xx, y), 2);
+      ++n;
+    }
+  return n ? std::sqrt(s2 / n) : 0.0;
 }
 
 GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
