@@ -65,26 +65,11 @@ SimulateOptions PlaneOptions(int w, int h, uint64_t seed) {
 // own prediction from the residuals).
 double CrlbDepthRms(const Session& s, const SimulateOptions& so, const ReconstructSummary& sum,
                     const GroundTruthErrors& e) {
-  const auto& d = sum.diagnostics;
-  if (!sum.used_lens_shift || d.ls_amplitude.empty()) return sum.predicted_depth_rms_m;
-  std::vector<double> x;
-  for (const Frame& f : s.frames)
-    if (f.pattern.type == PatternType::kStripes) x.push_back(f.shift_steps / 2048.0);
-  const double centre = std::accumulate(x.begin(), x.end(), 0.0) / x.size();
-  for (double& v : x) v -= centre;
+  if (!sum.used_lens_shift || sum.diagnostics.ls_amplitude.empty())
+    return sum.predicted_depth_rms_m;
   const NoiseModel noise = MakeNoiseModel(so);
-  double s2 = 0;
-  int64_t n = 0;
-  for (int y = 0; y < d.u.height(); ++y)
-    for (int xx = 0; xx < d.u.width(); ++xx) {
-      if (!std::isfinite(e.error(xx, y)) || !std::isfinite(d.dz_du(xx, y))) continue;
-      const double var_phi = LensShiftPhaseCrlb(noise.Sigma(d.ls_offset(xx, y)),
-                                                d.ls_amplitude(xx, y), x, d.ls_frequency(xx, y),
-                                                /*fit_frequency=*/false);
-      s2 += var_phi / (M_PI * M_PI) * std::pow(d.dz_du(xx, y), 2);
-      ++n;
-    }
-  return n ? std::sqrt(s2 / n) : 0.0;
+  return LensShiftDepthCrlbRms(s, sum.diagnostics, e.error,
+                               [&](double m) { return noise.Sigma(m); });
 }
 
 std::vector<Row> Table1(const fs::path& work) {

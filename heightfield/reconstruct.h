@@ -17,6 +17,7 @@
 //  7. the height field on a regular world grid, normals, report.json figures.
 // Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted.
 
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -170,6 +171,14 @@ struct GroundTruthErrors {
 GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
                                              const PixelRect& roi = {},
                                              double gross_threshold_m = 0.0);
+
+// Cramer-Rao floor of the lens-shift depth RMS over the pixels where `error` is finite:
+// var(phi) from the Fisher information (LensShiftPhaseCrlb, frequency held as in the second fit
+// pass) at each pixel's fitted amplitude and frequency, with the noise sigma a known noise model
+// gives at the fitted offset, carried through dZ/du. Needs diagnostics (keep_diagnostics) of a
+// lens-shift reconstruction; returns 0 where there is none or no pixel qualifies.
+double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& diagnostics,
+                             const ImageF& error, const std::function<double(double)>& sigma);
 
 // Error map PNG: |Z error| as a colour map (0 .. `max_m`, default p99) with a scale bar. NaN black.
 void WriteErrorMapPng(const std::filesystem::path& path, const ImageF& error, double max_m = 0.0);
