@@ -11,6 +11,7 @@
 #include <set>
 #include <sstream>
 
+#include "capture/raw_frame.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/log.h"
@@ -292,14 +293,7 @@ Json ResponseToJson(const Response& r) {
   return "linear";
 }
 
-bool IsRawExtension(const fs::path& p) {
-  std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
-  static const std::set<std::string> kRaw = {".nef", ".nrw", ".cr2", ".cr3", ".crw", ".dng",
-                                             ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw"};
-  return kRaw.count(ext) > 0;
-}
+bool IsRawExtension(const fs::path& p) { return IsCameraRawPath(p); }
 
 // ReadImageInfo with the message's absolute path replaced by the path as written in the session.
 ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const std::string& key) {

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 
+#include "capture/raw_frame.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "core/parallel.h"
@@ -34,6 +35,15 @@ struct DecodedFrame {
 };
 
 DecodedFrame Decode(const std::filesystem::path& path, const std::string& label) {
+  if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (capture/raw_frame.h)
+    ImageU16 grey = ReadRawGrey(path, label);
+    DecodedFrame d;
+    d.width = grey.width();
+    d.height = grey.height();
+    d.channels = 1;
+    d.u16 = std::move(grey.data());
+    return d;
+  }
   auto in = OIIO::ImageInput::open(path.string());
   if (!in) {
     std::string err = OIIO::geterror();
