@@ -5,6 +5,7 @@
 #include <OpenEXR/OpenEXRConfig.h>
 #include <OpenImageIO/oiioversion.h>
 #include <ceres/version.h>
+#include <opencv2/core/version.hpp>
 #include <oneapi/tbb/version.h>
 
 #include <Eigen/Core>
@@ -18,7 +19,9 @@
 #include "capture/gphoto2_camera.h"
 #include "capture/lens_shifter.h"
 #include "capture/projector_window.h"
+#include "capture/raw_frame.h"
 #include "core/error.h"
+#include "render/embree_scene.h"
 
 namespace mesoscan {
 namespace {
@@ -61,7 +64,13 @@ void AddDoctorCommand(CLI::App* app) {
                     NLOHMANN_JSON_VERSION_PATCH)
         << "\n"
         << "  CLI11 " << CLI11_VERSION << "\n"
-        << "  Embree 3: linked by the render module (it exposes no version query yet)\n";
+        << "  OpenCV " << CV_VERSION << "\n"
+        << "  Embree " << EmbreeVersion() << "\n";
+    Probe(out, "  LibRaw", [&] {
+      const std::string libraw = LibRawVersion();
+      out << "  LibRaw " << (libraw.empty() ? "missing: OpenImageIO has no raw plugin" : libraw)
+          << " (runtime, through OpenImageIO's raw plugin; camera raw frames)\n";
+    });
     Probe(out, "  libgphoto2",
           [&] { out << "  libgphoto2 " << Gphoto2Version() << " (runtime)\n"; });
 

@@ -13,6 +13,8 @@
 
 namespace mesoscan {
 
+std::string EmbreeVersion() { return RTC_VERSION_STRING; }
+
 // The Embree device: created once per process (while any scene lives), with its error callback
 // registered once. Embree errors inside a query are bugs; at build time they are reported as
 // internal errors by the callers' checks.

@@ -13,12 +13,17 @@
 
 #include <memory>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "core/height_field.h"
 #include "core/transform.h"
 
 namespace mesoscan {
+
+// Embree's version as the headers this module was compiled against say, e.g. "3.13.5" (for
+// `mesoscan doctor`; Embree headers stay in render/).
+std::string EmbreeVersion();
 
 // One process-wide Embree device (created on first use, released with the last scene).
 class EmbreeDevice;
