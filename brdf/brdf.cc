@@ -27,7 +27,7 @@ Brdf LoadBrdf(const std::filesystem::path& path, const MerlOptions& merl_options
   char magic[12] = {};
   in.read(magic, sizeof(magic));
   if (in.gcount() == 12 && std::memcmp(magic, "tensor_file", 12) == 0)
-    return Brdf(RglBrdf::Load(path));
+    return Brdf(RglBrdf::Load(path, merl_options.energy_clamp));
   return Brdf(MerlBrdf::Load(path, merl_options));
 }
 
@@ -50,11 +50,13 @@ BrdfInfo DescribeBrdf(const Brdf& brdf) {
     res << rgl->theta_i_count() << " theta_i x " << rgl->phi_i_count() << " phi_i, vndf "
         << rgl->vndf_resolution() << "^2, rgb " << rgl->rgb_resolution() << "^2, "
         << (rgl->isotropic() ? "isotropic" : "anisotropic");
+    info.energy = rgl->energy().Summary();
   } else if (const auto* merl = brdf.Get<MerlBrdf>()) {
     info.format = "MERL binary";
     res << MerlBrdf::kThetaH << " theta_h x " << MerlBrdf::kThetaD << " theta_d x "
         << MerlBrdf::kPhiD << " phi_d, isotropic";
     if (merl->invalid_entries() > 0) res << ", " << merl->invalid_entries() << " unmeasured";
+    info.energy = merl->energy().Summary();
   } else {
     info.format = "analytic " + brdf.Kind();
     res << "analytic";
@@ -63,9 +65,15 @@ BrdfInfo DescribeBrdf(const Brdf& brdf) {
   info.albedo_min = Rgb::Constant(1e300);
   info.albedo_max = Rgb::Constant(-1e300);
   double lum_min = 1e300, lum_max = -1e300;
+  // Measured models: the deterministic half-vector quadrature of the energy clamp (0.17% worst on
+  // the shared RGL files at 128^2); analytic ones: their exact importance sampling (the quadrature
+  // cannot resolve a GGX lobe of alpha 0.001).
+  const bool measured = brdf.Get<RglBrdf>() || brdf.Get<MerlBrdf>();
+  const auto f = [&brdf](const Vec3& wo, const Vec3& wi) { return brdf.f(wo, wi); };
   for (int deg = 0; deg <= 85; deg += 5) {
     const double theta = deg * kPi / 180;
-    const Rgb a = DirectionalAlbedo(brdf, SphericalDirection(theta, 0.0), 48);
+    const Vec3 wo = SphericalDirection(theta, 0.0);
+    const Rgb a = measured ? HalfVectorAlbedo(f, wo, 128) : DirectionalAlbedo(brdf, wo, 48);
     info.albedo_min = info.albedo_min.min(a);
     info.albedo_max = info.albedo_max.max(a);
     if (Luminance(a) < lum_min) {

@@ -82,6 +82,9 @@ struct BrdfInfo {
   Rgb albedo_min, albedo_max;
   double albedo_min_theta_deg = 0,
          albedo_max_theta_deg = 0;  // where the luminance extremes are
+  // Measured models: EnergyClamp::Summary() ("energy clamped: 2 of 8 incident slices ...");
+  // analytic models: empty.
+  std::string energy;
 };
 BrdfInfo DescribeBrdf(const Brdf& brdf);
 

@@ -116,6 +116,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlO
                            << " unmeasured entries read as 0";
   }
   brdf->BuildSamplingTable();
+  brdf->BuildEnergyClamp(path.string());
   return brdf;
 }
 
@@ -150,6 +151,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Tabulate(
     }
   });
   brdf->BuildSamplingTable();
+  brdf->BuildEnergyClamp("tabulated model");
   return brdf;
 }
 
@@ -195,11 +197,33 @@ Rgb MerlBrdf::Lookup(double theta_h, double theta_d, double phi_d) const {
   return v;
 }
 
-Rgb MerlBrdf::f(const Vec3& wo, const Vec3& wi) const {
+Rgb MerlBrdf::RawF(const Vec3& wo, const Vec3& wi) const {
   if (!SameHemisphereUp(wo, wi)) return Rgb::Zero();
   double theta_h, theta_d, phi_d;
   HalfDiffAngles(wi, wo, &theta_h, &theta_d, &phi_d);
   return Lookup(theta_h, theta_d, phi_d);
+}
+
+Rgb MerlBrdf::f(const Vec3& wo, const Vec3& wi) const {
+  const Rgb v = RawF(wo, wi);
+  if (!energy_.active) return v;
+  // min(s(theta_o), s(theta_i)) <= s(theta_o): albedo(wo) <= s(theta_o) albedo_raw(wo) <= 1, and
+  // the factor is symmetric in wo and wi.
+  return v * energy_.Scale(Elevation(wo)).min(energy_.Scale(Elevation(wi)));
+}
+
+void MerlBrdf::BuildEnergyClamp(const std::string& source) {
+  // Every 1.5 degrees from 0 to 90: the table has no incident slices of its own.
+  std::vector<double> grid;
+  for (int k = 0; k <= 60; ++k) grid.push_back(k * 1.5 * kPi / 180);
+  const auto f = [this](const Vec3& wo, const Vec3& wi) { return RawF(wo, wi); };
+  energy_ = mesoscan::BuildEnergyClamp(
+      grid, std::vector<bool>(grid.size(), true),
+      [&](double theta, int n) { return HalfVectorAlbedo(f, SphericalDirection(theta, 0.0), n); });
+  energy_.slice_noun = "elevations";
+  if (!options_.energy_clamp) energy_.active = false;
+  if (energy_.exceeds)
+    MESOSCAN_LOG(kWarning) << source << ": directional albedo exceeds 1; " << energy_.Summary();
 }
 
 void MerlBrdf::BuildSamplingTable() {
@@ -224,7 +248,7 @@ void MerlBrdf::BuildSamplingTable() {
         if (wo_dot_wm <= 0) continue;
         const Vec3 wi = Reflect(wo, wm);
         if (wi.z() <= 0) continue;
-        const double lum = std::max(0.0, Luminance(f(wo, wi)));
+        const double lum = std::max(0.0, Luminance(RawF(wo, wi)));
         const size_t i = static_cast<size_t>(y) * nx + x;
         jac[i] = wi.z() * 2 * kPi * kPi * ux * std::sin(theta_m) * 4 * wo_dot_wm;
         slice[i] = lum;

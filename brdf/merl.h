@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "brdf/common.h"
+#include "brdf/energy.h"
 #include "brdf/warp2d.h"
 
 namespace mesoscan {
@@ -41,6 +42,11 @@ struct MerlOptions {
   int sampling_theta_nodes = 64;
   int sampling_phi_nodes = 64;
   int sampling_wo_nodes = 24;
+  // Energy clamp (brdf/energy.h): where the table's directional albedo exceeds 1 in a channel, f is
+  // scaled by min(s(theta_o), s(theta_i)) with s = min(1, 0.998 / albedo), which keeps f reciprocal
+  // and bounds the albedo by 1. One warning line names the file. false keeps the values as they
+  // are. LoadBrdf passes it on to RGL files too.
+  bool energy_clamp = true;
 
   // Throws Error(kBadInput) naming the field when out of range.
   void Check() const;
@@ -76,15 +82,22 @@ class MerlBrdf {
   Rgb Node(int i_theta_h, int i_theta_d, int i_phi_d) const;
   const MerlOptions& options() const { return options_; }
   size_t invalid_entries() const { return invalid_entries_; }
+  // Albedo per outgoing elevation before the clamp, and the clamp applied.
+  const EnergyClamp& energy() const { return energy_; }
 
  private:
   MerlBrdf() = default;
   void BuildSamplingTable();
+  // Estimates the albedo on a grid of elevations and sets energy_ (logs when it exceeds 1;
+  // `source` names the file or "tabulated model").
+  void BuildEnergyClamp(const std::string& source);
+  Rgb RawF(const Vec3& wo, const Vec3& wi) const;
 
   MerlOptions options_;
   std::vector<float> rgb_;  // [channel][theta_h][theta_d][phi_d], 1/sr
   size_t invalid_entries_ = 0;
   Warp2D sampling_;  // density over (u_theta_m, u_phi_m) per wo elevation
+  EnergyClamp energy_;
 };
 
 // Rusinkiewicz half/difference angles of a direction pair (MERL BRDFRead.cpp convention).

@@ -157,7 +157,7 @@ double HalfVectorJacobian(double u_theta, double sin_theta_m, double wo_dot_wm) 
 
 }  // namespace
 
-std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path) {
+std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path, bool energy_clamp) {
   std::ifstream in(path, std::ios::binary);
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
   std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
@@ -241,6 +241,36 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path) {
   } catch (const Error& e) {
     MESOSCAN_BAD_INPUT(path.string() << ": " << e.what());
   }
+
+  // Energy: albedo at every incident slice and at kPieces - 1 elevations between two slices (the
+  // interpolated tables can exceed both neighbours). Anisotropic files take the largest albedo
+  // over the tabulated azimuths.
+  constexpr int kPieces = 8;
+  std::vector<double> grid;
+  std::vector<bool> is_slice;
+  for (size_t k = 0; k < theta_v.size(); ++k) {
+    grid.push_back(theta_v[k]);
+    is_slice.push_back(true);
+    if (k + 1 == theta_v.size()) break;
+    for (int p = 1; p < kPieces; ++p) {
+      grid.push_back(theta_v[k] + (theta_v[k + 1] - theta_v[k]) * p / kPieces);
+      is_slice.push_back(false);
+    }
+  }
+  const RglBrdf& raw = *brdf;
+  const auto f = [&raw](const Vec3& wo, const Vec3& wi) { return raw.f(wo, wi); };
+  EnergyClamp energy =
+      BuildEnergyClamp(std::move(grid), std::move(is_slice), [&](double theta, int n) {
+        Rgb a = Rgb::Zero();
+        for (double phi : raw.isotropic_ ? std::vector<double>{0.0} : phi_v)
+          a = a.max(HalfVectorAlbedo(f, SphericalDirection(theta, phi), n));
+        return a;
+      });
+  if (!energy_clamp) energy.active = false;
+  if (energy.exceeds)
+    MESOSCAN_LOG(kWarning) << path.string() << ": directional albedo exceeds 1; "
+                           << energy.Summary();
+  brdf->energy_ = std::move(energy);
   return brdf;
 }
 
@@ -275,6 +305,8 @@ Rgb RglBrdf::Value(const Vec2& sample, const Vec2& u_wm, const Vec2& u_wo,
     const double sigma = sigma_.Eval(u_wo);
     v *= sigma > 0 ? ndf_.Eval(u_wm) / (4 * sigma) : 0.0;
   }
+  // params[1] is theta_o.
+  if (energy_.active) v *= energy_.Scale(params[1]);
   return v;
 }
 

@@ -9,6 +9,11 @@
 // values include the cosine of the sampled direction (checked by the white-furnace test in
 // rgl_test.cc), so f() divides it out. The file's theta_i/phi_i describe our wo (the fixed
 // direction); our wi is the direction the tables sample.
+//
+// Energy: some files reflect more light than they receive at grazing wo (satin_rosaline_rgb: up to
+// 1.156). Load() estimates the directional albedo at every incident slice and between slices and,
+// where a channel exceeds 1, scales f (and sampled values) at that elevation down to albedo 1
+// (brdf/energy.h); energy() keeps the original figures, and one warning line names the file.
 
 #include <filesystem>
 #include <memory>
@@ -16,6 +21,7 @@
 #include <string>
 
 #include "brdf/common.h"
+#include "brdf/energy.h"
 #include "brdf/warp2d.h"
 
 namespace mesoscan {
@@ -24,8 +30,10 @@ class RglBrdf {
  public:
   // Reads and validates a tensor file; throws Error(kBadInput) naming the file and the field
   // (missing, wrong type or shape, truncated data, non-finite or negative densities). Spectral
-  // files (fields "spectra"/"wavelengths" instead of "rgb") are refused.
-  static std::shared_ptr<const RglBrdf> Load(const std::filesystem::path& path);
+  // files (fields "spectra"/"wavelengths" instead of "rgb") are refused. energy_clamp = false keeps
+  // the file's values as they are (for inspecting the raw data; energy() is still filled in).
+  static std::shared_ptr<const RglBrdf> Load(const std::filesystem::path& path,
+                                             bool energy_clamp = true);
 
   Rgb f(const Vec3& wo, const Vec3& wi) const;
   std::optional<BrdfSample> Sample(const Vec3& wo, const Vec2& u) const;
@@ -37,6 +45,9 @@ class RglBrdf {
   int phi_i_count() const { return phi_i_count_; }
   int vndf_resolution() const { return vndf_.width(); }  // vndf grid is square in practice
   int rgb_resolution() const { return rgb_[0].width(); }
+  // Albedo per incident elevation before the clamp, and the clamp applied (inactive when the file
+  // conserves energy or Load was asked not to clamp).
+  const EnergyClamp& energy() const { return energy_; }
 
  private:
   RglBrdf() = default;
@@ -57,6 +68,7 @@ class RglBrdf {
   int theta_i_count_ = 0, phi_i_count_ = 0;
   Warp2D ndf_, sigma_, vndf_, luminance_;
   Warp2D rgb_[3];
+  EnergyClamp energy_;
 };
 
 }  // namespace mesoscan
