@@ -51,6 +51,11 @@ void AddBrdfCommand(CLI::App* app) {
         "(RGB directional albedo, theta_o 0..85 deg)\n",
         Triple(i.albedo_min).c_str(), i.albedo_min_theta_deg, Triple(i.albedo_max).c_str(),
         i.albedo_max_theta_deg);
+    if (!i.energy.empty()) {
+      // "energy clamped: ..." -> "energy:      clamped: ..."
+      const std::string e = i.energy.rfind("energy ", 0) == 0 ? i.energy.substr(7) : i.energy;
+      std::printf("energy:      %s\n", e.c_str());
+    }
   });
 
   // brdf plot FILE --out x.png

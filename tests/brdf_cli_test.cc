@@ -2,10 +2,9 @@
 // and a readable plot; a MERL-layout table written by `tabulate` reads back; bad input is one line
 // and exit code 3.
 
-#include <unistd.h>
-
 #include <gtest/gtest.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -40,7 +39,8 @@ CliRun Mesoscan(const std::string& args) {
 }
 
 fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_brdf_cli_test_" + std::to_string(getpid()) + "_" + name);
+  fs::path p = fs::temp_directory_path() /
+               ("mesoscan_brdf_cli_test_" + std::to_string(getpid()) + "_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;
@@ -58,6 +58,15 @@ TEST(BrdfCli, InfoAndPlotForEverySharedFile) {
     EXPECT_NE(info.out.find("RGL tensor_file"), std::string::npos) << info.out;
     EXPECT_NE(info.out.find("8 theta_i"), std::string::npos) << info.out;
     EXPECT_NE(info.out.find("albedo:"), std::string::npos) << info.out;
+    // Energy: satin_rosaline's grazing slices reflect up to 1.155 and are clamped; the rest
+    // conserve energy. -q hides the load warning, the info line stays.
+    if (e.path().filename() == "satin_rosaline_rgb.bsdf") {
+      EXPECT_NE(info.out.find("energy:      clamped: 2 of 8 incident slices"), std::string::npos)
+          << info.out;
+      EXPECT_NE(info.out.find("max albedo before 1.15"), std::string::npos) << info.out;
+    } else {
+      EXPECT_NE(info.out.find("energy:      conserving"), std::string::npos) << info.out;
+    }
     const fs::path png = out / (e.path().stem().string() + ".png");
     const CliRun plot = Mesoscan("brdf plot " + e.path().string() + " --out " + png.string());
     ASSERT_EQ(plot.code, 0) << plot.out;
@@ -84,6 +93,22 @@ TEST(BrdfCli, TabulatedMerlReadsBack) {
   const CliRun info = Mesoscan("brdf info " + merl.string());
   ASSERT_EQ(info.code, 0) << info.out;
   EXPECT_NE(info.out.find("MERL binary"), std::string::npos) << info.out;
+  // Copper GGX plus a Lambertian base of albedo 0.2 reflects more than 1 in red: clamped, and the
+  // load warning is one line when not quiet.
+  EXPECT_NE(info.out.find("energy:      clamped:"), std::string::npos) << info.out;
+  const std::string loud =
+      std::string(MESOSCAN_EXE) + " brdf info " + merl.string() + " 2>&1 >/dev/null";
+  FILE* p = popen(loud.c_str(), "r");
+  ASSERT_TRUE(p);
+  std::string err;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) err.append(buf.data(), n);
+  pclose(p);
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  EXPECT_NE(err.find("warning: " + merl.string() + ": directional albedo exceeds 1"),
+            std::string::npos)
+      << err;
   const CliRun plot =
       Mesoscan("brdf plot " + merl.string() + " --theta 0 60 --out " + (dir / "merl.png").string());
   ASSERT_EQ(plot.code, 0) << plot.out;
