@@ -1,6 +1,9 @@
 // Lens-shift fitter benchmark: profiles per second of each fitter (fast, LM, Ceres) at N = 15,
 // 25, 50, 100, 200 samples, with the phase RMS error against the Cramer-Rao bound.
-// Figures, not assertions. CSV: $MESOSCAN_BENCH_OUT/fitters.csv (one row per fitter and N).
+// Figures, not assertions. CSV: $MESOSCAN_BENCH_OUT/fitters.csv (one row per fitter and N), then
+// the float-vs-double check and the pipeline mix (per-pixel cost of the reconstruction's two
+// passes: 4 parameters on a 1-in-25 subsample, 3 parameters at the smooth frequency everywhere,
+// fast against Ceres).
 //
 // Profiles: b = a sin(phi + 2 pi f x) + d + noise, x uniform over [-1, 1] projector px (the
 // pipeline's centred shift positions, one stripe period), f within +-5 % of 0.5 cycles/px,
@@ -168,6 +171,51 @@ double ThreadCpuSeconds() {
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
 
+namespace mesoscan {
+namespace {
+
+// The pipeline's mix (heightfield/reconstruct.cc, smooth_frequency): the 4-parameter fit on a
+// 1-in-`subsample` set of pixels for the frequency map, then every pixel with f held at the map
+// (3 parameters). Per-pixel cost of fast and Ceres in thread CPU time, and the phase difference
+// of the two in the 3-parameter fit (the one the points come from), against sigma_phi.
+void PipelineMix(std::FILE* out, int subsample) {
+  for (int n : {25, 50, 100}) {
+    const ProfileSet set = MakeProfiles(n, 2000, 0.5, 100 + n);
+    double ns[2][2] = {};  // [fast, ceres][4 params, 3 params]
+    std::vector<double> phase[2];
+    for (int f = 0; f < 2; ++f) {
+      for (int fixed = 0; fixed < 2; ++fixed) {
+        LensShiftFitOptions o;
+        o.fitter = f == 0 ? LensShiftFitter::kFast : LensShiftFitter::kCeres;
+        o.fit_frequency = fixed == 0;
+        const LensShiftBatchFitter fitter(set.x, kF0, o);
+        const int count = f == 0 ? set.count : 300;
+        const double t0 = ThreadCpuSeconds();
+        for (int p = 0; p < count; ++p) {
+          const LensShiftFit fit =
+              fitter.Fit(set.b.data() + static_cast<size_t>(p) * n, 1, set.frequency[p]);
+          if (fixed) phase[f].push_back(fit.phase);
+        }
+        ns[f][fixed] = 1e9 * (ThreadCpuSeconds() - t0) / count;
+      }
+    }
+    double worst = 0;
+    for (size_t p = 0; p < phase[1].size(); ++p)
+      worst = std::max(worst, std::abs(std::remainder(phase[0][p] - phase[1][p], 2 * kPi)));
+    const double sigma_phi =
+        std::sqrt(LensShiftPhaseCrlb(set.sigma, set.amplitude, set.x, kF0, false));
+    const double fast = ns[0][0] / subsample + ns[0][1];
+    const double ceres = ns[1][0] / subsample + ns[1][1];
+    std::fprintf(out,
+                 "pipeline_mix,N=%d,subsample=1/%d,fast_ns=%.0f,ceres_ns=%.0f,speedup=%.1f,"
+                 "fast3_ns=%.0f,ceres3_ns=%.0f,max_dphi_3param=%.2e,sigma_phi=%.2e\n",
+                 n, subsample, fast, ceres, ceres / fast, ns[0][1], ns[1][1], worst, sigma_phi);
+  }
+}
+
+}  // namespace
+}  // namespace mesoscan
+
 int main(int argc, char** argv) {
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
@@ -224,6 +272,9 @@ int main(int argc, char** argv) {
   }
   mesoscan::FloatVsDouble(csv);
   mesoscan::FloatVsDouble(stdout);
+  // Full resolution: 3.1 Mpx, stride 5 in x and y (reconstruct.cc kFrequencySamples).
+  mesoscan::PipelineMix(csv, 25);
+  mesoscan::PipelineMix(stdout, 25);
   std::fclose(csv);
   std::printf("wrote %s\n", path.c_str());
   return 0;

@@ -9,7 +9,8 @@
 //  2. Full resolution (2176 x 1434, 9 + 50 + 2 frames, the coin): bare PNG decode time of the
 //     frames, compute time (frames in memory to height field), end-to-end (read session,
 //     reconstruct, write the scan folder) and peak RSS of the reconstruction, measured in a child
-//     process (this binary re-run with --fullres-child). Written to fullres.csv. Skipped with
+//     process (this binary re-run with --fullres-child), with the wall time of every pipeline
+//     stage and of writing the scan folder. Written to fullres.csv. Skipped with
 //     MESOSCAN_BENCH_QUICK=1.
 // Output folder: $MESOSCAN_BENCH_OUT (default: current folder).
 
@@ -237,12 +238,15 @@ void FullResolution(const fs::path& work, const fs::path& out) {
   }
   const std::string buf = ReadTextFile(result);
   double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0;
-  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf", &decode, &compute, &e2e, &total, &rms);
+  int stages_at = 0;
+  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf%n", &decode, &compute, &e2e, &total, &rms,
+              &stages_at);
   const double rss_mb = ru.ru_maxrss / 1024.0;
   std::printf("full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute (frames in "
               "memory -> height field) %.2f s; end-to-end %.2f s = %.2fx decode; peak RSS %.0f MB; "
               "depth RMS %.2f um\n",
               decode, compute, e2e, e2e / decode, rss_mb, rms * 1e6);
+  std::printf("full resolution stages (s):%s\n", buf.c_str() + stages_at);
   WriteTextFile(out / "fullres.csv",
                 "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um\n" +
                     std::to_string(decode) + "," + std::to_string(compute) + "," +
@@ -264,13 +268,21 @@ int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs:
   const Session s = ReadSession(dir);
   ReconstructSummary sum;
   const Scan scan = Reconstruct(s, {}, &sum);
+  const auto t_write = Clock::now();
   WriteScanFolder(scan_dir, scan);
+  const double write = Since(t_write);
   const double e2e = Since(t);
   const double compute = sum.total_s - sum.Seconds("decode");
   const double rms = EvaluateAgainstGroundTruth(s, scan.points).rms_m;
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%f %f %f %f %f\n", decode, compute, e2e, sum.total_s, rms);
-  WriteTextFile(result, buf);
+  std::snprintf(buf, sizeof buf, "%f %f %f %f %f", decode, compute, e2e, sum.total_s, rms);
+  std::string text = buf;
+  for (const auto& [name, seconds] : sum.timings_s) {
+    std::snprintf(buf, sizeof buf, " %s %.3f", name.c_str(), seconds);
+    text += buf;
+  }
+  std::snprintf(buf, sizeof buf, " write_scan %.3f\n", write);
+  WriteTextFile(result, text + buf);
   return 0;
 }
 

@@ -136,12 +136,13 @@ ImageF ReadExrChannels(const fs::path& path, const std::vector<std::string>& nam
 
 void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::string>& names,
               const std::map<std::string, double>& float_attributes,
-              const std::map<std::string, std::string>& string_attributes) {
+              const std::map<std::string, std::string>& string_attributes,
+              const std::string& compression) {
   MESOSCAN_CHECK_EQ(static_cast<int>(names.size()), image.channels());
   oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeFloat);
   spec.channelnames = names;
   spec.alpha_channel = -1;
-  spec.attribute("compression", "zip");
+  spec.attribute("compression", compression);
   for (const auto& [k, v] : float_attributes) spec.attribute(k, static_cast<float>(v));
   for (const auto& [k, v] : string_attributes) spec.attribute(k, v);
   const std::vector<float> inter = Interleave(image);

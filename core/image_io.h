@@ -34,11 +34,13 @@ ImageF ReadExrChannels(const std::filesystem::path& path, const std::vector<std:
                        std::map<std::string, double>* float_attributes = nullptr);
 
 // float32 EXR with named channels (one per image channel) and float header attributes.
-// Compression: ZIP (lossless).
+// compression: an OpenEXR compression name as OIIO takes it, default "zip" (lossless); "none"
+// writes several times faster on noisy float data, where ZIP saves only ~20 % of the size.
 void WriteExr(const std::filesystem::path& path, const ImageF& image,
               const std::vector<std::string>& channel_names,
               const std::map<std::string, double>& float_attributes = {},
-              const std::map<std::string, std::string>& string_attributes = {});
+              const std::map<std::string, std::string>& string_attributes = {},
+              const std::string& compression = "zip");
 
 // 16-bit PNG (1, 2, 3 or 4 channels), values already quantised. compression_level: zlib level
 // 0..9, or -1 for the library default (6). Level 1 writes noisy 16-bit frames ~2.5x faster than

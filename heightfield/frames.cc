@@ -30,11 +30,15 @@ struct DecodedFrame {
   int width = 0, height = 0, channels = 0;
   bool is_float = false;
   bool eight_bit = false;
+  bool direct = false;        // decoded into the caller's buffer (u16 left empty)
   std::vector<uint16_t> u16;  // interleaved
   std::vector<float> f32;     // interleaved
 };
 
-DecodedFrame Decode(const std::filesystem::path& path, const std::string& label) {
+// Decodes a frame. `direct` (optional): where a single-channel integer frame is stored as it is
+// (resized to width x height); d.direct tells whether it was used.
+DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
+                    std::vector<uint16_t>* direct = nullptr) {
   if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (capture/raw_frame.h)
     ImageU16 grey = ReadRawGrey(path, label);
     DecodedFrame d;
@@ -58,13 +62,15 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label)
   d.is_float = spec.format.is_floating_point();
   d.eight_bit = spec.format.size() == 1;
   const size_t n = static_cast<size_t>(d.width) * d.height * d.channels;
+  d.direct = direct && !d.is_float && d.channels == 1;
   bool ok;
   if (d.is_float) {
     d.f32.resize(n);
     ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeFloat, d.f32.data());
   } else {
-    d.u16.resize(n);
-    ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::UINT16, d.u16.data());
+    std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
+    dst.resize(n);
+    ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::UINT16, dst.data());
   }
   if (!ok) {
     std::string err = in->geterror();
@@ -122,68 +128,79 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
     any_float |= in->spec().format.is_floating_point();
   }
   s.is_float_ = any_float;
+  // Allocated by the decoding tasks (in parallel; a direct decode fills its frame itself).
   if (any_float)
-    s.raw_float_.assign(nf, std::vector<float>(np));
+    s.raw_float_.assign(nf, {});
   else
-    s.raw_.assign(nf, std::vector<uint16_t>(np));
+    s.raw_.assign(nf, {});
 
   const uint16_t sat_code = static_cast<uint16_t>(
       std::min(65535.0, std::floor(options.saturation_level * 65535.0)));
   std::atomic<int> eight_bit{0};
+  // 1 where any frame saturates; frames decoded in parallel mark it through relaxed atomic
+  // stores (only saturated samples write, so this costs nothing on well exposed frames).
   std::vector<uint8_t> saturated(np, 0);
-  std::vector<std::vector<uint8_t>> sat(nf);
+  auto mark_saturated = [&](size_t i) {
+    std::atomic_ref<uint8_t>(saturated[i]).store(1, std::memory_order_relaxed);
+  };
   {
     Progress progress("decode frames", nf);
     ParallelFor(nf, [&](int64_t k) {
       const int f = frame_indices[k];
       const auto path = session.FramePath(f);
       const std::string label = path.string() + ": frames[" + std::to_string(f) + "]";
-      DecodedFrame d = Decode(path, label);
+      // A grey integer frame covering the whole ROI decodes straight into the stack (no copy).
+      std::vector<uint16_t>* direct =
+          (!any_float && s.roi_.x == 0 && s.roi_.y == 0 && s.roi_.w == cam.width &&
+           s.roi_.h == cam.height)
+              ? &s.raw_[k]
+              : nullptr;
+      DecodedFrame d = Decode(path, label, direct);
       if (d.width != cam.width || d.height != cam.height)
         MESOSCAN_BAD_INPUT(label << ": size " << d.width << "x" << d.height
                                  << ", expected camera.width x camera.height = " << cam.width
                                  << "x" << cam.height);
       if (d.eight_bit) eight_bit.fetch_add(1);
+      if (d.direct) {
+        const uint16_t* src = s.raw_[k].data();
+        for (size_t i = 0; i < np; ++i)
+          if (src[i] >= sat_code) mark_saturated(i);
+        progress.Advance();
+        return;
+      }
+      if (any_float)
+        s.raw_float_[k].resize(np);
+      else
+        s.raw_[k].resize(np);
       const int nc = d.channels, ncc = ColourChannels(nc);
-      sat[k].assign(np, 0);
       for (int y = 0; y < s.height_; ++y) {
         const size_t src_row = (static_cast<size_t>(y + s.roi_.y) * d.width + s.roi_.x) * nc;
         const size_t dst_row = static_cast<size_t>(y) * s.width_;
         for (int x = 0; x < s.width_; ++x) {
           const size_t src = src_row + static_cast<size_t>(x) * nc;
+          bool saturated_sample = false;
           if (d.is_float || any_float) {
             float v = 0.0f;
-            bool saturated_sample = false;
             for (int c = 0; c < ncc; ++c) {
               const float sample = d.is_float ? d.f32[src + c] : d.u16[src + c] / 65535.0f;
               if (!d.is_float && d.u16[src + c] >= sat_code) saturated_sample = true;
               v += sample;
             }
             s.raw_float_[k][dst_row + x] = v / ncc;
-            sat[k][dst_row + x] = saturated_sample;
           } else {
             uint32_t v = 0;
-            bool saturated_sample = false;
             for (int c = 0; c < ncc; ++c) {
               v += d.u16[src + c];
               if (d.u16[src + c] >= sat_code) saturated_sample = true;
             }
             s.raw_[k][dst_row + x] = static_cast<uint16_t>((v + ncc / 2) / ncc);
-            sat[k][dst_row + x] = saturated_sample;
           }
+          if (saturated_sample) mark_saturated(dst_row + x);
         }
       }
       progress.Advance();
     });
   }
-  ParallelForRows(s.height_, [&](int y0, int y1) {
-    for (size_t i = static_cast<size_t>(y0) * s.width_; i < static_cast<size_t>(y1) * s.width_;
-         ++i) {
-      uint8_t any = 0;
-      for (int k = 0; k < nf; ++k) any |= sat[k][i];
-      saturated[i] = any;
-    }
-  });
   s.saturated_ = std::move(saturated);
   s.eight_bit_frames_ = eight_bit.load();
   if (s.eight_bit_frames_ > 0)

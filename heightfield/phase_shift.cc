@@ -17,7 +17,20 @@ namespace {
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
 // Signed distance of t to the nearest integer, in [-0.5, 0.5].
-inline double WrapCycles(double t) { return t - std::nearbyint(t); }
+// Round to nearest, ties to even: the same as std::nearbyint in the default rounding mode for
+// |t| < 2^51, without its library call (x86-64 has no inline rounding before SSE4.1).
+inline double RoundNearest(double t) {
+  constexpr double kMagic = 6755399441055744.0;  // 1.5 * 2^52
+  return std::abs(t) < 2251799813685248.0 ? (t + kMagic) - kMagic : std::nearbyint(t);
+}
+
+inline double WrapCycles(double t) { return t - RoundNearest(t); }
+
+// WrapCycles for |t| < 2^51 (branch-free, vectorisable).
+inline double WrapCyclesSmall(double t) {
+  constexpr double kMagic = 6755399441055744.0;  // 1.5 * 2^52
+  return t - ((t + kMagic) - kMagic);
+}
 
 }  // namespace
 
@@ -43,6 +56,10 @@ WrappedPhaseSolver::WrappedPhaseSolver(std::vector<double> deltas) : deltas_(std
                                                  "than 3 distinct values modulo 2 pi)");
   const Eigen::Matrix3d inv = mtm.inverse();
   const Eigen::MatrixXd pinv = inv * m.transpose();  // 3 x K
+  for (double d : deltas_) {
+    cos_.push_back(std::cos(d));
+    sin_.push_back(std::sin(d));
+  }
   pinv_.resize(3 * k);
   for (int r = 0; r < 3; ++r)
     for (int i = 0; i < k; ++i) pinv_[r * k + i] = pinv(r, i);
@@ -65,7 +82,7 @@ WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int s
   double ssr = 0.0;
   for (int i = 0; i < k; ++i) {
     const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
-    const double r = v - (a + c * std::cos(deltas_[i]) - s * std::sin(deltas_[i]));
+    const double r = v - (a + c * cos_[i] - s * sin_[i]);
     ssr += r * r;
   }
   double theta = std::atan2(s, c);
@@ -177,23 +194,37 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   double best_score[2] = {std::numeric_limits<double>::infinity(),
                           std::numeric_limits<double>::infinity()};
   int best_k[2] = {k0, k0};
-  for (int k = k0; k <= k_end; ++k) {
-    const double u = pa * (t[a] + k);
-    if (u < -0.5 - margin || u >= range_px_ - 0.5 + margin) continue;  // outside the domain
-    double score = 0.0;
+  std::array<double, kMaxPeriods> inv_p{};
+  for (int i = 0; i < m; ++i) inv_p[i] = 1.0 / periods_[i];
+  // Scores of a chunk of candidates at a time: branch-free loops the compiler vectorises (this
+  // is the hot loop of the pipeline's unwrapping), then the best two of the chunk.
+  constexpr int kChunk = 32;
+  std::array<double, kChunk> score;
+  for (int kb = k0; kb <= k_end; kb += kChunk) {
+    const int nk = std::min(kChunk, k_end - kb + 1);
+    std::fill(score.begin(), score.begin() + nk, 0.0);
     for (int i = 0; i < m; ++i) {
       if (i == a) continue;
-      const double r = WrapCycles(u / periods_[i] - t[i]);
-      score += r * r * inv_var[i];
+      const double ip = inv_p[i], ti = t[i], wi = inv_var[i], ta = t[a];
+      for (int j = 0; j < nk; ++j) {
+        const double u = pa * (ta + (kb + j));  // |u| <= range + margin: far below 2^51
+        const double r = WrapCyclesSmall(u * ip - ti);
+        score[j] += r * r * wi;
+      }
     }
-    if (score < best_score[0]) {
-      best_score[1] = best_score[0];
-      best_k[1] = best_k[0];
-      best_score[0] = score;
-      best_k[0] = k;
-    } else if (score < best_score[1]) {
-      best_score[1] = score;
-      best_k[1] = k;
+    for (int j = 0; j < nk; ++j) {
+      const int k = kb + j;
+      const double u = pa * (t[a] + k);
+      if (u < -0.5 - margin || u >= range_px_ - 0.5 + margin) continue;  // outside the domain
+      if (score[j] < best_score[0]) {
+        best_score[1] = best_score[0];
+        best_k[1] = best_k[0];
+        best_score[0] = score[j];
+        best_k[0] = k;
+      } else if (score[j] < best_score[1]) {
+        best_score[1] = score[j];
+        best_k[1] = k;
+      }
     }
   }
   if (!std::isfinite(best_score[0])) return result;
@@ -210,14 +241,14 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
     double sw = 0.0, swu = 0.0;
     for (int o = 0; o < m; ++o) {
       const int i = order_[o];
-      const double n_i = std::nearbyint(u / periods_[i] - t[i]);
+      const double n_i = RoundNearest(u / periods_[i] - t[i]);
       sw += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
       u = swu / sw;
     }
     sw = swu = 0.0;
     for (int i = 0; i < m; ++i) {
-      const double n_i = std::nearbyint(u / periods_[i] - t[i]);
+      const double n_i = RoundNearest(u / periods_[i] - t[i]);
       sw += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
     }

@@ -44,6 +44,7 @@ class WrappedPhaseSolver {
  private:
   std::vector<double> deltas_;
   std::vector<double> pinv_;  // 3 x K row-major: rows A, B cos theta, B sin theta
+  std::vector<double> cos_, sin_;  // cos delta_k, sin delta_k (the residual's model)
   double cov_cc_ = 0, cov_ss_ = 0, cov_cs_ = 0;  // (M^T M)^-1 block of (B cos, B sin)
 };
 

@@ -466,58 +466,89 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
     fo.fitter = options.fitter;
     fo.fit_frequency = options.fit_frequency;
     const int nx = static_cast<int>(x.size());
-    // One pass over the active pixels; f_map (if given) is the per-pixel frequency held fixed.
+    // Pixels of a fitting pass: every `stride`-th pixel of every `stride`-th row, or (complement)
+    // all the others.
+    struct PixelSubset {
+      int stride = 1;
+      bool complement = false;
+      bool Row(int y) const { return complement || y % stride == 0; }
+      bool Has(int x, int y) const {
+        return (x % stride == 0 && y % stride == 0) != complement;
+      }
+    };
+    // One pass over the active pixels of `subset`; f_map (if given) is the per-pixel frequency
+    // held fixed. Rows without a pixel of the subset are not even gathered.
     auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
-                        const char* label) {
+                        const PixelSubset& subset, const char* label) {
       Progress progress(label, h);
       ParallelForRows(h, [&](int y0, int y1) {
-        const size_t i0 = static_cast<size_t>(y0) * w, n = static_cast<size_t>(y1 - y0) * w;
+        const size_t n = static_cast<size_t>(w);
         std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
-        for (int k = 0; k < nls; ++k) {
-          stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
-          const float g = inv_gain[ls_stack[k]];
-          for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
-        }
-        for (size_t j = 0; j < n; ++j) {
-          const size_t i = i0 + j;
-          if (state[i] != kActive) continue;
-          const float* b = buf.data() + j;
-          int stride = static_cast<int>(n);
-          if (box) {
-            for (int k = 0; k < nx; ++k) {
-              float sm = 0;
-              for (int q = 0; q < 5; ++q) sm += buf[(k + q) * n + j];
-              prof[k] = sm / 5;
+        for (int y = y0; y < y1; ++y) {
+          if (!subset.Row(y)) continue;
+          const size_t i0 = static_cast<size_t>(y) * w;
+          for (int k = 0; k < nls; ++k) {
+            stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+            const float g = inv_gain[ls_stack[k]];
+            for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+          }
+          for (size_t j = 0; j < n; ++j) {
+            const size_t i = i0 + j;
+            if (state[i] != kActive || !subset.Has(static_cast<int>(j), y)) continue;
+            const float* b = buf.data() + j;
+            int stride = static_cast<int>(n);
+            if (box) {
+              for (int k = 0; k < nx; ++k) {
+                float sm = 0;
+                for (int q = 0; q < 5; ++q) sm += buf[(k + q) * n + j];
+                prof[k] = sm / 5;
+              }
+              b = prof.data();
+              stride = 1;
             }
-            b = prof.data();
-            stride = 1;
+            const LensShiftFit fit =
+                f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
+            if (!fit.valid) {
+              state[i] = kFitFailed;
+              continue;
+            }
+            // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
+            ls_phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
+            ls_amp[i] = static_cast<float>(fit.amplitude);
+            ls_freq[i] = static_cast<float>(fit.frequency);
+            ls_off[i] = static_cast<float>(fit.offset);
+            ls_rms[i] = static_cast<float>(fit.residual_rms);
+            ls_n[i] = static_cast<float>(fit.samples_used);
           }
-          const LensShiftFit fit = f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
-          if (!fit.valid) {
-            state[i] = kFitFailed;
-            continue;
-          }
-          // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
-          ls_phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
-          ls_amp[i] = static_cast<float>(fit.amplitude);
-          ls_freq[i] = static_cast<float>(fit.frequency);
-          ls_off[i] = static_cast<float>(fit.offset);
-          ls_rms[i] = static_cast<float>(fit.residual_rms);
-          ls_n[i] = static_cast<float>(fit.samples_used);
         }
         progress.Advance(y1 - y0);
       });
     };
-    fit_pass(LensShiftBatchFitter(x, 0.5, fo), nullptr, "fit lens shift");
+    const LensShiftBatchFitter fitter(x, 0.5, fo);
     if (options.fit_frequency && options.smooth_frequency) {
       // The shifter's gain varies smoothly over the image: a robust quadratic of the fitted
-      // frequencies, then the phase again with f held there (3 parameters: lower variance).
+      // frequencies, then the phase of every pixel with f held there (3 parameters: lower
+      // variance). The quadratic is fitted to ~50000 frequencies (SmoothFrequencyMap), so the
+      // 4-parameter fit runs on a regular subsample of about twice that many pixels only (all
+      // pixels of crops below that).
+      constexpr size_t kFrequencySamples = 100000;
+      size_t n_active = 0;
+      for (size_t i = 0; i < np; ++i) n_active += state[i] == kActive;
+      PixelSubset subset;
+      subset.stride = std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
+      fit_pass(fitter, nullptr, subset, "fit lens shift frequency");
       std::vector<float> f_map = SmoothFrequencyMap(ls_freq, w, h);
       if (!f_map.empty()) {
         LensShiftFitOptions fo2 = fo;
         fo2.fit_frequency = false;
-        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, "refit lens shift");
+        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
+      } else if (subset.stride > 1) {
+        // No frequency map: the 4-parameter fit everywhere else too.
+        subset.complement = true;
+        fit_pass(fitter, nullptr, subset, "fit lens shift");
       }
+    } else {
+      fit_pass(fitter, nullptr, PixelSubset(), "fit lens shift");
     }
   }
   for (size_t i = 0; i < np; ++i)

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/parallel.h"
 
 namespace mesoscan {
 namespace {
@@ -86,7 +87,9 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
     v->c = confidence.empty() ? 1.0 : confidence(x, y);
     return true;
   };
-  auto raster = [&](const GridVertex& a, const GridVertex& b, const GridVertex& c) {
+  // Rasterises triangle abc into grid rows [band_j0, band_j1] only.
+  auto raster = [&](const GridVertex& a, const GridVertex& b, const GridVertex& c, int band_j0,
+                    int band_j1) {
     if ((a.p - b.p).squaredNorm() > max_edge2 || (b.p - c.p).squaredNorm() > max_edge2 ||
         (c.p - a.p).squaredNorm() > max_edge2)
       return;  // spans a depth discontinuity
@@ -94,8 +97,10 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
     if (std::abs(area) < 1e-12) return;
     const int i0 = std::max(0, static_cast<int>(std::ceil(std::min({a.i, b.i, c.i}) - 1e-9)));
     const int i1 = std::min(gw - 1, static_cast<int>(std::floor(std::max({a.i, b.i, c.i}) + 1e-9)));
-    const int j0 = std::max(0, static_cast<int>(std::ceil(std::min({a.j, b.j, c.j}) - 1e-9)));
-    const int j1 = std::min(gh - 1, static_cast<int>(std::floor(std::max({a.j, b.j, c.j}) + 1e-9)));
+    const int j0 =
+        std::max(band_j0, static_cast<int>(std::ceil(std::min({a.j, b.j, c.j}) - 1e-9)));
+    const int j1 =
+        std::min(band_j1, static_cast<int>(std::floor(std::max({a.j, b.j, c.j}) + 1e-9)));
     for (int j = j0; j <= j1; ++j)
       for (int i = i0; i <= i1; ++i) {
         const double wa = ((b.i - i) * (c.j - j) - (c.i - i) * (b.j - j)) / area;
@@ -110,17 +115,40 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
         hf.confidence(i, j) = static_cast<float>(wa * a.c + wb * b.c + wc * c.c);
       }
   };
-  GridVertex v00, v10, v01, v11;
-  for (int y = 0; y + 1 < h; ++y)
-    for (int x = 0; x + 1 < w; ++x) {
-      const bool b00 = vertex(x, y, &v00), b10 = vertex(x + 1, y, &v10);
-      const bool b01 = vertex(x, y + 1, &v01), b11 = vertex(x + 1, y + 1, &v11);
-      // Two triangles per quad; with one corner missing, the triangle of the other three.
-      if (b00 && b10 && b11) raster(v00, v10, v11);
-      if (b00 && b11 && b01) raster(v00, v11, v01);
-      if (!b11 && b00 && b10 && b01) raster(v00, v10, v01);
-      if (!b00 && b10 && b11 && b01) raster(v10, v11, v01);
+  // Grid rows [j_lo, j_hi] that the quads of camera row pair (y, y + 1) can touch.
+  std::vector<int> j_lo(std::max(h - 1, 0), std::numeric_limits<int>::max()),
+      j_hi(std::max(h - 1, 0), std::numeric_limits<int>::min());
+  ParallelForRows(h - 1, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y)
+      for (int yy = y; yy <= y + 1; ++yy)
+        for (int x = 0; x < w; ++x) {
+          if (!std::isfinite(xyz(x, yy, 2))) continue;
+          const double j = hf.J(xyz(x, yy, 1));
+          j_lo[y] = std::min(j_lo[y], static_cast<int>(std::ceil(j - 1e-9)));
+          j_hi[y] = std::max(j_hi[y], static_cast<int>(std::floor(j + 1e-9)));
+        }
+  });
+  // Parallel over bands of grid rows: each band rasterises, in the serial order (camera rows,
+  // then columns), the parts of the triangles that fall into it. A grid cell belongs to one
+  // band, so it sees the same writes in the same order as a serial pass: identical output.
+  constexpr int kBandRows = 32;
+  ParallelFor((gh + kBandRows - 1) / kBandRows, [&](int64_t band) {
+    const int band_j0 = static_cast<int>(band) * kBandRows;
+    const int band_j1 = std::min(gh - 1, band_j0 + kBandRows - 1);
+    GridVertex v00, v10, v01, v11;
+    for (int y = 0; y + 1 < h; ++y) {
+      if (j_hi[y] < band_j0 || j_lo[y] > band_j1) continue;
+      for (int x = 0; x + 1 < w; ++x) {
+        const bool b00 = vertex(x, y, &v00), b10 = vertex(x + 1, y, &v10);
+        const bool b01 = vertex(x, y + 1, &v01), b11 = vertex(x + 1, y + 1, &v11);
+        // Two triangles per quad; with one corner missing, the triangle of the other three.
+        if (b00 && b10 && b11) raster(v00, v10, v11, band_j0, band_j1);
+        if (b00 && b11 && b01) raster(v00, v11, v01, band_j0, band_j1);
+        if (!b11 && b00 && b10 && b01) raster(v00, v10, v01, band_j0, band_j1);
+        if (!b00 && b10 && b11 && b01) raster(v10, v11, v01, band_j0, band_j1);
+      }
     }
+  });
   return hf;
 }
 
