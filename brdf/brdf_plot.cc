@@ -66,12 +66,22 @@ void DrawPolar(cv::Mat& img, cv::Rect area, const Brdf& brdf, double theta_o) {
     if (!(v > 0)) return 0.0;
     return radius * std::clamp((std::log10(v) - (top - kDecades)) / kDecades, 0.0, 1.0);
   };
+  // Ring values under the baseline on the right, where no spoke, curve or wo arrow can cover them.
   for (int d = 0; d < kDecades; ++d) {
     const int r = static_cast<int>(std::lround(radius * (d + 1.0) / kDecades));
     cv::ellipse(img, c, cv::Size(r, r), 0, 180, 360, kGrey, 1, cv::LINE_AA);
-    Text(img, Fmt("%g", std::pow(10.0, top - kDecades + d + 1)), cv::Point(c.x + 3, c.y - r - 2),
-         0.33, kLight);
+    cv::line(img, cv::Point(c.x + r, c.y), cv::Point(c.x + r, c.y + 4), kLight, 1);
+    // The outermost value is the "90" spoke's place (the range is printed on the left); with
+    // narrow rings every other value, so the labels do not run together.
+    const int every = radius / kDecades < 30 ? 2 : 1;
+    if (d + 1 < kDecades && (d + 1) % every == 0)
+      Text(img, Fmt("%g", std::pow(10.0, top - kDecades + d + 1)), cv::Point(c.x + r, c.y + 15),
+           0.33, kLight, true);
   }
+  Text(img,
+       "rings: " + Fmt("%g", std::pow(10.0, top - kDecades + 1)) + " .. " +
+           Fmt("%g", std::pow(10.0, top)) + " /sr",
+       cv::Point(c.x - radius / 2, c.y + 15), 0.33, kLight, true);
   for (int deg = -90; deg <= 90; deg += 30) {
     const double a = deg * kPi / 180;
     const cv::Point e(c.x + static_cast<int>(radius * std::sin(a)),
@@ -108,7 +118,7 @@ void DrawPolar(cv::Mat& img, cv::Rect area, const Brdf& brdf, double theta_o) {
 // Hemisphere seen from above (orthographic): RGB of f cos, exposure set by the panel's 99th
 // percentile of the largest channel (so colours do not clip), sRGB-encoded.
 void DrawHemisphere(cv::Mat& img, cv::Rect area, const Brdf& brdf, double theta_o) {
-  const int radius = std::min(area.width, area.height - 40) / 2 - 8;
+  const int radius = std::min(area.width, area.height - 40) / 2 - 18;
   const cv::Point c(area.x + area.width / 2, area.y + 24 + radius);
   const Vec3 wo = SphericalDirection(theta_o, 0.0);
   const int n = 2 * radius + 1;
@@ -153,11 +163,26 @@ void DrawHemisphere(cv::Mat& img, cv::Rect area, const Brdf& brdf, double theta_
   const cv::Point mirror(c.x - static_cast<int>(radius * std::sin(theta_o)), c.y);
   const cv::Point wo_p(c.x + static_cast<int>(radius * std::sin(theta_o)), c.y);
   cv::drawMarker(img, wo_p, cv::Scalar(0, 200, 255), cv::MARKER_CROSS, 10, 1);
+  // Dark halo so the mirror marker stays visible on a saturated highlight.
+  cv::circle(img, mirror, 6, cv::Scalar(0, 0, 0), 3, cv::LINE_AA);
   cv::circle(img, mirror, 6, kWhite, 1, cv::LINE_AA);
-  Text(img, "hemisphere from above: x = wo side, o = mirror", cv::Point(c.x, area.y + 14), 0.36,
+  Text(img, "hemisphere from above: + = wo side, o = mirror", cv::Point(c.x, area.y + 14), 0.36,
        kLight, true);
-  Text(img, "white = " + Fmt("%.3g", 1.0 / exposure) + " /sr (99th percentile)",
-       cv::Point(c.x, c.y + radius + 16), 0.36, kLight, true);
+  // Colour bar: the grey ramp of the encoding, 0 to the white level, with three ticks.
+  const int bar_w = 2 * radius, bar_x = c.x - radius, bar_y = c.y + radius + 8;
+  for (int x = 0; x < bar_w; ++x) {
+    const uint8_t g = encode(static_cast<double>(x) / (bar_w - 1));
+    cv::line(img, cv::Point(bar_x + x, bar_y), cv::Point(bar_x + x, bar_y + 7),
+             cv::Scalar(g, g, g));
+  }
+  cv::rectangle(img, cv::Rect(bar_x - 1, bar_y - 1, bar_w + 2, 10), kGrey, 1);
+  for (int k = 0; k <= 2; ++k) {
+    const int x = bar_x + k * (bar_w - 1) / 2;
+    cv::line(img, cv::Point(x, bar_y + 8), cv::Point(x, bar_y + 11), kLight, 1);
+    Text(img, Fmt("%.3g", 0.5 * k / exposure), cv::Point(x, bar_y + 22), 0.33, kLight, true);
+  }
+  Text(img, "f*cos [1/sr] per channel, linear; white = 99th percentile", cv::Point(c.x, bar_y + 36),
+       0.33, kLight, true);
 }
 
 }  // namespace
