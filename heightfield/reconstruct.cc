@@ -143,8 +143,7 @@ void ReconstructOptions::Check() const {
   if (!(confidence_t > 0)) MESOSCAN_BAD_INPUT("confidence_t: expected > 0, got " << confidence_t);
   if (!(min_confidence >= 0 && min_confidence < 1))
     MESOSCAN_BAD_INPUT("min_confidence: expected a value in [0, 1), got " << min_confidence);
-  if (!(discontinuity_footprints >= 0))
-    MESOSCAN_BAD_INPUT("discontinuity_footprints: expected >= 0, got " << discontinuity_footprints);
+  mixed_pixels.Check();
   if (!(systematic_phase_noise >= 0))
     MESOSCAN_BAD_INPUT("systematic_phase_noise: expected >= 0, got " << systematic_phase_noise);
   resample.Check();
@@ -168,7 +167,10 @@ Json ReconstructOptions::ToJson() const {
   j["confidence_t"] = confidence_t;
   j["min_confidence"] = min_confidence;
   j["systematic_phase_noise"] = systematic_phase_noise;
-  j["discontinuity_footprints"] = discontinuity_footprints;
+  j["reject_mixed_pixels"] = reject_mixed_pixels;
+  j["mixed_pixels"] = {{"max_sigmas", mixed_pixels.max_sigmas},
+                       {"outlier_footprints", mixed_pixels.outlier_footprints},
+                       {"shadow_edge_ratio", mixed_pixels.shadow_edge_ratio}};
   j["grid_pixel_size_m"] = resample.pixel_size;
   j["grid_max_edge_footprints"] = resample.max_edge_footprints;
   return j;
@@ -642,7 +644,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   scan.points.projector_u = NaNImage(cam_w, cam_h);
   ImageF dz_du;
   if (options.keep_diagnostics) dz_du = NaNImage(cam_w, cam_h);
-  std::vector<float> dz_sub(np, kNaN);  // dZ/du on every 4th pixel and row (CRLB prediction)
+  std::vector<float> sigma_z(np, kNaN);  // predicted depth sigma: sigma_u |dZ/du|, m
   ParallelForRows(h, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < w; ++x) {
@@ -659,60 +661,47 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         for (int c = 0; c < 3; ++c) scan.points.xyz(cx, cy, c) = static_cast<float>((*p)[c]);
         scan.points.confidence(cx, cy) = conf[i];
         state[i] = kOk;
-        if (options.keep_diagnostics || (x % 4 == 0 && y % 4 == 0)) {
-          const auto a = tri.Intersect(ray, u_final[i] - 0.5);
-          const auto b = tri.Intersect(ray, u_final[i] + 0.5);
-          if (a && b) {
-            const float d = static_cast<float>(b->z() - a->z());
-            if (options.keep_diagnostics) dz_du(cx, cy) = d;
-            if (x % 4 == 0 && y % 4 == 0) dz_sub[i] = d;
-          }
+        // dZ/du by a forward difference (the map is smooth on this scale).
+        const auto b = tri.Intersect(ray, u_final[i] + 0.5);
+        if (b) {
+          const float d = static_cast<float>(2.0 * (b->z() - p->z()));
+          if (options.keep_diagnostics) dz_du(cx, cy) = d;
+          sigma_z[i] = sigma_u[i] * std::abs(d);
         }
       }
   });
-  // RMS of the predicted depth sigma (sigma_u * dZ/du) over the points still accepted.
+  // RMS of the predicted depth sigma over the points still accepted (every 4th pixel and row).
   auto predicted_depth_rms = [&] {
     double s2 = 0;
     int64_t n = 0;
-    for (size_t i = 0; i < np; ++i)
-      if (state[i] == kOk && std::isfinite(dz_sub[i]) && std::isfinite(sigma_u[i])) {
-        s2 += std::pow(sigma_u[i] * dz_sub[i], 2);
-        ++n;
+    for (int y = 0; y < h; y += 4)
+      for (int x = 0; x < w; x += 4) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (state[i] == kOk && std::isfinite(sigma_z[i])) {
+          s2 += static_cast<double>(sigma_z[i]) * sigma_z[i];
+          ++n;
+        }
       }
     return n ? std::sqrt(s2 / n) : 0.0;
   };
-  // Depth discontinuities: reject points that agree with neither side's extrapolation.
-  if (options.discontinuity_footprints > 0) {
-    const double footprint = CameraFootprint(scan.points.xyz);
-    const double sigma_z = predicted_depth_rms();
-    const double tol = std::max(options.discontinuity_footprints * footprint, 8 * sigma_z);
-    const ImageF& P = scan.points.xyz;
-    auto z_at = [&](int x, int y) -> float {
-      if (x < roi.x || y < roi.y || x >= roi.x + w || y >= roi.y + h) return kNaN;
-      return P(x, y, 2);
-    };
-    std::vector<uint8_t> reject(np, 0);
-    ParallelForRows(h, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y)
-        for (int x = 0; x < w; ++x) {
-          const size_t i = static_cast<size_t>(y) * w + x;
-          if (state[i] != kOk) continue;
-          const int cx = x + roi.x, cy = y + roi.y;
-          const double z = P(cx, cy, 2);
-          for (int axis = 0; axis < 2 && !reject[i]; ++axis) {
-            const int dx = axis == 0, dy = axis == 1;
-            int sides = 0, agree = 0;
-            for (int sgn : {-1, 1}) {
-              const float z1 = z_at(cx + sgn * dx, cy + sgn * dy);
-              const float z2 = z_at(cx + 2 * sgn * dx, cy + 2 * sgn * dy);
-              if (!std::isfinite(z1) || !std::isfinite(z2)) continue;
-              ++sides;
-              agree += std::abs(z - (2.0 * z1 - z2)) <= tol;
-            }
-            if (sides > 0 && agree == 0) reject[i] = 1;
-          }
-        }
-    });
+  // Mixed pixels at depth steps and shadow edges (heightfield/mixed_pixels.h).
+  if (options.reject_mixed_pixels) {
+    std::vector<float> z(np, kNaN);
+    std::vector<uint8_t> unlit(np, 0);
+    for (size_t i = 0; i < np; ++i) {
+      const int cx = static_cast<int>(i % w) + roi.x, cy = static_cast<int>(i / w) + roi.y;
+      if (state[i] == kOk) z[i] = scan.points.xyz(cx, cy, 2);
+      unlit[i] = state[i] == kUnlit || state[i] == kUnmodulated;
+    }
+    MixedPixelInput in;
+    in.width = w;
+    in.height = h;
+    in.z = z.data();
+    in.sigma_z = sigma_z.data();
+    in.white = white_level.data();
+    in.unlit = unlit.data();
+    in.footprint_m = CameraFootprint(scan.points.xyz);
+    const std::vector<uint8_t> reject = FindMixedPixels(in, options.mixed_pixels);
     for (size_t i = 0; i < np; ++i) {
       if (!reject[i]) continue;
       state[i] = kDiscontinuity;

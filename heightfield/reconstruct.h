@@ -28,6 +28,7 @@
 #include "core/scan_folder.h"
 #include "heightfield/frames.h"
 #include "heightfield/lens_shift_fit.h"
+#include "heightfield/mixed_pixels.h"
 #include "heightfield/resample.h"
 
 namespace mesoscan {
@@ -80,12 +81,10 @@ struct ReconstructOptions {
   double confidence_t = 4.0;
   // Points with confidence below this are rejected (NaN, confidence 0), in [0, 1).
   double min_confidence = 0.05;
-  // Mixed pixels at depth discontinuities (a camera pixel seeing two surfaces decodes to a point
-  // between them): a point is rejected if, along x or along y, it disagrees with the linear
-  // extrapolation of its valid neighbours on every side that has two (z_p vs 2 z_1 - z_2) by more
-  // than this many camera footprints (or 8 predicted depth sigmas, whichever is larger). >= 0;
-  // 0 disables the test.
-  double discontinuity_footprints = 0.5;
+  // Mixed pixels at depth steps and shadow edges (heightfield/mixed_pixels.h): rejected rather
+  // than placed between the surfaces. reject_mixed_pixels = false keeps them.
+  bool reject_mixed_pixels = true;
+  MixedPixelOptions mixed_pixels;
   // Height-field grid.
   ResampleOptions resample;
   // Keep per-pixel intermediate images in the summary (tests, benchmarks, CRLB).

@@ -1,0 +1,80 @@
+#include "heightfield/mixed_pixels.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "core/error.h"
+#include "core/parallel.h"
+
+namespace mesoscan {
+
+void MixedPixelOptions::Check() const {
+  if (!(max_sigmas > 0)) MESOSCAN_BAD_INPUT("max_sigmas: expected > 0, got " << max_sigmas);
+  if (!(outlier_footprints >= 0))
+    MESOSCAN_BAD_INPUT("outlier_footprints: expected >= 0, got " << outlier_footprints);
+  if (!(shadow_edge_ratio >= 0 && shadow_edge_ratio <= 1))
+    MESOSCAN_BAD_INPUT("shadow_edge_ratio: expected in [0, 1], got " << shadow_edge_ratio);
+}
+
+std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixelOptions& options) {
+  options.Check();
+  const int w = in.width, h = in.height;
+  std::vector<uint8_t> reject(static_cast<size_t>(w) * h, 0);
+  if (w <= 0 || h <= 0) return reject;
+  MESOSCAN_CHECK(in.z != nullptr && in.sigma_z != nullptr);
+  const bool shadow_test = options.shadow_edge_ratio > 0 && in.white && in.unlit;
+  auto inside = [&](int x, int y) { return x >= 0 && y >= 0 && x < w && y < h; };
+  auto index = [&](int x, int y) { return static_cast<size_t>(y) * w + x; };
+  auto z_at = [&](int x, int y) { return inside(x, y) ? in.z[index(x, y)] : NAN; };
+  // Unknown sigma counts as 0: the step test then needs the other terms to be known.
+  auto s2_at = [&](int x, int y) {
+    const float s = in.sigma_z[index(x, y)];
+    return std::isfinite(s) && s > 0 ? static_cast<double>(s) * s : 0.0;
+  };
+  const double outlier_floor = options.outlier_footprints * in.footprint_m;
+
+  ParallelForRows(h, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = index(x, y);
+        const double z = in.z[i];
+        if (!std::isfinite(z)) continue;
+        const double s2p = s2_at(x, y);
+        bool mixed = false;
+        for (int axis = 0; axis < 2 && !mixed; ++axis) {
+          const int dx = axis == 0, dy = axis == 1;
+          int sides = 0, outlier_sides = 0, above = 0, below = 0;
+          for (int sgn : {-1, 1}) {
+            const int x1 = x + sgn * dx, y1n = y + sgn * dy;
+            const int x2 = x + 2 * sgn * dx, y2n = y + 2 * sgn * dy;
+            const float z1 = z_at(x1, y1n), z2 = z_at(x2, y2n);
+            if (!std::isfinite(z1) || !std::isfinite(z2)) continue;
+            ++sides;
+            const double d = z - (2.0 * z1 - z2);
+            const double sd = std::sqrt(s2p + 4.0 * s2_at(x1, y1n) + s2_at(x2, y2n));
+            if (sd > 0 && std::abs(d) > options.max_sigmas * sd) (d > 0 ? above : below) += 1;
+            if (options.outlier_footprints > 0 &&
+                std::abs(d) > std::max(outlier_floor, 8.0 * std::sqrt(s2p)))
+              ++outlier_sides;
+          }
+          // Step: strictly between the two sides' extrapolations, far from both.
+          if (above == 1 && below == 1) mixed = true;
+          if (sides > 0 && outlier_sides == sides) mixed = true;
+          if (shadow_test && !mixed) {
+            for (int sgn : {-1, 1}) {
+              const int xu = x + sgn * dx, yu = y + sgn * dy;  // the unlit side
+              const int xo = x - sgn * dx, yo = y - sgn * dy;  // the opposite side
+              if (!inside(xu, yu) || !inside(xo, yo) || !in.unlit[index(xu, yu)]) continue;
+              const float wp = in.white[i], wo = in.white[index(xo, yo)];
+              if (std::isfinite(wp) && std::isfinite(wo) && wp < options.shadow_edge_ratio * wo)
+                mixed = true;
+            }
+          }
+        }
+        reject[i] = mixed;
+      }
+  });
+  return reject;
+}
+
+}  // namespace mesoscan

@@ -1,0 +1,133 @@
+#include "heightfield/mixed_pixels.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "core/error.h"
+
+namespace mesoscan {
+namespace {
+
+constexpr double kFootprint = 55e-6;  // the paper rig's camera footprint, m
+constexpr double kSigma = 1e-6;       // depth sigma of every pixel, m
+
+struct Grid {
+  int w, h;
+  std::vector<float> z, sigma, white;
+  std::vector<uint8_t> unlit;
+  Grid(int w_, int h_)
+      : w(w_),
+        h(h_),
+        z(static_cast<size_t>(w_) * h_, 0.0f),
+        sigma(z.size(), static_cast<float>(kSigma)),
+        white(z.size(), 0.5f),
+        unlit(z.size(), 0) {}
+  float& Z(int x, int y) { return z[static_cast<size_t>(y) * w + x]; }
+  std::vector<uint8_t> Find(const MixedPixelOptions& o = {}) const {
+    MixedPixelInput in;
+    in.width = w;
+    in.height = h;
+    in.z = z.data();
+    in.sigma_z = sigma.data();
+    in.white = white.data();
+    in.unlit = unlit.data();
+    in.footprint_m = kFootprint;
+    return FindMixedPixels(in, o);
+  }
+  int Count(const std::vector<uint8_t>& r) const {
+    int n = 0;
+    for (uint8_t v : r) n += v;
+    return n;
+  }
+};
+
+// A 93 um step along x (the paper ramp's sheet) with one column that saw both sheets: it decodes
+// to their mean and must go; the columns on either side agree with their own sheet and stay.
+TEST(MixedPixels, RejectsThePixelBetweenTwoSheets) {
+  Grid g(20, 8);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) g.Z(x, y) = x < 10 ? 0.0f : x == 10 ? 46.5e-6f : 93e-6f;
+  const auto r = g.Find();
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) EXPECT_EQ(r[static_cast<size_t>(y) * g.w + x], x == 10) << x;
+  // A quarter mix (23 um from its sheet, > 3 sigma of the difference) goes too.
+  for (int y = 0; y < g.h; ++y) g.Z(10, y) = 23e-6f;
+  EXPECT_EQ(g.Count(g.Find()), g.h);
+}
+
+// The same 20 um deviation as a ridge (above both sides' extrapolations) is real relief and
+// stays; as a point between two levels 40 um apart it is a mixed pixel.
+TEST(MixedPixels, KeepsARidgeButNotAStepOfTheSameSize) {
+  Grid ridge(20, 8), step(20, 8);
+  for (int y = 0; y < 8; ++y) {
+    ridge.Z(10, y) = 20e-6f;
+    for (int x = 0; x < 20; ++x) step.Z(x, y) = x < 10 ? 0.0f : x == 10 ? 20e-6f : 40e-6f;
+  }
+  EXPECT_EQ(ridge.Count(ridge.Find()), 0);
+  EXPECT_EQ(step.Count(step.Find()), 8);
+}
+
+// Noise only: a tilted plane with Gaussian depth noise of the declared sigma. The step test needs
+// both sides beyond 3 sigma with opposite signs: ~2e-6 per pixel and axis, so 40000 pixels should
+// lose about 0.2; more than 3 (Poisson tail 1e-4) means the test rejects noise.
+TEST(MixedPixels, NoiseAloneIsNotRejected) {
+  Grid g(200, 200);
+  std::mt19937 rng(7);
+  std::normal_distribution<double> n(0.0, kSigma);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) g.Z(x, y) = static_cast<float>(1e-3 + 20e-6 * x + n(rng));
+  EXPECT_LE(g.Count(g.Find()), 3);
+}
+
+// An isolated spike far beyond the footprint threshold goes (outlier test), also next to a hole.
+TEST(MixedPixels, RejectsSpikesAndPointsOffTheirOnlySide) {
+  Grid g(20, 20);
+  g.Z(10, 10) = 200e-6f;
+  for (int y = 0; y < g.h; ++y) g.Z(3, y) = NAN;  // a hole column: x = 4 has one side along x
+  g.Z(4, 15) = 100e-6f;
+  const auto r = g.Find();
+  EXPECT_EQ(r[10 * 20 + 10], 1);
+  EXPECT_EQ(r[15 * 20 + 4], 1);
+  EXPECT_EQ(g.Count(r), 2);
+  MixedPixelOptions off;
+  off.outlier_footprints = 0;
+  EXPECT_EQ(g.Count(g.Find(off)), 0);
+}
+
+// A lit pixel beside a shadow whose white level is well below its lit neighbour's is partly
+// shadowed (its brightness centroid is off centre): rejected. One at 95 % of it is kept.
+TEST(MixedPixels, RejectsPartlyShadowedPixels) {
+  Grid g(12, 4);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < 3; ++x) {
+      g.unlit[static_cast<size_t>(y) * g.w + x] = 1;
+      g.Z(x, y) = NAN;
+    }
+  for (int y = 0; y < g.h; ++y) g.white[static_cast<size_t>(y) * g.w + 3] = y < 2 ? 0.2f : 0.475f;
+  const auto r = g.Find();
+  for (int y = 0; y < g.h; ++y) EXPECT_EQ(r[static_cast<size_t>(y) * g.w + 3], y < 2) << y;
+  EXPECT_EQ(g.Count(r), 2);
+  MixedPixelOptions off;
+  off.shadow_edge_ratio = 0;
+  EXPECT_EQ(g.Count(g.Find(off)), 0);
+}
+
+TEST(MixedPixels, OptionsAreChecked) {
+  MixedPixelOptions o;
+  o.max_sigmas = 0;
+  EXPECT_THROW(o.Check(), Error);
+  o = {};
+  o.outlier_footprints = -1;
+  EXPECT_THROW(o.Check(), Error);
+  o = {};
+  o.shadow_edge_ratio = 1.5;
+  EXPECT_THROW(o.Check(), Error);
+  Grid g(1, 1);
+  EXPECT_EQ(g.Count(g.Find()), 0);
+}
+
+}  // namespace
+}  // namespace mesoscan
