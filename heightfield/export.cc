@@ -500,6 +500,17 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
     hints[file] = hint;
     summary.files.push_back(dir / file);
   };
+  // The normal map in `format` ("exr" | "png"): its manifest entry and Blender hint.
+  auto add_normal_map = [&](const std::string& format, const std::string& pixel_type) {
+    const std::string fn = n + "_normal_" + conv + "." + format;
+    add(fn, {{"role", "normal"}, {"format", format}, {"pixel_type", pixel_type},
+             {"channels", {"R", "G", "B"}}, {"convention", conv_text},
+             {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
+             {"colour_space", "Non-Color (raw data)"}},
+        "Blender: Image Texture '" + fn + "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
+            (o.normals == NormalConvention::kDirectX ? "; DirectX: invert green first" : ""));
+    return fn;
+  };
   std::ostringstream disp;
   disp.precision(9);
   if (o.exr) {
@@ -516,13 +527,7 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
                 {"mesoscan:midlevel", 0.0}, {"mesoscan:scale", 1.0}, {"mesoscan:hole_value", hole_value}},
                {{"mesoscan:units", "m"}, {"mesoscan:content", "height above the mount plane"}});
     });
-    const std::string fn = n + "_normal_" + conv + ".exr";
-    add(fn, {{"role", "normal"}, {"format", "exr"}, {"pixel_type", "float32"},
-             {"channels", {"R", "G", "B"}}, {"convention", conv_text},
-             {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
-             {"colour_space", "Non-Color (raw data)"}},
-        "Blender: Image Texture '" + fn + "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
-            (o.normals == NormalConvention::kDirectX ? "; DirectX: invert green first" : ""));
+    const std::string fn = add_normal_map("exr", "float32");
     run(fn, [&, fn] {
       WriteExr(dir / fn, nmap, {"R", "G", "B"}, grid_attrs,
                {{"mesoscan:normal_convention", conv_text},
@@ -565,13 +570,7 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
       WritePng16(dir / f, q, kPng16Compression);
       WriteJsonFile(dir / fs_, sidecar);
     });
-    const std::string fn = n + "_normal_" + conv + ".png";
-    add(fn, {{"role", "normal"}, {"format", "png"}, {"pixel_type", "uint16"},
-             {"channels", {"R", "G", "B"}}, {"convention", conv_text},
-             {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
-             {"colour_space", "Non-Color (raw data)"}},
-        "Blender: Image Texture '" + fn + "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
-            (o.normals == NormalConvention::kDirectX ? "; DirectX: invert green first" : ""));
+    const std::string fn = add_normal_map("png", "uint16");
     run(fn, [&, fn] { WritePng16(dir / fn, QuantizeU16(nmap), kPng16Compression); });
   }
   if (o.exr || o.png16 || o.glb) {

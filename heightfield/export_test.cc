@@ -56,6 +56,28 @@ ExportOptions SmallOptions(const std::string& name) {
   return o;
 }
 
+// Exports `scan` in `formats` (--format syntax) with prefix "s" into the fresh folder `folder`.
+fs::path ExportOnly(const Scan& scan, const std::string& formats, const std::string& folder,
+                    ExportOptions o = SmallOptions("s")) {
+  ParseExportFormats(formats, &o);
+  const fs::path dir = TempDir(folder);
+  ExportScan(scan, o, dir);
+  return dir;
+}
+
+// The GLB's glTF model (images left encoded: only the structure is checked).
+tinygltf::Model LoadGlb(const fs::path& glb) {
+  tinygltf::Model model;
+  tinygltf::TinyGLTF loader;
+  loader.SetImageLoader(
+      [](tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int,
+         void*) { return true; },
+      nullptr);
+  std::string err, warn;
+  EXPECT_TRUE(loader.LoadBinaryFromFile(&model, &err, &warn, glb.string())) << glb << ": " << err;
+  return model;
+}
+
 TEST(Export, WritesEveryFileAndAManifestAndNoTemporaries) {
   const Scan scan = MakeScan();
   const fs::path dir = TempDir("all");
@@ -78,10 +100,7 @@ TEST(Export, WritesEveryFileAndAManifestAndNoTemporaries) {
 
 TEST(Export, HeightExrIsMetresInChannelYWithTheGridAttributes) {
   const Scan scan = MakeScan();
-  const fs::path dir = TempDir("exr");
-  ExportOptions o = SmallOptions("s");
-  o.glb = o.ply = o.png16 = false;
-  ExportScan(scan, o, dir);
+  const fs::path dir = ExportOnly(scan, "exr", "exr");
   ImageInfo info = ReadImageInfo(dir / "s_height.exr");
   ASSERT_EQ(info.channel_names, std::vector<std::string>{"Y"});
   EXPECT_TRUE(info.is_float);
@@ -107,10 +126,7 @@ TEST(Export, HeightExrIsMetresInChannelYWithTheGridAttributes) {
 
 TEST(Export, Png16HeightDecodesWithTheSidecarWithinHalfAStep) {
   const Scan scan = MakeScan();
-  const fs::path dir = TempDir("png");
-  ExportOptions o = SmallOptions("s");
-  o.glb = o.ply = o.exr = false;
-  ExportScan(scan, o, dir);
+  const fs::path dir = ExportOnly(scan, "png16", "png");
   const Json side = ReadJsonFile(dir / "s_height.json");
   const double mid = side.at("midlevel"), scale = side.at("scale");
   EXPECT_EQ(side.at("units"), "m");
@@ -131,10 +147,9 @@ TEST(Export, Png16HeightDecodesWithTheSidecarWithinHalfAStep) {
 
 TEST(Export, NormalMapConventionsDifferOnlyInGreen) {
   const Scan scan = MakeScan();
-  const fs::path dir = TempDir("normals");
+  const fs::path dir = ExportOnly(scan, "png16", "normals");
   ExportOptions o = SmallOptions("s");
-  o.glb = o.ply = o.exr = false;
-  ExportScan(scan, o, dir);
+  ParseExportFormats("png16", &o);
   o.normals = NormalConvention::kDirectX;
   ExportScan(scan, o, dir);
   const ImageF gl = ReadImage(dir / "s_normal_gl.png"), dx = ReadImage(dir / "s_normal_dx.png");
@@ -164,14 +179,7 @@ TEST(Export, GlbHoldsTheHeightFieldInMetresYUpWithExtras) {
   ExportOptions o = SmallOptions("s");
   o.ply = false;
   const ExportSummary sum = ExportScan(scan, o, dir);
-  tinygltf::Model model;
-  tinygltf::TinyGLTF loader;
-  loader.SetImageLoader(
-      [](tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int,
-         void*) { return true; },
-      nullptr);
-  std::string err, warn;
-  ASSERT_TRUE(loader.LoadBinaryFromFile(&model, &err, &warn, (dir / "s.glb").string())) << err;
+  const tinygltf::Model model = LoadGlb(dir / "s.glb");
   ASSERT_EQ(model.meshes.size(), 1u);
   const auto& prim = model.meshes[0].primitives[0];
   for (const char* a : {"POSITION", "NORMAL", "TANGENT", "TEXCOORD_0"}) ASSERT_TRUE(prim.attributes.count(a)) << a;
@@ -208,10 +216,7 @@ TEST(Export, GlbHoldsTheHeightFieldInMetresYUpWithExtras) {
 
 TEST(Export, PlyHasEveryValidSampleWithNormalAndConfidence) {
   const Scan scan = MakeScan();
-  const fs::path dir = TempDir("ply");
-  ExportOptions o = SmallOptions("s");
-  o.glb = o.exr = o.png16 = false;
-  ExportScan(scan, o, dir);
+  const fs::path dir = ExportOnly(scan, "ply", "ply");
   std::ifstream in(dir / "s.ply", std::ios::binary);
   std::string line;
   int64_t n = -1;
@@ -281,12 +286,10 @@ TEST(Export, ParsesFormatsAndCropsAndRefusesBadOnes) {
 TEST(Export, AlbedoIsWrittenAsSrgbAndTexturesTheGlb) {
   const Scan scan = MakeScan();
   ExportOptions o = SmallOptions("s");
-  o.ply = o.exr = false;
   o.albedo = ImageF(scan.height.width(), scan.height.height(), 1);
   for (int j = 0; j < o.albedo.height(); ++j)
     for (int i = 0; i < o.albedo.width(); ++i) o.albedo(i, j) = 0.2f + 0.6f * i / o.albedo.width();
-  const fs::path dir = TempDir("albedo");
-  ExportScan(scan, o, dir);
+  const fs::path dir = ExportOnly(scan, "png16,glb", "albedo", o);
   ImageInfo info;
   const ImageF a = ReadImage(dir / "s_albedo.png", &info);
   EXPECT_EQ(info.bits_per_sample, 8);
@@ -294,14 +297,8 @@ TEST(Export, AlbedoIsWrittenAsSrgbAndTexturesTheGlb) {
   const double scale = 1.0 / (0.2 + 0.6 * 95 / 96.0);
   auto decode = [](double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); };
   EXPECT_NEAR(decode(a(10, 10)), (0.2 + 0.6 * 10 / 96.0) * scale, 0.01);
-  tinygltf::Model model;
-  tinygltf::TinyGLTF loader;
-  loader.SetImageLoader(
-      [](tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int,
-         void*) { return true; },
-      nullptr);
-  std::string err, warn;
-  ASSERT_TRUE(loader.LoadBinaryFromFile(&model, &err, &warn, (dir / "s.glb").string())) << err;
+  const tinygltf::Model model = LoadGlb(dir / "s.glb");
+  ASSERT_EQ(model.materials.size(), 1u);
   EXPECT_GE(model.materials[0].pbrMetallicRoughness.baseColorTexture.index, 0);
 }
 

@@ -9,57 +9,24 @@
 //    the side the light is on;
 //  - OpenImageIO's iinfo / oiiotool: every EXR has the expected channels and attributes.
 // Consumers are installed by `scripts/install-deps --consumers`; a missing one skips its test
-// with the command that installs it.
+// with the command that installs it. tests/export_coin_test.cc runs the same checks on the demo
+// coin; the helpers are in tests/export_consumers.h.
 
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
-#include <array>
 #include <cmath>
-#include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <random>
-#include <sstream>
 
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "tests/export_consumers.h"
 
 namespace mesoscan {
 namespace {
-namespace fs = std::filesystem;
-
-const fs::path kSource = MESOSCAN_SOURCE_DIR;
-const fs::path kExe = MESOSCAN_EXE;
-const fs::path kGltfTransform = kSource / "tools/node_modules/.bin/gltf-transform";
-const fs::path kBlenderScript = kSource / "tests/consumers/blender_checks.py";
-constexpr const char* kInstall = "run `bash scripts/install-deps --consumers`";
-
-int RunCommand(const std::string& cmd, std::string* output) {
-  output->clear();
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return -1;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) output->append(buf.data(), n);
-  const int status = pclose(p);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
-std::string FindOnPath(const std::string& name) {
-  for (const char* dir : {"/usr/bin", "/usr/local/bin", "/bin"})
-    if (fs::exists(fs::path(dir) / name)) return (fs::path(dir) / name).string();
-  return {};
-}
-
-// Shell-quoted path. (Appending, not "'" + s + "'": GCC 12 reports a false -Wrestrict there.)
-std::string Q(const fs::path& p) {
-  std::string q(1, '\'');
-  q.append(p.string());
-  q.push_back('\'');
-  return q;
-}
+using namespace consumers;  // NOLINT: the shared consumer helpers of tests/export_consumers.h
 
 // A 160 x 120 scan at 50 um (8 x 6 mm): a 0.4 mm Gaussian relief with a smaller 0.1 mm bump
 // on a 1% ramp 0.2 mm above the mount, a shadow hole and a few dropped samples. Slopes stay
@@ -116,15 +83,12 @@ class ExportConsumers : public ::testing::Test {
     WriteScanFolder(root_ / "synthetic.scan", *scan_);
     std::string out;
     // A: every format, OpenGL normals, lossless mesh. B: DirectX normals. C: decimated mesh.
-    status_a_ = RunCommand(Q(kExe) + " -q export " + Q(root_ / "synthetic.scan") + " --out " + Q(root_ / "a"), &out);
+    const std::string scan = " -q export " + Q(root_ / "synthetic.scan") + " --out ";
+    status_a_ = RunMesoscan(scan + Q(root_ / "a"), &out);
     log_ = out;
-    status_b_ = RunCommand(Q(kExe) + " -q export " + Q(root_ / "synthetic.scan") + " --out " + Q(root_ / "b") +
-                        " --format png16 --normals dx",
-                    &out);
+    status_b_ = RunMesoscan(scan + Q(root_ / "b") + " --format png16 --normals dx", &out);
     log_ += out;
-    status_c_ = RunCommand(Q(kExe) + " -q export " + Q(root_ / "synthetic.scan") + " --out " + Q(root_ / "c") +
-                        " --format glb --max-triangles 4000",
-                    &out);
+    status_c_ = RunMesoscan(scan + Q(root_ / "c") + " --format glb --max-triangles 4000", &out);
     log_ += out;
   }
   static void TearDownTestSuite() { delete scan_; }
@@ -145,56 +109,17 @@ TEST_F(ExportConsumers, GltfTransformValidateReportsNoErrors) {
   if (!fs::exists(kGltfTransform)) GTEST_SKIP() << kGltfTransform << " missing: " << kInstall;
   for (const fs::path& glb : {root_ / "a/synthetic.glb", root_ / "c/synthetic.glb"}) {
     ASSERT_TRUE(fs::exists(glb)) << glb;
-    std::string out;
-    const int status = RunCommand("NO_COLOR=1 " + Q(kGltfTransform) + " validate " + Q(glb), &out);
-    // The report has one section per severity (ERROR, WARNING, INFO, HINT); an empty section
-    // says "No errors found." / "No warnings found.".
-    SCOPED_TRACE(out);
-    EXPECT_EQ(status, 0);
-    const size_t e = out.find("ERROR"), w = out.find("WARNING", e == std::string::npos ? 0 : e);
-    ASSERT_NE(e, std::string::npos);
-    ASSERT_NE(w, std::string::npos);
-    EXPECT_NE(out.substr(e, w - e).find("No errors found."), std::string::npos) << glb;
-    EXPECT_NE(out.find("No warnings found.", w), std::string::npos) << glb;
+    const GltfValidation v = ValidateGlb(glb);
+    EXPECT_TRUE(v.no_errors) << glb << "\n" << v.report;
+    EXPECT_TRUE(v.no_warnings) << glb << "\n" << v.report;
   }
 }
 
 TEST_F(ExportConsumers, OiioReadsEveryExrWithItsChannelsAndAttributes) {
-  const std::string iinfo = FindOnPath("iinfo");
-  if (iinfo.empty()) GTEST_SKIP() << "iinfo missing: apt-get install openimageio-tools";
-  struct Expect {
-    std::string file, channels;
-  };
-  for (const Expect& e : {Expect{"synthetic_height.exr", "Y"}, Expect{"synthetic_normal_gl.exr", "R, G, B"}}) {
-    std::string out;
-    ASSERT_EQ(RunCommand(iinfo + " -v " + Q(root_ / "a" / e.file), &out), 0) << out;
-    SCOPED_TRACE(out);
-    EXPECT_NE(out.find("160 x  120, " + std::to_string(e.channels == "Y" ? 1 : 3) + " channel, float openexr"),
-              std::string::npos);
-    EXPECT_NE(out.find("channel list: " + e.channels + "\n"), std::string::npos);
-    EXPECT_NE(out.find("mesoscan:pixel_size: 5e-05"), std::string::npos);
-    EXPECT_NE(out.find("mesoscan:x0: -0.004"), std::string::npos);
-    if (e.channels == "Y") {
-      EXPECT_NE(out.find("mesoscan:units: \"m\""), std::string::npos);
-      EXPECT_NE(out.find("mesoscan:midlevel: 0"), std::string::npos);
-      EXPECT_NE(out.find("mesoscan:scale: 1"), std::string::npos);
-    }
-  }
-  // oiiotool's statistics of the height: min and max equal the scan's in metres (printed with
-  // 6 decimals: 5e-7 m).
-  const std::string oiiotool = FindOnPath("oiiotool");
-  if (oiiotool.empty()) return;
-  std::string out;
-  ASSERT_EQ(RunCommand(oiiotool + " --stats " + Q(root_ / "a/synthetic_height.exr"), &out), 0) << out;
-  double zmin = INFINITY, zmax = -INFINITY;
-  for (float v : scan_->height.z.data())
-    if (std::isfinite(v)) zmin = std::min<double>(zmin, v), zmax = std::max<double>(zmax, v);
-  const size_t at = out.find("Stats Min: ");
-  ASSERT_NE(at, std::string::npos) << out;
-  EXPECT_NEAR(std::stod(out.substr(at + 11)), zmin, 5.01e-7) << out;
-  const size_t at2 = out.find("Stats Max: ");
-  ASSERT_NE(at2, std::string::npos) << out;
-  EXPECT_NEAR(std::stod(out.substr(at2 + 11)), zmax, 5.01e-7) << out;
+  if (FindOnPath("iinfo").empty()) GTEST_SKIP() << "iinfo missing: apt-get install openimageio-tools";
+  ExpectIinfoReadsExr(root_ / "a/synthetic_height.exr", scan_->height, "Y", true);
+  ExpectIinfoReadsExr(root_ / "a/synthetic_normal_gl.exr", scan_->height, "R, G, B", false);
+  ExpectOiiotoolStatsMatch(root_ / "a/synthetic_height.exr", scan_->height);
 }
 
 TEST_F(ExportConsumers, BlenderImportsTheGlbDisplacesByTheMapsAndReadsTheNormalHandedness) {
@@ -207,92 +132,28 @@ TEST_F(ExportConsumers, BlenderImportsTheGlbDisplacesByTheMapsAndReadsTheNormalH
   for (int j = 3; j < hf.height(); j += 7)
     for (int i = 2; i < hf.width(); i += 7)
       if (std::isfinite(hf.z(i, j))) samples.push_back({i, j});
-  const Json cfg = {{"glb", (root_ / "a/synthetic.glb").string()},
-                    {"height_exr", (root_ / "a/synthetic_height.exr").string()},
-                    {"height_png", (root_ / "a/synthetic_height.png").string()},
-                    {"png_midlevel", side.at("midlevel")},
-                    {"png_scale", side.at("scale")},
-                    {"normal_gl", (root_ / "a/synthetic_normal_gl.png").string()},
-                    {"normal_dx", (root_ / "b/synthetic_normal_dx.png").string()},
-                    {"width", hf.width()},
-                    {"height", hf.height()},
-                    {"x0", hf.x0},
-                    {"y0", hf.y0},
-                    {"pixel_size", hf.pixel_size},
-                    {"samples", samples},
-                    {"out", (root_ / "blender_out.json").string()}};
-  WriteJsonFile(root_ / "blender_cfg.json", cfg);
-  std::string out;
-  const int status = RunCommand(blender + " -b --factory-startup --python-exit-code 1 -P " + Q(kBlenderScript) +
-                             " -- " + Q(root_ / "blender_cfg.json"),
-                         &out);
-  ASSERT_EQ(status, 0) << out;
-  const Json r = ReadJsonFile(root_ / "blender_out.json");
-  EXPECT_EQ(r.at("blender_version").get<std::string>().substr(0, 3), "3.4");
+  Json cfg = BlenderConfig(root_ / "a", "synthetic", hf, samples);
+  cfg["normal_dx"] = (root_ / "b/synthetic_normal_dx.png").string();
+  const Json r = RunBlenderChecks(blender, root_, cfg);
+  ASSERT_FALSE(r.is_null());
 
-  // 1. GLB: the lossless mesh's vertices are the samples that belong to a triangle (a cell's
-  // triangle needs its 3 corners); bounding box of those samples, in metres, z up.
-  int64_t expected_vertices = 0;
-  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  auto ok = [&](int i, int j) { return i >= 0 && j >= 0 && i < hf.width() && j < hf.height() && std::isfinite(hf.z(i, j)); };
-  for (int j = 0; j < hf.height(); ++j) {
-    for (int i = 0; i < hf.width(); ++i) {
-      if (!ok(i, j)) continue;
-      // A sample is a vertex of the lossless mesh iff it is a corner of a unit triangle (half a
-      // grid cell, split along the 4-8 mesh diagonal of heightfield/export_mesh.h) whose three
-      // corners are all valid.
-      bool used = false;
-      for (int cj = j - 1; cj <= j && !used; ++cj) {
-        for (int ci = i - 1; ci <= i && !used; ++ci) {
-          if (ci < 0 || cj < 0 || ci + 1 >= hf.width() || cj + 1 >= hf.height()) continue;
-          const bool main = ((ci + cj) & 1) == 0;  // the 4-8 mesh's diagonal of this cell
-          const std::array<std::array<int, 6>, 2> tris =
-              main ? std::array<std::array<int, 6>, 2>{{{ci, cj, ci + 1, cj + 1, ci + 1, cj},
-                                                        {ci, cj, ci + 1, cj + 1, ci, cj + 1}}}
-                   : std::array<std::array<int, 6>, 2>{{{ci, cj + 1, ci + 1, cj, ci, cj},
-                                                        {ci, cj + 1, ci + 1, cj, ci + 1, cj + 1}}};
-          for (const auto& t : tris) {
-            const bool has = (t[0] == i && t[1] == j) || (t[2] == i && t[3] == j) || (t[4] == i && t[5] == j);
-            if (has && ok(t[0], t[1]) && ok(t[2], t[3]) && ok(t[4], t[5])) used = true;
-          }
-        }
-      }
-      if (!used) continue;
-      ++expected_vertices;
-      const double p[3] = {hf.X(i), hf.Y(j), hf.z(i, j)};
-      for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], p[k]), hi[k] = std::max(hi[k], p[k]);
-    }
-  }
-  const Json& g = r.at("glb");
-  EXPECT_EQ(g.at("objects"), 1);
-  EXPECT_EQ(g.at("vertices").get<int64_t>(), expected_vertices);
-  for (int k = 0; k < 3; ++k) {
-    EXPECT_NEAR(g.at("bbox_min")[k].get<double>(), lo[k], 1e-6) << "axis " << k;
-    EXPECT_NEAR(g.at("bbox_max")[k].get<double>(), hi[k], 1e-6) << "axis " << k;
-  }
-  EXPECT_EQ(g.at("extras").at("height_map"), "synthetic_height.exr");
-  EXPECT_EQ(g.at("extras").at("units"), "m");
-  bool normal_map_wired = false;
-  for (const auto& l : g.at("material_links"))
-    if (l[0] == "TEX_IMAGE" && l[1] == "NORMAL_MAP") normal_map_wired = true;
-  EXPECT_TRUE(normal_map_wired) << g.at("material_links").dump();
+  // 1. GLB: the lossless mesh's vertices and bounding box, in metres, z up.
+  ExpectGlbImportMatches(r.at("glb"), LosslessMeshOf(hf), "synthetic_height.exr");
 
   // 2. Displacement: within 1 um of the scan's heights (the bound; the EXR is exact in
   // float32, the PNG within half a quantisation step of (max - min) / 65535).
   const double step = side.at("scale").get<double>() / 65535.0;
-  double max_exr = 0, max_png = 0;
-  ASSERT_EQ(r.at("displace_exr").size(), samples.size());
-  ASSERT_EQ(r.at("displace_png").size(), samples.size());
-  for (size_t k = 0; k < samples.size(); ++k) {
-    const double z = hf.z(samples[k][0].get<int>(), samples[k][1].get<int>());
-    max_exr = std::max(max_exr, std::abs(r.at("displace_exr")[k].get<double>() - z));
-    max_png = std::max(max_png, std::abs(r.at("displace_png")[k].get<double>() - z));
-  }
+  auto scan_z = [&](size_t k) { return hf.z(samples[k][0].get<int>(), samples[k][1].get<int>()); };
+  const double max_exr = MaxDeviation(r.at("displace_exr"), samples.size(), scan_z);
+  const double max_exr_nodes = MaxDeviation(r.at("displace_exr_nodes"), samples.size(), scan_z);
+  const double max_png = MaxDeviation(r.at("displace_png"), samples.size(), scan_z);
   EXPECT_LT(max_exr, 1e-6);
   EXPECT_LT(max_png, 1e-6);
   // Blender's image texture applies brightness/contrast as (v - 0.5) * 1 + 0.5 in float32: the
-  // metre values (~1e-4) are rounded to the float32 grid at 0.5, one ulp = 2^-24 = 6e-8 m.
+  // metre values (~1e-4) are rounded to the float32 grid at 0.5, one ulp = 2^-24 = 6e-8 m. The
+  // Geometry Nodes image texture reads the float itself.
   EXPECT_LT(max_exr, 6e-8);
+  EXPECT_LT(max_exr_nodes, 1e-9);
   EXPECT_LT(max_png, 0.5 * step + 1e-9);
   RecordProperty("blender_max_displacement_error_exr_m", std::to_string(max_exr));
   RecordProperty("blender_max_displacement_error_png_m", std::to_string(max_png));
@@ -303,19 +164,7 @@ TEST_F(ExportConsumers, BlenderImportsTheGlbDisplacesByTheMapsAndReadsTheNormalH
 
   // 3. Normal maps. Baked shading normals against the scan's normals, pixel by pixel.
   auto compare = [&](const Json& bake, double y_sign) {
-    EXPECT_EQ(bake.at("width"), hf.width());
-    EXPECT_EQ(bake.at("height"), hf.height());
-    double worst = 0;
-    const auto& n = bake.at("normals");
-    for (int j = 0; j < hf.height(); ++j) {
-      for (int i = 0; i < hf.width(); ++i) {
-        if (!std::isfinite(hf.z(i, j))) continue;
-        const auto& b = n[static_cast<size_t>(j) * hf.width() + i];
-        const double e[3] = {scan_->normals(i, j, 0), y_sign * scan_->normals(i, j, 1), scan_->normals(i, j, 2)};
-        for (int k = 0; k < 3; ++k) worst = std::max(worst, std::abs(b[k].get<double>() - e[k]));
-      }
-    }
-    return worst;
+    return MaxBakedNormalError(bake, hf, scan_->normals, y_sign);
   };
   // 16-bit quantisation (1.5e-5 per component) and Cycles' float shading: 1e-3.
   EXPECT_LT(compare(r.at("bake_gl"), 1.0), 1e-3);
@@ -327,8 +176,8 @@ TEST_F(ExportConsumers, BlenderImportsTheGlbDisplacesByTheMapsAndReadsTheNormalH
   // 1 sigma towards +x+y) faces it, its lower-left flank faces away.
   auto lit = [&](const Json& bake, double x, double y) {
     const int i = static_cast<int>(std::lround(hf.I(x))), j = static_cast<int>(std::lround(hf.J(y)));
-    const auto& b = bake.at("normals")[static_cast<size_t>(j) * hf.width() + i];
-    return (b[0].get<double>() + b[1].get<double>() + b[2].get<double>()) / std::sqrt(3.0);
+    const std::array<double, 3> b = BakedNormal(bake, i, j);
+    return (b[0] + b[1] + b[2]) / std::sqrt(3.0);
   };
   const double s = 0.7e-3;
   for (const char* key : {"bake_gl", "bake_dx_inverted"}) {

@@ -1,4 +1,5 @@
-# Blender 3.4 checks of mesoscan's exports, run by tests/export_consumers_test.cc:
+# Blender 3.4 checks of mesoscan's exports, run by tests/export_consumers_test.cc (synthetic
+# scan) and tests/export_coin_test.cc (the demo coin), through tests/export_consumers.h:
 #   blender -b --factory-startup --python-exit-code 1 -P blender_checks.py -- config.json
 # The config names the files and the sample pixels; every measurement is written to the
 # config's "out" JSON, and the C++ test compares it with the scan it exported. The script
@@ -8,6 +9,7 @@ import sys
 
 import bpy
 import numpy
+from mathutils import kdtree
 
 # Debian 12's Blender 3.4.1 ships a glTF importer that uses numpy.bool, removed in Debian's
 # numpy 1.24: its default import (Shading "Use Normal Data") fails on any mesh with normals,
@@ -37,17 +39,26 @@ if cfg.get("glb"):
     clear_scene()
     bpy.ops.import_scene.gltf(filepath=cfg["glb"])
     meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"]
-    verts = 0
-    lo = [float("inf")] * 3
-    hi = [float("-inf")] * 3
+    # World positions of every vertex (object matrix applied, in float64).
+    world = numpy.zeros((0, 3))
     for o in meshes:
-        verts += len(o.data.vertices)
-        mw = o.matrix_world
-        for v in o.data.vertices:
-            p = mw @ v.co
-            for k in range(3):
-                lo[k] = min(lo[k], p[k])
-                hi[k] = max(hi[k], p[k])
+        co = numpy.zeros(3 * len(o.data.vertices), dtype=numpy.float32)
+        o.data.vertices.foreach_get("co", co)
+        mw = numpy.array(o.matrix_world, dtype=numpy.float64)
+        world = numpy.vstack([world, co.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3]])
+    verts = len(world)
+    lo = world.min(axis=0).tolist() if verts else [float("inf")] * 3
+    hi = world.max(axis=0).tolist() if verts else [float("-inf")] * 3
+    # Heights of the imported mesh at world points (x, y): the vertex nearest in x, y.
+    points = []
+    if cfg.get("glb_points"):
+        tree = kdtree.KDTree(verts)
+        for n, p in enumerate(world):
+            tree.insert((p[0], p[1], 0.0), n)
+        tree.balance()
+        for x, y in cfg["glb_points"]:
+            _, n, _ = tree.find((x, y, 0.0))
+            points.append(world[n].tolist())
     extras = {}
     links = []
     if meshes:
@@ -60,14 +71,18 @@ if cfg.get("glb"):
             for l in mat.node_tree.links:
                 links.append([l.from_node.type, l.to_node.type, l.to_socket.name])
     out["glb"] = {"objects": len(meshes), "vertices": verts, "bbox_min": lo, "bbox_max": hi,
-                  "extras": extras, "material_links": links}
+                  "extras": extras, "material_links": links, "points": points}
 
 # 2. Displacement: one tiny triangle per sample pixel, all three corners carrying the UV of
-# that pixel's centre (v flipped: Blender's image row 0 is the bottom one). A Displace modifier
-# (direction Z, texture coordinates UV, no interpolation: the texel itself) with the height map
-# as an Image texture; the evaluated z of the first corner is the displaced height.
-def displaced_heights(image_path, midlevel, scale):
-    clear_scene()
+# that pixel's centre (v flipped: Blender's image row 0 is the bottom one), displaced along Z by
+# the height map read at its texel (no interpolation), (value - midlevel) * scale; the evaluated
+# z of the first corner is the displaced height. Two of Blender's ways:
+#  - "modifier": a Displace modifier (texture coordinates UV) with the map as an Image texture.
+#    Blender's image texture clamps values below 0 (BRICONTRGB), so heights under the mount
+#    plane in a midlevel-0 EXR land on 0 (export.cc's hint says so);
+#  - "nodes": a Geometry Nodes modifier, Image Texture node (the sampling of the shader's Image
+#    Texture -> Displacement node path) -> Set Position offset, which keeps negative values.
+def sample_mesh():
     w, h = cfg["width"], cfg["height"]
     verts, faces, uvs = [], [], []
     for n, (i, j) in enumerate(cfg["samples"]):
@@ -81,25 +96,73 @@ def displaced_heights(image_path, midlevel, scale):
     uv = me.uv_layers.new(name="UVMap")
     for loop in me.loops:
         uv.data[loop.index].uv = uvs[loop.vertex_index]
+    uvpt = me.attributes.new("uv_point", "FLOAT_VECTOR", "POINT")  # the same UV per vertex
+    for n, (u, v) in enumerate(uvs):
+        uvpt.data[n].vector = (u, v, 0.0)
     obj = bpy.data.objects.new("samples", me)
     bpy.context.scene.collection.objects.link(obj)
-    tex = bpy.data.textures.new("height", type="IMAGE")
-    tex.image = load_image(image_path)
-    tex.use_interpolation = False
-    tex.use_mipmap = False
+    return obj
+
+
+def displace_nodes(obj, image, midlevel, scale):
+    ng = bpy.data.node_groups.new("displace", "GeometryNodeTree")
+    ng.inputs.new("NodeSocketGeometry", "Geometry")
+    ng.outputs.new("NodeSocketGeometry", "Geometry")
+    n_in = ng.nodes.new("NodeGroupInput")
+    n_out = ng.nodes.new("NodeGroupOutput")
+    attr = ng.nodes.new("GeometryNodeInputNamedAttribute")
+    attr.data_type = "FLOAT_VECTOR"
+    attr.inputs["Name"].default_value = "uv_point"
+    tex = ng.nodes.new("GeometryNodeImageTexture")
+    tex.interpolation = "Closest"
     tex.extension = "EXTEND"
-    mod = obj.modifiers.new("displace", "DISPLACE")
-    mod.texture = tex
-    mod.texture_coords = "UV"
-    mod.uv_layer = "UVMap"
-    mod.direction = "Z"
-    mod.mid_level = midlevel
-    mod.strength = scale
+    tex.inputs["Image"].default_value = image
+    sep = ng.nodes.new("ShaderNodeSeparateXYZ")  # colour -> vector: R, G, B as x, y, z
+    sub = ng.nodes.new("ShaderNodeMath")
+    sub.operation = "SUBTRACT"
+    sub.inputs[1].default_value = midlevel
+    mul = ng.nodes.new("ShaderNodeMath")
+    mul.operation = "MULTIPLY"
+    mul.inputs[1].default_value = scale
+    comb = ng.nodes.new("ShaderNodeCombineXYZ")
+    setpos = ng.nodes.new("GeometryNodeSetPosition")
+    links = ng.links
+    links.new(n_in.outputs[0], setpos.inputs["Geometry"])
+    links.new([o for o in attr.outputs if o.enabled][0], tex.inputs["Vector"])
+    links.new(tex.outputs["Color"], sep.inputs[0])
+    links.new(sep.outputs["X"], sub.inputs[0])
+    links.new(sub.outputs[0], mul.inputs[0])
+    links.new(mul.outputs[0], comb.inputs["Z"])
+    links.new(comb.outputs[0], setpos.inputs["Offset"])
+    links.new(setpos.outputs["Geometry"], n_out.inputs[0])
+    mod = obj.modifiers.new("displace", "NODES")
+    mod.node_group = ng
+
+
+def displaced_heights(image_path, midlevel, scale, how="modifier"):
+    clear_scene()
+    obj = sample_mesh()
+    image = load_image(image_path)
+    if how == "nodes":
+        displace_nodes(obj, image, midlevel, scale)
+    else:
+        tex = bpy.data.textures.new("height", type="IMAGE")
+        tex.image = image
+        tex.use_interpolation = False
+        tex.use_mipmap = False
+        tex.extension = "EXTEND"
+        mod = obj.modifiers.new("displace", "DISPLACE")
+        mod.texture = tex
+        mod.texture_coords = "UV"
+        mod.uv_layer = "UVMap"
+        mod.direction = "Z"
+        mod.mid_level = midlevel
+        mod.strength = scale
     dg = bpy.context.evaluated_depsgraph_get()
     ev = obj.evaluated_get(dg).to_mesh()
     z = [ev.vertices[3 * n].co.z for n in range(len(cfg["samples"]))]
     obj.evaluated_get(dg).to_mesh_clear()
-    return z, tex.image
+    return z, image
 
 
 if cfg.get("height_exr"):
@@ -111,6 +174,7 @@ if cfg.get("height_exr"):
     k = 4 * (row * cfg["width"] + i)
     out["exr_first_sample_rgba"] = list(img.pixels[k:k + 4])
     out["exr_channels_seen"] = img.channels
+    out["displace_exr_nodes"], _ = displaced_heights(cfg["height_exr"], 0.0, 1.0, "nodes")
 if cfg.get("height_png"):
     z, _ = displaced_heights(cfg["height_png"], cfg["png_midlevel"], cfg["png_scale"])
     out["displace_png"] = z
