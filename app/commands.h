@@ -14,5 +14,6 @@ void AddReconstructCommand(CLI::App* app);  // cmd_reconstruct.cc
 void AddExportCommand(CLI::App* app);       // cmd_export.cc
 void AddBrdfCommand(CLI::App* app);         // cmd_brdf.cc
 void AddRenderCommand(CLI::App* app);       // cmd_render.cc
+void AddCaptureCommand(CLI::App* app);      // cmd_capture.cc
 
 }  // namespace mesoscan

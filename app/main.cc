@@ -25,6 +25,7 @@ int main(int argc, char** argv) {
     if (verbose) SetLogLevel(LogLevel::kDebug);
   });
 
+  AddCaptureCommand(&app);
   AddSimulateCommand(&app);
   AddReconstructCommand(&app);
   AddExportCommand(&app);

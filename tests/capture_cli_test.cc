@@ -3,11 +3,15 @@
 
 #include <gtest/gtest.h>
 
+#include <fstream>
 #include <random>
 
+#include "capture/lens_shifter_sim.h"
 #include "capture/patterns.h"
 #include "capture/raw_frame.h"
+#include "capture/sequencer.h"
 #include "capture/session.h"
+#include "capture/xvfb_server_test_util.h"
 #include "core/image_io.h"
 #include "heightfield/frames.h"
 #include "tests/cli_util.h"
@@ -86,6 +90,150 @@ TEST(CaptureCli, DngSessionPassesCheckAndDecodesToBinnedBlackSubtractedFrames) {
       }
   EXPECT_LE(max_err_codes, 0.5 + 1e-3);  // one rounding to 16 bits
   fs::remove_all(dir);
+}
+
+TEST(CaptureCli, DoctorReportsOpenCvEmbreeAndLibRaw) {
+  const CliResult r = RunMesoscan("doctor --display :9999");
+  EXPECT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("  OpenCV 4."), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  Embree 3."), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  LibRaw 0."), std::string::npos) << r.output;
+}
+
+std::string ReadFile(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+int Lines(const std::string& text) {
+  int n = 0;
+  for (char c : text) n += c == '\n';
+  return n;
+}
+
+// `mesoscan capture` with the real projector window (Xvfb), the real serial driver against the
+// simulated controller on a pty (in this process), and the screen camera.
+class CaptureCommand : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { server_ = new XvfbServer(); }
+  static void TearDownTestSuite() {
+    delete server_;
+    server_ = nullptr;
+  }
+  void SetUp() override {
+    if (server_->display().empty()) GTEST_SKIP() << "Xvfb not available";
+    dir_ = CliTempDir("capture_cli", "capture");
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    // Rig: projector 64 x 48, camera 32 x 24, shifter over [-2048, 2048).
+    Session s;
+    s.rig.camera.width = 32;
+    s.rig.camera.height = 24;
+    s.rig.camera.K << 100, 0, 15.5, 0, 100, 11.5, 0, 0, 1;
+    s.rig.camera.world_from_device.rotation = Eigen::Vector3d(1, -1, -1).asDiagonal();
+    s.rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
+    s.rig.projector.width = 64;
+    s.rig.projector.height = 48;
+    s.rig.projector.K << 200, 0, 31.5, 0, 200, 23.5, 0, 0, 1;
+    s.rig.projector.world_from_device = s.rig.camera.world_from_device;
+    s.rig.projector.world_from_device.translation = Vec3d(0.05, 0, 0.25);
+    s.rig.lens_shifter = LensShifter{'x', 2048, {-2048, 2048}};
+    s.frames = {Frame{"frames/white.png", Pattern{}, 0}};
+    std::ofstream(dir_ / "rig.json") << Json{{"rig", SessionToJson(s)["rig"]}}.dump(2);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  // `-q capture` of the test rig into dir_/name with extra arguments.
+  CliResult Capture(const std::string& name, const std::string& extra,
+                    const std::string& camera = "screen") {
+    return RunMesoscan("-q capture --out " + (dir_ / name).string() + " --rig " +
+                       (dir_ / "rig.json").string() + " --camera " + camera + " --shifter " +
+                       sim_.Port() + " --display " + server_->display() +
+                       " --periods 7,11 --ls-frames 4 --settle 0 " + extra);
+  }
+
+  static XvfbServer* server_;
+  fs::path dir_;
+  LensShifterSim sim_;
+};
+XvfbServer* CaptureCommand::server_ = nullptr;
+
+TEST_F(CaptureCommand, ResumedCaptureEqualsAnUninterruptedOneAndPassesCheck) {
+  const CliResult whole = Capture("whole", "");
+  ASSERT_EQ(whole.code, 0) << whole.output;
+  EXPECT_EQ(sim_.position(), 0);  // back at the neutral position
+  const CliResult check = RunMesoscan("check " + (dir_ / "whole").string());
+  EXPECT_EQ(check.code, 0) << check.output;
+
+  // Stopped after 5 frames, then resumed: the same session.
+  const CliResult part = Capture("parts", "--max-frames 5");
+  ASSERT_EQ(part.code, 0) << part.output;
+  EXPECT_NE(part.output.find("5 of 12 frames (0 reused, 5 captured)"), std::string::npos)
+      << part.output;
+  EXPECT_FALSE(fs::exists(dir_ / "parts" / "session.json"));
+  EXPECT_TRUE(fs::exists(dir_ / "parts" / kCaptureJournal));
+  const CliResult rest = Capture("parts", "");
+  ASSERT_EQ(rest.code, 0) << rest.output;
+  EXPECT_NE(rest.output.find("12 of 12 frames (5 reused, 7 captured)"), std::string::npos)
+      << rest.output;
+  EXPECT_EQ(RunMesoscan("check " + (dir_ / "parts").string()).code, 0);
+  const Session a = ReadSession(dir_ / "whole"), b = ReadSession(dir_ / "parts");
+  Json ja = SessionToJson(a), jb = SessionToJson(b);
+  ja.erase("created");
+  jb.erase("created");
+  EXPECT_EQ(ja, jb);
+  ASSERT_EQ(a.frames.size(), 12u);
+  for (size_t i = 0; i < a.frames.size(); ++i)
+    EXPECT_EQ(ReadFile(a.FramePath(i)), ReadFile(b.FramePath(i))) << a.frames[i].file;
+  EXPECT_FALSE(fs::exists(dir_ / "parts" / kCaptureJournal));
+
+  // A completed session is not overwritten without --force.
+  const std::string manifest = ReadFile(dir_ / "whole" / "session.json");
+  const CliResult again = Capture("whole", "");
+  EXPECT_EQ(again.code, 2) << again.output;
+  EXPECT_EQ(Lines(again.output), 1) << again.output;
+  EXPECT_NE(again.output.find("pass --force"), std::string::npos) << again.output;
+  EXPECT_EQ(ReadFile(dir_ / "whole" / "session.json"), manifest);
+  EXPECT_EQ(Capture("whole", "--force").code, 0);
+}
+
+TEST_F(CaptureCommand, RawCameraSessionPassesCheck) {
+  const CliResult r = Capture("dng", "--no-white", "screen-dng");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const Session s = ReadSession(dir_ / "dng");
+  EXPECT_EQ(s.frames.front().file, "frames/ps7_0.dng");
+  const CliResult check = RunMesoscan("check " + (dir_ / "dng").string());
+  EXPECT_EQ(check.code, 0) << check.output;
+}
+
+TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
+  struct Case {
+    std::string args, mentions;
+  };
+  const std::string rig = (dir_ / "rig.json").string();
+  const std::string out = (dir_ / "bad").string();
+  const Case cases[] = {
+      {"--camera screen --shifter /dev/nonexistent-tty --display " + server_->display(),
+       "/dev/nonexistent-tty"},
+      {"--camera screen --shifter " + sim_.Port() + " --display :9999", ":9999"},
+      {"--camera gphoto2:NoSuchCamera --shifter " + sim_.Port() + " --display " +
+           server_->display(),
+       "camera"},
+  };
+  for (const Case& c : cases) {
+    const CliResult r = RunMesoscan("-q capture --out " + out + " --rig " + rig + " " + c.args);
+    EXPECT_EQ(r.code, 4) << c.args << ": " << r.output;
+    EXPECT_EQ(Lines(r.output), 1) << c.args << ": " << r.output;
+    EXPECT_NE(r.output.find(c.mentions), std::string::npos) << c.args << ": " << r.output;
+  }
+  // Lens-shift frames without a shifter, or a bad --periods: usage errors (2).
+  const CliResult no_shifter = RunMesoscan("-q capture --out " + out + " --rig " + rig +
+                                           " --camera screen --display " + server_->display());
+  EXPECT_EQ(no_shifter.code, 2) << no_shifter.output;
+  const CliResult bad_periods =
+      RunMesoscan("-q capture --out " + out + " --rig " + rig + " --periods 7,x --camera screen");
+  EXPECT_EQ(bad_periods.code, 2) << bad_periods.output;
+  EXPECT_NE(bad_periods.output.find("--periods"), std::string::npos) << bad_periods.output;
 }
 
 }  // namespace
