@@ -51,6 +51,13 @@ constexpr double kEvalRadius = 0.5;
 // Largest Newton step in eps' (the main lobe of the objective is ~pi / 2 wide in eps').
 constexpr double kMaxStep = 0.25;
 constexpr int kMaxGridHalf = 64;
+// Fixed frequency (fit_frequency == false, the pipeline's second pass): a grid kFineFactor times
+// finer, so |eps'| <= kRadius / kFineFactor = 0.011 and moments to order kFineOrder suffice
+// (truncation 0.011^4 / 4! = 6e-10 relative, below the 4-parameter tables' 5.5e-9): half the
+// basis rows per pixel.
+constexpr int kFineFactor = 32;
+constexpr int kFineOrder = 3;
+constexpr int kFineMoments = 2 * (kFineOrder + 1);
 constexpr int kStackSamples = 512;
 // Accepting a fit needs a / d above float rounding of a constant profile (6e-8 per sample).
 constexpr double kMinRelativeAmplitude = 1e-5;
@@ -358,6 +365,10 @@ struct LensShiftBatchFitter::Tables {
   // and double (the accumulation type is an option).
   std::vector<Eigen::Matrix<float, kMoments, Eigen::Dynamic, Eigen::RowMajor>> basis_f;
   std::vector<Eigen::Matrix<double, kMoments, Eigen::Dynamic, Eigen::RowMajor>> basis_d;
+  // Fine tables (fixed frequency only): kFineMoments rows per grid point instead.
+  bool fine = false;
+  std::vector<Eigen::Matrix<float, kFineMoments, Eigen::Dynamic, Eigen::RowMajor>> fine_f;
+  std::vector<Eigen::Matrix<double, kFineMoments, Eigen::Dynamic, Eigen::RowMajor>> fine_d;
   // Per grid point: Horner coefficients in eps' of sum e^{i (w_j + eps) x} and of
   // sum e^{2 i (w_j + eps) x}.
   std::vector<std::array<Cd, kGramOrder + 1>> e1, e2;
@@ -464,10 +475,11 @@ Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
 
 // Moments of the centred profile y at grid point gi: Horner coefficients i^m W_m / m! and
 // y0 = sum y.
-template <typename Scalar, typename Basis>
+// kRows basis rows (orders 0 .. kRows / 2 - 1); higher coefficients are 0.
+template <typename Scalar, int kRows, typename Basis>
 void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder + 1>* z_coef) {
   const Eigen::Map<const Eigen::Matrix<Scalar, Eigen::Dynamic, 1>> yv(y, n);
-  const Eigen::Matrix<Scalar, kMoments, 1> w = basis * yv;
+  const Eigen::Matrix<Scalar, kRows, 1> w = basis * yv;
   // i^m W_m / m! with i^m applied as a rotation (no complex multiply).
   constexpr std::array<double, kOrder + 1> kInvFact = [] {
     std::array<double, kOrder + 1> f{};
@@ -478,7 +490,8 @@ void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder +
     }
     return f;
   }();
-  for (int m = 0; m <= kOrder; ++m) {
+  for (int m = kRows / 2; m <= kOrder; ++m) (*z_coef)[m] = 0.0;
+  for (int m = 0; m < kRows / 2; ++m) {
     const double re = kInvFact[m] * w(2 * m), im = kInvFact[m] * w(2 * m + 1);
     switch (m & 3) {
       case 0: (*z_coef)[m] = Cd(re, im); break;
@@ -518,10 +531,18 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   double eps = two_pi_x * (f_start - (f0 + j * t.h));
   std::array<Cd, kOrder + 1> z_coef;
   auto moments = [&](int jj) {
-    if constexpr (std::is_same_v<Scalar, float>)
-      Moments<float>(t.basis_f[jj + t.grid_half], y, n, &z_coef);
-    else
-      Moments<double>(t.basis_d[jj + t.grid_half], y, n, &z_coef);
+    const int g = jj + t.grid_half;
+    if constexpr (std::is_same_v<Scalar, float>) {
+      if (t.fine)
+        Moments<float, kFineMoments>(t.fine_f[g], y, n, &z_coef);
+      else
+        Moments<float, kMoments>(t.basis_f[g], y, n, &z_coef);
+    } else {
+      if (t.fine)
+        Moments<double, kFineMoments>(t.fine_d[g], y, n, &z_coef);
+      else
+        Moments<double, kMoments>(t.basis_d[g], y, n, &z_coef);
+    }
   };
   moments(j);
   const double nd = n;
@@ -609,27 +630,32 @@ int GatherFinite(const float* b, int stride, const double* x, int n, std::vector
   return static_cast<int>(bf->size());
 }
 
+// fine: the fixed-frequency tables (a finer grid, fewer moments); only for fit_frequency false.
 std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vector<double>& x,
                                                                 double f0,
-                                                                const LensShiftFitOptions& o) {
+                                                                const LensShiftFitOptions& o,
+                                                                bool fine = false) {
   auto t = std::make_shared<LensShiftBatchFitter::Tables>();
   const int n = static_cast<int>(x.size());
   t->n = n;
   double xmax = 0.0;
   for (double v : x) xmax = std::max(xmax, std::abs(v));
   t->x_scale = xmax > 0.0 ? xmax : 1.0;
-  t->h = kRadius / (kPi * t->x_scale);
+  t->fine = fine;
+  const int factor = fine ? kFineFactor : 1;
+  t->h = kRadius / (kPi * t->x_scale) / factor;
   const double span = o.max_frequency_deviation * std::abs(f0);
-  t->grid_half = std::min(kMaxGridHalf, static_cast<int>(std::ceil(span / t->h)) + 1);
+  t->grid_half = std::min(kMaxGridHalf * factor, static_cast<int>(std::ceil(span / t->h)) + 1);
   const int grid = 2 * t->grid_half + 1;
-  t->basis_f.resize(grid);
-  t->basis_d.resize(grid);
+  t->basis_f.resize(fine ? 0 : grid);
+  t->basis_d.resize(fine ? 0 : grid);
+  t->fine_f.resize(fine ? grid : 0);
+  t->fine_d.resize(fine ? grid : 0);
   t->e1.resize(grid);
   t->e2.resize(grid);
+  Eigen::Matrix<double, kMoments, Eigen::Dynamic, Eigen::RowMajor> bd(kMoments, n);
   for (int g = 0; g < grid; ++g) {
     const double fj = f0 + (g - t->grid_half) * t->h;
-    auto& bd = t->basis_d[g];
-    bd.resize(kMoments, n);
     std::array<Cd, kGramOrder + 1> p1{}, p2{};  // sum t^m e^{i w x}, sum t^m e^{2 i w x}
     for (int k = 0; k < n; ++k) {
       const double tk = x[k] / t->x_scale;
@@ -647,7 +673,13 @@ std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vecto
         tm *= tk;
       }
     }
-    t->basis_f[g] = bd.cast<float>();
+    if (fine) {
+      t->fine_d[g] = bd.topRows<kFineMoments>();
+      t->fine_f[g] = t->fine_d[g].cast<float>();
+    } else {
+      t->basis_d[g] = bd;
+      t->basis_f[g] = bd.cast<float>();
+    }
     // Horner coefficients: sum e^{i (w + eps) x} = sum_m (i eps')^m / m! P_m, and with 2 i eps'
     // for the doubled frequency.
     double inv_fact = 1.0;
@@ -732,7 +764,8 @@ LensShiftBatchFitter::LensShiftBatchFitter(std::vector<double> x, double f0,
     if (!std::isfinite(v)) MESOSCAN_BAD_INPUT("lens-shift fit: a shift position is not finite");
   if (!(std::isfinite(f0_) && f0_ != 0.0))
     MESOSCAN_BAD_INPUT("lens-shift fit: nominal frequency " << f0_ << " must be finite and != 0");
-  if (options_.fitter == LensShiftFitter::kFast) tables_ = BuildTables(x_, f0_, options_);
+  if (options_.fitter == LensShiftFitter::kFast)
+    tables_ = BuildTables(x_, f0_, options_, /*fine=*/!options_.fit_frequency);
 }
 
 LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride) const {
