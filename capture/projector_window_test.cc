@@ -20,19 +20,7 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-class ProjectorWindowTest : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() { server_ = new XvfbServer(); }
-  static void TearDownTestSuite() {
-    delete server_;
-    server_ = nullptr;
-  }
-  void SetUp() override {
-    if (server_->display().empty()) GTEST_SKIP() << "Xvfb not available";
-  }
-  static XvfbServer* server_;
-};
-XvfbServer* ProjectorWindowTest::server_ = nullptr;
+class ProjectorWindowTest : public XvfbTest {};
 
 // Every screenshot pixel is the pattern's displayed value quantised to 8 bits, on R = G = B.
 void ExpectShows(const ImageU8& shot, const Pattern& pattern) {

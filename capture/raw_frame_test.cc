@@ -9,6 +9,7 @@
 
 #include "capture/patterns.h"
 #include "capture/session.h"
+#include "capture/xvfb_server_test_util.h"
 #include "core/error.h"
 #include "core/image_io.h"
 
@@ -128,16 +129,7 @@ TEST_F(RawFrameTest, DngSessionPassesTheReaderAndDecodes) {
   s.root = dir_;
   s.created = "2026-11-21T12:00:00Z";
   s.object = "dng session";
-  s.rig.camera.width = 12;  // sensor 24 x 22: LibRaw's minimum is 22 x 22
-  s.rig.camera.height = 11;
-  s.rig.camera.K << 100, 0, 5.5, 0, 100, 5, 0, 0, 1;
-  s.rig.camera.world_from_device.rotation = Eigen::Vector3d(1, -1, -1).asDiagonal();
-  s.rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
-  s.rig.projector.width = 60;
-  s.rig.projector.height = 40;
-  s.rig.projector.K << 200, 0, 29.5, 0, 200, 19.5, 0, 0, 1;
-  s.rig.projector.world_from_device = s.rig.camera.world_from_device;
-  s.rig.projector.world_from_device.translation = Vec3d(0.05, 0, 0.25);
+  s.rig = SmallTestRig(12, 11, 60, 40, false);  // sensor 24 x 22: LibRaw's minimum is 22 x 22
   FramePlanOptions plan;
   plan.periods_px = {7, 11};
   plan.lens_shift_frames = 0;

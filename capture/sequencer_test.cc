@@ -27,17 +27,7 @@ Session Plan(const fs::path& root) {
   Session s;
   s.root = root;
   s.object = "sequencer test";
-  s.rig.camera.width = kCamW;
-  s.rig.camera.height = kCamH;
-  s.rig.camera.K << 100, 0, 15.5, 0, 100, 11.5, 0, 0, 1;
-  s.rig.camera.world_from_device.rotation = Eigen::Vector3d(1, -1, -1).asDiagonal();
-  s.rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
-  s.rig.projector.width = kProjW;
-  s.rig.projector.height = kProjH;
-  s.rig.projector.K << 200, 0, 31.5, 0, 200, 23.5, 0, 0, 1;
-  s.rig.projector.world_from_device = s.rig.camera.world_from_device;
-  s.rig.projector.world_from_device.translation = Vec3d(0.05, 0, 0.25);
-  s.rig.lens_shifter = LensShifter{'x', 2048, {-2048, 2048}};
+  s.rig = SmallTestRig(kCamW, kCamH, kProjW, kProjH, true);
   FramePlanOptions plan;
   plan.periods_px = {7, 11};
   plan.lens_shift_frames = 4;
@@ -66,19 +56,15 @@ std::string ReadFile(const fs::path& p) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
-class SequencerTest : public ::testing::Test {
+class SequencerTest : public XvfbTest {
  protected:
-  static void SetUpTestSuite() { server_ = new XvfbServer(); }
-  static void TearDownTestSuite() {
-    delete server_;
-    server_ = nullptr;
-  }
   void SetUp() override {
-    if (server_->display().empty()) GTEST_SKIP() << "Xvfb not available";
+    XvfbTest::SetUp();
+    if (IsSkipped()) return;
     dir_ = fs::temp_directory_path() / ("mesoscan_sequencer_test_" + std::to_string(getpid()));
     fs::remove_all(dir_);
     ProjectorWindowOptions po;
-    po.display = server_->display();
+    po.display = display();
     po.width = kProjW;
     po.height = kProjH;
     projector_ = MakeWindowProjector(po);
@@ -89,7 +75,9 @@ class SequencerTest : public ::testing::Test {
     shifter_ = MakeSerialShifter(so);
     options_.settle_s = 0.0;
   }
-  void TearDown() override { fs::remove_all(dir_); }
+  void TearDown() override {
+    if (!dir_.empty()) fs::remove_all(dir_);
+  }
 
   SequencerSummary Run(const fs::path& root, CameraDevice& camera,
                        const SequencerOptions& options) {
@@ -110,14 +98,12 @@ class SequencerTest : public ::testing::Test {
     EXPECT_FALSE(fs::exists(b / kCaptureJournal));
   }
 
-  static XvfbServer* server_;
   fs::path dir_;
   LensShifterSim sim_;
   std::unique_ptr<ProjectorDevice> projector_;
   std::unique_ptr<ShifterDevice> shifter_;
   SequencerOptions options_;
 };
-XvfbServer* SequencerTest::server_ = nullptr;
 
 TEST_F(SequencerTest, CapturesWhatTheProjectorShowsUnderTheSpecNames) {
   auto camera = MakeScreenCamera(*projector_, kCamW, kCamH, false);

@@ -1,8 +1,9 @@
 #pragma once
-// A private X server (Xvfb) for tests that open the projector window (capture/projector_window.h):
-// the capture unit tests and the `mesoscan capture` CLI test.
+// Test helpers of the capture module (capture unit tests and the `mesoscan capture` CLI test): a
+// private X server (Xvfb) for the projector window, and a small valid rig.
 
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -14,6 +15,7 @@
 #include <thread>
 
 #include "capture/projector_window.h"
+#include "capture/session.h"
 
 namespace mesoscan {
 
@@ -68,5 +70,40 @@ class XvfbServer {
   pid_t pid_ = -1;
   std::string display_;
 };
+
+// A GoogleTest fixture base: one Xvfb server per test suite (display()); a test skips when Xvfb
+// is not installed.
+class XvfbTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { server_ = new XvfbServer(); }
+  static void TearDownTestSuite() {
+    delete server_;
+    server_ = nullptr;
+  }
+  void SetUp() override {
+    if (server_->display().empty()) GTEST_SKIP() << "Xvfb not available";
+  }
+  static const std::string& display() { return server_->display(); }
+  static inline XvfbServer* server_ = nullptr;
+};
+
+// A small valid rig for tests: camera (fx = fy = 100) and projector (fx = fy = 200) looking
+// straight down from 0.25 m, 5 cm apart, principal points at the image centres; an optional lens
+// shifter along x, 2048 steps per px over [-2048, 2048).
+inline Rig SmallTestRig(int cam_w, int cam_h, int proj_w, int proj_h, bool lens_shifter) {
+  Rig rig;
+  rig.camera.width = cam_w;
+  rig.camera.height = cam_h;
+  rig.camera.K << 100, 0, (cam_w - 1) / 2.0, 0, 100, (cam_h - 1) / 2.0, 0, 0, 1;
+  rig.camera.world_from_device.rotation = Eigen::Vector3d(1, -1, -1).asDiagonal();
+  rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
+  rig.projector.width = proj_w;
+  rig.projector.height = proj_h;
+  rig.projector.K << 200, 0, (proj_w - 1) / 2.0, 0, 200, (proj_h - 1) / 2.0, 0, 0, 1;
+  rig.projector.world_from_device = rig.camera.world_from_device;
+  rig.projector.world_from_device.translation = Vec3d(0.05, 0, 0.25);
+  if (lens_shifter) rig.lens_shifter = LensShifter{'x', 2048, {-2048, 2048}};
+  return rig;
+}
 
 }  // namespace mesoscan

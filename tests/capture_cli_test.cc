@@ -27,16 +27,7 @@ Session RawSession(const fs::path& root) {
   s.root = root;
   s.created = "2026-11-21T12:00:00Z";
   s.object = "raw session";
-  s.rig.camera.width = 12;
-  s.rig.camera.height = 11;
-  s.rig.camera.K << 100, 0, 5.5, 0, 100, 5, 0, 0, 1;
-  s.rig.camera.world_from_device.rotation = Eigen::Vector3d(1, -1, -1).asDiagonal();
-  s.rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
-  s.rig.projector.width = 60;
-  s.rig.projector.height = 40;
-  s.rig.projector.K << 200, 0, 29.5, 0, 200, 19.5, 0, 0, 1;
-  s.rig.projector.world_from_device = s.rig.camera.world_from_device;
-  s.rig.projector.world_from_device.translation = Vec3d(0.05, 0, 0.25);
+  s.rig = SmallTestRig(12, 11, 60, 40, false);
   FramePlanOptions plan;
   plan.periods_px = {7, 11};
   plan.lens_shift_frames = 0;
@@ -113,50 +104,36 @@ int Lines(const std::string& text) {
 
 // `mesoscan capture` with the real projector window (Xvfb), the real serial driver against the
 // simulated controller on a pty (in this process), and the screen camera.
-class CaptureCommand : public ::testing::Test {
+class CaptureCommand : public XvfbTest {
  protected:
-  static void SetUpTestSuite() { server_ = new XvfbServer(); }
-  static void TearDownTestSuite() {
-    delete server_;
-    server_ = nullptr;
-  }
   void SetUp() override {
-    if (server_->display().empty()) GTEST_SKIP() << "Xvfb not available";
+    XvfbTest::SetUp();
+    if (IsSkipped()) return;
     dir_ = CliTempDir("capture_cli", "capture");
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     // Rig: projector 64 x 48, camera 32 x 24, shifter over [-2048, 2048).
     Session s;
-    s.rig.camera.width = 32;
-    s.rig.camera.height = 24;
-    s.rig.camera.K << 100, 0, 15.5, 0, 100, 11.5, 0, 0, 1;
-    s.rig.camera.world_from_device.rotation = Eigen::Vector3d(1, -1, -1).asDiagonal();
-    s.rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
-    s.rig.projector.width = 64;
-    s.rig.projector.height = 48;
-    s.rig.projector.K << 200, 0, 31.5, 0, 200, 23.5, 0, 0, 1;
-    s.rig.projector.world_from_device = s.rig.camera.world_from_device;
-    s.rig.projector.world_from_device.translation = Vec3d(0.05, 0, 0.25);
-    s.rig.lens_shifter = LensShifter{'x', 2048, {-2048, 2048}};
+    s.rig = SmallTestRig(32, 24, 64, 48, true);
     s.frames = {Frame{"frames/white.png", Pattern{}, 0}};
     std::ofstream(dir_ / "rig.json") << Json{{"rig", SessionToJson(s)["rig"]}}.dump(2);
   }
-  void TearDown() override { fs::remove_all(dir_); }
+  void TearDown() override {
+    if (!dir_.empty()) fs::remove_all(dir_);
+  }
 
   // `-q capture` of the test rig into dir_/name with extra arguments.
   CliResult Capture(const std::string& name, const std::string& extra,
                     const std::string& camera = "screen") {
     return RunMesoscan("-q capture --out " + (dir_ / name).string() + " --rig " +
                        (dir_ / "rig.json").string() + " --camera " + camera + " --shifter " +
-                       sim_.Port() + " --display " + server_->display() +
+                       sim_.Port() + " --display " + display() +
                        " --periods 7,11 --ls-frames 4 --settle 0 " + extra);
   }
 
-  static XvfbServer* server_;
   fs::path dir_;
   LensShifterSim sim_;
 };
-XvfbServer* CaptureCommand::server_ = nullptr;
 
 TEST_F(CaptureCommand, ResumedCaptureEqualsAnUninterruptedOneAndPassesCheck) {
   const CliResult whole = Capture("whole", "");
@@ -213,11 +190,10 @@ TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
   const std::string rig = (dir_ / "rig.json").string();
   const std::string out = (dir_ / "bad").string();
   const Case cases[] = {
-      {"--camera screen --shifter /dev/nonexistent-tty --display " + server_->display(),
+      {"--camera screen --shifter /dev/nonexistent-tty --display " + display(),
        "/dev/nonexistent-tty"},
       {"--camera screen --shifter " + sim_.Port() + " --display :9999", ":9999"},
-      {"--camera gphoto2:NoSuchCamera --shifter " + sim_.Port() + " --display " +
-           server_->display(),
+      {"--camera gphoto2:NoSuchCamera --shifter " + sim_.Port() + " --display " + display(),
        "camera"},
   };
   for (const Case& c : cases) {
@@ -228,7 +204,7 @@ TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
   }
   // Lens-shift frames without a shifter, or a bad --periods: usage errors (2).
   const CliResult no_shifter = RunMesoscan("-q capture --out " + out + " --rig " + rig +
-                                           " --camera screen --display " + server_->display());
+                                           " --camera screen --display " + display());
   EXPECT_EQ(no_shifter.code, 2) << no_shifter.output;
   const CliResult bad_periods =
       RunMesoscan("-q capture --out " + out + " --rig " + rig + " --periods 7,x --camera screen");
