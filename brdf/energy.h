@@ -8,8 +8,8 @@
 // light off such a surface creates energy.
 //
 // EnergyClamp holds, on a grid of outgoing elevations, the albedo the file has (the original
-// figures, for `mesoscan brdf info`) and the per-channel factor min(1, 0.998 / rho) the model
-// applies, linear in theta between grid points (0.998: a margin for the estimate's own error and
+// figures, for `mesoscan brdf info`) and the per-channel factor min(1, 0.997 / rho) the model
+// applies, linear in theta between grid points (0.997: a margin for the estimate's own error and
 // the interpolation, see energy.cc); a file whose albedo stays <= 1 is left untouched. The grid
 // contains the file's own incident slices plus points between them, because interpolating between
 // two slices can give more albedo than either slice has (satin: 1.09 at the 78.7 and 90 deg
@@ -26,7 +26,7 @@ namespace mesoscan {
 struct EnergyClamp {
   std::vector<double> theta;   // outgoing elevations (radians), ascending
   std::vector<Rgb> albedo;     // estimated directional albedo per channel, before the clamp
-  std::vector<Rgb> scale;      // per channel min(1, 0.998 / albedo) where some albedo > 1, else 1
+  std::vector<Rgb> scale;      // per channel min(1, 0.997 / albedo) where some albedo > 1, else 1
   std::vector<bool> is_slice;  // grid point is one of the file's own incident slices
   std::string slice_noun = "incident slices";  // what Summary() calls them
   bool exceeds = false;                        // some albedo > 1
@@ -40,7 +40,7 @@ struct EnergyClamp {
   int Slices() const;         // the file's incident slices on the grid
   int SlicesClamped() const;  // ... whose albedo exceeds 1 in some channel
   // One line for `brdf info` / the load warning, e.g. "energy clamped: 2 of 8 incident slices
-  // (theta_o 75.0-90.0 deg scaled), max albedo before 1.155 at 85.8 deg (R), after 0.998" or
+  // (theta_o 75.0-90.0 deg scaled), max albedo before 1.155 at 85.8 deg (R), after 0.997" or
   // "energy conserving: max albedo 0.995 at 68.0 deg (B), no clamp", or "NOT energy-conserving (not
   // clamped): ..." when the clamp exceeds but is inactive.
   std::string Summary() const;
@@ -54,10 +54,21 @@ struct EnergyClamp {
 Rgb HalfVectorAlbedo(const std::function<Rgb(const Vec3& wo, const Vec3& wi)>& f, const Vec3& wo,
                      int n);
 
-// Builds the clamp: the albedo at every theta from `albedo_at(theta, n)` (computed in parallel),
-// with a coarse n = 48 estimate refined at n = 128 wherever a channel exceeds 0.98.
-// `albedo_at(theta, n)` must return HalfVectorAlbedo (or an equivalent) of the unclamped model.
+// Builds the clamp (in parallel over theta): a cheap screen `screen_at(theta)` (e.g. 16^2
+// stratified importance samples of the unclamped model), replaced by `albedo_at(theta, 96)`
+// (HalfVectorAlbedo of the unclamped model) wherever a channel of the screen exceeds 0.95.
 EnergyClamp BuildEnergyClamp(std::vector<double> theta, std::vector<bool> is_slice,
+                             const std::function<Rgb(double theta)>& screen_at,
                              const std::function<Rgb(double theta, int n)>& albedo_at);
+// Stratified importance-sampling estimate with n x n samples (the screen of BuildEnergyClamp).
+template <typename Model>
+Rgb StratifiedAlbedo(const Model& m, const Vec3& wo, int n) {
+  Rgb sum = Rgb::Zero();
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      if (auto s = m.Sample(wo, Vec2((i + 0.5) / n, (j + 0.5) / n)))
+        sum += s->f * s->wi.z() / s->pdf;
+  return sum / (static_cast<double>(n) * n);
+}
 
 }  // namespace mesoscan

@@ -219,6 +219,7 @@ void MerlBrdf::BuildEnergyClamp(const std::string& source) {
   const auto f = [this](const Vec3& wo, const Vec3& wi) { return RawF(wo, wi); };
   energy_ = mesoscan::BuildEnergyClamp(
       grid, std::vector<bool>(grid.size(), true),
+      [this](double theta) { return StratifiedAlbedo(*this, SphericalDirection(theta, 0.0), 16); },
       [&](double theta, int n) { return HalfVectorAlbedo(f, SphericalDirection(theta, 0.0), n); });
   energy_.slice_noun = "elevations";
   if (!options_.energy_clamp) energy_.active = false;

@@ -43,7 +43,7 @@ struct MerlOptions {
   int sampling_phi_nodes = 64;
   int sampling_wo_nodes = 24;
   // Energy clamp (brdf/energy.h): where the table's directional albedo exceeds 1 in a channel, f is
-  // scaled by min(s(theta_o), s(theta_i)) with s = min(1, 0.998 / albedo), which keeps f reciprocal
+  // scaled by min(s(theta_o), s(theta_i)) with s = min(1, 0.997 / albedo), which keeps f reciprocal
   // and bounds the albedo by 1. One warning line names the file. false keeps the values as they
   // are. LoadBrdf passes it on to RGL files too.
   bool energy_clamp = true;

@@ -183,61 +183,43 @@ TEST_F(MerlTest, WhiteFurnaceForEveryWo) {
   EXPECT_LT(loaded_->energy().MaxAlbedo(), 1.0);
 }
 
-// A user's table that reflects more than it receives (GGX copper plus a Lambertian base of albedo
-// 0.5: ~1.4 at normal incidence) is clamped at load: the original figures are kept, the furnace
-// holds at every wo, f stays reciprocal, and the clamp can be turned off.
+// A user's table that reflects more than it receives (Lambertian, albedo 1.3 / 1.2 / 1.1: known
+// exactly) is clamped at load: the original figures are kept, every channel ends at albedo 0.997
+// (f = 0.997 / pi), the furnace holds at every wo and f stays reciprocal. A Lambertian table keeps
+// the test ASan-fast; the clamp does not depend on the shape of f.
 TEST_F(MerlTest, EnergyClampOfAnOverBrightTable) {
-  const auto bright = [](const Vec3& wo, const Vec3& wi) {
-    return Rgb(ggx_->f(wo, wi) + LambertBrdf(Rgb::Constant(0.5)).f(wo, wi));
-  };
-  MerlOptions small;  // a coarse sampling table keeps the test fast; the clamp does not use it
-  small.sampling_theta_nodes = small.sampling_phi_nodes = 32;
-  small.sampling_wo_nodes = 12;
-  const auto t = MerlBrdf::Tabulate(bright, small);
+  const Rgb albedo(1.3, 1.2, 1.1);
+  const auto t = MerlBrdf::Tabulate(
+      [&](const Vec3& wo, const Vec3& wi) { return LambertBrdf(albedo).f(wo, wi); });
   const EnergyClamp& e = t->energy();
   ASSERT_TRUE(e.exceeds);
   EXPECT_TRUE(e.active);
-  double deg = 0;
-  // Independent check of the original figure: a plain (theta, phi) midpoint quadrature of the
-  // unclamped analytic model at the reported elevation.
-  const double before = e.MaxAlbedo(&deg);
-  const Vec3 wo = SphericalDirection(deg * kPi / 180, 0.0);
-  Rgb quad = Rgb::Zero();
-  const int nt = 400, np = 400;
-  for (int i = 0; i < nt; ++i)
-    for (int j = 0; j < np; ++j) {
-      const double th = (i + 0.5) / nt * kPi / 2, ph = (j + 0.5) / np * 2 * kPi;
-      const Vec3 wi = SphericalDirection(th, ph);
-      quad += bright(wo, wi) * wi.z() * std::sin(th) * (kPi / 2 / nt) * (2 * kPi / np);
-    }
-  EXPECT_NEAR(before, quad.maxCoeff(), 0.01 * before) << "at " << deg << " deg";
-  EXPECT_GT(before, 1.3);
-  EXPECT_NE(e.Summary().find("energy clamped"), std::string::npos) << e.Summary();
+  // Original figures: the exact albedo, up to the 96^2 quadrature (0.3%) and the table's
+  // below-horizon nodes at grazing elevations.
+  for (size_t i = 0; i < e.theta.size(); ++i) {
+    if (e.theta[i] >= 80 * kPi / 180) continue;
+    for (int c = 0; c < 3; ++c) ASSERT_NEAR(e.albedo[i][c], albedo[c], 0.005 * albedo[c]) << i;
+  }
+  EXPECT_NE(e.Summary().find("energy clamped: 61 of 61 elevations"), std::string::npos)
+      << e.Summary();
   std::printf("%s\n", e.Summary().c_str());
-
+  std::mt19937 rng(5);
+  for (int i = 0; i < 300; ++i) {
+    const Vec3 a = RandomUpperDirection(rng, 0.3), b = RandomUpperDirection(rng, 0.3);
+    const Rgb fab = t->f(a, b), fba = t->f(b, a);
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_NEAR(fab[c], fba[c], 1e-6 * (1 + fab[c]));
+      ASSERT_NEAR(fab[c], 0.997 * kInvPi, 0.005 * kInvPi) << "channel " << c;
+    }
+  }
   const auto thetas = testing::FurnaceElevationsDeg();
   const double z = testing::NormalUpperQuantile(0.01 / (thetas.size() * 3));
-  const auto r = testing::SweepFurnace(*t, thetas, 1000 * kSampleScale, 900);
+  const auto r = testing::SweepFurnace(*t, thetas, 500 * kSampleScale, 900);
   EXPECT_LE(r.worst_z, z) << r.worst_albedo << " +- " << r.worst_se << " at theta_o "
                           << r.worst_theta_deg;
-  EXPECT_GT(r.worst_albedo, 0.95) << "clamped to 0.998, not darkened further";
+  EXPECT_GT(r.worst_albedo, 0.98) << "clamped to 0.997, not darkened further";
   std::printf("MERL over-bright, clamped: max albedo %.4f (SE %.4f) at theta_o %.2f\n",
               r.worst_albedo, r.worst_se, r.worst_theta_deg);
-  std::mt19937 rng(5);
-  for (int i = 0; i < 500; ++i) {
-    const Vec3 a = RandomUpperDirection(rng), b = RandomUpperDirection(rng);
-    const Rgb fab = t->f(a, b), fba = t->f(b, a);
-    for (int c = 0; c < 3; ++c) ASSERT_NEAR(fab[c], fba[c], 1e-6 * (1 + fab[c]));
-  }
-  // Without the clamp the same sweep fails: the check can fail.
-  small.energy_clamp = false;
-  const auto raw = MerlBrdf::Tabulate(bright, small);
-  EXPECT_TRUE(raw->energy().exceeds);
-  EXPECT_FALSE(raw->energy().active);
-  EXPECT_NE(raw->energy().Summary().find("NOT energy-conserving"), std::string::npos);
-  const auto r_raw = testing::SweepFurnace(*raw, thetas, 1000 * kSampleScale, 900);
-  EXPECT_GT(r_raw.worst_z, z);
-  EXPECT_GT(r_raw.worst_albedo, 1.3);
 }
 
 TEST_F(MerlTest, LoadBrdfDetectsMerl) {

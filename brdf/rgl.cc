@@ -259,8 +259,15 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path, bool energy_c
   }
   const RglBrdf& raw = *brdf;
   const auto f = [&raw](const Vec3& wo, const Vec3& wi) { return raw.f(wo, wi); };
-  EnergyClamp energy =
-      BuildEnergyClamp(std::move(grid), std::move(is_slice), [&](double theta, int n) {
+  EnergyClamp energy = BuildEnergyClamp(
+      std::move(grid), std::move(is_slice),
+      [&](double theta) {
+        Rgb a = Rgb::Zero();
+        for (double phi : raw.isotropic_ ? std::vector<double>{0.0} : phi_v)
+          a = a.max(StratifiedAlbedo(raw, SphericalDirection(theta, phi), 16));
+        return a;
+      },
+      [&](double theta, int n) {
         Rgb a = Rgb::Zero();
         for (double phi : raw.isotropic_ ? std::vector<double>{0.0} : phi_v)
           a = a.max(HalfVectorAlbedo(f, SphericalDirection(theta, phi), n));

@@ -119,6 +119,9 @@ TEST(Rgl, SatinExceedsOneInTheRawData) {
   const EnergyClamp& e = raw->energy();
   EXPECT_TRUE(e.exceeds);
   EXPECT_FALSE(e.active);
+  EXPECT_NE(e.Summary().find("NOT energy-conserving (not clamped): 2 of 8 incident slices"),
+            std::string::npos)
+      << e.Summary();
   double deg = 0;
   int ch = -1;
   const double before = e.MaxAlbedo(&deg, &ch);
@@ -127,7 +130,7 @@ TEST(Rgl, SatinExceedsOneInTheRawData) {
               deg, quad[0], quad[1], quad[2]);
   EXPECT_GT(before, 1.1);
   // The 300 x 600 plain grid under-resolves the grazing forward peak by 0.5% here (1.1485; 600 x
-  // 1200: 1.1542, 1024 x 2048: 1.1544); the clamp's 128^2 half-vector grid resolves it.
+  // 1200: 1.1542, 1024 x 2048: 1.1544); the clamp's 96^2 half-vector grid resolves it.
   EXPECT_NEAR(before, quad[ch], 0.01 * before);
   EXPECT_GT(deg, 79);
   EXPECT_LT(deg, 89);
@@ -187,7 +190,7 @@ TEST(Rgl, SatinBetweenGridPointsStaysBelowOne) {
   const auto r = testing::SweepFurnace(*b, mids, 10000 * kSampleScale, 6000, 0.0);
   EXPECT_LE(r.worst_z, z) << r.worst_albedo << " +- " << r.worst_se << " at theta_o "
                           << r.worst_theta_deg;
-  EXPECT_GT(r.worst_albedo, 0.98) << "the clamp must not darken more than its 0.2% margin";
+  EXPECT_GT(r.worst_albedo, 0.98) << "the clamp must not darken more than its 0.3% margin";
   std::printf("satin between grid points: max %.4f (SE %.4f) at %.2f deg over %zu midpoints\n",
               r.worst_albedo, r.worst_se, r.worst_theta_deg, mids.size());
 }
