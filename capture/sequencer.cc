@@ -32,15 +32,6 @@ namespace {
 
 constexpr const char* kJournalFormat = "mesoscan-capture-journal/1";
 
-std::string UtcNow() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buf;
-}
-
 std::string Hex(uint64_t v) {
   std::ostringstream oss;
   oss << std::hex << v;
@@ -223,7 +214,7 @@ SequencerSummary RunAcquisition(const Session& plan_in, CameraDevice& camera,
   } else if (!have_journal) {
     journal = Journal();
   }
-  if (journal.created.empty()) journal.created = s.created.empty() ? UtcNow() : s.created;
+  if (journal.created.empty()) journal.created = s.created.empty() ? SessionTimeNow() : s.created;
   s.created = journal.created;
 
   size_t first_missing = 0;

@@ -4,6 +4,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <ctime>
 #include <fstream>
 #include <iomanip>
 #include <limits>
@@ -693,6 +694,15 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s) {
     check_gt(s.ground_truth->height, "height", {"Z"}, false);
   }
   return infos;
+}
+
+std::string SessionTimeNow() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
 }
 
 Session ReadSession(const fs::path& dir, bool check_frames) {

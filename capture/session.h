@@ -119,6 +119,9 @@ double UnambiguousRangePx(const std::vector<double>& periods_px, double search_l
 // `check_frames` false skips opening the frame images (for fast inspection).
 Session ReadSession(const std::filesystem::path& dir, bool check_frames = true);
 
+// The current UTC time as session.json's "created" holds it: "YYYY-MM-DDTHH:MM:SSZ".
+std::string SessionTimeNow();
+
 // Opens every frame's and ground-truth file's header (in parallel, no decode) and checks it is
 // readable and camera.width x camera.height (camera raw files: twice that, see the spec).
 // Returns one ImageInfo per frame. Warns once if frames are 8-bit. Throws as ReadSession.

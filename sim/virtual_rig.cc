@@ -158,15 +158,6 @@ double StoredAsFloat(double v) {
   return f;
 }
 
-std::string UtcNow() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof(buf), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buf;
-}
-
 // 2^bits - 1 DN -> 16 bits by bit replication: reading back / 65535 gives DN / (2^bits - 1)
 // within 1 / 65535.
 uint16_t ToPng16(int dn, int bits) {
@@ -625,7 +616,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
 
     Session session;
     session.root = dir;
-    session.created = UtcNow();
+    session.created = SessionTimeNow();
     session.object = options.object_label.empty() ? object.name : options.object_label;
     session.rig = rig;
     session.frames = frames;

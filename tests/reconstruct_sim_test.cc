@@ -104,10 +104,18 @@ struct ObjectFigures {
   Scan scan;
 };
 
-// A pixel whose 3x3 ground-truth neighbourhood spans more than `step_m` in height sees (part of)
-// a depth step: the reconstruction rejects such mixed pixels (heightfield/mixed_pixels.h), so
-// coverage is also given over the single-surface pixels.
-ObjectFigures RunObject(const SimulateOptions& so, const std::string& name, double step_m) {
+// Simulates `object` (default noise) on a camera crop and reconstructs it. A pixel whose 3x3
+// ground-truth neighbourhood spans more than 20 um in height sees (part of) a depth step: the
+// reconstruction rejects such mixed pixels (heightfield/mixed_pixels.h), so coverage is also
+// given over the single-surface pixels.
+ObjectFigures RunObject(const std::string& object, const std::array<int, 4>& crop, int seed) {
+  constexpr double kStepM = 20e-6;
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = object;
+  so.crop = crop;
+  so.seed = seed;
+  const std::string& name = object;
   const fs::path dir = TempDir(name);
   Simulate(so, dir);
   const Session s = ReadSession(dir);
@@ -138,7 +146,7 @@ ObjectFigures RunObject(const SimulateOptions& so, const std::string& name, doub
           const float z = f.gt(xx, yy, 2);
           if (std::isfinite(z)) lo = std::min(lo, z), hi = std::max(hi, z);
         }
-      if (hi - lo > step_m) continue;
+      if (hi - lo > kStepM) continue;
       ++f.lit_single;
       f.covered_single += std::isfinite(f.scan.points.xyz(x, y, 2));
     }
@@ -157,12 +165,7 @@ ObjectFigures RunObject(const SimulateOptions& so, const std::string& name, doub
 // Every sheet edge is a depth step; the pixels that straddle one are rejected, not placed
 // between the sheets. Each step is recovered within 1 um (median height over the sheet).
 TEST(ReconstructSim, RampStepsWithinOneMicron) {
-  Progress::SetEnabled(false);
-  SimulateOptions so;
-  so.object = "ramp";
-  so.crop = std::array<int, 4>{580, 120, 798, 657};
-  so.seed = 5;
-  const ObjectFigures f = RunObject(so, "ramp", 20e-6);
+  const ObjectFigures f = RunObject("ramp", {580, 120, 798, 657}, 5);
   EXPECT_LT(static_cast<double>(f.gross) / f.scored, 1e-4);
   EXPECT_GE(static_cast<double>(f.covered_single) / f.lit_single, 0.99);
   // Median reconstructed height on each sheet (pixels whose ground truth is on sheet k).
@@ -192,12 +195,7 @@ TEST(ReconstructSim, RampStepsWithinOneMicron) {
 
 // The curled leaf (midrib, veins; about 1.0-1.3 mm above the mount), a crop over its middle.
 TEST(ReconstructSim, LeafWithoutGrossErrors) {
-  Progress::SetEnabled(false);
-  SimulateOptions so;
-  so.object = "leaf";
-  so.crop = std::array<int, 4>{360, 240, 908, 597};
-  so.seed = 6;
-  const ObjectFigures f = RunObject(so, "leaf", 20e-6);
+  const ObjectFigures f = RunObject("leaf", {360, 240, 908, 597}, 6);
   EXPECT_LT(static_cast<double>(f.gross) / f.scored, 1e-4);
   EXPECT_GE(f.e.coverage, 0.99);
 }
