@@ -78,11 +78,17 @@ void Run(const ReconstructArgs& a) {
     WriteJsonFile(tmp / "report.json", scan.report);
   });
   MESOSCAN_LOG(kInfo) << summary.BriefReport();
-  if (gt)
+  if (gt) {
+    std::ostringstream mixed;
+    if (gt->footprint_known)
+      mixed << " (" << gt->pixels_mixed << " lit pixels mix two surfaces or light and shadow, "
+            << gt->mixed_kept << " of them kept; coverage of the others "
+            << gt->coverage_single * 100 << "%)";
     MESOSCAN_LOG(kInfo) << "ground truth: coverage " << gt->coverage * 100 << "%, depth RMS "
                         << gt->rms_m * 1e6 << " um, median |error| " << gt->median_abs_m * 1e6
                         << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross "
-                        << gt->gross_fraction;
+                        << gt->gross_fraction << mixed.str();
+  }
   MESOSCAN_LOG(kInfo) << "scan written to " << a.out;
   if (!a.export_formats.empty()) {
     // The same exports as `mesoscan export SCAN --format ...`, from the scan in memory.

@@ -14,6 +14,11 @@ void MixedPixelOptions::Check() const {
     MESOSCAN_BAD_INPUT("outlier_footprints: expected >= 0, got " << outlier_footprints);
   if (!(shadow_edge_ratio >= 0 && shadow_edge_ratio <= 1))
     MESOSCAN_BAD_INPUT("shadow_edge_ratio: expected in [0, 1], got " << shadow_edge_ratio);
+  if (!(dim_ratio >= 0 && dim_ratio <= 1))
+    MESOSCAN_BAD_INPUT("dim_ratio: expected in [0, 1], got " << dim_ratio);
+  if (!(dim_sigmas > 0)) MESOSCAN_BAD_INPUT("dim_sigmas: expected > 0, got " << dim_sigmas);
+  if (!(dim_sharpness >= 0))
+    MESOSCAN_BAD_INPUT("dim_sharpness: expected >= 0, got " << dim_sharpness);
 }
 
 std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixelOptions& options) {
@@ -23,6 +28,7 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
   if (w <= 0 || h <= 0) return reject;
   MESOSCAN_CHECK(in.z != nullptr && in.sigma_z != nullptr);
   const bool shadow_test = options.shadow_edge_ratio > 0 && in.white && in.unlit;
+  const bool dim_test = options.dim_ratio > 0 && in.white;
   auto inside = [&](int x, int y) { return x >= 0 && y >= 0 && x < w && y < h; };
   auto index = [&](int x, int y) { return static_cast<size_t>(y) * w + x; };
   auto z_at = [&](int x, int y) { return inside(x, y) ? in.z[index(x, y)] : NAN; };
@@ -44,6 +50,10 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
         for (int axis = 0; axis < 2 && !mixed; ++axis) {
           const int dx = axis == 0, dy = axis == 1;
           int sides = 0, outlier_sides = 0, above = 0, below = 0;
+          double worst_sigmas = 0;  // largest |deviation| / sd over the two sides
+          // Each side's extrapolation at the point and its own change over one pixel.
+          double line[2] = {0, 0}, slope[2] = {0, 0}, deviation[2] = {0, 0};
+          bool has[2] = {false, false};
           for (int sgn : {-1, 1}) {
             const int x1 = x + sgn * dx, y1n = y + sgn * dy;
             const int x2 = x + 2 * sgn * dx, y2n = y + 2 * sgn * dy;
@@ -53,6 +63,12 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
             const double d = z - (2.0 * z1 - z2);
             const double sd = std::sqrt(s2p + 4.0 * s2_at(x1, y1n) + s2_at(x2, y2n));
             if (sd > 0 && std::abs(d) > options.max_sigmas * sd) (d > 0 ? above : below) += 1;
+            if (sd > 0) worst_sigmas = std::max(worst_sigmas, std::abs(d) / sd);
+            const int k = sgn > 0;
+            has[k] = true;
+            line[k] = 2.0 * z1 - z2;
+            slope[k] = std::abs(static_cast<double>(z1) - z2);
+            deviation[k] = d;
             if (options.outlier_footprints > 0 &&
                 std::abs(d) > std::max(outlier_floor, 8.0 * std::sqrt(s2p)))
               ++outlier_sides;
@@ -60,6 +76,27 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
           // Step: strictly between the two sides' extrapolations, far from both.
           if (above == 1 && below == 1) mixed = true;
           if (sides > 0 && outlier_sides == sides) mixed = true;
+          // A sharp jump: the two sides' lines are further apart at the point than the sides
+          // change over a pixel, by the factor dim_sharpness (a smooth flank, even a curved one,
+          // changes gradually); with one side, the point is further off its line than that
+          // side's own change per pixel, by the same factor.
+          const bool sharp =
+              has[0] && has[1]
+                  ? std::abs(line[1] - line[0]) > options.dim_sharpness * (slope[0] + slope[1])
+                  : (has[0] && std::abs(deviation[0]) > options.dim_sharpness * slope[0]) ||
+                        (has[1] && std::abs(deviation[1]) > options.dim_sharpness * slope[1]);
+          // Dimmed step: darker than the brighter neighbour on this axis, off a side's line, at a
+          // sharp jump.
+          if (dim_test && !mixed && worst_sigmas > options.dim_sigmas && sharp) {
+            const float wp = in.white[i];
+            float brighter = 0;
+            for (int sgn : {-1, 1}) {
+              const int xn = x + sgn * dx, yn = y + sgn * dy;
+              if (inside(xn, yn) && std::isfinite(in.white[index(xn, yn)]))
+                brighter = std::max(brighter, in.white[index(xn, yn)]);
+            }
+            if (std::isfinite(wp) && wp < options.dim_ratio * brighter) mixed = true;
+          }
           if (shadow_test && !mixed) {
             for (int sgn : {-1, 1}) {
               const int xu = x + sgn * dx, yu = y + sgn * dy;  // the unlit side

@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <vector>
 
@@ -115,6 +117,66 @@ TEST(MixedPixels, RejectsPartlyShadowedPixels) {
   EXPECT_EQ(g.Count(g.Find(off)), 0);
 }
 
+// A 40 um letter edge (the coin) with 3 um depth noise per pixel: the column that saw both levels
+// sits 20 um from each side's extrapolation, inside the step test's 3 sigma (22 um) but beyond
+// the dimmed-step test's 2.5 sigma. It goes only because it is also dimmer than its neighbours
+// (part of its footprint saw the wall); at the neighbours' white level it is kept.
+TEST(MixedPixels, RejectsADimmedStepThatTheStepTestMisses) {
+  Grid g(20, 6);
+  std::fill(g.sigma.begin(), g.sigma.end(), 3e-6f);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      g.Z(x, y) = x < 10 ? 0.0f : x == 10 ? 20e-6f : 40e-6f;
+      g.white[static_cast<size_t>(y) * g.w + x] = x == 10 && y < 3 ? 0.35f : 0.5f;
+    }
+  const auto r = g.Find();
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x)
+      EXPECT_EQ(r[static_cast<size_t>(y) * g.w + x], x == 10 && y < 3) << x << "," << y;
+  MixedPixelOptions off;
+  off.dim_ratio = 0;
+  EXPECT_EQ(g.Count(g.Find(off)), 0);
+}
+
+// A kink from a flat face onto a dim, steep flank (20 um per pixel, white 0.3 against 0.5): the
+// first flank pixel is 8 sigma off the flat side's line and dimmer than its flat neighbour, but
+// on its own side's line: the jump between the lines is no sharper than the flank itself, so it
+// is real relief and stays. Without the sharpness condition it would go.
+TEST(MixedPixels, KeepsTheKinkOntoADimFlank) {
+  Grid g(24, 6);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      g.Z(x, y) = x < 10 ? 0.0f : static_cast<float>(20e-6 * (x - 9));
+      g.white[static_cast<size_t>(y) * g.w + x] = x < 10 ? 0.5f : 0.3f;
+    }
+  EXPECT_EQ(g.Count(g.Find()), 0);
+  MixedPixelOptions any_jump;
+  any_jump.dim_sharpness = 0;
+  EXPECT_EQ(g.Count(g.Find(any_jump)), g.h);
+}
+
+// Dark albedo spots (60 % of the white level) on a smooth noisy plane agree with both sides:
+// a spot goes only when noise puts it beyond 2.5 sigma of one of its four extrapolations, ~5 %
+// of the spots (binomial: 400 spots, mean ~20, sd ~4.4); more than 40 means the test rejects
+// texture, not steps. The bright pixels around them are never dimmed, and are not rejected.
+TEST(MixedPixels, DarkSpotsOnASmoothSurfaceAreMostlyKept) {
+  Grid g(200, 200);
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n(0.0, kSigma);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      g.Z(x, y) = static_cast<float>(1e-3 + 20e-6 * x + n(rng));
+      if (x % 10 == 5 && y % 10 == 5) g.white[static_cast<size_t>(y) * g.w + x] = 0.3f;
+    }
+  const auto r = g.Find();
+  int spots = 0, others = 0;
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) (x % 10 == 5 && y % 10 == 5 ? spots : others) += r[y * g.w + x];
+  std::printf("dark spots rejected: %d of 400; other pixels: %d\n", spots, others);
+  EXPECT_LE(spots, 40);
+  EXPECT_LE(others, 3);
+}
+
 TEST(MixedPixels, OptionsAreChecked) {
   MixedPixelOptions o;
   o.max_sigmas = 0;
@@ -124,6 +186,15 @@ TEST(MixedPixels, OptionsAreChecked) {
   EXPECT_THROW(o.Check(), Error);
   o = {};
   o.shadow_edge_ratio = 1.5;
+  EXPECT_THROW(o.Check(), Error);
+  o = {};
+  o.dim_ratio = -0.1;
+  EXPECT_THROW(o.Check(), Error);
+  o = {};
+  o.dim_sigmas = 0;
+  EXPECT_THROW(o.Check(), Error);
+  o = {};
+  o.dim_sharpness = -1;
   EXPECT_THROW(o.Check(), Error);
   Grid g(1, 1);
   EXPECT_EQ(g.Count(g.Find()), 0);

@@ -170,7 +170,10 @@ Json ReconstructOptions::ToJson() const {
   j["reject_mixed_pixels"] = reject_mixed_pixels;
   j["mixed_pixels"] = {{"max_sigmas", mixed_pixels.max_sigmas},
                        {"outlier_footprints", mixed_pixels.outlier_footprints},
-                       {"shadow_edge_ratio", mixed_pixels.shadow_edge_ratio}};
+                       {"shadow_edge_ratio", mixed_pixels.shadow_edge_ratio},
+                       {"dim_ratio", mixed_pixels.dim_ratio},
+                       {"dim_sigmas", mixed_pixels.dim_sigmas},
+                       {"dim_sharpness", mixed_pixels.dim_sharpness}};
   j["grid_pixel_size_m"] = resample.pixel_size;
   j["grid_max_edge_footprints"] = resample.max_edge_footprints;
   return j;
@@ -777,7 +780,13 @@ Json GroundTruthErrors::ToJson() const {
           {"max_abs_m", max_abs_m},
           {"gross", gross},
           {"gross_fraction", gross_fraction},
-          {"gross_threshold_m", gross_threshold_m}};
+          {"gross_threshold_m", gross_threshold_m},
+          {"footprint_known", footprint_known},
+          {"mixed_relief_m", mixed_relief_m},
+          {"pixels_mixed", pixels_mixed},
+          {"mixed_kept", mixed_kept},
+          {"gross_mixed", gross_mixed},
+          {"coverage_single", coverage_single}};
 }
 
 double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& d,
@@ -809,7 +818,12 @@ GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanP
   if (!session.ground_truth)
     MESOSCAN_BAD_INPUT(session.root.string() << "/session.json: ground_truth: not present");
   const auto path = session.root / session.ground_truth->points;
-  const ImageF gt = ReadExrChannels(path, {"X", "Y", "Z"});
+  const ImageInfo info = ReadImageInfo(path);
+  const auto& names = info.channel_names;
+  auto has = [&](const char* c) { return std::find(names.begin(), names.end(), c) != names.end(); };
+  const bool footprint = has("lit_fraction") && has("relief");
+  const ImageF gt = footprint ? ReadExrChannels(path, {"X", "Y", "Z", "lit_fraction", "relief"})
+                              : ReadExrChannels(path, {"X", "Y", "Z"});
   const int w = points.xyz.width(), h = points.xyz.height();
   if (gt.width() != w || gt.height() != h)
     MESOSCAN_BAD_INPUT(path.string() << ": size " << gt.width() << "x" << gt.height()
@@ -859,6 +873,25 @@ GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanP
   e.gross_threshold_m = gross_threshold_m;
   for (double v : a) e.gross += v > gross_threshold_m;
   e.gross_fraction = static_cast<double>(e.gross) / errs.size();
+
+  e.footprint_known = footprint;
+  e.mixed_relief_m = footprint ? gross_threshold_m / 10 : 0.0;
+  int64_t single = 0, single_both = 0;
+  for (int y = std::max(0, roi.y); y < std::min(h, roi.y + roi.h); ++y)
+    for (int x = std::max(0, roi.x); x < std::min(w, roi.x + roi.w); ++x) {
+      if (!std::isfinite(gt(x, y, 2))) continue;
+      const bool kept = std::isfinite(e.error(x, y));
+      const bool mixed = footprint && (gt(x, y, 3) < 1.0f || gt(x, y, 4) > e.mixed_relief_m);
+      if (!mixed) {
+        ++single;
+        single_both += kept;
+        continue;
+      }
+      ++e.pixels_mixed;
+      e.mixed_kept += kept;
+      e.gross_mixed += kept && std::abs(e.error(x, y)) > gross_threshold_m;
+    }
+  e.coverage_single = single ? static_cast<double>(single_both) / single : 0.0;
   return e;
 }
 

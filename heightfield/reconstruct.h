@@ -160,10 +160,22 @@ struct GroundTruthErrors {
   double median_abs_m = 0.0;  // median |error|
   double p99_abs_m = 0.0;     // 99th percentile |error|
   double max_abs_m = 0.0;
-  int64_t gross = 0;          // |error| > gross_threshold_m
-  double gross_fraction = 0.0;
+  int64_t gross = 0;            // |error| > gross_threshold_m
+  double gross_fraction = 0.0;  // gross / pixels_both
   double gross_threshold_m = 0.0;
-  ImageF error;  // camera grid, Z error (m), NaN where not both
+  // Mixed pixels, where gt_points.exr has the simulator's footprint channels (lit_fraction,
+  // relief; sim/README.md): a lit pixel is mixed if part of its footprint is unlit or the
+  // footprint's relief (distance from one plane) exceeds mixed_relief_m = gross_threshold_m / 10
+  // (the inliers' RMS): it sees more than one smooth surface, and item 9 of issue 3 asks for
+  // its rejection. Coverage of the single-surface lit pixels is then the fair figure. Without
+  // the channels every lit pixel counts as single-surface.
+  bool footprint_known = false;
+  double mixed_relief_m = 0.0;
+  int64_t pixels_mixed = 0;      // lit (per pixels_gt) and mixed
+  int64_t mixed_kept = 0;        // ... and reconstructed anyway
+  int64_t gross_mixed = 0;       // ... with a gross error
+  double coverage_single = 0.0;  // reconstructed / lit single-surface pixels
+  ImageF error;                  // camera grid, Z error (m), NaN where not both
   Json ToJson() const;
 };
 // gross_threshold_m <= 0: 10x the RMS of the inliers (|e| < 5 median |e|) is used.

@@ -10,6 +10,8 @@
 #include <map>
 #include <sstream>
 
+#include <Eigen/Dense>
+
 #include "assets/objects.h"
 #include "core/error.h"
 #include "core/fs.h"
@@ -166,6 +168,29 @@ uint16_t ToPng16(int dn, int bits) {
 }
 
 // Everything the frame stage needs per camera subsample (structure of arrays).
+// Largest distance (along z) of a pixel's subsample hits from their least-squares plane
+// z = c0 + c1 x + c2 y: how far the footprint is from a single smooth surface (a step inside the
+// footprint shows as a relief of about half the step). NaN with fewer than 3 hits.
+double FootprintRelief(const std::vector<Vec3d>& hits) {
+  if (hits.size() < 3) return std::numeric_limits<double>::quiet_NaN();
+  Vec3d mean = Vec3d::Zero();
+  for (const Vec3d& p : hits) mean += p;
+  mean /= static_cast<double>(hits.size());
+  Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+  for (const Vec3d& p : hits) {
+    const Eigen::Vector3d row(1.0, p.x() - mean.x(), p.y() - mean.y());
+    ata += row * row.transpose();
+    atb += row * (p.z() - mean.z());
+  }
+  const Eigen::Vector3d c = ata.completeOrthogonalDecomposition().solve(atb);
+  double relief = 0;
+  for (const Vec3d& p : hits)
+    relief = std::max(relief, std::abs(p.z() - mean.z() - c(0) - c(1) * (p.x() - mean.x()) -
+                                       c(2) * (p.y() - mean.y())));
+  return relief;
+}
+
 struct SubsampleCache {
   std::vector<float> x;        // projector u at shift 0 (px)
   std::vector<float> gain;     // lens-shifter gain g(u, v) at that point
@@ -402,7 +427,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   std::vector<float> sub_v(n_sub, 0.0f), sub_sigma(n_sub, 0.0f);
   std::vector<float> ambient_albedo(static_cast<size_t>(W) * H, 0.0f);
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  ImageF gt_points(W, H, 3, nan);
+  // X, Y, Z of the centre ray's hit, then the footprint: lit_fraction, relief (see sim/README.md).
+  ImageF gt_points(W, H, 5, nan);
   std::atomic<int64_t> lit_pixels{0};
 
   struct Sample {
@@ -442,12 +468,17 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
           const size_t pix = static_cast<size_t>(py) * W + px;
           double albedo_sum = 0;
           Sample centre;
+          int lit_subsamples = 0;
+          std::vector<Vec3d> hits;
+          hits.reserve(S * S);
           for (int b = 0; b < S; ++b)
             for (int a = 0; a < S; ++a) {
               const size_t k = (pix * S + b) * S + a;
               const Sample s = shade(Vec2d(px + (a + 0.5) / S - 0.5, py + (b + 0.5) / S - 0.5));
               if (2 * a + 1 == S && 2 * b + 1 == S) centre = s;
               albedo_sum += s.albedo;
+              lit_subsamples += s.lit;
+              if (s.hit) hits.push_back(s.point);
               if (s.shading > 0) {
                 cache.x[k] = static_cast<float>(s.u);
                 sub_v[k] = static_cast<float>(s.v);
@@ -464,6 +495,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
             gt_points(px, py, 2) = static_cast<float>(c.point.z());
             ++lit_pixels;
           }
+          gt_points(px, py, 3) = static_cast<float>(lit_subsamples) / (S * S);
+          gt_points(px, py, 4) = static_cast<float>(FootprintRelief(hits));
         }
         progress.Advance();
       }
@@ -578,7 +611,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     progress.Finish();
 
     // Ground truth: points on the camera grid, the height field on the camera footprint.
-    WriteExr(dir / "gt_points.exr", gt_points, {"X", "Y", "Z"});
+    WriteExr(dir / "gt_points.exr", gt_points, {"X", "Y", "Z", "lit_fraction", "relief"});
     HeightField gt;
     {
       // Footprint of the camera on z = 0: the rays through the image corners.
