@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <numeric>
 
 #include "core/error.h"
 
@@ -15,6 +16,8 @@ namespace mesoscan {
 namespace {
 
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
+// Longest residual cycle (in fringe orders of the anchor period) kept as a per-pixel table.
+constexpr int kMaxCycle = 64;
 
 // Signed distance of t to the nearest integer, in [-0.5, 0.5].
 // Round to nearest, ties to even: the same as std::nearbyint in the default rounding mode for
@@ -30,6 +33,32 @@ inline double WrapCycles(double t) { return t - RoundNearest(t); }
 inline double WrapCyclesSmall(double t) {
   constexpr double kMagic = 6755399441055744.0;  // 1.5 * 2^52
   return t - ((t + kMagic) - kMagic);
+}
+
+// Indices of the kK smallest of v[0..n) by (value, index), in that order; n >= kK.
+template <int kK>
+std::array<int, kK> Smallest(const double* v, int n) {
+  std::array<int, kK> idx;
+  for (int j = 0; j < kK; ++j) {  // insertion sort of the first kK
+    int p = j;
+    while (p > 0 && v[j] < v[idx[p - 1]]) {
+      idx[p] = idx[p - 1];
+      --p;
+    }
+    idx[p] = j;
+  }
+  double last = v[idx[kK - 1]];
+  for (int j = kK; j < n; ++j) {
+    if (!(v[j] < last)) continue;  // a later index ranks first only if strictly smaller
+    int p = kK - 1;
+    while (p > 0 && v[j] < v[idx[p - 1]]) {
+      idx[p] = idx[p - 1];
+      --p;
+    }
+    idx[p] = j;
+    last = v[idx[kK - 1]];
+  }
+  return idx;
 }
 
 }  // namespace
@@ -129,6 +158,42 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
   std::stable_sort(order_.begin(), order_.end(),
                    [&](int i, int j) { return periods_[i] > periods_[j]; });
   anchor_ = order_[0];
+  inv_periods_.resize(periods_.size());
+  phase_rate_.resize(periods_.size());
+  for (size_t i = 0; i < periods_.size(); ++i) {
+    inv_periods_[i] = 1.0 / periods_[i];
+    phase_rate_[i] = kTwoPi / periods_[i];
+  }
+  // Residual tables (Unwrap): the residual of period i at the anchor's fringe order k is
+  // wrap(k pa / p_i + c_i), which repeats every q orders if pa / p_i = p / q. The q * pa / p_i
+  // that should be an integer may be off by rounding only (the error, added up over the
+  // candidates, stays < 1e-12 cycles).
+  {
+    const double pa = periods_[anchor_];
+    const double candidates = range_px_ / pa + 2.0;
+    cycle_.assign(periods_.size(), 0);
+    int64_t lcm = 1;
+    for (size_t i = 0; i < periods_.size(); ++i) {
+      if (static_cast<int>(i) == anchor_) continue;
+      const double ratio = pa / periods_[i];
+      for (int q = 1; q <= kMaxCycle && q < candidates; ++q) {
+        if (std::abs(WrapCycles(q * ratio)) * (candidates / q) <= 1e-12) {
+          cycle_[i] = q;
+          lcm = std::min<int64_t>(std::lcm(lcm, q), 1 << 20);
+          break;
+        }
+      }
+      if (cycle_[i] == 0) lcm = 0;
+    }
+    table_candidates_ = periods_.size() > 1 ? static_cast<int>(lcm) : 0;
+    if (periods_.size() == 3 && lcm > 0) {
+      for (int i = 0; i < 3; ++i)
+        if (i != anchor_) pair_.push_back(i);
+      const int qa = cycle_[pair_[0]], qb = cycle_[pair_[1]];
+      crt_.assign(static_cast<size_t>(qa) * qb, std::numeric_limits<int>::max());  // no such r
+      for (int r = static_cast<int>(lcm) - 1; r >= 0; --r) crt_[(r % qa) * qb + r % qb] = r;
+    }
+  }
 
   // Separation: min over column distances D in [p_min / 2, R - 1] of the max over periods of the
   // circular distance of D / p in cycles. The max is piecewise linear in D with slopes <= 1 /
@@ -171,11 +236,11 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
     if (!std::isfinite(theta[i]) || !(weight[i] > 0.0) || !std::isfinite(weight[i])) return result;
     const double c = theta[i] / kTwoPi;
     t[i] = c - std::floor(c);
-    const double g = kTwoPi / periods_[i];  // d theta / d u
+    const double g = phase_rate_[i];  // d theta / d u
     w_px[i] = weight[i] * g * g;
   }
   const int a = anchor_;
-  const double pa = periods_[a];
+  const double pa = periods_[a], ta = t[a];
 
   // 1. Score every fringe order k of the anchor: u_k = pa (t_a + k). The residual of period i at
   //    u_k, in cycles, carries its own noise and the anchor's scaled by pa / p_i.
@@ -187,25 +252,93 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
     inv_var[i] = periods_[i] * periods_[i] / (var_i_px + var_a_px);
   }
   // Candidates may leave the domain [-0.5, R - 0.5) by the anchor's own noise (a long cue
-  // period turns a small phase error into pixels).
+  // period turns a small phase error into pixels). u grows with k: trim both ends.
   const double margin = 0.5 + 6.0 * std::sqrt(var_a_px);
-  const int k0 = static_cast<int>(std::floor((-0.5 - margin) / pa));
-  const int k_end = static_cast<int>(std::floor((range_px_ - 0.5 + margin) / pa));
+  auto inside = [&](int k) {
+    const double u = pa * (ta + k);
+    return !(u < -0.5 - margin || u >= range_px_ - 0.5 + margin);
+  };
+  int k_first = static_cast<int>(std::floor((-0.5 - margin) / pa));
+  int k_last = static_cast<int>(std::floor((range_px_ - 0.5 + margin) / pa));
+  while (k_first <= k_last && !inside(k_first)) ++k_first;
+  while (k_last >= k_first && !inside(k_last)) --k_last;
+  if (k_first > k_last) return result;
   double best_score[2] = {std::numeric_limits<double>::infinity(),
                           std::numeric_limits<double>::infinity()};
-  int best_k[2] = {k0, k0};
-  std::array<double, kMaxPeriods> inv_p{};
-  for (int i = 0; i < m; ++i) inv_p[i] = 1.0 / periods_[i];
+  int best_k[2] = {k_first, k_first};
+  // Periods whose residual repeats every q orders: the q weighted squared residuals of the
+  // first q candidates, reused for the rest (table[i][(k - k_first) mod q]).
+  const bool tables = k_last - k_first < table_candidates_;
+  std::array<std::array<double, kMaxCycle>, kMaxPeriods> table;
+  if (tables) {
+    for (int i = 0; i < m; ++i) {
+      if (i == a) continue;
+      const double ip = inv_periods_[i], ti = t[i], wi = inv_var[i];
+      for (int j = 0; j < cycle_[i]; ++j) {
+        const double r = WrapCyclesSmall(pa * (ta + (k_first + j)) * ip - ti);
+        table[i][j] = r * r * wi;
+      }
+    }
+  }
+  // Two other periods with tables (e.g. 13 with 7 and 11): the score of candidate r = k -
+  // k_first is A[r mod qa] + B[r mod qb]. The best two usually pair small entries of each table:
+  // among the pairs of the kPairRank smallest of A and of B (those that are candidates), if the
+  // second best is below every sum outside them (>= min(A_K + B_1, A_1 + B_K)), these are the
+  // two the full scan finds; otherwise scan.
+  bool scanned = false;
+  if (tables && pair_.size() == 2) {
+    constexpr int kPairRank = 4;
+    const int ia = pair_[0], ib = pair_[1];
+    const int qa = cycle_[ia], qb = cycle_[ib];
+    const int nk = k_last - k_first + 1;
+    if (qa >= kPairRank && qb >= kPairRank) {
+      const double* ta_v = table[ia].data();
+      const double* tb_v = table[ib].data();
+      const auto sa = Smallest<kPairRank>(ta_v, qa);
+      const auto sb = Smallest<kPairRank>(tb_v, qb);
+      // (score, offset) of the best two, compared lexicographically (the scan keeps the first
+      // of equal scores). The score adds the periods in index order, as the scan does.
+      double s0 = std::numeric_limits<double>::infinity(), s1 = s0;
+      int r0 = -1, r1 = -1;
+      for (int x = 0; x < kPairRank; ++x)
+        for (int y = 0; y < kPairRank; ++y) {
+          const int r = crt_[sa[x] * qb + sb[y]];
+          if (r >= nk) continue;
+          const double sc = (0.0 + ta_v[sa[x]]) + tb_v[sb[y]];
+          if (sc < s0 || (sc == s0 && r < r0)) {
+            s1 = s0, r1 = r0, s0 = sc, r0 = r;
+          } else if (sc < s1 || (sc == s1 && r < r1)) {
+            s1 = sc, r1 = r;
+          }
+        }
+      const double bound =
+          std::min(ta_v[sa[kPairRank - 1]] + tb_v[sb[0]], ta_v[sa[0]] + tb_v[sb[kPairRank - 1]]);
+      if (r1 >= 0 && s1 < bound) {
+        best_score[0] = s0, best_k[0] = k_first + r0;
+        best_score[1] = s1, best_k[1] = k_first + r1;
+        scanned = true;
+      }
+    }
+  }
   // Scores of a chunk of candidates at a time: branch-free loops the compiler vectorises (this
   // is the hot loop of the pipeline's unwrapping), then the best two of the chunk.
-  constexpr int kChunk = 32;
+  constexpr int kChunk = 64;
   std::array<double, kChunk> score;
-  for (int kb = k0; kb <= k_end; kb += kChunk) {
-    const int nk = std::min(kChunk, k_end - kb + 1);
+  for (int kb = k_first; !scanned && kb <= k_last; kb += kChunk) {
+    const int nk = std::min(kChunk, k_last - kb + 1);
     std::fill(score.begin(), score.begin() + nk, 0.0);
     for (int i = 0; i < m; ++i) {
       if (i == a) continue;
-      const double ip = inv_p[i], ti = t[i], wi = inv_var[i], ta = t[a];
+      if (tables) {
+        const int q = cycle_[i];
+        const double* tab = table[i].data();
+        for (int j = 0, c = (kb - k_first) % q; j < nk; j += q - c, c = 0) {
+          const int len = std::min(q - c, nk - j);
+          for (int l = 0; l < len; ++l) score[j + l] += tab[c + l];
+        }
+        continue;
+      }
+      const double ip = inv_periods_[i], ti = t[i], wi = inv_var[i];
       for (int j = 0; j < nk; ++j) {
         const double u = pa * (ta + (kb + j));  // |u| <= range + margin: far below 2^51
         const double r = WrapCyclesSmall(u * ip - ti);
@@ -213,17 +346,14 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
       }
     }
     for (int j = 0; j < nk; ++j) {
-      const int k = kb + j;
-      const double u = pa * (t[a] + k);
-      if (u < -0.5 - margin || u >= range_px_ - 0.5 + margin) continue;  // outside the domain
       if (score[j] < best_score[0]) {
         best_score[1] = best_score[0];
         best_k[1] = best_k[0];
         best_score[0] = score[j];
-        best_k[0] = k;
+        best_k[0] = kb + j;
       } else if (score[j] < best_score[1]) {
         best_score[1] = score[j];
-        best_k[1] = k;
+        best_k[1] = kb + j;
       }
     }
   }
@@ -237,7 +367,7 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   double best_chi2 = 0.0, best_u = 0.0;
   for (int c = 0; c < 2; ++c) {
     if (!std::isfinite(best_score[c])) continue;
-    double u = pa * (t[a] + best_k[c]);
+    double u = pa * (ta + best_k[c]);
     double sw = 0.0, swu = 0.0;
     for (int o = 0; o < m; ++o) {
       const int i = order_[o];

@@ -60,7 +60,11 @@ struct UnwrapResult {
 //  - several periods (e.g. coprime 7/11/13 px covering 1001 px): every candidate fringe order of
 //    the coarsest period is scored by the weighted circular residual of the others; the best two
 //    candidates are refined (fringe orders of every period, u = weighted mean of the per-period
-//    estimates) and the one with the smaller chi^2 wins;
+//    estimates) and the one with the smaller chi^2 wins. Where a period ratio is a fraction with
+//    a small denominator q (13/11: 11), that period's residuals repeat every q orders and are
+//    computed once per pixel (a table of q); with three periods the best two usually come from
+//    the few smallest entries of the two tables, which is checked against a bound, else every
+//    candidate is scored. Same results as scoring every candidate, to the last bit;
 //  - hierarchical: a cue period >= range (one candidate) plus shorter periods refining it (the
 //    same search: the coarsest period then has a single candidate).
 // Unwrap() is const, thread-safe and allocation-free.
@@ -93,6 +97,19 @@ class TemporalUnwrapper {
   std::vector<int> order_;   // period indices, coarsest first
   int anchor_ = 0;           // index of the coarsest period
   double separation_cycles_ = 0.0;
+  std::vector<double> inv_periods_;  // 1 / period
+  std::vector<double> phase_rate_;   // d theta / d u = 2 pi / period
+  // Per period: the number q of the anchor's fringe orders after which its residual repeats
+  // (anchor / period = p / q in lowest terms, e.g. 13 / 11: q = 11), if small enough for a
+  // per-pixel table of q residuals to beat scoring every candidate; 0 otherwise.
+  std::vector<int> cycle_;
+  // The tables are used where every other period has one and the candidates of a pixel are at
+  // most the combined cycle (lcm of the q): no two candidates then share all their residuals.
+  int table_candidates_ = 0;
+  // Three periods with tables: the other two (pair_) and the candidate offset r in [0, lcm) of
+  // each pair of table entries, crt_[(r mod q_a) * q_b + r mod q_b] = r.
+  std::vector<int> pair_;
+  std::vector<int> crt_;
 };
 
 }  // namespace mesoscan

@@ -173,6 +173,44 @@ TEST(TemporalUnwrapper, CoprimePeriodsWithNoise) {
   CheckNoisyUnwrapping({7, 11, 13}, 1001, -0.2, 1000.2);
 }
 
+// Integer period ratios let Unwrap score the candidates from per-pixel residual tables (and,
+// with three periods, from the few smallest entries of two tables). Periods perturbed by 1e-10
+// have no such structure and take the plain scan over every candidate: both must pick the same
+// fringe orders, on good phases, noisy ones and random ones (where the ranking is close). (Not
+// on 7/11/13 over 1001 px: its two ends alias exactly, and which of two equal candidates wins is
+// then decided by rounding, in either path.)
+TEST(TemporalUnwrapper, ResidualTablesPickTheSameCandidatesAsTheFullScan) {
+  for (const auto& [periods, range] : {std::pair{std::vector<double>{7, 11, 13}, 800.0},
+                                       std::pair{std::vector<double>{13, 11, 7}, 900.0},
+                                       std::pair{std::vector<double>{12.5, 8, 9}, 1000.0},
+                                       std::pair{std::vector<double>{800, 20}, 800.0}}) {
+    std::vector<double> perturbed = periods;
+    for (double& p : perturbed) p *= 1.0 + 1e-10;
+    const TemporalUnwrapper tables(periods, range), scan(perturbed, range);
+    std::mt19937_64 rng(9);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    std::normal_distribution<double> noise(0.0, 1.0);
+    const int m = static_cast<int>(periods.size());
+    int valid = 0;
+    for (int p = 0; p < 100000; ++p) {
+      const double sigma = p % 3 == 0 ? 0.3 : 0.03;
+      auto t = PhasesAt(-0.5 + range * uni(rng), periods);
+      std::vector<double> w(m);
+      for (int i = 0; i < m; ++i) {
+        t[i] = p % 10 == 0 ? kTwoPi * uni(rng) : t[i] + sigma * noise(rng);
+        w[i] = (0.5 + uni(rng)) / (sigma * sigma);
+      }
+      const UnwrapResult a = tables.Unwrap(t.data(), w.data());
+      const UnwrapResult b = scan.Unwrap(t.data(), w.data());
+      ASSERT_EQ(a.valid, b.valid) << p;
+      ASSERT_NEAR(a.u, b.u, 1e-6) << p;
+      ASSERT_NEAR(a.residual, b.residual, 1e-6) << p;
+      valid += a.valid;
+    }
+    EXPECT_GT(valid, 50000);
+  }
+}
+
 TEST(TemporalUnwrapper, InconsistentPhasesAreFlagged) {
   // Random phases (a pixel mixing two surfaces, or no signal): the residual exposes them unless
   // they happen to fall within the 4-sigma acceptance tube around one of the 1001 valid codes.
