@@ -476,8 +476,10 @@ Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
 // Moments of the centred profile y at grid point gi: Horner coefficients i^m W_m / m! and
 // y0 = sum y.
 // kRows basis rows (orders 0 .. kRows / 2 - 1); higher coefficients are 0.
-template <int kRows, typename Vec>
-void MomentCoefficients(const Vec& w, std::array<Cd, kOrder + 1>* z_coef) {
+template <typename Scalar, int kRows, typename Basis>
+void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder + 1>* z_coef) {
+  const Eigen::Map<const Eigen::Matrix<Scalar, Eigen::Dynamic, 1>> yv(y, n);
+  const Eigen::Matrix<Scalar, kRows, 1> w = basis * yv;
   // i^m W_m / m! with i^m applied as a rotation (no complex multiply).
   constexpr std::array<double, kOrder + 1> kInvFact = [] {
     std::array<double, kOrder + 1> f{};
@@ -500,13 +502,6 @@ void MomentCoefficients(const Vec& w, std::array<Cd, kOrder + 1>* z_coef) {
   }
 }
 
-template <typename Scalar, int kRows, typename Basis>
-void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder + 1>* z_coef) {
-  const Eigen::Map<const Eigen::Matrix<Scalar, Eigen::Dynamic, 1>> yv(y, n);
-  const Eigen::Matrix<Scalar, kRows, 1> w = basis * yv;
-  MomentCoefficients<kRows>(w, z_coef);
-}
-
 }  // namespace
 
 namespace {
@@ -520,8 +515,8 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   if (n < p) return InvalidFit(n, f0);
   // Centre the profile on its mean (any reference works: it is added back to d). The moments
   // then scale with the amplitude, not with the offset: float accumulation and Taylor
-  // truncation errors stay relative to a. Subtracted in the accumulation type: exact in double
-  // (so the fit does not depend on the rounding of the mean; FitRow relies on it).
+  // truncation errors stay relative to a. Subtracted in the accumulation type: exact in double,
+  // so the fit does not depend on the float rounding of the mean.
   const Eigen::Map<const Eigen::ArrayXf> bv(b, n);
   Eigen::Map<Eigen::Array<Scalar, Eigen::Dynamic, 1>> yv(y, n);
   yv = bv.template cast<Scalar>() - static_cast<Scalar>(mean);
@@ -845,78 +840,6 @@ LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride, double f_star
     y = heap_y.data();
   }
   return FastFit<float>(*tables_, buf, sum / n, f0_, f_start, options_, y);
-}
-
-void LensShiftBatchFitter::FitRow(const float* b, size_t stride, int n, const float* f_start,
-                                  const uint8_t* use, LensShiftFit* out) const {
-  const bool batch = options_.fitter == LensShiftFitter::kFast && !options_.fit_frequency &&
-                     options_.double_accumulation && tables_->fine && tables_->n >= 3;
-  if (!batch) {
-    for (int j = 0; j < n; ++j)
-      if (use[j]) out[j] = Fit(b + j, static_cast<int>(stride), f_start[j]);
-    return;
-  }
-  const Tables& t = *tables_;
-  const int ns = t.n;
-  // Row sums (the centring reference; a non-finite sum sends the pixel to Fit()), contiguous
-  // over the pixels.
-  std::vector<float> sum(n, 0.0f);
-  for (int i = 0; i < ns; ++i) {
-    const float* row = b + static_cast<size_t>(i) * stride;
-    for (int j = 0; j < n; ++j) sum[j] += row[j];
-  }
-  const double two_pi_x = kTwoPi * t.x_scale;
-  // Runs of up to kRun pixels on one grid point: Y (samples x pixels, centred, double), then
-  // their moments W = basis * Y in one product.
-  constexpr int kRun = 32;
-  Eigen::Matrix<double, Eigen::Dynamic, kRun> y(ns, kRun);
-  Eigen::Matrix<double, kFineMoments, kRun> w;
-  std::array<int, kRun> pix;
-  std::array<float, kRun> mean;
-  int run = 0, run_g = 0;
-  auto flush = [&] {
-    if (run == 0) return;
-    for (int q = 0; q < run; ++q) {
-      const float* col = b + pix[q];
-      for (int i = 0; i < ns; ++i)
-        y(i, q) = static_cast<double>(col[static_cast<size_t>(i) * stride]) - mean[q];
-    }
-    w.leftCols(run).noalias() = t.fine_d[run_g + t.grid_half] * y.leftCols(run);
-    std::array<Cd, kOrder + 1> z_coef;
-    for (int q = 0; q < run; ++q) {
-      const int j = pix[q];
-      const double y0 = y.col(q).sum(), y2 = y.col(q).squaredNorm();
-      MomentCoefficients<kFineMoments>(w.col(q), &z_coef);
-      const double eps = two_pi_x * (f_start[j] - (f0_ + run_g * t.h));
-      const int gi = run_g + t.grid_half;
-      const Objective o = Evaluate(z_coef, y0, t.e1[gi], t.e2[gi], ns, eps, false);
-      if (!o.ok) {
-        out[j] = InvalidFit(ns, f0_);
-        continue;
-      }
-      // As FastFit with a fixed frequency: the model's (cos, sin, 1) coefficients at eps'.
-      const double f = f0_ + run_g * t.h + eps / two_pi_x;
-      out[j] = Finalize(std::atan2(o.c[0], o.c[1]), std::hypot(o.c[0], o.c[1]), f,
-                        o.c[2] + mean[q], y2 - o.j, ns, 0, true, f0_, options_);
-    }
-    run = 0;
-  };
-  for (int j = 0; j < n; ++j) {
-    if (!use[j]) continue;
-    const double f = f_start[j];
-    const double gf = std::nearbyint((f - f0_) / t.h);
-    if (!std::isfinite(sum[j]) || !std::isfinite(f) || !(std::abs(gf) <= t.grid_half)) {
-      out[j] = Fit(b + j, static_cast<int>(stride), f_start[j]);  // non-finite or off the grid
-      continue;
-    }
-    const int g = static_cast<int>(gf);
-    if (run == kRun || (run > 0 && g != run_g)) flush();
-    run_g = g;
-    pix[run] = j;
-    mean[run] = sum[j] / ns;
-    ++run;
-  }
-  flush();
 }
 
 int LensShiftBatchFitter::num_samples() const { return static_cast<int>(x_.size()); }

@@ -22,8 +22,6 @@
 // Failures are values: no fitter throws on data (NaN/Inf samples, constant or clipped profiles,
 // pure noise). A result with valid == false has no meaning; the pipeline gives it confidence 0.
 
-#include <cstddef>
-#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -106,16 +104,6 @@ class LensShiftBatchFitter {
   // Same with a per-pixel starting frequency f_start (e.g. a smoothed frequency map for a second
   // pass with fit_frequency == false); validity bounds stay relative to f0.
   LensShiftFit Fit(const float* b, int stride, double f_start) const;
-
-  // A row of profiles at once: pixel j's sample i at b[i * stride + j], j in [0, n). Pixels
-  // with use[j] != 0 get out[j] = Fit(b + j, stride, f_start[j]) (up to rounding: ~1e-15
-  // relative); the others are left untouched. With kFast and fit_frequency == false (the
-  // pipeline's fixed-frequency pass) the pixels that share a grid point of the tables get their
-  // moments from one matrix product, read straight from the row-major samples, instead of a
-  // gather and a matrix-vector product each; otherwise this is a loop over Fit(). Allocates
-  // its work buffers (once per call).
-  void FitRow(const float* b, size_t stride, int n, const float* f_start, const uint8_t* use,
-              LensShiftFit* out) const;
 
   int num_samples() const;
   const std::vector<double>& positions() const;

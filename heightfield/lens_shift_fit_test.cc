@@ -195,61 +195,6 @@ TEST(LensShiftFit, FixedFrequencyUsesTheGivenStart) {
   }
 }
 
-// FitRow (a row of profiles, samples row-major) gives the per-pixel Fit() results: the batched
-// fixed-frequency path of kFast to rounding, the other fitters through Fit() itself. Pixels with
-// a NaN sample, a NaN or off-grid frequency, or not in use are covered too.
-TEST(LensShiftFit, RowFitMatchesPerPixelFits) {
-  std::mt19937_64 rng(16);
-  std::uniform_real_distribution<double> uni(0.0, 1.0);
-  const auto x = CentredPositions(50);
-  const int n = 300;
-  const size_t stride = n + 5;
-  std::vector<float> b(stride * x.size(), 0.0f), f(n);
-  std::vector<uint8_t> use(n);
-  for (int j = 0; j < n; ++j) {
-    f[j] = static_cast<float>(kF0 * (1.0 + 0.04 * std::sin(j / 40.0)));  // smooth: shared runs
-    const Truth t{-kPi + 2 * kPi * uni(rng), 0.05 + 0.25 * uni(rng), f[j], 0.5};
-    const auto p = Profile(t, x, 0.01, &rng);
-    for (size_t i = 0; i < x.size(); ++i) b[i * stride + j] = p[i];
-    use[j] = j % 17 != 5;
-  }
-  b[3 * stride + 7] = std::numeric_limits<float>::quiet_NaN();
-  f[11] = std::numeric_limits<float>::quiet_NaN();
-  f[13] = static_cast<float>(3 * kF0);
-  for (const auto& [fitter, fit_frequency] :
-       {std::pair{LensShiftFitter::kFast, false}, std::pair{LensShiftFitter::kFast, true},
-        std::pair{LensShiftFitter::kLm, false}}) {
-    LensShiftFitOptions o = Options(fitter);
-    o.fit_frequency = fit_frequency;
-    const LensShiftBatchFitter batch(x, kF0, o);
-    LensShiftFit sentinel;
-    sentinel.iterations = -7;
-    std::vector<LensShiftFit> row(n, sentinel);
-    batch.FitRow(b.data(), stride, n, f.data(), use.data(), row.data());
-    int valid = 0;
-    for (int j = 0; j < n; ++j) {
-      SCOPED_TRACE(::testing::Message() << LensShiftFitterName(fitter) << " fit_frequency "
-                                        << fit_frequency << " pixel " << j);
-      if (!use[j]) {
-        EXPECT_EQ(row[j].iterations, -7);
-        continue;
-      }
-      const LensShiftFit one = batch.Fit(b.data() + j, static_cast<int>(stride), f[j]);
-      ASSERT_EQ(row[j].valid, one.valid);
-      EXPECT_EQ(row[j].samples_used, one.samples_used);
-      valid += one.valid;
-      if (!one.valid) continue;
-      EXPECT_NEAR(PhaseDiff(row[j].phase, one.phase), 0.0, 1e-12);
-      EXPECT_NEAR(row[j].amplitude, one.amplitude, 1e-12);
-      EXPECT_NEAR(row[j].offset, one.offset, 1e-12);
-      EXPECT_NEAR(row[j].frequency, one.frequency, 1e-15);
-      EXPECT_NEAR(row[j].residual_rms, one.residual_rms, 1e-7 * one.amplitude);
-    }
-    // Everything in use is valid but the NaN frequency and the one off the grid.
-    EXPECT_EQ(valid, n - n / 17 - 1 - 2);
-  }
-}
-
 TEST(LensShiftFit, NegativeNominalFrequency) {
   std::mt19937_64 rng(15);
   const auto x = CentredPositions(25);

@@ -486,14 +486,9 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
     auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
                         const PixelSubset& subset, const char* label) {
       Progress progress(label, h);
-      // With a frequency map (and no box filter) a row is fitted at once (FitRow: the samples
-      // as gathered, pixels sharing a table grid point in one matrix product).
-      const bool row_fit = f_map && !box;
       ParallelForRows(h, [&](int y0, int y1) {
         const size_t n = static_cast<size_t>(w);
         std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
-        std::vector<uint8_t> use(row_fit ? n : 0);
-        std::vector<LensShiftFit> row_fits(row_fit ? n : 0);
         for (int y = y0; y < y1; ++y) {
           if (!subset.Row(y)) continue;
           const size_t i0 = static_cast<size_t>(y) * w;
@@ -501,11 +496,6 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
             stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
             const float g = inv_gain[ls_stack[k]];
             for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
-          }
-          if (row_fit) {
-            for (size_t j = 0; j < n; ++j)
-              use[j] = state[i0 + j] == kActive && subset.Has(static_cast<int>(j), y);
-            fitter.FitRow(buf.data(), n, w, f_map->data() + i0, use.data(), row_fits.data());
           }
           for (size_t j = 0; j < n; ++j) {
             const size_t i = i0 + j;
@@ -521,9 +511,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
               b = prof.data();
               stride = 1;
             }
-            const LensShiftFit fit = row_fit ? row_fits[j]
-                                     : f_map ? fitter.Fit(b, stride, (*f_map)[i])
-                                             : fitter.Fit(b, stride);
+            const LensShiftFit fit =
+                f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
             if (!fit.valid) {
               state[i] = kFitFailed;
               continue;

@@ -138,9 +138,14 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
     GridVertex v00, v10, v01, v11;
     for (int y = 0; y + 1 < h; ++y) {
       if (j_hi[y] < band_j0 || j_lo[y] > band_j1) continue;
+      // The right corners of a quad are the left corners of the next: computed once.
+      bool b10 = w > 0 && vertex(0, y, &v10), b11 = w > 0 && vertex(0, y + 1, &v11);
       for (int x = 0; x + 1 < w; ++x) {
-        const bool b00 = vertex(x, y, &v00), b10 = vertex(x + 1, y, &v10);
-        const bool b01 = vertex(x, y + 1, &v01), b11 = vertex(x + 1, y + 1, &v11);
+        const bool b00 = b10, b01 = b11;
+        v00 = v10;
+        v01 = v11;
+        b10 = vertex(x + 1, y, &v10);
+        b11 = vertex(x + 1, y + 1, &v11);
         // Two triangles per quad; with one corner missing, the triangle of the other three.
         if (b00 && b10 && b11) raster(v00, v10, v11, band_j0, band_j1);
         if (b00 && b11 && b01) raster(v00, v11, v01, band_j0, band_j1);
