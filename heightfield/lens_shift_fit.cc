@@ -611,7 +611,7 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   const double f = f0 + j * t.h + eps / two_pi_x;
   // Model y = c0 cos + c1 sin + c2 = a sin(phi + theta) + c2: c0 = a sin phi, c1 = a cos phi.
   const double phi = std::atan2(o.c[0], o.c[1]);
-  const double a = std::hypot(o.c[0], o.c[1]);
+  const double a = std::sqrt(o.c[0] * o.c[0] + o.c[1] * o.c[1]);  // data units: no overflow
   const double ssr = y2 - o.j;
   return Finalize(phi, a, f, o.c[2] + mean, ssr, n, iterations, converged, f0, options);
 }

@@ -119,7 +119,8 @@ WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int s
   float theta_f = static_cast<float>(theta);
   if (theta_f >= static_cast<float>(kTwoPi)) theta_f = 0.0f;  // float rounding of 2 pi - tiny
   result.theta = theta_f;
-  result.modulation = static_cast<float>(std::hypot(c, s));
+  // sqrt instead of std::hypot (a library call): c and s are frame values, far from overflow.
+  result.modulation = static_cast<float>(std::sqrt(c * c + s * s));
   result.offset = static_cast<float>(a);
   result.residual_rms = static_cast<float>(std::sqrt(ssr / k));
   result.valid = true;
