@@ -10,8 +10,10 @@
 //     frames, compute time (frames in memory to height field), end-to-end (read session,
 //     reconstruct, write the scan folder) and peak RSS of the reconstruction, measured in a child
 //     process (this binary re-run with --fullres-child), with the wall time of every pipeline
-//     stage and of writing the scan folder. Written to fullres.csv. Skipped with
-//     MESOSCAN_BENCH_QUICK=1.
+//     stage and of writing the scan folder, plus the CPU times (all threads) of the bare decode,
+//     the reconstruction and end to end, and the load average (the machine is shared: wall
+//     times depend on the load). Written to fullres.csv. Skipped with MESOSCAN_BENCH_QUICK=1;
+//     MESOSCAN_BENCH_FULLRES_ONLY=1 runs only this part.
 // Output folder: $MESOSCAN_BENCH_OUT (default: current folder).
 
 #include <sys/resource.h>
@@ -227,7 +229,10 @@ void FullResolution(const fs::path& work, const fs::path& out) {
   // The measurement runs in a fresh process (this binary with --fullres-child): TBB's worker
   // pool does not survive fork(), and a fresh process gives an honest peak RSS.
   const fs::path result = work / "fullres_child.txt";
-  const std::string cmd = "/proc/self/exe --fullres-child '" + dir.string() + "' '" +
+  // The binary's own path (resolved here: inside the shell of std::system, /proc/self/exe is
+  // the shell).
+  const std::string self = fs::read_symlink("/proc/self/exe").string();
+  const std::string cmd = "'" + self + "' --fullres-child '" + dir.string() + "' '" +
                           (work / "fullres_coin.scan").string() + "' '" + result.string() + "'";
   const int status = std::system(cmd.c_str());
   rusage ru{};
@@ -237,45 +242,69 @@ void FullResolution(const fs::path& work, const fs::path& out) {
     return;
   }
   const std::string buf = ReadTextFile(result);
-  double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0;
+  double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0, cpu_decode = 0,
+         cpu_reconstruct = 0, cpu_e2e = 0;
   int stages_at = 0;
-  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf%n", &decode, &compute, &e2e, &total, &rms,
-              &stages_at);
+  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf %lf %lf %lf%n", &decode, &compute, &e2e, &total,
+              &rms, &cpu_decode, &cpu_reconstruct, &cpu_e2e, &stages_at);
   const double rss_mb = ru.ru_maxrss / 1024.0;
+  double load[3] = {0, 0, 0};
+  getloadavg(load, 3);
   std::printf("full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute (frames in "
               "memory -> height field) %.2f s; end-to-end %.2f s = %.2fx decode; peak RSS %.0f MB; "
               "depth RMS %.2f um\n",
               decode, compute, e2e, e2e / decode, rss_mb, rms * 1e6);
+  std::printf("full resolution CPU (s, all threads): bare decode %.2f, reconstruct incl. its "
+              "decode %.2f, end to end %.2f = %.2fx the bare decode; load average %.2f\n",
+              cpu_decode, cpu_reconstruct, cpu_e2e, cpu_e2e / cpu_decode, load[0]);
   std::printf("full resolution stages (s):%s\n", buf.c_str() + stages_at);
   WriteTextFile(out / "fullres.csv",
-                "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um\n" +
+                "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um,"
+                "cpu_decode_s,cpu_reconstruct_s,cpu_end_to_end_s,load_average\n" +
                     std::to_string(decode) + "," + std::to_string(compute) + "," +
                     std::to_string(e2e) + "," + std::to_string(e2e / decode) + "," +
-                    std::to_string(rss_mb) + "," + std::to_string(rms * 1e6) + "\n");
+                    std::to_string(rss_mb) + "," + std::to_string(rms * 1e6) + "," +
+                    std::to_string(cpu_decode) + "," + std::to_string(cpu_reconstruct) + "," +
+                    std::to_string(cpu_e2e) + "," + std::to_string(load[0]) + "\n");
 }
 
-// The measuring process: decode, reconstruct, write; prints the figures into `result`.
+// CPU time (user + system, every thread) of this process so far, s.
+double ProcessCpuSeconds() {
+  rusage ru{};
+  getrusage(RUSAGE_SELF, &ru);
+  return ru.ru_utime.tv_sec + ru.ru_stime.tv_sec + 1e-6 * (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
+}
+
+// The measuring process: decode, reconstruct, write; prints the figures into `result`: wall
+// times, then the CPU times (the machine is shared: wall times depend on the load, CPU times
+// much less), then the stages' wall times.
 int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs::path& result) {
-  double decode = 0;
+  double decode = 0, cpu_decode = 0;
   {
     const Session s = ReadSession(dir);
     const auto t = Clock::now();
+    const double c = ProcessCpuSeconds();
     ParallelFor(static_cast<int64_t>(s.frames.size()),
                 [&](int64_t i) { (void)ReadImage(s.FramePath(i)); });
     decode = Since(t);
+    cpu_decode = ProcessCpuSeconds() - c;
   }
   const auto t = Clock::now();
+  const double c = ProcessCpuSeconds();
   const Session s = ReadSession(dir);
   ReconstructSummary sum;
   const Scan scan = Reconstruct(s, {}, &sum);
+  const double cpu_reconstruct = ProcessCpuSeconds() - c;
   const auto t_write = Clock::now();
   WriteScanFolder(scan_dir, scan);
   const double write = Since(t_write);
   const double e2e = Since(t);
+  const double cpu_e2e = ProcessCpuSeconds() - c;
   const double compute = sum.total_s - sum.Seconds("decode");
   const double rms = EvaluateAgainstGroundTruth(s, scan.points).rms_m;
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%f %f %f %f %f", decode, compute, e2e, sum.total_s, rms);
+  std::snprintf(buf, sizeof buf, "%f %f %f %f %.6e %f %f %f", decode, compute, e2e, sum.total_s,
+                rms, cpu_decode, cpu_reconstruct, cpu_e2e);
   std::string text = buf;
   for (const auto& [name, seconds] : sum.timings_s) {
     std::snprintf(buf, sizeof buf, " %s %.3f", name.c_str(), seconds);
@@ -305,6 +334,12 @@ int main(int argc, char** argv) {
   const fs::path work = out / "reconstruct-work";
   fs::create_directories(work);
   try {
+    // MESOSCAN_BENCH_FULLRES_ONLY=1: only the full-resolution figures (no Table 1).
+    const char* fullres_only = std::getenv("MESOSCAN_BENCH_FULLRES_ONLY");
+    if (fullres_only && std::string(fullres_only) == "1") {
+      FullResolution(work, out);
+      return 0;
+    }
     const std::vector<Row> rows = Table1(work);
     std::string csv =
         "config,fitter,frames,wall_s,lens_shift_fit_s,depth_rms_um,repeatability_D_um,crlb_um,"
