@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "core/error.h"
 #include "core/parallel.h"
@@ -17,12 +18,16 @@ void MixedPixelOptions::Check() const {
   if (!(dim_ratio >= 0 && dim_ratio <= 1))
     MESOSCAN_BAD_INPUT("dim_ratio: expected in [0, 1], got " << dim_ratio);
   if (!(dim_sigmas > 0)) MESOSCAN_BAD_INPUT("dim_sigmas: expected > 0, got " << dim_sigmas);
+  if (passes < 1) MESOSCAN_BAD_INPUT("passes: expected >= 1, got " << passes);
   if (!(dim_sharpness >= 0))
     MESOSCAN_BAD_INPUT("dim_sharpness: expected >= 0, got " << dim_sharpness);
 }
 
-std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixelOptions& options) {
-  options.Check();
+namespace {
+
+// One pass of the four tests over the points of `in`.
+std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
+                                         const MixedPixelOptions& options) {
   const int w = in.width, h = in.height;
   std::vector<uint8_t> reject(static_cast<size_t>(w) * h, 0);
   if (w <= 0 || h <= 0) return reject;
@@ -111,6 +116,31 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
         reject[i] = mixed;
       }
   });
+  return reject;
+}
+
+}  // namespace
+
+std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixelOptions& options) {
+  options.Check();
+  std::vector<uint8_t> reject = FindMixedPixelsOnce(in, options);
+  if (options.passes < 2 || in.width <= 0 || in.height <= 0) return reject;
+  // Later passes judge the points again without the ones rejected so far: a mixed neighbour
+  // bends a side's extrapolation, its hole leaves the clean side to judge by.
+  std::vector<float> z(in.z, in.z + static_cast<size_t>(in.width) * in.height);
+  MixedPixelInput cleaned = in;
+  cleaned.z = z.data();
+  for (int pass = 1; pass < options.passes; ++pass) {
+    for (size_t i = 0; i < z.size(); ++i)
+      if (reject[i]) z[i] = std::numeric_limits<float>::quiet_NaN();
+    const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options);
+    bool changed = false;
+    for (size_t i = 0; i < z.size(); ++i) {
+      changed |= more[i] && !reject[i];
+      reject[i] |= more[i];
+    }
+    if (!changed) break;
+  }
   return reject;
 }
 

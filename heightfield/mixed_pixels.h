@@ -50,6 +50,10 @@ struct MixedPixelOptions {
   // ... and the sharpness factor, >= 0 (0: any jump). 1.5 keeps the steep, textured rim flank of
   // ../shared/spec/examples/coin-edge (1: 0.26% of its pixels would go, 1.5: 0.05%).
   double dim_sharpness = 1.5;
+  // Passes, >= 1: each further pass repeats the tests with the points rejected so far removed,
+  // so a pixel whose side was bent by a mixed neighbour is judged by its clean side (a wall
+  // two pixels wide). Stops early when a pass rejects nothing new.
+  int passes = 2;
 
   void Check() const;
 };
@@ -64,7 +68,8 @@ struct MixedPixelInput {
   double footprint_m = 0.0;        // camera footprint (pixel pitch on the surface), m
 };
 
-// Returns 1 for each point (finite z) that one of the tests rejects, 0 elsewhere.
+// Returns 1 for each point (finite z) that one of the tests rejects in one of the passes, 0
+// elsewhere.
 std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixelOptions& options);
 
 }  // namespace mesoscan

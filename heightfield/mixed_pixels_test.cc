@@ -155,6 +155,27 @@ TEST(MixedPixels, KeepsTheKinkOntoADimFlank) {
   EXPECT_EQ(g.Count(g.Find(any_jump)), g.h);
 }
 
+// A wall two pixels wide, both pixels dimmed: x = 10 (15 um, a 3/8 mix) is a dimmed step in the
+// first pass; x = 11 (30 um) is not, because its left side's line runs through the mixed x = 10
+// and meets it. With x = 10 removed, the second pass judges x = 11 by its clean right side,
+// 10 um (4 sigma) off the upper face at a sharp edge: it goes too.
+TEST(MixedPixels, SecondPassJudgesTheNeighbourOfAMixedPixelByItsCleanSide) {
+  Grid g(24, 4);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      g.Z(x, y) = x < 10 ? 0.0f : x == 10 ? 15e-6f : x == 11 ? 30e-6f : 40e-6f;
+      g.white[static_cast<size_t>(y) * g.w + x] = x == 10 || x == 11 ? 0.35f : 0.5f;
+    }
+  MixedPixelOptions one;
+  one.passes = 1;
+  const auto r1 = g.Find(one), r2 = g.Find();
+  for (int x = 0; x < g.w; ++x) {
+    EXPECT_EQ(r1[x], x == 10) << x;
+    EXPECT_EQ(r2[x], x == 10 || x == 11) << x;
+  }
+  EXPECT_EQ(g.Count(r2), 2 * g.h);
+}
+
 // Dark albedo spots (60 % of the white level) on a smooth noisy plane agree with both sides:
 // a spot goes only when noise puts it beyond 2.5 sigma of one of its four extrapolations, ~5 %
 // of the spots (binomial: 400 spots, mean ~20, sd ~4.4); more than 40 means the test rejects
@@ -195,6 +216,9 @@ TEST(MixedPixels, OptionsAreChecked) {
   EXPECT_THROW(o.Check(), Error);
   o = {};
   o.dim_sharpness = -1;
+  EXPECT_THROW(o.Check(), Error);
+  o = {};
+  o.passes = 0;
   EXPECT_THROW(o.Check(), Error);
   Grid g(1, 1);
   EXPECT_EQ(g.Count(g.Find()), 0);

@@ -173,7 +173,8 @@ Json ReconstructOptions::ToJson() const {
                        {"shadow_edge_ratio", mixed_pixels.shadow_edge_ratio},
                        {"dim_ratio", mixed_pixels.dim_ratio},
                        {"dim_sigmas", mixed_pixels.dim_sigmas},
-                       {"dim_sharpness", mixed_pixels.dim_sharpness}};
+                       {"dim_sharpness", mixed_pixels.dim_sharpness},
+                       {"passes", mixed_pixels.passes}};
   j["grid_pixel_size_m"] = resample.pixel_size;
   j["grid_max_edge_footprints"] = resample.max_edge_footprints;
   return j;
