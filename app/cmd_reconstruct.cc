@@ -13,6 +13,8 @@
 #include "core/log.h"
 #include "core/scan_folder.h"
 #include "heightfield/export.h"
+#include "heightfield/error_map_png.h"
+#include "heightfield/ground_truth.h"
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {

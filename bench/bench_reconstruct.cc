@@ -35,6 +35,7 @@
 #include "core/progress.h"
 #include "core/scan_folder.h"
 #include "heightfield/lens_shift_fit.h"
+#include "heightfield/ground_truth.h"
 #include "heightfield/reconstruct.h"
 #include "sim/virtual_rig.h"
 

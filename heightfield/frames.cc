@@ -296,4 +296,19 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
   return gains;
 }
 
+FrameStack FrameStack::FromLinear(int width, int height, std::vector<std::vector<float>> frames,
+                                  std::vector<uint8_t> saturated, int origin_x, int origin_y) {
+  FrameStack s;
+  s.width_ = width;
+  s.height_ = height;
+  s.roi_ = {origin_x, origin_y, width, height};
+  s.is_float_ = true;
+  for (const auto& f : frames)
+    if (f.size() != s.pixels()) MESOSCAN_THROW(ErrorKind::kInternal, "FromLinear: frame size");
+  for (size_t k = 0; k < frames.size(); ++k) s.session_frames_.push_back(static_cast<int>(k));
+  s.raw_float_ = std::move(frames);
+  s.saturated_ = saturated.empty() ? std::vector<uint8_t>(s.pixels(), 0) : std::move(saturated);
+  return s;
+}
+
 }  // namespace mesoscan

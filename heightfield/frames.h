@@ -52,6 +52,13 @@ class FrameStack {
   // Number of frames that were stored with 8 bits per sample.
   int eight_bit_frames() const { return eight_bit_frames_; }
 
+  // A stack held in memory (tests of the reconstruction stages): `frames` are linear radiance,
+  // black level 0, each width x height row-major; `saturated` (empty: none) per pixel; the ROI
+  // starts at camera pixel (origin_x, origin_y).
+  static FrameStack FromLinear(int width, int height, std::vector<std::vector<float>> frames,
+                               std::vector<uint8_t> saturated = {}, int origin_x = 0,
+                               int origin_y = 0);
+
  private:
   friend FrameStack LoadFrames(const Session&, const std::vector<int>&, const FrameLoadOptions&);
   int width_ = 0, height_ = 0;

@@ -1,24 +1,28 @@
 #pragma once
 // The reconstruction pipeline (issue 3): a capture session (shared/spec/session-format.md) to a
-// scan (shared/spec/scan-outputs.md).
+// scan (shared/spec/scan-outputs.md). Reconstruct() is a short driver that chains and times the
+// stages, each a function in its own file with its options struct; they pass plain
+// struct-of-arrays records on the ROI (heightfield/pixel_buffers.h) and one per-pixel state array
+// (PixelState: why a pixel has no point; each rejection is owned by one stage).
 //
-//  1. frames: parallel decode (uint16), black level, camera response; validity from white/black
-//     frames (or phase-shift modulation), saturation;
-//  2. per-frame luminance normalisation (Ritz et al. 2012, Sec. 5.1), optional 5-sample box
-//     filter of each lens-shift profile;
-//  3. phase shifting: least-squares wrapped phase per period (any phase sets), temporal
-//     unwrapping (coprime periods) or hierarchical unwrapping (a cue period covering the
-//     projector plus shorter ones) -> coarse absolute projector column u_c;
-//  4. lens-shift fit per pixel (heightfield/lens_shift_fit.h) with positions referenced to the
-//     centre of the shift range -> u modulo 2 px;
-//  5. combination (paper Eq. 2) and triangulation with camera and projector distortion;
-//  6. confidence (paper Eq. 4) times the modulation and unwrapping consistency; NaN and
-//     confidence 0 wherever a point is rejected;
-//  7. the height field on a regular world grid, normals, report.json figures.
-// Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted.
+//  0. plan (stage_plan.h): which frames are decoded and what each encodes;
+//  1. decode (frames.h LoadFrames): parallel decode (uint16), black level, camera response,
+//     saturation;
+//  2. classify (stage_classify.h): ROI, mask, saturation, lit from white/black frames;
+//  3. gains (stage_gains.h): per-frame luminance normalisation (Ritz et al. 2012, Sec. 5.1);
+//  4. phase shift (stage_phase_shift.h): wrapped phase and modulation per period;
+//  5. lens shift (stage_lens_shift.h): the profile fit per pixel, positions referenced to the
+//     centre of the shift range -> u modulo 2 px (optional 5-sample box filter);
+//  6. combine (stage_combine.h): temporal or hierarchical unwrapping -> coarse column u_c,
+//     combination (paper Eq. 2), confidence (paper Eq. 4) times modulation and unwrapping
+//     consistency;
+//  7. triangulate (stage_triangulate.h) with camera and projector distortion, then mixed pixels
+//     (stage_mixed_pixels.h); NaN and confidence 0 wherever a point is rejected;
+//  8. height field (stage_height_field.h) on a regular world grid, normals; report.json figures
+//     (reconstruct_summary.cc).
+// Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted. Ground-truth
+// evaluation is in heightfield/ground_truth.h, the error map in heightfield/error_map_png.h.
 
-#include <functional>
-#include <map>
 #include <string>
 #include <vector>
 
@@ -26,10 +30,19 @@
 #include "core/image.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "core/stage_timer.h"
 #include "heightfield/frames.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/mixed_pixels.h"
+#include "heightfield/pixel_buffers.h"
 #include "heightfield/resample.h"
+#include "heightfield/stage_classify.h"
+#include "heightfield/stage_combine.h"
+#include "heightfield/stage_gains.h"
+#include "heightfield/stage_lens_shift.h"
+#include "heightfield/stage_phase_shift.h"
+#include "heightfield/stage_plan.h"
+#include "heightfield/stage_triangulate.h"
 
 namespace mesoscan {
 
@@ -92,6 +105,14 @@ struct ReconstructOptions {
 
   void Check() const;
   Json ToJson() const;
+  // The options of each stage (reconstruct_options.cc).
+  PlanOptions Plan() const;
+  FrameLoadOptions Load() const;
+  ClassifyOptions Classify() const;
+  GainOptions Gains() const;
+  PhaseShiftStageOptions PhaseShift(const Rig& rig) const;
+  LensShiftStageOptions LensShift() const;
+  CombineOptions Combine() const;
 };
 
 // Per-pixel intermediate results on the camera grid (NaN where not computed).
@@ -112,7 +133,7 @@ struct ReconstructDiagnostics {
 struct ReconstructSummary {
   // Wall time (s) per stage, in pipeline order: decode, normalize, phase_shift, lens_shift,
   // triangulate, height_field, ...
-  std::vector<std::pair<std::string, double>> timings_s;
+  StageTimings timings_s;
   int64_t pixels_total = 0;    // camera pixels
   int64_t pixels_roi = 0;      // inside ROI and mask
   int64_t pixels_lit = 0;      // lit, unsaturated, modulated
@@ -143,55 +164,18 @@ struct ReconstructSummary {
 // Runs the pipeline on a session already read by ReadSession. Throws Error for bad input (a mask
 // of the wrong size, a session whose patterns cannot decode); never for data (a pixel that cannot
 // be reconstructed is NaN with confidence 0). The returned Scan's report holds the summary and
-// options; the caller adds the session path and ground-truth figures (EvaluateAgainstGroundTruth).
+// options; the caller adds the session path and ground-truth figures (heightfield/ground_truth.h).
 Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                  ReconstructSummary* summary = nullptr);
 
-// Errors of reconstructed points against a simulated session's gt_points.exr. The depth error of a
-// pixel is the Z (world height) difference at the same camera pixel, metres; only pixels where
-// both are finite enter the error figures. Coverage = reconstructed / ground-truth-lit pixels
-// inside `roi` (empty = whole image).
-struct GroundTruthErrors {
-  int64_t pixels_gt = 0;      // ground truth finite (lit surface) inside the ROI
-  int64_t pixels_both = 0;    // ... and reconstructed
-  double coverage = 0.0;      // pixels_both / pixels_gt
-  double rms_m = 0.0;         // RMS of the Z error
-  double mean_m = 0.0;        // mean (bias)
-  double median_abs_m = 0.0;  // median |error|
-  double p99_abs_m = 0.0;     // 99th percentile |error|
-  double max_abs_m = 0.0;
-  int64_t gross = 0;            // |error| > gross_threshold_m
-  double gross_fraction = 0.0;  // gross / pixels_both
-  double gross_threshold_m = 0.0;
-  // Mixed pixels, where gt_points.exr has the simulator's footprint channels (lit_fraction,
-  // relief; sim/README.md): a lit pixel is mixed if part of its footprint is unlit or the
-  // footprint's relief (distance from one plane) exceeds mixed_relief_m = gross_threshold_m / 10
-  // (the inliers' RMS): it sees more than one smooth surface, and item 9 of issue 3 asks for
-  // its rejection. Coverage of the single-surface lit pixels is then the fair figure. Without
-  // the channels every lit pixel counts as single-surface.
-  bool footprint_known = false;
-  double mixed_relief_m = 0.0;
-  int64_t pixels_mixed = 0;      // lit (per pixels_gt) and mixed
-  int64_t mixed_kept = 0;        // ... and reconstructed anyway
-  int64_t gross_mixed = 0;       // ... with a gross error
-  double coverage_single = 0.0;  // reconstructed / lit single-surface pixels
-  ImageF error;                  // camera grid, Z error (m), NaN where not both
-  Json ToJson() const;
-};
-// gross_threshold_m <= 0: 10x the RMS of the inliers (|e| < 5 median |e|) is used.
-GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
-                                             const PixelRect& roi = {},
-                                             double gross_threshold_m = 0.0);
-
-// Cramer-Rao floor of the lens-shift depth RMS over the pixels where `error` is finite:
-// var(phi) from the Fisher information (LensShiftPhaseCrlb, frequency held as in the second fit
-// pass) at each pixel's fitted amplitude and frequency, with the noise sigma a known noise model
-// gives at the fitted offset, carried through dZ/du. Needs diagnostics (keep_diagnostics) of a
-// lens-shift reconstruction; returns 0 where there is none or no pixel qualifies.
-double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& diagnostics,
-                             const ImageF& error, const std::function<double(double)>& sigma);
-
-// Error map PNG: |Z error| as a colour map (0 .. `max_m`, default p99) with a scale bar. NaN black.
-void WriteErrorMapPng(const std::filesystem::path& path, const ImageF& error, double max_m = 0.0);
+// The summary's pixel counts from the final states (reconstruct_summary.cc).
+void CountFinalStates(const PixelStates& state, ReconstructSummary* summary);
+// RMS of the predicted depth sigma over the kOk pixels (every 4th pixel of every 4th row).
+double PredictedDepthRms(const RoiGrid& grid, const PixelStates& state,
+                         const std::vector<float>& sigma_z);
+// The per-pixel intermediate images on the camera grid.
+ReconstructDiagnostics CollectDiagnostics(const Rig& rig, const RoiGrid& grid,
+                                          const PhaseShiftPixels& ps, const LensShiftPixels& ls,
+                                          const CombinedPixels& combined, ImageF dz_du);
 
 }  // namespace mesoscan

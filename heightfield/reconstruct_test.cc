@@ -20,6 +20,7 @@
 #include "core/scan_folder.h"
 #include "core/progress.h"
 #include "heightfield/frames.h"
+#include "heightfield/ground_truth.h"
 #include "heightfield/resample.h"
 #include "heightfield/triangulate.h"
 

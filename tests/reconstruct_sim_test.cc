@@ -17,6 +17,7 @@
 #include "core/image_io.h"
 #include "core/progress.h"
 #include "heightfield/lens_shift_fit.h"
+#include "heightfield/ground_truth.h"
 #include "heightfield/reconstruct.h"
 #include "sim/virtual_rig.h"
 

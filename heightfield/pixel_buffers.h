@@ -1,0 +1,86 @@
+#pragma once
+// The per-pixel records the reconstruction stages (heightfield/reconstruct.h) pass to each other:
+// plain structs of planar arrays on the ROI grid (row-major, index y * width + x, the ROI's own
+// origin), one struct per stage output, so that what a stage reads and writes is visible in its
+// signature. NaN marks a value that was not computed.
+
+#include <cstdint>
+#include <vector>
+
+#include "heightfield/frames.h"
+
+namespace mesoscan {
+
+// Why a pixel has no point. Every pixel starts kActive (or kOutside) in the classify stage
+// (heightfield/stage_classify.h), which creates the state array; each later stage may only move a
+// kActive pixel to the one rejection it owns (listed per value), and the triangulation moves the
+// survivors to kOk. So the state a pixel ends in names the stage that rejected it.
+enum class PixelState : uint8_t {
+  kOutside = 0,     // classify: outside the ROI or masked out (--mask)
+  kSaturated,       // classify: a frame is saturated at this pixel
+  kUnlit,           // classify (white - black < min_lit) or phase shift (no white frame:
+                    // twice the phase-shift offset < min_lit)
+  kUnmodulated,     // phase shift: modulation of some period < min_modulation x white level
+  kFitFailed,       // lens shift: the profile fit is invalid
+  kUnwrapFailed,    // combine: temporal unwrapping inconsistent (residual > max_unwrap_residual)
+  kCombination,     // combine: coarse and fine disagree (a period jump, paper Eq. 2)
+  kLowConfidence,   // combine: paper Eq. 4 confidence below min_confidence
+  kNoIntersection,  // triangulate: the camera ray misses the projector plane
+  kDiscontinuity,   // mixed pixels: a mixed pixel at a depth step or shadow edge
+  kActive,          // still in the running
+  kOk,              // triangulate: a point (unless mixed pixels rejects it later)
+};
+
+using PixelStates = std::vector<PixelState>;
+
+// The ROI in camera pixels and the size of the per-pixel arrays.
+struct RoiGrid {
+  PixelRect roi;  // x, y: camera pixel of ROI pixel (0, 0); w, h: size
+  int width = 0, height = 0;
+  size_t pixels() const { return static_cast<size_t>(width) * height; }
+  static RoiGrid Of(const FrameStack& stack) {
+    return {stack.roi(), stack.width(), stack.height()};
+  }
+};
+
+// Classify stage: the state array and the white/black frames.
+struct PixelClasses {
+  PixelStates state;
+  std::vector<float> white_level;  // white - black frame, linear units; NaN without white frame
+  std::vector<float> black_value;  // black frame, linear units; 0 without one
+  int64_t pixels_roi = 0;          // inside ROI and mask
+  int64_t pixels_saturated = 0;
+};
+
+// Phase-shift stage: per period p (plan order) the wrapped phase, modulation and residual.
+struct PhaseShiftPixels {
+  std::vector<std::vector<float>> theta;         // [p][i], radians in [0, 2 pi)
+  std::vector<std::vector<float>> modulation;    // [p][i], B, linear units
+  std::vector<std::vector<float>> residual_rms;  // [p][i], linear units
+  std::vector<float> level;  // white level (white frame, or 2 x offset of the first period)
+  int64_t pixels_lit = 0;    // kActive after this stage: lit, unsaturated, modulated
+};
+
+// Lens-shift stage: the fitted profile (heightfield/lens_shift_fit.h) per pixel; empty arrays
+// when the session has no lens-shift frames or they are not used.
+struct LensShiftPixels {
+  std::vector<float> phase0;        // phase at shift 0 with the pixel's frequency, radians
+  std::vector<float> amplitude;     // a, linear units (after luminance normalisation)
+  std::vector<float> frequency;     // f, cycles per projector px
+  std::vector<float> offset;        // d
+  std::vector<float> residual_rms;  // linear units
+  std::vector<float> samples;       // samples used
+  int64_t pixels_fitted = 0;        // profiles fitted (valid or not)
+  bool empty() const { return phase0.empty(); }
+};
+
+// Combine stage: unwrapping, paper Eq. 2 and Eq. 4.
+struct CombinedPixels {
+  std::vector<float> u;                // final projector column, px; NaN if rejected
+  std::vector<float> u_coarse;         // absolute column from phase shifting, px
+  std::vector<float> unwrap_residual;  // sigma units
+  std::vector<float> confidence;       // [0, 1]; 0 if rejected
+  std::vector<float> sigma_u;          // predicted sigma of u, px
+};
+
+}  // namespace mesoscan

@@ -1,0 +1,436 @@
+// One test (or a few) per reconstruction stage (heightfield/reconstruct.h), each on its own
+// inputs built here in memory: the plan from a session's frame list, the pixel stages from
+// FrameStack::FromLinear, the later stages from hand-made per-pixel records. The whole pipeline is
+// tested in reconstruct_test.cc and tests/reconstruct_sim_test.cc.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "core/error.h"
+#include "core/numbers.h"
+#include "core/stage_timer.h"
+#include "heightfield/pixel_buffers.h"
+#include "heightfield/stage_classify.h"
+#include "heightfield/stage_combine.h"
+#include "heightfield/stage_gains.h"
+#include "heightfield/stage_height_field.h"
+#include "heightfield/stage_lens_shift.h"
+#include "heightfield/stage_mixed_pixels.h"
+#include "heightfield/stage_phase_shift.h"
+#include "heightfield/stage_plan.h"
+#include "heightfield/stage_triangulate.h"
+
+namespace mesoscan {
+namespace {
+
+Frame SineFrame(double period, double phase, int shift = 0) {
+  Frame f;
+  f.pattern.type = PatternType::kSine;
+  f.pattern.period_px = period;
+  f.pattern.phase = phase;
+  f.shift_steps = shift;
+  return f;
+}
+
+Frame StripesFrame(int shift) {
+  Frame f;
+  f.pattern.type = PatternType::kStripes;
+  f.pattern.period_px = 2;
+  f.shift_steps = shift;
+  return f;
+}
+
+Frame FlatFrame(PatternType t) {
+  Frame f;
+  f.pattern.type = t;
+  return f;
+}
+
+TEST(StagePlan, GroupsSineSetsSortsLensShiftAndFindsWhiteBlack) {
+  Session s;
+  s.rig.projector.width = 800;
+  s.rig.lens_shifter = LensShifter();
+  s.rig.lens_shifter->steps_per_px = 100;
+  for (double ph : {0.0, 2.0, 4.0}) s.frames.push_back(SineFrame(7, ph));
+  for (double ph : {0.0, 2.0, 4.0}) s.frames.push_back(SineFrame(11, ph));
+  s.frames.push_back(SineFrame(11, 1.0, 50));  // not at shift 0: not decoded
+  for (int st : {30, -10, 10, 50}) s.frames.push_back(StripesFrame(st));
+  s.frames.push_back(FlatFrame(PatternType::kBlack));
+  s.frames.push_back(FlatFrame(PatternType::kWhite));
+
+  const ReconstructPlan p = MakeReconstructPlan(s, {});
+  ASSERT_EQ(p.periods.size(), 2u);
+  EXPECT_EQ(p.PeriodList(), (std::vector<double>{7, 11}));
+  EXPECT_EQ(p.PhaseShiftFrames(), 6);
+  EXPECT_EQ(p.unwrapping, "temporal");
+  ASSERT_EQ(p.ls_stack.size(), 4u);
+  EXPECT_EQ(p.ls_shift_px, (std::vector<double>{-0.1, 0.1, 0.3, 0.5}));
+  EXPECT_DOUBLE_EQ(p.LensShiftCentre(), 0.2);
+  // Stack order: sine frames, lens-shift frames by shift, white, black.
+  EXPECT_EQ(p.frames, (std::vector<int>{0, 1, 2, 3, 4, 5, 8, 9, 7, 10, 12, 11}));
+  EXPECT_EQ(p.white, 10);
+  EXPECT_EQ(p.black, 11);
+
+  PlanOptions no_ls;
+  no_ls.use_lens_shift = false;
+  EXPECT_FALSE(MakeReconstructPlan(s, no_ls).use_lens_shift());
+  s.rig.lens_shifter.reset();
+  EXPECT_FALSE(MakeReconstructPlan(s, {}).use_lens_shift());
+
+  Session none;
+  none.frames.push_back(SineFrame(7, 0));
+  none.frames.push_back(SineFrame(7, 2));
+  EXPECT_THROW(MakeReconstructPlan(none, {}), Error);
+}
+
+TEST(StageClassify, SaturatedUnlitAndLit) {
+  // Stack frames: white, black. Pixels: saturated, unlit, lit, lit.
+  std::vector<std::vector<float>> frames = {{0.9f, 0.03f, 0.5f, 0.8f}, {0.1f, 0.02f, 0.1f, 0.0f}};
+  const FrameStack stack = FrameStack::FromLinear(4, 1, frames, {1, 0, 0, 0});
+  ReconstructPlan plan;
+  plan.frames = {0, 1};
+  plan.white = 0;
+  plan.black = 1;
+  const PixelClasses c = ClassifyPixels(stack, plan, 4, 1, {});
+  EXPECT_EQ(c.state, (PixelStates{PixelState::kSaturated, PixelState::kUnlit, PixelState::kActive,
+                                  PixelState::kActive}));
+  EXPECT_EQ(c.pixels_roi, 4);
+  EXPECT_EQ(c.pixels_saturated, 1);
+  EXPECT_FLOAT_EQ(c.white_level[2], 0.4f);
+  EXPECT_FLOAT_EQ(c.black_value[2], 0.1f);
+  ClassifyOptions bad;
+  bad.mask_path = "/nonexistent/mask.png";
+  EXPECT_THROW(ClassifyPixels(stack, plan, 4, 1, bad), Error);
+}
+
+// A sine set of `K` phases per period on random pixels: u uniform over the projector.
+struct SineStack {
+  ReconstructPlan plan;
+  std::vector<std::vector<float>> frames;
+  std::vector<double> u, amp, dc;
+};
+
+SineStack MakeSineStack(int np, const std::vector<double>& periods, int K,
+                        const std::vector<double>& gains, uint32_t seed) {
+  SineStack s;
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> U(0, 1);
+  for (int i = 0; i < np; ++i) {
+    s.u.push_back(800 * U(rng));
+    s.amp.push_back(0.1 + 0.2 * U(rng));
+    s.dc.push_back(0.35 + 0.1 * U(rng));
+  }
+  s.plan.projector_width = 800;
+  for (double period : periods) {
+    PhasePeriod p;
+    p.period = period;
+    for (int k = 0; k < K; ++k) {
+      const double delta = 2 * kPi * k / K;
+      p.stack_frames.push_back(static_cast<int>(s.frames.size()));
+      p.deltas.push_back(delta);
+      const double g = gains.empty() ? 1.0 : gains[s.frames.size()];
+      std::vector<float> f(np);
+      for (int i = 0; i < np; ++i)
+        f[i] = static_cast<float>(
+            g * (s.dc[i] + s.amp[i] * std::cos(2 * kPi * s.u[i] / period + delta)));
+      s.plan.frames.push_back(static_cast<int>(s.frames.size()));
+      s.frames.push_back(std::move(f));
+    }
+    s.plan.periods.push_back(p);
+  }
+  return s;
+}
+
+TEST(StageGains, RecoversAPerFrameGain) {
+  // 5 phases per period: with 3, a gain pattern times the sinusoid aliases onto the sinusoid
+  // and the per-pixel model absorbs it (heightfield/frames.h).
+  const std::vector<double> gains = {1.0, 1.03, 0.98, 1.0, 1.01, 0.99, 1.02, 0.97, 1.0, 1.0};
+  SineStack s = MakeSineStack(4000, {7, 11}, 5, gains, 3);
+  const FrameStack stack = FrameStack::FromLinear(4000, 1, s.frames);
+  const PixelStates state(4000, PixelState::kActive);
+  const FrameGains g = EstimateLuminanceGains(stack, s.plan, state, 10, {});
+  // Noiseless data: the 3 alternating rounds of EstimateFrameGains remove most of the jitter
+  // (what is left is the slow convergence of the alternation, not noise).
+  double mean = 0;
+  for (double v : gains) mean += v / gains.size();
+  double before = 0, after = 0;
+  for (int k = 0; k < 10; ++k) {
+    before += std::pow(gains[k] / mean - 1, 2);
+    after += std::pow(g.session_gain[k] - gains[k] / mean, 2);
+    EXPECT_NEAR(g.inv_gain[k], 1.0 / g.session_gain[k], 1e-6);
+  }
+  EXPECT_LT(std::sqrt(after), 0.5 * std::sqrt(before));  // 0.32 measured
+  GainOptions off;
+  off.normalize_luminance = false;
+  for (float v : EstimateLuminanceGains(stack, s.plan, state, 10, off).inv_gain) EXPECT_EQ(v, 1.0f);
+}
+
+TEST(StagePhaseShift, WrappedPhaseModulationAndRejections) {
+  SineStack s = MakeSineStack(6, {7, 11}, 4, {}, 5);
+  // Pixel 4: no modulation in period 11; pixel 5: dark.
+  for (int k = 4; k < 8; ++k) s.frames[k][4] = static_cast<float>(s.dc[4]);
+  for (int k = 0; k < 8; ++k) s.frames[k][5] = 0.001f;
+  const FrameStack stack = FrameStack::FromLinear(6, 1, s.frames);
+  PixelClasses classes;
+  classes.state.assign(6, PixelState::kActive);
+  classes.white_level.assign(6, std::nanf(""));
+  classes.black_value.assign(6, 0.0f);
+  FrameGains gains;
+  gains.inv_gain.assign(8, 1.0f);
+  const PhaseShiftPixels ps = DecodePhaseShift(stack, s.plan, gains, classes, {}, &classes.state);
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_EQ(classes.state[i], PixelState::kActive);
+    for (int p = 0; p < 2; ++p) {
+      const double period = s.plan.periods[p].period;
+      const double d = std::remainder(ps.theta[p][i] - 2 * kPi * s.u[i] / period, 2 * kPi);
+      EXPECT_NEAR(d, 0.0, 1e-5);
+      EXPECT_NEAR(ps.modulation[p][i], s.amp[i], 1e-5);
+    }
+    EXPECT_NEAR(ps.level[i], 2 * s.dc[i], 1e-5);  // no white frame: twice the offset
+  }
+  EXPECT_EQ(classes.state[4], PixelState::kUnmodulated);
+  EXPECT_EQ(classes.state[5], PixelState::kUnlit);
+  EXPECT_EQ(ps.pixels_lit, 4);
+}
+
+TEST(StageLensShift, NoiselessProfilesGiveThePhaseAtShiftZero) {
+  const int w = 12, h = 10, n = w * h, N = 24;
+  ReconstructPlan plan;
+  std::vector<std::vector<float>> frames;
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> U(-kPi, kPi);
+  std::vector<double> phase0(n);
+  for (double& v : phase0) v = U(rng);
+  const double f = 0.5;
+  for (int k = 0; k < N; ++k) {
+    const double x = -0.7 + 0.13 * k;  // centre 0.795: not 0 on purpose
+    plan.ls_stack.push_back(k);
+    plan.ls_shift_px.push_back(x);
+    plan.frames.push_back(k);
+    std::vector<float> fr(n);
+    for (int i = 0; i < n; ++i)
+      fr[i] = static_cast<float>(0.4 + 0.25 * std::sin(phase0[i] + 2 * kPi * f * x));
+    frames.push_back(std::move(fr));
+  }
+  const FrameStack stack = FrameStack::FromLinear(w, h, frames);
+  FrameGains gains;
+  gains.inv_gain.assign(N, 1.0f);
+  PixelStates state(n, PixelState::kActive);
+  state[7] = PixelState::kUnlit;  // never fitted
+  const LensShiftPixels ls = FitLensShift(stack, plan, gains, {}, &state);
+  ASSERT_FALSE(ls.empty());
+  EXPECT_EQ(ls.pixels_fitted, n - 1);
+  EXPECT_TRUE(std::isnan(ls.phase0[7]));
+  for (int i = 0; i < n; ++i) {
+    if (i == 7) continue;
+    ASSERT_EQ(state[i], PixelState::kActive) << i;
+    EXPECT_NEAR(std::remainder(ls.phase0[i] - phase0[i], 2 * kPi), 0.0, 1e-4) << i;
+    EXPECT_NEAR(ls.amplitude[i], 0.25, 1e-4);
+    EXPECT_NEAR(ls.frequency[i], f, 1e-4);
+  }
+  // No lens-shift frames: nothing fitted, nothing changed.
+  ReconstructPlan none;
+  PixelStates s2(n, PixelState::kActive);
+  EXPECT_TRUE(FitLensShift(stack, none, gains, {}, &s2).empty());
+  EXPECT_EQ(s2, PixelStates(n, PixelState::kActive));
+}
+
+TEST(StageLensShift, SmoothFrequencyMapIsARobustQuadratic) {
+  const int w = 40, h = 30;
+  std::vector<float> f(w * h);
+  auto q = [&](int x, int y) {
+    const double u = (x + 0.5) * 2.0 / w - 1, v = (y + 0.5) * 2.0 / h - 1;
+    return 0.5 + 0.01 * u - 0.02 * v + 0.005 * u * u + 0.003 * u * v - 0.004 * v * v;
+  };
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) f[y * w + x] = static_cast<float>(q(x, y));
+  for (int i = 0; i < w * h; i += 37) f[i] = 0.9f;           // outliers
+  for (int i = 5; i < w * h; i += 41) f[i] = std::nanf("");  // unfitted
+  const std::vector<float> m = SmoothFrequencyMap(f, w, h);
+  ASSERT_EQ(m.size(), f.size());
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) EXPECT_NEAR(m[y * w + x], q(x, y), 1e-6);
+  EXPECT_TRUE(SmoothFrequencyMap(std::vector<float>(49, 0.5f), 7, 7).empty());
+}
+
+// Phase-shift records of pixels at columns u (periods 7, 11, 13; 3 phases) and lens-shift
+// records whose fine phase says column u_fine.
+struct CombineInput {
+  ReconstructPlan plan;
+  PhaseShiftPixels ps;
+  LensShiftPixels ls;
+};
+
+CombineInput MakeCombineInput(const std::vector<double>& u_coarse,
+                              const std::vector<double>& u_fine) {
+  CombineInput in;
+  in.plan.projector_width = 800;
+  const size_t n = u_coarse.size();
+  for (double period : {7.0, 11.0, 13.0}) {
+    PhasePeriod p;
+    p.period = period;
+    for (int k = 0; k < 3; ++k) {
+      p.stack_frames.push_back(static_cast<int>(in.plan.frames.size()));
+      in.plan.frames.push_back(static_cast<int>(in.plan.frames.size()));
+      p.deltas.push_back(2 * kPi * k / 3);
+    }
+    in.plan.periods.push_back(p);
+    std::vector<float> th(n), mod(n, 0.3f), res(n, 0.0f);
+    for (size_t i = 0; i < n; ++i)
+      th[i] = static_cast<float>(std::fmod(2 * kPi * u_coarse[i] / period, 2 * kPi));
+    in.ps.theta.push_back(th);
+    in.ps.modulation.push_back(mod);
+    in.ps.residual_rms.push_back(res);
+  }
+  in.ps.level.assign(n, 0.8f);
+  if (!u_fine.empty()) {
+    for (int k = 0; k < 40; ++k) in.plan.ls_stack.push_back(9 + k);
+    for (auto* v : {&in.ls.phase0, &in.ls.amplitude, &in.ls.frequency, &in.ls.offset,
+                    &in.ls.residual_rms, &in.ls.samples})
+      v->assign(n, 0.0f);
+    for (size_t i = 0; i < n; ++i) {
+      in.ls.phase0[i] = static_cast<float>(kPi / 2 - kPi * u_fine[i]);  // u = 1/2 - phase0 / pi
+      in.ls.amplitude[i] = 0.3f;
+      in.ls.frequency[i] = 0.5f;
+      in.ls.residual_rms[i] = 0.003f;
+      in.ls.samples[i] = 40;
+    }
+  }
+  return in;
+}
+
+TEST(StageCombine, UnwrapsAndRejectsInconsistentPhases) {
+  CombineInput in = MakeCombineInput({123.4, 640.9, 300.0}, {});
+  // Pixel 2: period 7 half a fringe off.
+  in.ps.theta[0][2] = static_cast<float>(std::fmod(in.ps.theta[0][2] + kPi, 2 * kPi));
+  PixelStates state(3, PixelState::kActive);
+  const CombinedPixels c = CombinePhases(in.plan, in.ps, in.ls, {}, &state);
+  EXPECT_EQ(state,
+            (PixelStates{PixelState::kActive, PixelState::kActive, PixelState::kUnwrapFailed}));
+  EXPECT_NEAR(c.u[0], 123.4, 1e-3);
+  EXPECT_NEAR(c.u[1], 640.9, 1e-3);
+  EXPECT_TRUE(std::isnan(c.u[2]));
+  EXPECT_EQ(c.confidence[2], 0.0f);
+  EXPECT_GT(c.confidence[0], 0.5f);
+  EXPECT_GT(c.sigma_u[0], 0.0f);
+}
+
+TEST(StageCombine, LensShiftFinePhaseAndPeriodJumps) {
+  // Pixel 0: coarse 0.2 px off the fine column (kept, fine wins); pixel 1: 0.8 px off (a period
+  // jump of the 2-px fine period: rejected); pixel 2: low confidence (noisy profile).
+  CombineInput in = MakeCombineInput({100.5, 101.1, 400.25}, {100.3, 100.3, 400.25});
+  in.ls.residual_rms[2] = 0.16f;  // E = (0.16 / 0.3)^2: c = 1 - sqrt(4 E) < 0
+  PixelStates state(3, PixelState::kActive);
+  const CombinedPixels c = CombinePhases(in.plan, in.ps, in.ls, {}, &state);
+  EXPECT_EQ(state, (PixelStates{PixelState::kActive, PixelState::kCombination,
+                                PixelState::kLowConfidence}));
+  EXPECT_NEAR(c.u[0], 100.3, 1e-4);
+  EXPECT_NEAR(c.u_coarse[0], 100.5, 1e-3);
+  // sigma_u = sqrt(2 sigma^2 / (N a^2)) / pi with sigma = rms sqrt(N / (N - 3)).
+  const double sigma = 0.003 * std::sqrt(40.0 / 37.0);
+  EXPECT_NEAR(c.sigma_u[0], std::sqrt(2 * sigma * sigma / (40 * 0.09)) / kPi, 1e-7);
+}
+
+Rig SimpleRig(int w, int h) {
+  Rig rig;
+  rig.camera.width = w;
+  rig.camera.height = h;
+  rig.camera.K << 4545.45, 0, (w - 1) / 2.0, 0, 4545.45, (h - 1) / 2.0, 0, 0, 1;
+  rig.camera.world_from_device.rotation << 1, 0, 0, 0, -1, 0, 0, 0, -1;
+  rig.camera.world_from_device.translation = Vec3d(0, 0, 0.25);
+  rig.projector.width = 800;
+  rig.projector.height = 600;
+  rig.projector.K << 1650, 0, 399.5, 0, 1650, 299.5, 0, 0, 1;
+  const double a = 20 * kPi / 180;
+  rig.projector.world_from_device.rotation << std::cos(a), 0, -std::sin(a), 0, -1, 0, -std::sin(a),
+      0, -std::cos(a);
+  rig.projector.world_from_device.translation = Vec3d(0.0906, 0, 0.249);
+  return rig;
+}
+
+TEST(StageTriangulate, PointsProjectBackToTheirPixelAndColumn) {
+  const Rig rig = SimpleRig(40, 30);
+  RoiGrid grid{{10, 5, 4, 3}, 4, 3};  // a crop: ROI pixel (0, 0) is camera pixel (10, 5)
+  CombinedPixels c;
+  c.u.assign(12, 0.0f);
+  c.confidence.assign(12, 0.7f);
+  c.sigma_u.assign(12, 0.01f);
+  for (int i = 0; i < 12; ++i) c.u[i] = 390.0f + i;
+  PixelStates state(12, PixelState::kActive);
+  state[3] = PixelState::kUnwrapFailed;
+  c.u[3] = std::nanf("");
+  const TriangulatedPoints t = TriangulatePoints(rig, grid, c, {true}, &state);
+  EXPECT_EQ(t.points.xyz.width(), 40);
+  for (int i = 0; i < 12; ++i) {
+    const int cx = 10 + i % 4, cy = 5 + i / 4;
+    if (i == 3) {
+      EXPECT_EQ(state[i], PixelState::kUnwrapFailed);
+      EXPECT_TRUE(std::isnan(t.points.xyz(cx, cy, 2)));
+      EXPECT_EQ(t.points.confidence(cx, cy), 0.0f);
+      continue;
+    }
+    ASSERT_EQ(state[i], PixelState::kOk);
+    const Vec3d p(t.points.xyz(cx, cy, 0), t.points.xyz(cx, cy, 1), t.points.xyz(cx, cy, 2));
+    Vec2d uv, xy;
+    ASSERT_TRUE(rig.projector.Project(p, &uv));
+    ASSERT_TRUE(rig.camera.Project(p, &xy));
+    EXPECT_NEAR(uv.x(), c.u[i], 1e-3);
+    EXPECT_NEAR(xy.x(), cx, 1e-3);
+    EXPECT_NEAR(xy.y(), cy, 1e-3);
+    EXPECT_EQ(t.points.confidence(cx, cy), 0.7f);
+    EXPECT_EQ(t.points.projector_u(cx, cy), c.u[i]);
+    EXPECT_NEAR(t.sigma_z[i], 0.01 * std::abs(t.dz_du(cx, cy)), 1e-12);
+  }
+  EXPECT_TRUE(std::isnan(t.points.xyz(0, 0, 2)));  // outside the ROI
+}
+
+TEST(StageMixedPixels, AStepPointBetweenTheSurfacesIsRemoved) {
+  // A row of points on z = 0 (x < 6) and z = 100 um (x > 6); x = 6 half-way.
+  const int w = 13, h = 1;
+  RoiGrid grid{{0, 0, w, h}, w, h};
+  ScanPoints pts;
+  pts.xyz = ImageF(w, h, 3, 0.0f);
+  pts.confidence = ImageF(w, h, 1, 1.0f);
+  for (int x = 0; x < w; ++x) {
+    pts.xyz(x, 0, 0) = x * 1e-5f;
+    pts.xyz(x, 0, 2) = x < 6 ? 0.0f : x > 6 ? 1e-4f : 5e-5f;
+  }
+  PixelStates state(w, PixelState::kOk);
+  const std::vector<float> white(w, 0.8f), sigma(w, 1e-6f);
+  MixedPixelOptions o;
+  o.outlier_footprints = 0;
+  EXPECT_EQ(RejectMixedPixels(grid, white, sigma, o, &pts, &state), 1);
+  EXPECT_EQ(state[6], PixelState::kDiscontinuity);
+  EXPECT_TRUE(std::isnan(pts.xyz(6, 0, 2)));
+  EXPECT_EQ(pts.confidence(6, 0), 0.0f);
+  for (int x = 0; x < w; ++x)
+    EXPECT_EQ(state[x], x == 6 ? PixelState::kDiscontinuity : PixelState::kOk) << x;
+}
+
+TEST(StageHeightField, NoPointGivesAOneByOneUnknownGrid) {
+  ScanPoints pts;
+  pts.xyz = ImageF(8, 6, 3, std::nanf(""));
+  pts.confidence = ImageF(8, 6, 1, 0.0f);
+  const HeightFieldResult r = MakeHeightField(pts, {});
+  EXPECT_EQ(r.height.z.width(), 1);
+  EXPECT_TRUE(std::isnan(r.height.z(0, 0)));
+  EXPECT_EQ(r.height.confidence(0, 0), 0.0f);
+  EXPECT_EQ(r.normals.width(), 1);
+}
+
+TEST(StageTimer, RecordsStagesInOrder) {
+  StageTimings t;
+  StageTimer timer(&t);
+  timer.Stage("a");
+  timer.Stage("b");
+  ASSERT_EQ(t.size(), 2u);
+  EXPECT_EQ(t[0].first, "a");
+  EXPECT_EQ(t[1].first, "b");
+  EXPECT_GE(t[0].second, 0.0);
+  EXPECT_GE(timer.Total(), t[0].second + t[1].second);
+}
+
+}  // namespace
+}  // namespace mesoscan

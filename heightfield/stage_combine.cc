@@ -1,0 +1,127 @@
+#include "heightfield/stage_combine.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "core/numbers.h"
+#include "core/parallel.h"
+#include "heightfield/phase_shift.h"
+
+namespace mesoscan {
+namespace {
+
+double Wrap2Pi(double a) {
+  a = std::fmod(a, 2 * kPi);
+  return a < 0 ? a + 2 * kPi : a;
+}
+
+}  // namespace
+
+CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                             const LensShiftPixels& ls, const CombineOptions& options,
+                             PixelStates* state_out) {
+  constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+  PixelStates& state = *state_out;
+  const size_t np = state.size();
+  const auto& periods = plan.periods;
+  const int nper = static_cast<int>(periods.size());
+  const bool use_ls = !ls.empty();
+  const TemporalUnwrapper unwrapper(plan.PeriodList(), plan.projector_width,
+                                    options.max_unwrap_residual);
+  std::vector<WrappedPhaseSolver> solvers;
+  for (const auto& p : periods) solvers.emplace_back(p.deltas);
+  const auto& theta = ps.theta;
+  const auto& modulation = ps.modulation;
+  const auto& ps_res = ps.residual_rms;
+  const auto& level = ps.level;
+
+  CombinedPixels out;
+  out.u.assign(np, kNaN);
+  out.u_coarse.assign(np, kNaN);
+  out.unwrap_residual.assign(np, kNaN);
+  out.confidence.assign(np, 0.0f);
+  out.sigma_u.assign(np, kNaN);
+  // Rows of the ROI do not matter here: blocks of 4096 pixels.
+  constexpr int kBlock = 4096;
+  const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
+  ParallelForRows(blocks, [&](int b0, int b1) {
+    std::vector<double> th(nper), wt(nper);
+    const size_t i_end = std::min(np, static_cast<size_t>(b1) * kBlock);
+    for (size_t i = static_cast<size_t>(b0) * kBlock; i < i_end; ++i) {
+      if (state[i] != PixelState::kActive) continue;
+      // Per-sample noise: from the lens-shift residual (many samples) or the phase-shift
+      // residuals (K > 3), else a floor of 1% of the white level; plus a systematic part
+      // (model errors: harmonics, defocus, jitter) proportional to the modulation.
+      double sigma = 0.01 * level[i];
+      if (use_ls && ls.samples[i] > 4) {
+        sigma = ls.residual_rms[i] *
+                std::sqrt(ls.samples[i] / (ls.samples[i] - (options.four_parameter_fit ? 4 : 3)));
+      } else {
+        double s2 = 0;
+        int cnt = 0;
+        for (int p = 0; p < nper; ++p) {
+          const int K = static_cast<int>(periods[p].stack_frames.size());
+          if (K > 3) {
+            s2 += ps_res[p][i] * ps_res[p][i] * K / (K - 3.0);
+            ++cnt;
+          }
+        }
+        if (cnt) sigma = std::sqrt(s2 / cnt);
+      }
+      sigma = std::max(sigma, 1e-4 * level[i]);
+      for (int p = 0; p < nper; ++p) {
+        th[p] = theta[p][i];
+        const double var = solvers[p].ThetaVariance(sigma, modulation[p][i]) +
+                           std::pow(options.systematic_phase_noise, 2);
+        wt[p] = 1.0 / var;
+      }
+      const UnwrapResult ur = unwrapper.Unwrap(th.data(), wt.data());
+      out.u_coarse[i] = static_cast<float>(ur.u);
+      out.unwrap_residual[i] = static_cast<float>(ur.residual);
+      if (!ur.valid) {
+        state[i] = PixelState::kUnwrapFailed;
+        continue;
+      }
+      double u = ur.u, c = 1.0;
+      if (use_ls) {
+        out.sigma_u[i] = static_cast<float>(
+            std::sqrt(2.0 * sigma * sigma / (ls.samples[i] * ls.amplitude[i] * ls.amplitude[i])) /
+            kPi);
+        // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
+        // fine phase in cycles. u_fine = 1/2 - phase0 / pi (mod 2), see reconstruct.h.
+        const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
+        u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
+        const double comb = ur.u - u;
+        if (std::abs(comb) > options.max_combination_residual_px) {
+          state[i] = PixelState::kCombination;
+          continue;
+        }
+        const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
+        c = 1.0 - std::sqrt(e * options.confidence_t);
+        c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
+      } else {
+        double info = 0.0;  // Fisher information of u from the periods
+        for (int p = 0; p < nper; ++p)
+          info += std::pow(2 * kPi / periods[p].period, 2) /
+                  solvers[p].ThetaVariance(sigma, modulation[p][i]);
+        out.sigma_u[i] = static_cast<float>(1.0 / std::sqrt(info));
+        double e = 0.0;
+        for (int p = 0; p < nper; ++p)
+          e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
+        c = 1.0 - std::sqrt(e * options.confidence_t);
+      }
+      if (nper > 1) c *= 1.0 - std::pow(ur.residual / options.max_unwrap_residual, 2);
+      c = std::clamp(c, 0.0, 1.0);
+      if (!(c >= options.min_confidence) || c <= 0) {
+        state[i] = PixelState::kLowConfidence;
+        continue;
+      }
+      out.u[i] = static_cast<float>(u);
+      out.confidence[i] = static_cast<float>(c);
+    }
+  });
+  return out;
+}
+
+}  // namespace mesoscan

@@ -1,0 +1,34 @@
+#pragma once
+// Reconstruction stage 5, combine: per kActive pixel the noise sigma (from the lens-shift or
+// phase-shift residuals), temporal/hierarchical unwrapping of the periods' wrapped phases
+// (heightfield/phase_shift.h TemporalUnwrapper) to the coarse column u_c, the combination with the
+// lens-shift fine phase (paper Eq. 2: u = 2 (round(u_c / 2 - phi) + phi), phi in cycles), and the
+// confidence (paper Eq. 4, times the combination and unwrapping consistency). Moves pixels to
+// kUnwrapFailed, kCombination or kLowConfidence.
+
+#include "heightfield/pixel_buffers.h"
+#include "heightfield/stage_plan.h"
+
+namespace mesoscan {
+
+struct CombineOptions {
+  // Unwrapping consistency residual (sigma units) above which a pixel is rejected, > 0.
+  double max_unwrap_residual = 4.0;
+  // Phase error (radians per period) added in quadrature to the noise-predicted variance, >= 0.
+  double systematic_phase_noise = 0.02;
+  // |u_coarse - u| above this (px) is a period jump, in (0, 1).
+  double max_combination_residual_px = 0.6;
+  // Eq. 4: c = 1 - sqrt(E t), > 0; points below min_confidence are rejected, in [0, 1).
+  double confidence_t = 4.0;
+  double min_confidence = 0.05;
+  // The lens-shift fit had 4 free parameters (frequency fitted and not smoothed): the noise
+  // sigma's degrees of freedom.
+  bool four_parameter_fit = false;
+};
+
+// `ls` may be empty (phase shifting alone).
+CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                             const LensShiftPixels& ls, const CombineOptions& options,
+                             PixelStates* state);
+
+}  // namespace mesoscan

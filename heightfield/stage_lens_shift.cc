@@ -1,0 +1,190 @@
+#include "heightfield/stage_lens_shift.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "core/numbers.h"
+#include "core/parallel.h"
+#include "core/progress.h"
+
+namespace mesoscan {
+
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h) {
+  std::vector<size_t> idx;
+  for (size_t i = 0; i < f.size(); ++i)
+    if (std::isfinite(f[i])) idx.push_back(i);
+  if (idx.size() < 50) return {};
+  const size_t stride = std::max<size_t>(1, idx.size() / 50000);
+  std::vector<size_t> sample;
+  for (size_t k = 0; k < idx.size(); k += stride) sample.push_back(idx[k]);
+  const double sx = 2.0 / std::max(1, w), sy = 2.0 / std::max(1, h);
+  auto terms = [&](size_t i, double* t) {
+    const double x = (static_cast<double>(i % w) + 0.5) * sx - 1.0;
+    const double y = (static_cast<double>(i / w) + 0.5) * sy - 1.0;
+    t[0] = 1;
+    t[1] = x;
+    t[2] = y;
+    t[3] = x * x;
+    t[4] = x * y;
+    t[5] = y * y;
+  };
+  std::vector<uint8_t> use(sample.size(), 1);
+  Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
+  for (int round = 0; round < 3; ++round) {
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+    for (size_t k = 0; k < sample.size(); ++k) {
+      if (!use[k]) continue;
+      Eigen::Matrix<double, 6, 1> t;
+      terms(sample[k], t.data());
+      A += t * t.transpose();
+      b += t * static_cast<double>(f[sample[k]]);
+    }
+    c = A.ldlt().solve(b);
+    if (!c.allFinite()) return {};
+    std::vector<double> r(sample.size());
+    for (size_t k = 0; k < sample.size(); ++k) {
+      Eigen::Matrix<double, 6, 1> t;
+      terms(sample[k], t.data());
+      r[k] = std::abs(f[sample[k]] - t.dot(c));
+    }
+    std::vector<double> sorted = r;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double mad = 1.4826 * sorted[sorted.size() / 2];
+    for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
+  }
+  std::vector<float> out(f.size());
+  for (size_t i = 0; i < f.size(); ++i) {
+    double t[6];
+    terms(i, t);
+    double v = 0;
+    for (int q = 0; q < 6; ++q) v += t[q] * c(q);
+    out[i] = static_cast<float>(v);
+  }
+  return out;
+}
+
+LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
+                             const FrameGains& gains, const LensShiftStageOptions& options,
+                             PixelStates* state_out) {
+  LensShiftPixels out;
+  if (!plan.use_lens_shift()) return out;
+  constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+  PixelStates& state = *state_out;
+  const RoiGrid grid = RoiGrid::Of(stack);
+  const int w = grid.width, h = grid.height;
+  const size_t np = grid.pixels();
+  const std::vector<int>& ls_stack = plan.ls_stack;
+  const std::vector<double>& ls_shift_px = plan.ls_shift_px;
+  const std::vector<float>& inv_gain = gains.inv_gain;
+  const int nls = static_cast<int>(ls_stack.size());
+  for (auto* v :
+       {&out.phase0, &out.amplitude, &out.frequency, &out.offset, &out.residual_rms, &out.samples})
+    v->assign(np, kNaN);
+  const double centre = plan.LensShiftCentre();
+  // Box filter: 5-sample moving average ("valid" part only, so no sample is shifted).
+  const bool box = options.box_filter && nls >= 9;
+  std::vector<double> x;
+  if (box) {
+    for (int k = 2; k + 2 < nls; ++k) {
+      double s = 0;
+      for (int q = -2; q <= 2; ++q) s += ls_shift_px[k + q];
+      x.push_back(s / 5 - centre);
+    }
+  } else {
+    for (double s : ls_shift_px) x.push_back(s - centre);
+  }
+  LensShiftFitOptions fo;
+  fo.fitter = options.fitter;
+  fo.fit_frequency = options.fit_frequency;
+  const int nx = static_cast<int>(x.size());
+  // Pixels of a fitting pass: every `stride`-th pixel of every `stride`-th row, or (complement)
+  // all the others.
+  struct PixelSubset {
+    int stride = 1;
+    bool complement = false;
+    bool Row(int y) const { return complement || y % stride == 0; }
+    bool Has(int x, int y) const { return (x % stride == 0 && y % stride == 0) != complement; }
+  };
+  // One pass over the active pixels of `subset`; f_map (if given) is the per-pixel frequency
+  // held fixed. Rows without a pixel of the subset are not even gathered.
+  auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
+                      const PixelSubset& subset, const char* label) {
+    Progress progress(label, h);
+    ParallelForRows(h, [&](int y0, int y1) {
+      const size_t n = static_cast<size_t>(w);
+      std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
+      for (int y = y0; y < y1; ++y) {
+        if (!subset.Row(y)) continue;
+        const size_t i0 = static_cast<size_t>(y) * w;
+        for (int k = 0; k < nls; ++k) {
+          stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+          const float g = inv_gain[ls_stack[k]];
+          for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+        }
+        for (size_t j = 0; j < n; ++j) {
+          const size_t i = i0 + j;
+          if (state[i] != PixelState::kActive || !subset.Has(static_cast<int>(j), y)) continue;
+          const float* b = buf.data() + j;
+          int stride = static_cast<int>(n);
+          if (box) {
+            for (int k = 0; k < nx; ++k) {
+              float sm = 0;
+              for (int q = 0; q < 5; ++q) sm += buf[(k + q) * n + j];
+              prof[k] = sm / 5;
+            }
+            b = prof.data();
+            stride = 1;
+          }
+          const LensShiftFit fit =
+              f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
+          if (!fit.valid) {
+            state[i] = PixelState::kFitFailed;
+            continue;
+          }
+          // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
+          out.phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
+          out.amplitude[i] = static_cast<float>(fit.amplitude);
+          out.frequency[i] = static_cast<float>(fit.frequency);
+          out.offset[i] = static_cast<float>(fit.offset);
+          out.residual_rms[i] = static_cast<float>(fit.residual_rms);
+          out.samples[i] = static_cast<float>(fit.samples_used);
+        }
+      }
+      progress.Advance(y1 - y0);
+    });
+  };
+  const LensShiftBatchFitter fitter(x, 0.5, fo);
+  if (options.fit_frequency && options.smooth_frequency) {
+    // The shifter's gain varies smoothly over the image: a robust quadratic of the fitted
+    // frequencies, then the phase of every pixel with f held there (3 parameters: lower
+    // variance). The quadratic is fitted to ~50000 frequencies (SmoothFrequencyMap), so the
+    // 4-parameter fit runs on a regular subsample of about twice that many pixels only (all
+    // pixels of crops below that).
+    constexpr size_t kFrequencySamples = 100000;
+    size_t n_active = 0;
+    for (size_t i = 0; i < np; ++i) n_active += state[i] == PixelState::kActive;
+    PixelSubset subset;
+    subset.stride = std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
+    fit_pass(fitter, nullptr, subset, "fit lens shift frequency");
+    std::vector<float> f_map = SmoothFrequencyMap(out.frequency, w, h);
+    if (!f_map.empty()) {
+      LensShiftFitOptions fo2 = fo;
+      fo2.fit_frequency = false;
+      fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
+    } else if (subset.stride > 1) {
+      // No frequency map: the 4-parameter fit everywhere else too.
+      subset.complement = true;
+      fit_pass(fitter, nullptr, subset, "fit lens shift");
+    }
+  } else {
+    fit_pass(fitter, nullptr, PixelSubset(), "fit lens shift");
+  }
+  for (size_t i = 0; i < np; ++i)
+    out.pixels_fitted += state[i] == PixelState::kActive || state[i] == PixelState::kFitFailed;
+  return out;
+}
+
+}  // namespace mesoscan

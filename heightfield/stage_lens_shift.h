@@ -1,0 +1,38 @@
+#pragma once
+// Reconstruction stage 4, lens shift: the profile of every kActive pixel over the lens-shift
+// frames (heightfield/lens_shift_fit.h), positions referenced to the centre of the shift range.
+// With fit_frequency and smooth_frequency: the 4-parameter fit on a regular subsample (~100000
+// pixels), a robust quadratic frequency map over the image (SmoothFrequencyMap), then the
+// 3-parameter fit of every pixel with f held at the map. Moves pixels to kFitFailed. Returns empty
+// arrays when the plan has no lens-shift frames.
+
+#include <vector>
+
+#include "heightfield/frames.h"
+#include "heightfield/lens_shift_fit.h"
+#include "heightfield/pixel_buffers.h"
+#include "heightfield/stage_gains.h"
+#include "heightfield/stage_plan.h"
+
+namespace mesoscan {
+
+struct LensShiftStageOptions {
+  LensShiftFitter fitter = LensShiftFitter::kFast;
+  // Paper's optional 5-sample box filter along each profile (needs >= 9 frames).
+  bool box_filter = false;
+  // Fit the per-pixel frequency (4-parameter model, paper Eq. 1) ...
+  bool fit_frequency = true;
+  // ... and replace it by the robust quadratic map, then fit the phase again with f held.
+  bool smooth_frequency = true;
+};
+
+LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
+                             const FrameGains& gains, const LensShiftStageOptions& options,
+                             PixelStates* state);
+
+// A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),
+// evaluated everywhere; empty if there are fewer than 50 values. Fitted to ~50000 of them; two
+// rounds drop values beyond 4 MADs of the residual.
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h);
+
+}  // namespace mesoscan

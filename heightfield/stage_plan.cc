@@ -1,0 +1,89 @@
+#include "heightfield/stage_plan.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "core/error.h"
+#include "core/log.h"
+
+namespace mesoscan {
+
+std::vector<double> ReconstructPlan::PeriodList() const {
+  std::vector<double> v;
+  for (const auto& p : periods) v.push_back(p.period);
+  return v;
+}
+
+int ReconstructPlan::PhaseShiftFrames() const {
+  int n = 0;
+  for (const auto& p : periods) n += static_cast<int>(p.stack_frames.size());
+  return n;
+}
+
+double ReconstructPlan::LensShiftCentre() const {
+  if (ls_shift_px.empty()) return 0.0;
+  return std::accumulate(ls_shift_px.begin(), ls_shift_px.end(), 0.0) / ls_shift_px.size();
+}
+
+ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& options) {
+  const Rig& rig = session.rig;
+  const FramePlan fp = MakeFramePlan(session.frames);
+  ReconstructPlan plan;
+  plan.label = session.root.string();
+  for (const auto& set : fp.sine) {
+    if (set.axis != 'x') {
+      MESOSCAN_LOG(kInfo) << "reconstruct: ignoring " << set.frames.size()
+                          << " sine frames along the projector's y axis";
+      continue;
+    }
+    PhasePeriod p;
+    p.period = set.period_px;
+    for (size_t f : set.frames) {
+      if (session.frames[f].shift_steps != 0) continue;  // the calibrated model holds at 0
+      p.stack_frames.push_back(static_cast<int>(plan.frames.size()));
+      p.deltas.push_back(session.frames[f].pattern.phase);
+      plan.frames.push_back(static_cast<int>(f));
+    }
+    if (p.stack_frames.size() >= 3) plan.periods.push_back(std::move(p));
+  }
+  if (plan.periods.empty())
+    MESOSCAN_BAD_INPUT(session.root.string()
+                       << "/session.json: frames: no sine pattern along x with >= 3 phases at "
+                          "shift_steps 0; nothing gives the absolute projector column");
+  const std::vector<double> period_list = plan.PeriodList();
+  plan.projector_width = rig.projector.width;
+  const double longest = *std::max_element(period_list.begin(), period_list.end());
+  plan.unwrapping = period_list.size() == 1           ? "single"
+                    : longest >= plan.projector_width ? "hierarchical"
+                                                      : "temporal";
+
+  // Lens-shift frames (stripes, period 2, axis x), sorted by shift.
+  std::vector<std::pair<int, size_t>> by_shift;
+  if (options.use_lens_shift && rig.lens_shifter) {
+    for (size_t f : fp.lens_shift) {
+      const Pattern& pat = session.frames[f].pattern;
+      if (pat.axis != 'x' || std::abs(pat.period_px - 2.0) > 1e-9) continue;
+      by_shift.emplace_back(session.frames[f].shift_steps, f);
+    }
+    std::sort(by_shift.begin(), by_shift.end());
+  }
+  if (by_shift.size() >= 4) {
+    for (const auto& [steps, f] : by_shift) {
+      plan.ls_stack.push_back(static_cast<int>(plan.frames.size()));
+      plan.ls_shift_px.push_back(steps / rig.lens_shifter->steps_per_px);
+      plan.frames.push_back(static_cast<int>(f));
+    }
+  }
+  if (!fp.white.empty()) {
+    plan.white = static_cast<int>(plan.frames.size());
+    plan.frames.push_back(static_cast<int>(fp.white.front()));
+  }
+  if (!fp.black.empty()) {
+    plan.black = static_cast<int>(plan.frames.size());
+    plan.frames.push_back(static_cast<int>(fp.black.front()));
+  }
+  return plan;
+}
+
+}  // namespace mesoscan
