@@ -5,6 +5,8 @@
 #include <filesystem>
 #include <sstream>
 
+#include <tbb/parallel_invoke.h>
+
 #include "app/commands.h"
 #include "capture/session.h"
 #include "core/error.h"
@@ -64,16 +66,19 @@ void Run(const ReconstructArgs& a) {
   Scan scan = Reconstruct(session, opt, &summary);
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
   scan.report["object"] = session.object;
+  // The scan's EXRs, and the ground-truth comparison with its error map when the session has
+  // ground truth (simulations), in parallel; the report last (it holds their figures).
   std::optional<GroundTruthErrors> gt;
-  if (session.ground_truth) {
-    gt = EvaluateAgainstGroundTruth(session, scan.points, opt.roi);
-    scan.report["ground_truth"] = gt->ToJson();
-  }
   WriteFolderAtomically(a.out, [&](const std::filesystem::path& tmp) {
-    WritePointsExr(tmp / "points.exr", scan.points);
-    WriteHeightExr(tmp / "height.exr", scan.height);
-    WriteNormalExr(tmp / "normal.exr", scan.height, scan.normals);
-    if (gt) WriteErrorMapPng(tmp / "error_map.png", gt->error);
+    tbb::parallel_invoke([&] { WritePointsExr(tmp / "points.exr", scan.points); },
+                         [&] { WriteHeightExr(tmp / "height.exr", scan.height); },
+                         [&] { WriteNormalExr(tmp / "normal.exr", scan.height, scan.normals); },
+                         [&] {
+                           if (!session.ground_truth) return;
+                           gt = EvaluateAgainstGroundTruth(session, scan.points, opt.roi);
+                           WriteErrorMapPng(tmp / "error_map.png", gt->error);
+                         });
+    if (gt) scan.report["ground_truth"] = gt->ToJson();
     const double total =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     scan.report["wall_time_s"] = total;

@@ -259,6 +259,11 @@ void FullResolution(const fs::path& work, const fs::path& out) {
               "decode %.2f, end to end %.2f = %.2fx the bare decode; load average %.2f\n",
               cpu_decode, cpu_reconstruct, cpu_e2e, cpu_e2e / cpu_decode, load[0]);
   std::printf("full resolution stages (s):%s\n", buf.c_str() + stages_at);
+  // Issue 12's goals, each next to its figure (the load average says how far to trust them).
+  std::printf("full resolution goals: end-to-end / bare decode %.2f wall (goal <= 1.25), %.2f CPU; "
+              "compute after the last frame %.2f s (goal <= 0.5); peak RSS %.0f MB (goal <= 600); "
+              "load average %.2f %.2f %.2f\n",
+              e2e / decode, cpu_e2e / cpu_decode, compute, rss_mb, load[0], load[1], load[2]);
   WriteTextFile(out / "fullres.csv",
                 "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um,"
                 "cpu_decode_s,cpu_reconstruct_s,cpu_end_to_end_s,load_average\n" +

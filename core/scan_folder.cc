@@ -1,5 +1,7 @@
 #include "core/scan_folder.h"
 
+#include <tbb/parallel_invoke.h>
+
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -87,10 +89,14 @@ void WriteNormalExr(const fs::path& path, const HeightField& grid, const ImageF&
 
 void WriteScanFolder(const fs::path& dir, const Scan& scan) {
   WriteFolderAtomically(dir, [&](const fs::path& tmp) {
-    WritePointsExr(tmp / "points.exr", scan.points);
-    WriteHeightExr(tmp / "height.exr", scan.height);
-    WriteNormalExr(tmp / "normal.exr", scan.height,
-                   scan.normals.empty() ? scan.height.Normals() : scan.normals);
+    // The three EXRs in parallel (each is compressed on one thread); then the report.
+    tbb::parallel_invoke([&] { WritePointsExr(tmp / "points.exr", scan.points); },
+                         [&] { WriteHeightExr(tmp / "height.exr", scan.height); },
+                         [&] {
+                           WriteNormalExr(tmp / "normal.exr", scan.height,
+                                          scan.normals.empty() ? scan.height.Normals()
+                                                               : scan.normals);
+                         });
     WriteJsonFile(tmp / "report.json", scan.report);
   });
 }
