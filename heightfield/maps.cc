@@ -489,6 +489,8 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
                                {"method", TileMethodName(o.tile_options.method)},
                                {"source_square_px", {tile->src_x, tile->src_y, tile->src_size}},
                                {"seam_gradient_ratio", {tile->seams_after.ratio_x(), tile->seams_after.ratio_y()}},
+                               {"seam_gradient_ratio_pooled", tile->seams_after.pooled_ratio()},
+                               {"interior_column_row_spread", {tile->seams_after.column_spread_x, tile->seams_after.row_spread_y}},
                                {"seam_gradient_ratio_untiled", {tile->seams_before.ratio_x(), tile->seams_before.ratio_y()}},
                                {"seam_rms_m", {tile->seams_after.seam_rms_x, tile->seams_after.seam_rms_y}},
                                {"interior_rms_m", {tile->seams_after.interior_rms_x, tile->seams_after.interior_rms_y}}}

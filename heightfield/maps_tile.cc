@@ -120,10 +120,33 @@ SeamStats MeasureSeams(const ImageF& z) {
         else iy += dy * dy, ++niy;
       }
     }
+  // Per-column (x) and per-row (y) interior gradient RMS, and their scatter.
+  std::vector<double> col2(w, 0.0), row2(h, 0.0);
+  std::vector<int64_t> coln(w, 0), rown(h, 0);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const double v = z(x, y);
+      const double dx = z((x + 1) % w, y) - v, dy = z(x, (y + 1) % h) - v;
+      if (std::isfinite(dx)) col2[x] += dx * dx, ++coln[x];
+      if (std::isfinite(dy)) row2[y] += dy * dy, ++rown[y];
+    }
+  auto spread = [](const std::vector<double>& a2, const std::vector<int64_t>& n, double ref) {
+    if (ref <= 0) return 0.0;
+    double m = 0, m2 = 0;
+    int k = 0;
+    for (size_t i = 0; i + 1 < a2.size(); ++i) {  // the last one is the seam
+      if (n[i] == 0) continue;
+      const double r = std::sqrt(a2[i] / n[i]) / ref;
+      m += r, m2 += r * r, ++k;
+    }
+    return k > 1 ? std::sqrt(std::max(0.0, m2 / k - (m / k) * (m / k))) : 0.0;
+  };
   s.seam_rms_x = nsx ? std::sqrt(sx / nsx) : 0;
   s.interior_rms_x = nix ? std::sqrt(ix / nix) : 0;
   s.seam_rms_y = nsy ? std::sqrt(sy / nsy) : 0;
   s.interior_rms_y = niy ? std::sqrt(iy / niy) : 0;
+  s.column_spread_x = spread(col2, coln, s.interior_rms_x);
+  s.row_spread_y = spread(row2, rown, s.interior_rms_y);
   return s;
 }
 
@@ -133,7 +156,8 @@ std::string TileResult::BriefReport() const {
   s << "tile: " << size_px << " px (" << size_px * field.pixel_size * 1e3 << " mm) from the "
     << src_size << " px square at (" << src_x << ", " << src_y << "); seam/interior gradient RMS "
     << "x " << seams_after.ratio_x() << ", y " << seams_after.ratio_y() << " (untiled crop: x "
-    << seams_before.ratio_x() << ", y " << seams_before.ratio_y() << ")";
+    << seams_before.ratio_x() << ", y " << seams_before.ratio_y() << "); single interior columns "
+    << "scatter by " << seams_after.column_spread_x << ", rows by " << seams_after.row_spread_y;
   return s.str();
 }
 

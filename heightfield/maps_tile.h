@@ -14,6 +14,7 @@
 // Albedo and confidence follow the same blend; normals and derived maps are computed afterwards
 // on the periodic height (maps_derived.h with periodic = true).
 
+#include <cmath>
 #include <string>
 
 #include "core/height_field.h"
@@ -32,6 +33,13 @@ struct TileOptions {
 // RMS of z(0, y) - z(N-1, y) (the seam's step) over RMS of z(i+1, y) - z(i, y) inside, per axis.
 struct SeamStats {
   double seam_rms_x = 0, interior_rms_x = 0, seam_rms_y = 0, interior_rms_y = 0;
+  // How much single interior columns (rows) scatter: the standard deviation of each column's
+  // gradient RMS over interior_rms_x (rows: _y). A seam is one such column; with features
+  // much wider than a pixel its ratio scatters by this much even on a perfect tile.
+  double column_spread_x = 0, row_spread_y = 0;
+  // Both seams pooled: the RMS of the two ratios (each seam against its own axis' interior,
+  // since an anisotropic texture has different gradients along x and y).
+  double pooled_ratio() const { return std::sqrt(0.5 * (ratio_x() * ratio_x() + ratio_y() * ratio_y())); }
   double ratio_x() const { return interior_rms_x > 0 ? seam_rms_x / interior_rms_x : 0; }
   double ratio_y() const { return interior_rms_y > 0 ? seam_rms_y / interior_rms_y : 0; }
 };

@@ -59,9 +59,9 @@ def setup_render(size_m, res):
     sun_data.energy = 3.0
     sun_data.angle = 0.0
     sun = bpy.data.objects.new("sun", sun_data)
-    # Raking light from +x at 20 degrees elevation.
+    # Raking light from the (+x, +y) diagonal at 20 degrees elevation: both seams are lit across.
     import math
-    sun.rotation_euler = (0.0, math.radians(70.0), 0.0)
+    sun.rotation_euler = (0.0, math.radians(70.0), math.radians(45.0))
     scene.collection.objects.link(sun)
 
 
@@ -162,14 +162,18 @@ def seam_score(manifest, force_repeat):
     w_px = int(json.load(open(manifest))["grid"]["width_px"]) * 2
     setup_render(max(o.dimensions[0], o.dimensions[1]), w_px)
     img = render(os.path.join(tmp, "seam_%d.exr" % force_repeat))
-    d = numpy.abs(numpy.diff(img, axis=1)).mean(axis=0)  # column-to-column change
-    s = w_px // 2 - 1  # between columns s and s + 1: the seam
-    neighbours = numpy.concatenate([d[s - 12:s - 1], d[s + 2:s + 13]])
-    e = numpy.abs(numpy.diff(img, axis=0)).mean(axis=1)  # row-to-row (the y seam)
-    ny = numpy.concatenate([e[s - 12:s - 1], e[s + 2:s + 13]])
-    return {"x_seam": float(d[s]), "x_neighbours_median": float(numpy.median(neighbours)),
-            "x_ratio": float(d[s] / numpy.median(neighbours)),
-            "y_ratio": float(e[s] / numpy.median(ny)), "extension": [n.extension for n in o.active_material.node_tree.nodes if n.type == "TEX_IMAGE"]}
+    # Column-to-column (x) and row-to-row (y) mean change; the seam lies between columns
+    # (rows) s and s + 1. It is compared with every other interior column (row): its ratio to
+    # their mean and its z-score in their distribution.
+    s = w_px // 2 - 1
+    res = {"extension": [n.extension for n in o.active_material.node_tree.nodes if n.type == "TEX_IMAGE"]}
+    for axis, name in ((1, "x"), (0, "y")):
+        d = numpy.abs(numpy.diff(img, axis=axis)).mean(axis=1 - axis)
+        others = numpy.delete(d, [s])[2:-2]
+        res[name + "_seam"] = float(d[s])
+        res[name + "_ratio"] = float(d[s] / others.mean())
+        res[name + "_z"] = float((d[s] - others.mean()) / others.std())
+    return res
 
 
 out["seam_tiled"] = seam_score(cfg["manifest"], False)

@@ -133,6 +133,7 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
         ao_tex = image_node(ao, "Non-Color", -500, "ao")
         mix = nt.nodes.new("ShaderNodeMixRGB")
         mix.blend_type = "MULTIPLY"
+        mix.name = "mesoscan albedo x ao"
         mix.inputs["Fac"].default_value = 1.0
         mix.location = (100, 200)
         if base is not None:
