@@ -141,3 +141,5 @@ BENCHMARK(BM_OpenCvInpaint)->Unit(benchmark::kSecond)->UseRealTime()->Iterations
 
 }  // namespace
 }  // namespace mesoscan
+
+BENCHMARK_MAIN();

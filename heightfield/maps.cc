@@ -488,6 +488,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
       {"tile", periodic ? Json{{"size_m", w * p}, {"requested_size_m", o.tile_options.size_m},
                                {"method", TileMethodName(o.tile_options.method)},
                                {"source_square_px", {tile->src_x, tile->src_y, tile->src_size}},
+                               {"blend_shift_px", {tile->shift_x, tile->shift_y}},
                                {"seam_gradient_ratio", {tile->seams_after.ratio_x(), tile->seams_after.ratio_y()}},
                                {"seam_gradient_ratio_pooled", tile->seams_after.pooled_ratio()},
                                {"interior_column_row_spread", {tile->seams_after.column_spread_x, tile->seams_after.row_spread_y}},

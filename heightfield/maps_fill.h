@@ -2,8 +2,9 @@
 // Hole filling of a height field for displacement maps (issue 15): holes bounded by measured
 // surface are filled smoothly from their border by solving Laplace's equation (harmonic) or the
 // thin-plate / biharmonic equation on the grid with a sparse Cholesky factorisation (Eigen);
-// large holes (inscribed radius above a limit) and holes reaching the grid's border (the outside
-// of the sample) stay NaN. Filled pixels are marked in `filled` and get confidence 0.
+// large holes (inscribed radius above a limit: the outside of the sample, a missing region) stay
+// NaN. Holes reaching the grid's border are filled only when narrow too (a crack or the shadowed
+// gaps of a fabric that run to the edge of the field of view), with no constraint at the border. Filled pixels are marked in `filled` and get confidence 0.
 //
 // Harmonic fill error bound (discrete maximum principle): inside a hole contained in a disc of
 // radius R centred at c, |z_fill - z_true| <= max|lap z_true| / 4 * (R^2 - |x - c|^2) + max
@@ -29,8 +30,9 @@ struct FillOptions {
   // Holes whose largest inscribed radius (distance from the farthest hole pixel to the nearest
   // measured pixel) exceeds this stay holes. Metres, > 0.
   double max_hole_radius_m = 1.0e-3;
-  // Also fill holes touching the grid's border (default: no, that is outside the sample).
-  bool fill_border_holes = false;
+  // Fill narrow holes touching the grid's border too (Neumann condition there); false leaves
+  // every hole that reaches the border.
+  bool fill_border_holes = true;
   void Check() const;
 };
 

@@ -182,12 +182,19 @@ TEST(MapsFill, LargeHolesAndTheOutsideStayHoles) {
     }
   FillOptions o;
   o.max_hole_radius_m = 0.4e-3;  // 20 px
+  o.fill_border_holes = false;
   const FillResult r = FillHoles(hf, o);
   EXPECT_EQ(r.holes_filled, 1);
   EXPECT_EQ(r.holes_left, 2);
   EXPECT_TRUE(std::isnan(r.field.z(2, 60)));
   EXPECT_TRUE(std::isnan(r.field.z(150, 100)));
   EXPECT_TRUE(std::isfinite(r.field.z(40, 160)));
+  // By default a narrow hole at the border (5 px wide) is filled, a wide one is not.
+  o.fill_border_holes = true;
+  const FillResult rb = FillHoles(hf, o);
+  EXPECT_EQ(rb.holes_filled, 2);
+  EXPECT_TRUE(std::isfinite(rb.field.z(2, 60)));
+  EXPECT_TRUE(std::isnan(rb.field.z(150, 100)));
   o.method = FillMethod::kNone;
   EXPECT_EQ(FillHoles(hf, o).filled_pixels, 0);
   o.method = FillMethod::kHarmonic;

@@ -39,25 +39,66 @@ double MeanOf(const ImageF& im, int c) {
   return n ? s / n : 0.0;
 }
 
-// Offset-and-blend of a square image (all channels) with matched variance (see the header).
-ImageF BlendPeriodic(const ImageF& t, bool preserve_variance) {
+// Normalised autocorrelation of channel 0 of the square `t` at shift s along x (axis 0) or y
+// (axis 1), over the overlap without wrapping.
+double Autocorrelation(const ImageF& t, int s, int axis) {
+  const int n = t.width();
+  const double mu = MeanOf(t, 0);
+  double c = 0, v = 0;
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) {
+      const double a = t(x, y) - mu;
+      v += a * a;
+      const int x2 = axis == 0 ? x + s : x, y2 = axis == 0 ? y : y + s;
+      if (x2 < n && y2 < n) c += a * (t(x2, y2) - mu);
+    }
+  const double overlap = static_cast<double>(n - s) / n;
+  return v > 0 ? c / (v * overlap) : 0.0;
+}
+
+// The offset of the shifted copies along one axis: half the tile, unless a shift in
+// [n/3, 2n/3] correlates clearly better with the square (a periodic texture such as a weave:
+// the copies then stay in phase with it instead of cancelling it in the blend).
+int BestShift(const ImageF& t, int axis) {
+  const int n = t.width();
+  int best = n / 2;
+  double best_c = Autocorrelation(t, best, axis) + 0.2;  // the half shift wins unless clearly beaten
+  for (int s = n / 3; s <= 2 * n / 3; ++s) {
+    const double c = Autocorrelation(t, s, axis);
+    if (c > best_c) best_c = c, best = s;
+  }
+  return best;
+}
+
+// Weight of the square itself along one axis: 0 at the tile's edges (its seam), 1 at c = n - s
+// where the copy shifted by s has its own seam; sin^2 ramps in between.
+std::vector<double> Window(int n, int shift) {
+  const double c = n - shift;
+  std::vector<double> w(n);
+  constexpr double kHalfPi = kPi / 2;
+  for (int i = 0; i < n; ++i) {
+    const double t = i + 0.5;
+    const double s = t <= c ? std::sin(kHalfPi * t / c) : std::sin(kHalfPi * (n - t) / (n - c));
+    w[i] = s * s;
+  }
+  return w;
+}
+
+// Offset-and-blend of a square image (all channels) with matched variance (see the header);
+// shifts from the height channel (the same for every map of the set).
+ImageF BlendPeriodic(const ImageF& t, bool preserve_variance, int shift_x, int shift_y) {
   const int n = t.width();
   ImageF out(n, n, t.channels());
-  std::vector<double> wt(n);
-  for (int i = 0; i < n; ++i) {
-    const double s = std::sin(kPi * (i + 0.5) / n);
-    wt[i] = s * s;
-  }
-  const int hshift = n / 2;
+  const std::vector<double> wxs = Window(n, shift_x), wys = Window(n, shift_y);
   for (int c = 0; c < t.channels(); ++c) {
     const double mu = preserve_variance ? MeanOf(t, c) : 0.0;
     ParallelForRows(n, [&](int r0, int r1) {
       for (int y = r0; y < r1; ++y) {
-        const int ys = (y + hshift) % n;
-        const double wy = wt[y];
+        const int ys = (y + shift_y) % n;
+        const double wy = wys[y];
         for (int x = 0; x < n; ++x) {
-          const int xs = (x + hshift) % n;
-          const double wx = wt[x];
+          const int xs = (x + shift_x) % n;
+          const double wx = wxs[x];
           const double w[4] = {wx * wy, (1 - wx) * wy, wx * (1 - wy), (1 - wx) * (1 - wy)};
           const double v[4] = {t(x, y, c), t(xs, y, c), t(x, ys, c), t(xs, ys, c)};
           double s = 0, s2 = 0;
@@ -199,8 +240,10 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
   r.seams_before = MeasureSeams(zsq);
   // 2. Periodic height, albedo, confidence and filled mask.
   const bool blend = o.method == TileMethod::kBlend;
+  const int shift_x = blend ? BestShift(zsq, 0) : 0, shift_y = blend ? BestShift(zsq, 1) : 0;
+  r.shift_x = shift_x, r.shift_y = shift_y;
   auto periodic = [&](const ImageF& sq, bool preserve) {
-    return blend ? BlendPeriodic(sq, preserve) : MirrorPeriodic(sq);
+    return blend ? BlendPeriodic(sq, preserve, shift_x, shift_y) : MirrorPeriodic(sq);
   };
   r.field.z = periodic(zsq, true);
   r.size_px = r.field.z.width();

@@ -1,10 +1,12 @@
 #pragma once
 // Tileable crops at a physical size (issue 15). A square of the (filled, flattened) height field
 // is made periodic so that a renderer's Repeat extension shows no seam:
-//   blend   offset-and-blend with matched statistics: the square T and its copies shifted by half
-//           the tile along x, y and both (whose own seams then lie inside the tile) are blended
-//           with weights w_x(i) w_y(j), w(t) = sin^2(pi (t + 1/2) / N) (0 at the tile's edges,
-//           1 at its centre), and the blend's deviation from the mean is divided by
+//   blend   offset-and-blend with matched statistics: the square T and its copies shifted by s
+//           along x, y and both (whose own seams then lie inside the tile, at N - s) are blended
+//           with weights w_x(i) w_y(j), w a sin^2 ramp from 0 at the tile's edges to 1 at N - s;
+//           s is half the tile unless a shift in [N/3, 2N/3] correlates clearly better with T
+//           (a periodic weave: the copies then blend in phase); the blend's deviation from the
+//           mean is divided by
 //           sqrt(sum of squared weights) so the height variance (hence the gradient statistics)
 //           is the same at the seams as inside (variance-preserving blending, as in Heitz and
 //           Neyret, "High-Performance By-Example Noise using a Histogram-Preserving Blending
@@ -48,6 +50,7 @@ SeamStats MeasureSeams(const ImageF& z);
 struct TileResult {
   int src_x = 0, src_y = 0, src_size = 0;  // the square taken from the input (grid pixels)
   int size_px = 0;                         // output tile edge in pixels
+  int shift_x = 0, shift_y = 0;            // blend: offsets of the shifted copies (pixels)
   HeightField field;                       // periodic height; x0/y0 of the source square
   ImageF albedo;                           // same blend (if given)
   ImageU8 filled;                          // 1 where a filled pixel contributes
