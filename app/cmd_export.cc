@@ -3,8 +3,10 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <optional>
 
 #include "app/commands.h"
+#include "app/map_options.h"
 #include "core/error.h"
 #include "core/image_io.h"
 #include "core/log.h"
@@ -21,6 +23,7 @@ struct ExportArgs {
   double pixel_size_m = 0.0;
   int64_t max_triangles = ExportOptions().max_triangles;
   double mesh_tolerance_m = 0.0;
+  MapArgs maps;  // map-set options: with any of them, a finished map set in OUT/maps
 };
 
 std::string DefaultName(const fs::path& scan) {
@@ -41,6 +44,9 @@ void RunExport(const ExportArgs& a) {
   o.mesh_tolerance_m = a.mesh_tolerance_m;
   o.name = a.name.empty() ? DefaultName(a.scan) : a.name;
   o.Check();
+  std::optional<MapsOptions> maps;
+  if (a.maps.any()) maps = a.maps.ToOptions(o.name, a.crop);
+  if (maps && !a.maps.fill.empty()) o.fill = maps->fill;
   const Scan scan = ReadScanFolder(a.scan);
   // Albedo: --albedo, else an albedo the reconstruction wrote into the scan folder, else
   // ExportScan looks for the session's white frame (report.json "session").
@@ -72,6 +78,11 @@ void RunExport(const ExportArgs& a) {
     std::cout << "  " << file << ": " << hints.at(file).get<std::string>() << "\n";
   }
   std::cout << "  manifest.json: units, conventions, channels and files\n";
+  if (maps) {
+    maps->albedo = o.albedo;
+    const fs::path dir = fs::path(a.out) / "maps";
+    PrintMapSet(BuildMapSet(scan, *maps, dir), dir);
+  }
 }
 
 }  // namespace
@@ -98,6 +109,7 @@ void AddExportCommand(CLI::App* app) {
   cmd->add_option("--albedo", a->albedo,
                   "Linear albedo image on the height grid (default: SCAN/albedo.exr|png, else the "
                   "session's white frame named in report.json)");
+  AddMapOptions(cmd, &a->maps, /*standalone=*/false);
   cmd->callback([a] { RunExport(*a); });
 }
 

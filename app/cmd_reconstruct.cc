@@ -8,6 +8,7 @@
 #include <tbb/parallel_invoke.h>
 
 #include "app/commands.h"
+#include "app/map_options.h"
 #include "capture/session.h"
 #include "core/error.h"
 #include "core/fs.h"
@@ -40,6 +41,7 @@ struct ReconstructArgs {
   bool no_lens_shift = false, box_filter = false, no_normalize = false;
   int threads = 0;
   double pixel_size_um = 0.0;
+  MapArgs maps;  // with --export: also a finished map set in EXPORT_DIR/maps
 };
 
 void Run(const ReconstructArgs& a) {
@@ -59,6 +61,13 @@ void Run(const ReconstructArgs& a) {
     ParseExportFormats(a.export_formats, &export_options);
     export_options.name = "scan";
     export_options.Check();
+  }
+  std::optional<MapsOptions> maps;
+  if (a.maps.any()) {
+    if (a.export_formats.empty())
+      MESOSCAN_THROW(ErrorKind::kUsage, "--fill/--flatten/--tile/--maps need --export FORMATS");
+    maps = a.maps.ToOptions("scan", "");
+    if (!a.maps.fill.empty()) export_options.fill = maps->fill;
   }
 
   const Session session = ReadSession(a.session);
@@ -105,6 +114,7 @@ void Run(const ReconstructArgs& a) {
     const ExportSummary es = ExportScan(scan, export_options, dir);
     MESOSCAN_LOG(kInfo) << es.BriefReport();
     MESOSCAN_LOG(kInfo) << "exports written to " << dir.string() << " (manifest.json lists them)";
+    if (maps) PrintMapSet(BuildMapSet(scan, *maps, dir / "maps"), dir / "maps");
   }
 }
 
@@ -133,6 +143,7 @@ void AddReconstructCommand(CLI::App* app) {
   cmd->add_option("--export-dir", args->export_dir, "Folder for --export (default SCAN/export)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
+  AddMapOptions(cmd, &args->maps, /*standalone=*/false);
   cmd->callback([args] { Run(*args); });
 }
 

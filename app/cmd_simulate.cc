@@ -62,7 +62,7 @@ void AddSimulateCommand(CLI::App* app) {
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
   cmd->add_option("--object", o.object,
-                  "coin | plane | ramp | leaf | FILE.exr (a height EXR in the scan-outputs layout)")
+                  "coin | plane | ramp | leaf | fabric | metal | FILE.exr (a height EXR in the scan-outputs layout)")
       ->capture_default_str();
   cmd->add_option("--rig", o.rig, "paper (built-in rig) | RIG.json (a file with a \"rig\" object)")
       ->capture_default_str();

@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
   AddSimulateCommand(&app);
   AddReconstructCommand(&app);
   AddExportCommand(&app);
+  AddMapsCommand(&app);
   AddCheckCommand(&app);
   AddBrdfCommand(&app);
   AddRenderCommand(&app);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <map>
 
 #include "core/error.h"
@@ -235,6 +236,85 @@ SceneObject MakeLeaf(double h) {
   });
 }
 
+namespace {
+
+// A deterministic hash of integer coordinates to [0, 1) (jitter of the procedural samples).
+double Hash01(int a, int b, int salt) {
+  uint32_t h = static_cast<uint32_t>(a) * 73856093u ^ static_cast<uint32_t>(b) * 19349663u ^
+               static_cast<uint32_t>(salt) * 83492791u;
+  h ^= h >> 13;
+  h *= 0x5bd1e995u;
+  h ^= h >> 15;
+  return (h & 0xffffff) / static_cast<double>(0x1000000);
+}
+
+// The sample's shape under the material: lying with a slight tilt and a sag, as a cloth or a
+// plate does on a mount (the flatten step removes it).
+double SampleShape(double x, double y) {
+  return 0.010 * x - 0.006 * y - 0.15e-3 * (x * x + y * y) / (kMaterialHalfM * kMaterialHalfM);
+}
+
+}  // namespace
+
+SceneObject MakeFabric(double h) {
+  constexpr int kMargin = 3;
+  HeightField grid = MakeGrid(-kMaterialHalfM, kMaterialHalfM, -kMaterialHalfM, kMaterialHalfM, h, kMargin);
+  constexpr double pitch = kFabricPitchM, half_w = 0.42 * kFabricPitchM;
+  constexpr double base = 0.45e-3, thread = 0.16e-3, wave = 0.07e-3;
+  return Generate("fabric", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+    if (std::abs(x) > kMaterialHalfM || std::abs(y) > kMaterialHalfM) return;
+    // Plain weave: warp threads run along y (centred at x = i * pitch), weft along x; each
+    // passes over and under the crossing threads in turn (a cosine along its length, the sign
+    // alternating from one thread to the next), with an elliptical cross-section.
+    const int iw = static_cast<int>(std::lround(x / pitch)), jw = static_cast<int>(std::lround(y / pitch));
+    const double dx = x - iw * pitch, dy = y - jw * pitch;
+    auto section = [&](double d) {
+      const double t = d / half_w;
+      return t * t < 1 ? thread * std::sqrt(1 - t * t) : -1.0;
+    };
+    const double warp_c = wave * std::cos(kPi * y / pitch + kPi * iw);
+    const double weft_c = -wave * std::cos(kPi * x / pitch + kPi * jw);
+    double top = 0.0;
+    const double sw = section(dx), sf = section(dy);
+    // Fibre twist: fine ridges at 45 degrees along each thread, 6 um.
+    if (sw >= 0) top = std::max(top, base + warp_c + sw + 6e-6 * std::sin(2 * kPi * (y + dx) / 0.12e-3));
+    if (sf >= 0) top = std::max(top, base + weft_c + sf + 6e-6 * std::sin(2 * kPi * (x - dy) / 0.12e-3));
+    if (top == 0.0) top = base - thread;  // the gap between threads: the cloth's back
+    *z = top + SampleShape(x, y);
+    // Dyed yarn: warp and weft slightly different, with slub variations along each thread.
+    const bool on_warp = sw >= 0 && (sf < 0 || base + warp_c + sw >= base + weft_c + sf);
+    *a = (on_warp ? 0.62 : 0.48) + 0.05 * (Hash01(on_warp ? iw : jw, static_cast<int>(std::floor((on_warp ? y : x) / 2e-3)), 3) - 0.5);
+  });
+}
+
+SceneObject MakeHammeredMetal(double h) {
+  constexpr int kMargin = 3;
+  HeightField grid = MakeGrid(-kMaterialHalfM, kMaterialHalfM, -kMaterialHalfM, kMaterialHalfM, h, kMargin);
+  constexpr double cell = kHammerCellM;
+  return Generate("metal", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+    if (std::abs(x) > kMaterialHalfM || std::abs(y) > kMaterialHalfM) return;
+    // Hammer blows on a jittered grid: spherical dents of radius 1.1-1.6 cells, 15-35 um deep;
+    // the surface is the lowest dent at each point (a later blow cuts an earlier one).
+    const int ci = static_cast<int>(std::floor(x / cell)), cj = static_cast<int>(std::floor(y / cell));
+    double dent = 0.0;
+    for (int j = cj - 2; j <= cj + 2; ++j)
+      for (int i = ci - 2; i <= ci + 2; ++i) {
+        const double px = (i + Hash01(i, j, 1)) * cell, py = (j + Hash01(i, j, 2)) * cell;
+        const double depth = 15e-6 + 20e-6 * Hash01(i, j, 4);
+        const double rad = (1.1 + 0.5 * Hash01(i, j, 5)) * cell;
+        // A spherical cap of chord radius `rad` and depth `depth`: sphere radius R.
+        const double R = (rad * rad + depth * depth) / (2 * depth);
+        const double r2 = (x - px) * (x - px) + (y - py) * (y - py);
+        if (r2 >= rad * rad) continue;
+        dent = std::min(dent, -(depth - (R - std::sqrt(R * R - r2))));
+      }
+    // Fine brushing marks along x, 1.5 um.
+    const double brush = 1.5e-6 * std::sin(2 * kPi * y / 37e-6 + 3 * std::sin(x / 2e-3));
+    *z = 0.8e-3 + dent + brush + SampleShape(x, y);
+    *a = 0.70 + 0.05 * std::sin(x / 4e-3) * std::cos(y / 5e-3) + 0.04 * dent / 35e-6;
+  });
+}
+
 SceneObject LoadHeightExrObject(const std::filesystem::path& path) {
   SceneObject obj;
   obj.name = path.filename().string();
@@ -261,12 +341,14 @@ SceneObject MakeObject(const std::string& spec, double h) {
   if (spec == "ramp") return MakePaperRamp(h > 0 ? h : 20e-6);
   if (spec == "plane") return MakeTiltedPlane(h > 0 ? h : 50e-6);
   if (spec == "leaf") return MakeLeaf(h > 0 ? h : 20e-6);
+  if (spec == "fabric") return MakeFabric(h > 0 ? h : 20e-6);
+  if (spec == "metal") return MakeHammeredMetal(h > 0 ? h : 20e-6);
   const std::filesystem::path p(spec);
   std::string ext = p.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   if (ext == ".exr") return LoadHeightExrObject(p);
   MESOSCAN_BAD_INPUT("--object: '" << spec
-                                   << "': expected coin, plane, ramp, leaf or a height .exr file");
+                                   << "': expected coin, plane, ramp, leaf, fabric, metal or a height .exr file");
 }
 
 }  // namespace mesoscan

@@ -52,11 +52,24 @@ SceneObject MakeTiltedPlane(double pixel_size_m = 50e-6);
 // deep and lateral veins 45 um deep.
 SceneObject MakeLeaf(double pixel_size_m = 20e-6);
 
+// Material samples (a material, not an object: scanned into tileable maps, issue 15): a square
+// of 2 * kMaterialHalfM lying on the mount with a slight tilt (1.0% along x, 0.6% along y) and a
+// 0.15 mm sag towards its corners.
+inline constexpr double kMaterialHalfM = 15e-3;
+// Woven fabric: a plain weave of threads kFabricPitchM apart (0.34 mm wide, 0.16 mm thick,
+// passing over and under with +-70 um), fine twist ridges of 6 um; about 0.3-0.7 mm thick.
+inline constexpr double kFabricPitchM = 0.8e-3;
+SceneObject MakeFabric(double pixel_size_m = 20e-6);
+// Hammered metal: a 0.8 mm plate with overlapping spherical hammer dents (15-35 um deep,
+// 1.1-1.6 cells across, on a jittered grid of kHammerCellM) and 1.5 um brushing marks.
+inline constexpr double kHammerCellM = 1.6e-3;
+SceneObject MakeHammeredMetal(double pixel_size_m = 20e-6);
+
 // A height EXR in the scan-outputs.md layout (channel Z, grid attributes), placed as given; a
 // smooth albedo 0.5 +- 0.1 is made up. Throws Error naming the file if unreadable.
 SceneObject LoadHeightExrObject(const std::filesystem::path& path);
 
-// "coin" | "plane" | "ramp" | "leaf" | a path ending in .exr. pixel_size_m <= 0: the object's
+// "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | a path ending in .exr. pixel_size_m <= 0: the object's
 // default grid spacing. Throws Error(kBadInput) naming `--object` for anything else.
 SceneObject MakeObject(const std::string& spec, double pixel_size_m = 0.0);
 

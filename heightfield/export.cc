@@ -478,7 +478,23 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
   ExportSummary summary;
   Json files = Json::array();
   Json hints = Json::object();
-  const ImageF filled = FillHoles(hf.z, hole_value);
+  const FillResult hole_fill = FillHoles(hf, o.fill);
+  const ImageF filled = FillHoles(hole_fill.field.z, hole_value);
+  if (hole_fill.filled_pixels > 0) {
+    // Normals of the filled pixels and of their measured neighbours from the filled surface.
+    const ImageF fn = hole_fill.field.Normals();
+    for (int j = 0; j < hf.height(); ++j)
+      for (int i = 0; i < hf.width(); ++i) {
+        bool near = false;
+        for (int dj = -1; dj <= 1 && !near; ++dj)
+          for (int di = -1; di <= 1 && !near; ++di) {
+            const int x = i + di, y = j + dj;
+            near = x >= 0 && y >= 0 && x < hf.width() && y < hf.height() && hole_fill.filled(x, y);
+          }
+        if (near)
+          for (int k = 0; k < 3; ++k) normals(i, j, k) = fn(i, j, k);
+      }
+  }
   const ImageF nmap = EncodeNormalMap(normals, o.normals);
   GridMesh mesh;
   std::vector<uint8_t> glb_normal_png, glb_albedo_png;
@@ -665,7 +681,7 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
             {"conventions",
              {{"world", "metres; mount plane z = 0, +z up towards the rig"},
               {"maps", "one grid for every map; row 0 is the +y edge, so image up = world +y"},
-              {"height", "metres above the mount plane; holes filled with hole_value_m (see the confidence map)"},
+              {"height", "metres above the mount plane; holes bounded by surface filled (see fill), the others with hole_value_m (see the confidence map)"},
               {"normal_map", conv_text + "; tangent space +X = world x, +Y = world y on a flat sample"},
               {"glb", "metres, glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world; normal texture OpenGL"},
               {"exr_height_channel",
@@ -676,6 +692,12 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
             {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.width, o.crop.height}},
             {"height_range_m", {range.min, range.max}},
             {"hole_value_m", hole_value},
+            {"fill", {{"method", FillMethodName(o.fill.method)},
+                      {"max_hole_radius_m", o.fill.max_hole_radius_m},
+                      {"pixels_filled", hole_fill.filled_pixels},
+                      {"holes_filled", hole_fill.holes_filled},
+                      {"pixels_left", hole_fill.pixels_left},
+                      {"note", "filled pixels have confidence 0; the rest of the holes hold hole_value_m"}}},
             {"valid_samples", range.valid},
             {"albedo", albedo_source},
             {"files", files},

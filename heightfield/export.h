@@ -27,6 +27,7 @@
 
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "heightfield/maps_fill.h"
 
 namespace mesoscan {
 
@@ -65,6 +66,10 @@ struct ExportOptions {
   ImageF albedo;
   // Look for the session's white frame when `albedo` is empty.
   bool albedo_from_session = true;
+  // Hole filling of the height and normal maps (heightfield/maps_fill.h): holes bounded by
+  // surface are filled harmonically from their border (no trench at a shadowed wall); the
+  // others get the lowest height (hole_value_m). PLY and GLB keep only measured samples.
+  FillOptions fill;
 
   void Check() const;
 };

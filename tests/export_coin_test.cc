@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "assets/objects.h"
+#include "core/image_io.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
 #include "tests/export_consumers.h"
@@ -86,6 +87,7 @@ class ExportCoin : public ::testing::Test {
   void ExpectGltfTransformValidatesTheLosslessAndTheDecimatedGlb();
   void ExpectOiioReadsEveryExrWithItsChannelsAndAttributes();
   void ExpectDecimatedGlbMeetsItsBudgetWithAStatedError();
+  void ExpectFilledHolesWithinTheirBorderRange();
 
   static Json MeshEntry(const fs::path& manifest) {
     const Json m = ReadJsonFile(manifest);
@@ -180,7 +182,60 @@ void ExportCoin::ExpectDecimatedGlbMeetsItsBudgetWithAStatedError() {
             << " um\n";
 }
 
+// Issue 15: the displacement has no trench where the coin's wall shadowed the projector. Every
+// hole the export filled (a NaN of the scan, not holding hole_value_m in the EXR height) lies
+// within the range of the measured heights bordering it, and the shadowed rim is among them.
+void ExportCoin::ExpectFilledHolesWithinTheirBorderRange() {
+  const Json m = ReadJsonFile(root_ / "a/manifest.json");
+  const std::string name = m.at("name");
+  const float hole_value = m.at("hole_value_m").get<float>();
+  const ImageF h = ReadExrChannels(root_ / "a" / (name + "_height.exr"), {"Y"});
+  const HeightField& s = scan_->height;
+  ASSERT_EQ(h.width(), s.width());
+  const int w = s.width(), ht = s.height();
+  // 4-connected regions of filled pixels, each with the range of its measured border.
+  std::vector<int> label(static_cast<size_t>(w) * ht, -1);
+  int64_t filled = 0, regions = 0, outside = 0, near_rim = 0;
+  for (int start = 0; start < w * ht; ++start) {
+    if (std::isfinite(s.z.data()[start]) || h.data()[start] == hole_value || label[start] >= 0) continue;
+    std::vector<int> stack{start}, pixels;
+    label[start] = static_cast<int>(regions);
+    float lo = 1e9f, hi = -1e9f;
+    while (!stack.empty()) {
+      const int p = stack.back();
+      stack.pop_back();
+      pixels.push_back(p);
+      const int x = p % w, y = p / w;
+      for (auto [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        const int nx = x + dx, ny = y + dy;
+        if (nx < 0 || ny < 0 || nx >= w || ny >= ht) continue;
+        const int q = ny * w + nx;
+        if (std::isfinite(s.z.data()[q])) {
+          lo = std::min(lo, s.z.data()[q]), hi = std::max(hi, s.z.data()[q]);
+        } else if (label[q] < 0) {
+          label[q] = static_cast<int>(regions);
+          stack.push_back(q);
+        }
+      }
+    }
+    ++regions;
+    filled += static_cast<int64_t>(pixels.size());
+    for (int p : pixels) {
+      const float v = h.data()[p];
+      if (v < lo - 1e-9f || v > hi + 1e-9f) ++outside;
+      const double r = std::hypot(s.X(p % w), s.Y(p / w));
+      if (r > kCoinRadius - 0.5e-3 && r < kCoinRadius + 1.5e-3) ++near_rim;
+    }
+  }
+  std::cout << "coin export: " << filled << " filled pixels in " << regions << " holes, "
+            << near_rim << " at the rim; outside their border's range: " << outside << "\n";
+  EXPECT_EQ(outside, 0);
+  EXPECT_GT(near_rim, 50);  // the wall's shadow at the rim is filled, not a trench
+  EXPECT_EQ(m.at("fill").at("method"), "harmonic");
+}
+
 TEST_F(ExportCoin, ExportsAreAnnouncedDecimatedWithAStatedErrorAndReadByGltfTransformAndOiio) {
+  ExpectFilledHolesWithinTheirBorderRange();
   ExpectExportPrintsWhereAndOneLoadLinePerMap();
   ExpectDecimatedGlbMeetsItsBudgetWithAStatedError();
   std::string missing;

@@ -1,0 +1,127 @@
+// mesoscan maps SCAN --out DIR: an artist-ready material map set (heightfield/maps.h): holes
+// filled, the sample's shape removed, tileable at a physical size, with AO and curvature.
+// The same options on `export` and `reconstruct --export` (AddMapOptions).
+
+#include <filesystem>
+#include <iostream>
+#include <memory>
+
+#include "app/commands.h"
+#include "app/map_options.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/scan_folder.h"
+#include "heightfield/maps.h"
+
+namespace mesoscan {
+namespace fs = std::filesystem;
+
+void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
+  const std::string g = standalone ? "" : " (map set: also writes a finished map set into OUT/maps)";
+  cmd->add_option("--fill", a->fill, "Hole filling: harmonic, biharmonic or none" + g);
+  cmd->add_option("--fill-max-radius-mm", a->fill_max_radius_mm,
+                  "Holes wider than this (inscribed radius, mm) stay holes");
+  cmd->add_option("--flatten", a->flatten,
+                  "Remove the sample's shape: none, plane, poly:N or highpass:MM (cutoff wavelength)" + g);
+  cmd->add_option("--tile", a->tile_mm, "Make a tileable square of this size in mm" + g);
+  cmd->add_option("--tile-method", a->tile_method, "blend (offset-and-blend, default) or mirror");
+  cmd->add_option("--maps", a->maps,
+                  "Maps to write: any of height,normal,albedo,confidence,ao,curvature" + g);
+  cmd->add_option("--ao-radius-mm", a->ao_radius_mm, "Ambient occlusion search radius, mm");
+}
+
+bool MapArgs::any() const {
+  return !fill.empty() || !flatten.empty() || tile_mm > 0 || !maps.empty() || !tile_method.empty();
+}
+
+MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop) const {
+  MapsOptions o;
+  o.name = name;
+  if (!fill.empty()) o.fill.method = ParseFillMethod(fill);
+  if (fill_max_radius_mm > 0) o.fill.max_hole_radius_m = fill_max_radius_mm * 1e-3;
+  if (!flatten.empty()) o.flatten = ParseFlatten(flatten);
+  if (tile_mm < 0) MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << tile_mm << ": expected a size in mm > 0");
+  if (tile_mm > 0) {
+    o.tile = true;
+    o.tile_options.size_m = tile_mm * 1e-3;
+  }
+  if (!tile_method.empty()) {
+    if (tile_mm <= 0) MESOSCAN_THROW(ErrorKind::kUsage, "--tile-method needs --tile SIZE_MM");
+    o.tile_options.method = ParseTileMethod(tile_method);
+  }
+  if (!maps.empty()) ParseMapSelection(maps, &o);
+  if (ao_radius_mm > 0) o.ao.radius_m = ao_radius_mm * 1e-3;
+  if (!crop.empty()) o.crop = ParseGridCrop(crop);
+  o.Check();
+  return o;
+}
+
+void PrintMapSet(const MapsSummary& s, const fs::path& dir) {
+  std::cout << s.BriefReport() << "\n";
+  const fs::path abs = fs::absolute(dir).lexically_normal();
+  std::cout << "map set in " << abs.string() << " (manifest.json; contact sheet "
+            << s.manifest.at("name").get<std::string>() << "_contact_sheet.png)\n";
+  std::cout << "load in Blender: " << BlenderLoadLine(abs / "manifest.json") << "\n";
+}
+
+std::string BlenderLoadLine(const fs::path& manifest) {
+  const fs::path addon = MESOSCAN_ADDON_ZIP;  // written by the build (app/CMakeLists.txt)
+  return "blender --python-expr \"import bpy; bpy.ops.preferences.addon_install(filepath='" +
+         addon.string() + "'); bpy.ops.preferences.addon_enable(module='mesoscan_maps'); "
+         "bpy.ops.import_scene.mesoscan_maps(filepath='" + manifest.string() + "')\"";
+}
+
+namespace {
+
+struct MapsCmdArgs {
+  std::string scan, out, crop, name, albedo, normals = "gl";
+  MapArgs maps;
+};
+
+std::string DefaultMapsName(const fs::path& scan) {
+  fs::path p = scan.lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  std::string name = p.filename().string();
+  if (p.extension() == ".scan") name = p.stem().string();
+  return name.empty() || name == "." || name == ".." ? "scan" : name;
+}
+
+void RunMaps(const MapsCmdArgs& a) {
+  MapsOptions o = a.maps.ToOptions(a.name.empty() ? DefaultMapsName(a.scan) : a.name, a.crop);
+  o.normals = a.normals == "dx" ? NormalConvention::kDirectX : NormalConvention::kOpenGl;
+  const Scan scan = ReadScanFolder(a.scan);
+  if (!a.albedo.empty()) {
+    o.albedo = ReadImage(a.albedo);
+    if (o.albedo.width() != scan.height.width() || o.albedo.height() != scan.height.height())
+      MESOSCAN_BAD_INPUT(a.albedo << ": expected the " << scan.height.width() << "x"
+                                  << scan.height.height() << " height grid");
+    if (o.albedo.channels() == 2 || o.albedo.channels() == 4) {
+      ImageF rgb(o.albedo.width(), o.albedo.height(), o.albedo.channels() - 1);
+      std::copy(o.albedo.data().begin(), o.albedo.data().begin() + rgb.data().size(), rgb.data().begin());
+      o.albedo = std::move(rgb);
+    }
+  }
+  const MapsSummary s = BuildMapSet(scan, o, a.out);
+  PrintMapSet(s, a.out);
+}
+
+}  // namespace
+
+void AddMapsCommand(CLI::App* app) {
+  auto* cmd = app->add_subcommand(
+      "maps", "Artist-ready material maps: holes filled, shape removed, tileable at a physical size");
+  auto a = std::make_shared<MapsCmdArgs>();
+  cmd->add_option("SCAN", a->scan, "Scan folder (written by reconstruct)")->required();
+  cmd->add_option("--out", a->out, "Map-set folder (replaced atomically)")->required();
+  cmd->add_option("--crop", a->crop, "X,Y,W,H: a rectangle of the scan's height-grid pixels");
+  cmd->add_option("--name", a->name, "File name prefix (default: the scan folder's name)");
+  cmd->add_option("--albedo", a->albedo, "Linear albedo image on the height grid (default: the "
+                                         "session's white frame with the projector falloff divided out)");
+  cmd->add_option("--normals", a->normals, "Normal-map convention: gl or dx")
+      ->check(CLI::IsMember({"gl", "dx"}))
+      ->capture_default_str();
+  AddMapOptions(cmd, &a->maps, /*standalone=*/true);
+  cmd->callback([a] { RunMaps(*a); });
+}
+
+}  // namespace mesoscan

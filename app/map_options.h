@@ -1,0 +1,27 @@
+#pragma once
+// The map-set options shared by `maps`, `export` and `reconstruct --export` (app/cmd_maps.cc).
+
+#include <CLI/CLI.hpp>
+
+#include <filesystem>
+#include <string>
+
+#include "heightfield/maps.h"
+
+namespace mesoscan {
+
+struct MapArgs {
+  std::string fill, flatten, tile_method, maps;
+  double fill_max_radius_mm = 0.0, tile_mm = 0.0, ao_radius_mm = 0.0;
+  bool any() const;  // any map option given (export / reconstruct then write a map set)
+  MapsOptions ToOptions(const std::string& name, const std::string& crop) const;
+};
+
+// Registers --fill, --flatten, --tile, --tile-method, --maps, ... on `cmd`.
+void AddMapOptions(CLI::App* cmd, MapArgs* args, bool standalone);
+// Prints the summary, the folder and the one line that loads it in Blender.
+void PrintMapSet(const MapsSummary& summary, const std::filesystem::path& dir);
+// The shell line that installs the add-on and imports `manifest` into Blender.
+std::string BlenderLoadLine(const std::filesystem::path& manifest);
+
+}  // namespace mesoscan

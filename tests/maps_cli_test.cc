@@ -1,0 +1,303 @@
+// `mesoscan maps` (issue 15) on a synthetic scan of the hammered-metal material sample
+// (assets/objects.h MakeHammeredMetal: the truth is known), and its consumer, the Blender add-on:
+//  - the CLI writes a finished, tileable map set: every manifest file exists, the tile is the
+//    asked physical size, the seam gradient statistics are within 10% of the interior's, the
+//    flattened height is the texture (the sample's tilt and sag removed) and the removed part
+//    is written; it prints the one line that loads the set in Blender;
+//  - bad input gives one line, a distinct exit code and no output folder;
+//  - `export --tile` writes the same map set into OUT/maps next to the raw exports;
+//  - Blender 3.4 installs the add-on zip, imports the set onto a plane of its physical size
+//    with the expected node tree (Displacement Midlevel 0, Scale 1, world space, Repeat), a
+//    Cycles render of its true displacement matches a plane displaced by the EXR in Python, and
+//    the tile repeated 2 x 2 under raking light shows no seam (an untiled crop does).
+
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <iostream>
+
+#include "assets/objects.h"
+#include "core/image_io.h"
+#include "core/json.h"
+#include "core/scan_folder.h"
+#include "heightfield/maps_flatten.h"
+#include "heightfield/maps_tile.h"
+#include "tests/export_consumers.h"
+
+namespace mesoscan {
+namespace {
+using namespace consumers;  // NOLINT: the shared consumer helpers
+
+constexpr double kPixel = 50e-6;
+constexpr double kTileMm = 8.0;
+
+// The metal sample's interior (inside its margin), with small holes (shadows, rejected pixels)
+// and one large one; the truth keeps every sample.
+struct Synthetic {
+  Scan scan;
+  HeightField truth;
+  ImageF albedo;
+};
+
+Synthetic MakeSynthetic() {
+  const SceneObject metal = MakeHammeredMetal(kPixel);
+  const int m = 10, w = metal.height.width() - 2 * m, h = metal.height.height() - 2 * m;
+  Synthetic s;
+  HeightField& hf = s.scan.height;
+  hf.pixel_size = kPixel;
+  hf.x0 = metal.height.X(m);
+  hf.y0 = metal.height.Y(m);
+  hf.z = ImageF(w, h, 1);
+  hf.confidence = ImageF(w, h, 1, 0.9f);
+  s.albedo = ImageF(w, h, 1);
+  for (int j = 0; j < h; ++j)
+    for (int i = 0; i < w; ++i) {
+      hf.z(i, j) = metal.height.z(i + m, j + m);
+      s.albedo(i, j) = metal.albedo(i + m, j + m);
+    }
+  s.truth = hf;
+  for (int j = 0; j < h; ++j)
+    for (int i = 0; i < w; ++i) {
+      const bool small = ((i - 37) % 61 == 0 || (i - 38) % 61 == 0) && i < w - 5 && (j % 47) >= 10 && (j % 47) < 13;
+      const bool large = std::hypot(i - 100.0, j - 480.0) < 40;  // 2 mm: stays a hole
+      if (small || large) hf.z(i, j) = std::nanf(""), hf.confidence(i, j) = 0.0f;
+    }
+  s.scan.normals = hf.Normals();
+  s.scan.points.xyz = ImageF(2, 2, 3, std::nanf(""));
+  s.scan.points.confidence = ImageF(2, 2, 1, 0.0f);
+  s.scan.points.projector_u = ImageF(2, 2, 1, std::nanf(""));
+  s.scan.report = {{"note", "synthetic scan of tests/maps_cli_test.cc"}};
+  return s;
+}
+
+class MapsCli : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = fs::temp_directory_path() / ("mesoscan_maps_cli_test_" + std::to_string(getpid()));
+    fs::remove_all(root_);
+    fs::create_directories(root_);
+    syn_ = new Synthetic(MakeSynthetic());
+    WriteScanFolder(root_ / "metal.scan", syn_->scan);
+    WriteExr(root_ / "albedo.exr", syn_->albedo, {"Y"});
+    const std::string scan = Q(root_ / "metal.scan");
+    status_ = RunMesoscan("maps " + scan + " --out " + Q(root_ / "tiled") + " --flatten poly:2 --tile 8 --albedo " +
+                              Q(root_ / "albedo.exr"),
+                          &log_);
+    // The untiled control: a square crop of the same size, flattened the same way.
+    std::string out;
+    const int n = static_cast<int>(std::lround(kTileMm * 1e-3 / kPixel));
+    untiled_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "untiled") + " --flatten poly:2 --crop 200,100," +
+                                      std::to_string(n) + "," + std::to_string(n) + " --maps height,normal,ao",
+                                  &out);
+    log_ += out;
+    // The whole sample flattened, for the texture check.
+    whole_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "whole") + " --flatten poly:2 --maps height,confidence", &out);
+    log_ += out;
+  }
+  static void TearDownTestSuite() { delete syn_; }
+  void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
+  static inline fs::path root_;
+  static inline Synthetic* syn_ = nullptr;
+  static inline int status_ = -1, untiled_status_ = -1, whole_status_ = -1;
+  static inline std::string log_;
+};
+
+TEST_F(MapsCli, WritesAFinishedTileableMapSet) {
+  const Json m = ReadJsonFile(root_ / "tiled/manifest.json");
+  EXPECT_EQ(m.at("format"), "mesoscan-maps/1");
+  EXPECT_TRUE(m.at("tileable").get<bool>());
+  const double size = m.at("tile").at("size_m");
+  EXPECT_NEAR(size, kTileMm * 1e-3, kPixel / 2);
+  EXPECT_NEAR(m.at("grid").at("physical_size_m")[0].get<double>(), size, 1e-12);
+  std::set<std::string> roles;
+  for (const auto& f : m.at("files")) {
+    EXPECT_TRUE(fs::exists(root_ / "tiled" / f.at("file").get<std::string>())) << f.dump();
+    roles.insert(f.at("role"));
+  }
+  for (const char* r : {"height", "height removed", "normal", "albedo", "confidence", "mask", "ao",
+                        "curvature", "cavity", "contact sheet"})
+    EXPECT_TRUE(roles.count(r)) << r;
+  // Seam gradient statistics: both seams pooled against the interior within 10%, and each seam
+  // no outlier among single interior columns/rows (within 2.5 of their standard deviations:
+  // the hammer dents are ~40 px wide, so one column of 160 samples scatters by that much).
+  const Json& tile = m.at("tile");
+  const auto ratio = tile.at("seam_gradient_ratio");
+  const auto spread = tile.at("interior_column_row_spread");
+  std::cout << "seam/interior gradient RMS: pooled " << tile.at("seam_gradient_ratio_pooled") << ", x "
+            << ratio[0] << ", y " << ratio[1] << " (interior columns scatter " << spread[0] << ", rows "
+            << spread[1] << "); untiled crop " << tile.at("seam_gradient_ratio_untiled") << "\n";
+  EXPECT_NEAR(tile.at("seam_gradient_ratio_pooled").get<double>(), 1.0, 0.10);
+  EXPECT_NEAR(ratio[0].get<double>(), 1.0, 2.5 * spread[0].get<double>());
+  EXPECT_NEAR(ratio[1].get<double>(), 1.0, 2.5 * spread[1].get<double>());
+  // The same statistics measured on the written EXR (not the manifest's word).
+  const ImageF z = ReadExrChannels(root_ / "tiled/metal_height.exr", {"Y"});
+  SeamStats measured;
+  {
+    HeightField f;
+    f.z = z;
+    measured = MeasureSeams(z);
+  }
+  EXPECT_NEAR(measured.pooled_ratio(), tile.at("seam_gradient_ratio_pooled").get<double>(), 1e-3);
+  EXPECT_EQ(m.at("fill").at("holes_left"), 1);  // the 2 mm hole
+  EXPECT_GT(m.at("fill").at("holes_filled").get<int>(), 10);
+  EXPECT_NE(log_.find("load in Blender: blender --python-expr"), std::string::npos) << log_;
+  EXPECT_NE(log_.find("import_scene.mesoscan_maps(filepath='" +
+                      fs::absolute(root_ / "tiled/manifest.json").lexically_normal().string()),
+            std::string::npos);
+}
+
+// Flatten on the sample: the whole sample's flattened height is the truth's texture (the tilt
+// and sag of objects.cc SampleShape removed) within 1% RMS; flattened + removed = the scan.
+// The hammer dents are a random field of ~2 mm cells, so over the 28 mm sample they have a
+// quadratic component of their own (~sqrt(6 / 200) of their RMS) that no flatten can tell from
+// the sample's shape: the reference is the texture minus its own least-squares quadratic (the
+// raw figure is printed too).
+TEST_F(MapsCli, FlattenedHeightIsTheTexture) {
+  ASSERT_EQ(whole_status_, 0) << log_;
+  const ImageF z = ReadExrChannels(root_ / "whole/metal_height.exr", {"Y"});
+  const ImageF removed = ReadExrChannels(root_ / "whole/metal_height_removed.exr", {"Y"});
+  const HeightField& t = syn_->truth;
+  ASSERT_EQ(z.width(), t.width());
+  const ImageU8 mask = [&] {
+    const ImageF mf = ReadImage(root_ / "whole/metal_mask.png");
+    ImageU8 m(mf.width(), mf.height(), 1);
+    for (size_t p = 0; p < m.pixels(); ++p) m.data()[p] = mf.data()[p] > 0.99f ? 1 : 0;  // measured
+    return m;
+  }();
+  std::vector<double> tex(t.z.pixels(), 0.0);
+  double mz = 0, mt = 0;
+  int64_t cnt = 0;
+  for (int j = 0; j < t.height(); ++j)
+    for (int i = 0; i < t.width(); ++i) {
+      const size_t p = static_cast<size_t>(j) * t.width() + i;
+      const float s = syn_->scan.height.z.data()[p];
+      if (!std::isfinite(s) || !mask.data()[p]) continue;
+      ASSERT_NEAR(z.data()[p] + removed.data()[p], s, 1e-9);
+      const double x = t.X(i), y = t.Y(j);
+      const double shape = 0.8e-3 + 0.010 * x - 0.006 * y - 0.15e-3 * (x * x + y * y) / (kMaterialHalfM * kMaterialHalfM);
+      tex[p] = t.z.data()[p] - shape;
+      mz += z.data()[p], mt += tex[p], ++cnt;
+    }
+  mz /= cnt, mt /= cnt;
+  // The texture's own quadratic, by plain least squares (one iteration: no robust weights).
+  HeightField tf = t;
+  for (size_t p = 0; p < tex.size(); ++p)
+    tf.z.data()[p] = std::isfinite(syn_->scan.height.z.data()[p]) && mask.data()[p] ? static_cast<float>(tex[p]) : NAN;
+  FlattenOptions ls = ParseFlatten("poly:2");
+  ls.irls_iterations = 1;
+  const FlattenResult own = Flatten(tf, ImageU8(), ls);
+  double mo = 0;
+  for (size_t p = 0; p < tex.size(); ++p)
+    if (std::isfinite(tf.z.data()[p])) mo += own.field.z.data()[p];
+  mo /= cnt;
+  double e2 = 0, t2 = 0, raw2 = 0;
+  for (size_t p = 0; p < tex.size(); ++p) {
+    if (!std::isfinite(tf.z.data()[p])) continue;
+    e2 += std::pow((z.data()[p] - mz) - (own.field.z.data()[p] - mo), 2);
+    raw2 += std::pow((z.data()[p] - mz) - (tex[p] - mt), 2);
+    t2 += std::pow(tex[p] - mt, 2);
+  }
+  std::cout << "flattened vs texture: " << std::sqrt(e2 / t2) * 100 << "% RMS (vs the raw texture with its "
+            << "own quadratic: " << std::sqrt(raw2 / t2) * 100 << "%) over " << cnt << " px\n";
+  EXPECT_LT(std::sqrt(e2 / t2), 0.01);
+}
+
+TEST_F(MapsCli, BadInputIsOneLineAndNoOutput) {
+  std::string out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "nope.scan") + " --out " + Q(root_ / "bad1"), &out), 3) << out;
+  EXPECT_FALSE(fs::exists(root_ / "bad1"));
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad2") + " --flatten poly:9", &out), 2) << out;
+  EXPECT_NE(out.find("--flatten"), std::string::npos) << out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad3") + " --tile 200", &out), 3) << out;
+  EXPECT_NE(out.find("--tile"), std::string::npos) << out;
+  EXPECT_FALSE(fs::exists(root_ / "bad3"));
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad4") + " --fill cubic", &out), 2) << out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad5") + " --maps height,gloss", &out), 2) << out;
+}
+
+TEST_F(MapsCli, ExportWritesTheMapSetNextToTheRawExports) {
+  std::string out;
+  ASSERT_EQ(RunMesoscan("-q export " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "export") +
+                            " --format exr,png16 --flatten plane --tile 6",
+                        &out),
+            0)
+      << out;
+  EXPECT_TRUE(fs::exists(root_ / "export/manifest.json"));
+  const Json m = ReadJsonFile(root_ / "export/maps/manifest.json");
+  EXPECT_TRUE(m.at("tileable").get<bool>());
+  EXPECT_NEAR(m.at("tile").at("size_m").get<double>(), 6e-3, kPixel / 2);
+}
+
+TEST_F(MapsCli, BlenderImportsTheSetAtTrueScaleAndTheTileHasNoSeam) {
+  const std::string blender = FindOnPath("blender");
+  if (blender.empty()) GTEST_SKIP() << "blender missing: " << kInstall;
+  ASSERT_EQ(untiled_status_, 0) << log_;
+  const fs::path zip = MESOSCAN_ADDON_ZIP;
+  ASSERT_TRUE(fs::exists(zip)) << zip;
+  const fs::path tmp = root_ / "blender";
+  fs::create_directories(tmp / "user_scripts");
+  const Json cfg = {{"addon_zip", zip.string()},
+                    {"manifest", (root_ / "tiled/manifest.json").string()},
+                    {"manifest_untiled", (root_ / "untiled/manifest.json").string()},
+                    {"tmp", tmp.string()},
+                    {"out", (tmp / "out.json").string()},
+                    {"samples", 8},
+                    {"render_px", 160}};
+  WriteJsonFile(tmp / "cfg.json", cfg);
+  std::string log;
+  // The add-on is installed into a scratch user-scripts folder, not the user's own.
+  const int status = RunCommand("BLENDER_USER_SCRIPTS=" + Q(tmp / "user_scripts") + " " + blender +
+                                    " -b --factory-startup --python-exit-code 1 -P " +
+                                    Q(kSource / "tests/consumers/blender_maps_checks.py") + " -- " +
+                                    Q(tmp / "cfg.json"),
+                                &log);
+  ASSERT_EQ(status, 0) << log;
+  const Json r = ReadJsonFile(tmp / "out.json");
+  std::cout << r.dump(1) << "\n";
+  const Json m = ReadJsonFile(root_ / "tiled/manifest.json");
+  const double size = m.at("tile").at("size_m");
+  // The plane is the tile's physical size; displacement true scale in world units.
+  EXPECT_NEAR(r.at("dimensions")[0].get<double>(), size, 1e-6);
+  EXPECT_NEAR(r.at("dimensions")[1].get<double>(), size, 1e-6);
+  EXPECT_EQ(r.at("displacement").at("midlevel").get<double>(), 0.0);
+  EXPECT_EQ(r.at("displacement").at("scale").get<double>(), 1.0);
+  EXPECT_EQ(r.at("displacement").at("space"), "WORLD");
+  EXPECT_EQ(r.at("displacement_method"), "DISPLACEMENT");
+  const Json& links = r.at("links");
+  auto has = [&](const std::string& l) { return std::find(links.begin(), links.end(), l) != links.end(); };
+  EXPECT_TRUE(has("height.Color->mesoscan displacement.Height")) << links.dump();
+  EXPECT_TRUE(has("mesoscan displacement.Displacement->Material Output.Displacement")) << links.dump();
+  EXPECT_TRUE(has("normal.Color->mesoscan normal map.Color")) << links.dump();
+  EXPECT_TRUE(has("albedo.Color->mesoscan albedo x ao.Color1")) << links.dump();
+  EXPECT_TRUE(has("ao.Color->mesoscan albedo x ao.Color2")) << links.dump();
+  EXPECT_TRUE(has("mesoscan albedo x ao.Color->Principled BSDF.Base Color")) << links.dump();
+  const Json& images = r.at("images");
+  EXPECT_EQ(images.at("height").at("colorspace"), "Non-Color");
+  EXPECT_EQ(images.at("albedo").at("colorspace"), "sRGB");
+  EXPECT_EQ(images.at("height").at("extension"), "REPEAT");
+  EXPECT_EQ(images.at("height").at("file"), "metal_height.exr");
+  // Cycles' true displacement against the EXR-displaced reference (same seed, same samples):
+  // the difference is a small fraction of what the relief itself changes in the image (the
+  // same plane undisplaced), which is itself visible (> 0.5% of the mean).
+  const Json& ren = r.at("render");
+  EXPECT_GT(ren.at("addon_vs_flat_mean_abs").get<double>(), 0.005 * ren.at("mean").get<double>());
+  EXPECT_LT(ren.at("addon_vs_reference_mean_abs").get<double>(), 0.1 * ren.at("addon_vs_flat_mean_abs").get<double>());
+  // The seam: the tile repeated 2 x 2 under raking light; the rendered change across the seam
+  // is no outlier among the image's other columns (rows): |z| < 2, and its ratio to their mean
+  // is within 0.6-1.4 (the dents are ~40 px wide, so single columns scatter widely); the
+  // untiled crop's seam is at least 1.5x (measured: 3.3x along x).
+  const Json& st = r.at("seam_tiled");
+  const Json& su = r.at("seam_untiled");
+  for (const char* a : {"x", "y"}) {
+    EXPECT_LT(std::abs(st.at(std::string(a) + "_z").get<double>()), 2.0) << a;
+    EXPECT_NEAR(st.at(std::string(a) + "_ratio").get<double>(), 1.0, 0.4) << a;
+  }
+  EXPECT_GT(std::max(su.at("x_ratio").get<double>(), su.at("y_ratio").get<double>()), 1.5);
+}
+
+}  // namespace
+}  // namespace mesoscan
