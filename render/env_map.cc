@@ -109,9 +109,37 @@ Rgb EnvironmentMap::Lookup(double u, double v) const {
   return Rgb(rgb_(x, y, 0), rgb_(x, y, 1), rgb_(x, y, 2));
 }
 
+void EnvironmentMap::SetRotation(double degrees) {
+  if (!std::isfinite(degrees)) MESOSCAN_BAD_INPUT("environment map: rotation must be finite");
+  rotation_deg_ = degrees;
+  cos_rot_ = std::cos(degrees * kPi / 180);
+  sin_rot_ = std::sin(degrees * kPi / 180);
+}
+
+Vec3 EnvironmentMap::ToMap(const Vec3& w) const {
+  return Vec3(cos_rot_ * w.x() + sin_rot_ * w.y(), -sin_rot_ * w.x() + cos_rot_ * w.y(), w.z());
+}
+Vec3 EnvironmentMap::FromMap(const Vec3& w) const {
+  return Vec3(cos_rot_ * w.x() - sin_rot_ * w.y(), sin_rot_ * w.x() + cos_rot_ * w.y(), w.z());
+}
+
+std::filesystem::path EnvironmentMap::NamedPath(const std::string& name) {
+  for (const auto& n : NamedEnvironments())
+    if (n == name) {
+      const std::filesystem::path p =
+          std::filesystem::path("/usr/share/blender/datafiles/studiolights/world") / (name + ".exr");
+      if (std::filesystem::exists(p)) return p;
+    }
+  return {};
+}
+
+std::vector<std::string> EnvironmentMap::NamedEnvironments() {
+  return {"studio", "forest", "city", "courtyard", "interior", "night", "sunrise", "sunset"};
+}
+
 Rgb EnvironmentMap::Le(const Vec3& w) const {
   if (constant_) return constant_radiance_;
-  const Vec2 uv = DirectionToUv(w);
+  const Vec2 uv = DirectionToUv(ToMap(w));
   return Lookup(uv.x(), uv.y());
 }
 
@@ -127,12 +155,12 @@ std::optional<EnvSample> EnvironmentMap::Sample(const Vec2& u) const {
   if (!(pdf_warp > 0) || !(sin_theta > 0)) return std::nullopt;
   const double jac = (static_cast<double>(w - 1) / w) * (static_cast<double>(h - 1) / h);
   const double pdf = pdf_warp / jac / (kTwoPi * kPi * sin_theta);
-  return EnvSample{UvToDirection(uv), Lookup(uv.x(), uv.y()), pdf};
+  return EnvSample{FromMap(UvToDirection(uv)), Lookup(uv.x(), uv.y()), pdf};
 }
 
 double EnvironmentMap::Pdf(const Vec3& w) const {
   if (constant_) return 0.0;
-  const Vec2 uv = DirectionToUv(w);
+  const Vec2 uv = DirectionToUv(ToMap(w));
   const int wd = rgb_.width(), ht = rgb_.height();
   const Vec2 p((uv.x() * wd - 0.5) / (wd - 1), (uv.y() * ht - 0.5) / (ht - 1));
   if (p.x() < 0 || p.x() > 1 || p.y() < 0 || p.y() > 1) return 0.0;

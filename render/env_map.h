@@ -9,6 +9,8 @@
 
 #include <filesystem>
 #include <optional>
+#include <string>
+#include <vector>
 
 #include "brdf/common.h"
 #include "brdf/warp2d.h"
@@ -37,6 +39,17 @@ class EnvironmentMap {
   static EnvironmentMap Sky(double sun_elevation_deg = 25.0, double sun_azimuth_deg = 200.0,
                             int width = 512);
 
+  // Rotates the environment about +z by `degrees` (counter-clockwise seen from above): the light
+  // that came from azimuth phi comes from phi + degrees. For turntables and light placement.
+  void SetRotation(double degrees);
+  double rotation_deg() const { return rotation_deg_; }
+
+  // A named environment from Blender's studio lights (Debian package blender-data):
+  // /usr/share/blender/datafiles/studiolights/world/NAME.exr (studio, forest, city, courtyard,
+  // interior, night, sunrise, sunset). Empty if the name is unknown or the package is missing.
+  static std::filesystem::path NamedPath(const std::string& name);
+  static std::vector<std::string> NamedEnvironments();
+
   bool is_constant() const { return constant_; }
   // Radiance arriving from world direction w (unit).
   Rgb Le(const Vec3& w) const;
@@ -49,6 +62,9 @@ class EnvironmentMap {
 
  private:
   Rgb Lookup(double u, double v) const;
+  Vec3 ToMap(const Vec3& w) const;    // world -> map frame (undo the rotation)
+  Vec3 FromMap(const Vec3& w) const;  // map frame -> world
+  double rotation_deg_ = 0, cos_rot_ = 1, sin_rot_ = 0;
   bool constant_ = true;
   Rgb constant_radiance_ = Rgb::Zero();
   ImageF rgb_;
