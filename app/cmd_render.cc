@@ -31,7 +31,7 @@ namespace {
 
 struct RenderArgs {
   std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480", camera, albedo = "none";
-  std::string compare;
+  std::string compare, turntable_size;
   RenderOptions options;
   double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0, env_rotation_deg = 0;
   int threads = 0, turntable = 0, turntable_spp = 0;
@@ -222,6 +222,9 @@ void Run(const RenderArgs& a) {
     const fs::path dir = out / "turntable";
     fs::create_directories(dir);
     RenderOptions ot = o;
+    if (!a.turntable_size.empty() &&
+        std::sscanf(a.turntable_size.c_str(), "%dx%d", &ot.width, &ot.height) != 2)
+      MESOSCAN_THROW(ErrorKind::kUsage, "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
     if (a.turntable_spp > 0) {
       ot.max_spp = a.turntable_spp;
       ot.min_spp = std::min(ot.min_spp, ot.max_spp);
@@ -306,6 +309,8 @@ void AddRenderCommand(CLI::App* app) {
                   "(turntable/frame_NNN.png and turntable.gif)");
   cmd->add_option("--turntable-spp", args->turntable_spp,
                   "Samples per pixel of each turntable frame (default: as --spp)");
+  cmd->add_option("--turntable-size", args->turntable_size,
+                  "Turntable frame size WxH (default: as --size)");
   cmd->add_option("--compare", args->compare,
                   "Also render a second BRDF and write side_by_side.png (left --brdf, right this)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");

@@ -14,6 +14,8 @@ namespace {
 // der Corput sequence (v_k = 2^-k). Computed once, 64 columns (indices up to 2^64).
 struct SobolMatrices {
   std::array<uint32_t, 64> v0{}, v1{};
+  // Dimension 1 as byte tables: bytes[b][x] = XOR of the columns 8b..8b+7 selected by x.
+  std::array<std::array<uint32_t, 256>, 8> bytes1{};
   SobolMatrices() {
     uint64_t m = 1;  // m_k < 2^k: fits for k <= 64
     for (int k = 1; k <= 64; ++k) {
@@ -22,6 +24,13 @@ struct SobolMatrices {
       v1[k - 1] = k <= 32 ? static_cast<uint32_t>(m << (32 - k)) : static_cast<uint32_t>(m >> (k - 32));
       v0[k - 1] = k <= 32 ? (1u << (32 - k)) : 0u;
     }
+    for (int b = 0; b < 8; ++b)
+      for (int x = 0; x < 256; ++x) {
+        uint32_t r = 0;
+        for (int k = 0; k < 8; ++k)
+          if (x & (1 << k)) r ^= v1[8 * b + k];
+        bytes1[b][x] = r;
+      }
   }
 };
 const SobolMatrices& Matrices() {
@@ -79,11 +88,11 @@ uint64_t MixBits(uint64_t v) {
 }
 
 uint32_t SobolBits(uint64_t index, int dimension) {
-  const auto& m = Matrices();
-  const auto& v = dimension == 0 ? m.v0 : m.v1;
+  // Dimension 0 is the bit reversal of the index's low 32 bits (higher bits fall below 2^-32).
+  if (dimension == 0) return ReverseBits32(static_cast<uint32_t>(index));
+  const auto& t = Matrices().bytes1;
   uint32_t r = 0;
-  for (int k = 0; index; index >>= 1, ++k)
-    if (index & 1) r ^= v[k];
+  for (int b = 0; index; index >>= 8, ++b) r ^= t[b][index & 0xFF];
   return r;
 }
 
@@ -109,11 +118,18 @@ ZSobolSampler::ZSobolSampler(int log2_spp, int width, int height, uint64_t seed)
 }
 
 void ZSobolSampler::StartPixelSample(int x, int y, uint32_t sample) {
-  morton_index_ = (Morton2(static_cast<uint32_t>(x), static_cast<uint32_t>(y)) << log2_spp_) | sample;
+  const uint64_t m = (Morton2(static_cast<uint32_t>(x), static_cast<uint32_t>(y)) << log2_spp_) | sample;
+  if ((m >> log2_spp_) != (morton_index_ >> log2_spp_) || generation_ == 0) {
+    if (++generation_ == 0) {  // wrapped: clear the stamps
+      std::fill(std::begin(cached_for_), std::end(cached_for_), 0u);
+      generation_ = 1;
+    }
+  }
+  morton_index_ = m;
   dimension_ = 0;
 }
 
-uint64_t ZSobolSampler::PermutedIndex(uint64_t dimension_hash) const {
+uint64_t ZSobolSampler::PermutedIndex(uint64_t dimension_hash) {
   // Shuffles each base-4 digit of the Morton-ordered index by one of the 24 permutations,
   // chosen by a hash of the digits above it and the dimension (a nested random digit
   // permutation: every elementary interval of the (0,2)-sequence keeps one point). With an odd
@@ -122,7 +138,25 @@ uint64_t ZSobolSampler::PermutedIndex(uint64_t dimension_hash) const {
   const bool odd = log2_spp_ & 1;
   uint64_t index = 0;
   const int last = odd ? 1 : 0;
-  for (int i = base4_digits_ - 1; i >= last; --i) {
+  int top = base4_digits_ - 1;
+  if (!odd && dimension_ < kCachedDims) {
+    // Digits at and above log2_spp / 2 hold the pixel: the same for all its samples.
+    const int first_pixel_digit = log2_spp_ / 2;
+    if (cached_for_[dimension_] != generation_) {
+      uint64_t part = 0;
+      for (int i = base4_digits_ - 1; i >= first_pixel_digit; --i) {
+        const int shift = 2 * i;
+        const int digit = static_cast<int>((morton_index_ >> shift) & 3);
+        const int p = static_cast<int>((MixBits((morton_index_ >> (shift + 2)) ^ dimension_hash) >> 24) % 24);
+        part |= static_cast<uint64_t>(perms.p[p][digit]) << shift;
+      }
+      pixel_part_[dimension_] = part;
+      cached_for_[dimension_] = generation_;
+    }
+    index = pixel_part_[dimension_];
+    top = first_pixel_digit - 1;
+  }
+  for (int i = top; i >= last; --i) {
     const int shift = 2 * i - (odd ? 1 : 0);
     const int digit = static_cast<int>((morton_index_ >> shift) & 3);
     const uint64_t higher = morton_index_ >> (shift + 2);
@@ -138,16 +172,16 @@ uint64_t ZSobolSampler::PermutedIndex(uint64_t dimension_hash) const {
 
 double ZSobolSampler::Get1D() {
   const uint64_t h = MixBits(seed_ * 0x9E3779B97F4A7C15ull ^ (dimension_ + 1));
-  ++dimension_;
   const uint64_t index = PermutedIndex(h);
+  ++dimension_;
   const uint32_t v = OwenScramble(SobolBits(index, 0), static_cast<uint32_t>(h >> 32));
   return std::min(v * 0x1p-32, 0x1.fffffffffffffp-1);
 }
 
 void ZSobolSampler::Get2D(double* u0, double* u1) {
   const uint64_t h = MixBits(seed_ * 0x9E3779B97F4A7C15ull ^ (dimension_ + 1));
-  dimension_ += 2;
   const uint64_t index = PermutedIndex(h);
+  dimension_ += 2;
   const uint64_t h2 = MixBits(h);
   const uint32_t a = OwenScramble(SobolBits(index, 0), static_cast<uint32_t>(h2));
   const uint32_t b = OwenScramble(SobolBits(index, 1), static_cast<uint32_t>(h2 >> 32));

@@ -42,7 +42,13 @@ class ZSobolSampler {
   int log2_spp() const { return log2_spp_; }
 
  private:
-  uint64_t PermutedIndex(uint64_t dimension_hash) const;
+  uint64_t PermutedIndex(uint64_t dimension_hash);
+  // The permuted pixel digits (above the sample digits) depend only on the pixel and the
+  // dimension: cached per pixel for the first kCachedDims dimensions (3x fewer hashes per path).
+  static constexpr int kCachedDims = 48;
+  uint64_t pixel_part_[kCachedDims] = {};
+  uint32_t cached_for_[kCachedDims] = {};  // generation stamp per entry
+  uint32_t generation_ = 0;
   int log2_spp_;
   int base4_digits_;
   uint64_t seed_;

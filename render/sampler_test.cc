@@ -9,6 +9,16 @@ namespace mesoscan {
 namespace {
 
 TEST(Sobol, FirstPointsOfTheTwoDimensions) {
+  // Dimension 1 against the direction numbers directly, for a 40-bit index.
+  const uint64_t big = 0xB5A3C1F00Dull;
+  uint64_t m = 1;
+  uint32_t expect = 0;
+  for (int k = 1; k <= 40; ++k) {
+    if (k > 1) m = (m << 1) ^ m;
+    if ((big >> (k - 1)) & 1)
+      expect ^= static_cast<uint32_t>(k <= 32 ? m << (32 - k) : m >> (k - 32));
+  }
+  EXPECT_EQ(SobolBits(big, 1), expect);
   const double d0[] = {0, 0.5, 0.25, 0.75, 0.125};
   const double d1[] = {0, 0.5, 0.75, 0.25, 0.625};  // direction numbers m = 1, 3, 5
   for (int i = 0; i < 5; ++i) {
@@ -69,6 +79,20 @@ TEST(ZSobolSampler, SeedsChangeEveryValueAndTheSameSeedRepeats) {
     }
   }
   EXPECT_EQ(same, 0);
+}
+
+// The per-pixel cache of the permuted pixel digits changes nothing: visiting pixels in any
+// order gives the values of a fresh sampler.
+TEST(ZSobolSampler, CacheIsTransparent) {
+  ZSobolSampler a(6, 40, 30, 4);
+  for (int x : {3, 4, 3, 17, 3}) {
+    for (int i : {0, 5, 63}) {
+      ZSobolSampler fresh(6, 40, 30, 4);
+      a.StartPixelSample(x, 2, i);
+      fresh.StartPixelSample(x, 2, i);
+      for (int d = 0; d < 60; ++d) EXPECT_EQ(a.Get1D(), fresh.Get1D());
+    }
+  }
 }
 
 // Neighbouring pixels get different points (not the same pattern repeated).
