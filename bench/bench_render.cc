@@ -162,6 +162,7 @@ double RenderCycles(const fs::path& dir, const std::string& tag, const SceneDef&
 }
 
 void Run() {
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);
   Progress::SetEnabled(false);
   ThreadLimit limit(2);
   const fs::path dir = fs::path(std::getenv("MESOSCAN_BENCH_OUT") ? std::getenv("MESOSCAN_BENCH_OUT") : ".") / "render";
@@ -276,7 +277,7 @@ void Run() {
 
   // Raw Embree throughput on the coin next to the tracer's paths/s.
   {
-    const HeightField& hf = MakeScenes()[0].hf;
+    const HeightField hf = MakeScenes()[0].hf;
     EmbreeScene scene;
     scene.AddHeightField(hf);
     scene.AddPlane(-1e-6, 10.0);

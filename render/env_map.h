@@ -1,7 +1,8 @@
 #pragma once
 // Environment lighting for the preview renderer: an equirectangular (lat-long) HDR map in the
-// z-up world, importance-sampled by luminance x sin(theta) through brdf/warp2d.h (the same exact
-// bilinear warp the RGL BRDFs use), or a constant radiance that is not importance-sampled.
+// z-up world, importance-sampled texel by texel (piecewise constant density proportional to
+// luminance x solid angle, matching the nearest-texel radiance), or a constant radiance that
+// is not importance-sampled.
 //
 // Direction <-> image, Blender's world convention (so Blender's studio lights look the same):
 //   u = 0.5 - atan2(y, x) / (2 pi), row v = theta / pi with theta the angle from +z (v = 0 is
@@ -13,7 +14,6 @@
 #include <vector>
 
 #include "brdf/common.h"
-#include "brdf/warp2d.h"
 #include "core/image.h"
 
 namespace mesoscan {
@@ -68,7 +68,8 @@ class EnvironmentMap {
   bool constant_ = true;
   Rgb constant_radiance_ = Rgb::Zero();
   ImageF rgb_;
-  Warp2D warp_;
+  std::vector<double> row_cdf_;  // h + 1: cumulative mass of the rows
+  std::vector<double> col_cdf_;  // h x (w + 1): cumulative mass within each row
 };
 
 }  // namespace mesoscan

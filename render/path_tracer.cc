@@ -134,8 +134,9 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     if (!bs || !(bs->pdf > 0) || bs->wi.z() <= 0) break;
     beta *= bs->f * (on_mount ? Rgb::Ones() : tint) * (bs->wi.z() / bs->pdf);
     if (!beta.allFinite() || !(beta > 0).any()) break;
-    // Russian roulette after two bounces.
-    if (depth >= 2) {
+    // Russian roulette only on long paths (max_depth > 4): within the first four vertices it
+    // added variance for no saving (Cycles' default starts later too).
+    if (depth >= 3) {
       const double q = std::max(0.05, 1.0 - beta.maxCoeff());
       if (u_rr < q) break;
       beta /= 1.0 - q;

@@ -52,7 +52,7 @@ TEST(EnvironmentMap, SamplePdfIsConsistentAndNormalised) {
   }
   // Integral of the pdf over the sphere (midpoint rule in (theta, phi)).
   double integral = 0;
-  const int nt = 400, np = 800;
+  const int nt = 384, np = 768;  // aligned with the 128 x 64 texels (piecewise-constant pdf)
   for (int i = 0; i < nt; ++i) {
     const double th = (i + 0.5) / nt * kPi;
     for (int j = 0; j < np; ++j) {
