@@ -1,15 +1,26 @@
 // mesoscan render: a path-traced preview of a scan's height field with a BRDF (measured or
-// analytic) under an environment map. Writes preview.exr (linear RGB) and preview.png.
+// analytic) under an environment map. Writes preview.exr (linear RGB) and preview.png, updated
+// after every sampling round of a long render (progressive), plus optional turntable frames,
+// an animated GIF and a side-by-side comparison.
 
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
 #include <filesystem>
+#include <optional>
+#include <sstream>
 
 #include "app/commands.h"
 #include "brdf/brdf.h"
 #include "core/error.h"
+#include "core/fs.h"
 #include "core/image_io.h"
+#include "core/json.h"
 #include "core/log.h"
 #include "core/parallel.h"
 #include "core/scan_folder.h"
+#include "heightfield/export.h"
+#include "render/animation.h"
 #include "render/env_map.h"
 #include "render/path_tracer.h"
 
@@ -19,10 +30,12 @@ namespace fs = std::filesystem;
 namespace {
 
 struct RenderArgs {
-  std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480";
+  std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480", camera, albedo = "none";
+  std::string compare, turntable_size;
   RenderOptions options;
-  double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0;
-  int threads = 0;
+  double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0, env_rotation_deg = 0;
+  int threads = 0, turntable = 0, turntable_spp = 0;
+  bool spp_given = false;
 };
 
 // "lambert", "ggx", "ggx-merl" (GGX tabulated into the MERL layout, written next to the
@@ -42,25 +55,195 @@ Brdf MakeBrdf(const std::string& spec, const fs::path& tmp_dir) {
   return LoadBrdf(spec);
 }
 
+// "eye=X,Y,Z:target=X,Y,Z:fov=DEG" (fov optional).
+void ParseCamera(const std::string& spec, RenderOptions* o) {
+  CameraSpec cam;
+  bool have_eye = false, have_target = false;
+  std::stringstream ss(spec);
+  std::string part;
+  while (std::getline(ss, part, ':')) {
+    const auto eq = part.find('=');
+    const std::string key = part.substr(0, eq), val = eq == std::string::npos ? "" : part.substr(eq + 1);
+    double a, b, c;
+    char tail;
+    if ((key == "eye" || key == "target") &&
+        std::sscanf(val.c_str(), "%lf,%lf,%lf%c", &a, &b, &c, &tail) == 3) {
+      (key == "eye" ? cam.eye : cam.target) = Vec3(a, b, c);
+      (key == "eye" ? have_eye : have_target) = true;
+    } else if (key == "fov" && std::sscanf(val.c_str(), "%lf%c", &a, &tail) == 1) {
+      if (!(a > 0 && a < 180))
+        MESOSCAN_THROW(ErrorKind::kUsage, "--camera: fov must be in (0, 180) degrees, got " << val);
+      o->fov_deg = a;
+    } else {
+      MESOSCAN_THROW(ErrorKind::kUsage, "--camera: expected eye=X,Y,Z:target=X,Y,Z[:fov=DEG] (metres, "
+                                        "degrees), could not read '" << part << "'");
+    }
+  }
+  if (!have_eye || !have_target)
+    MESOSCAN_THROW(ErrorKind::kUsage, "--camera: both eye=X,Y,Z and target=X,Y,Z are required");
+  o->camera = cam;
+}
+
+EnvironmentMap MakeEnvironment(const RenderArgs& a) {
+  if (a.env == "sky") return EnvironmentMap::Sky(a.sun_elevation_deg, a.sun_azimuth_deg);
+  if (a.env == "constant") return EnvironmentMap::Constant(Rgb::Constant(a.env_scale));
+  for (const auto& name : EnvironmentMap::NamedEnvironments())
+    if (a.env == name) {
+      const fs::path p = EnvironmentMap::NamedPath(name);
+      if (p.empty())
+        MESOSCAN_BAD_INPUT("--env " << name << ": needs Debian's blender-data package "
+                                    "(/usr/share/blender/datafiles/studiolights/world/"
+                                    << name << ".exr); give a lat-long EXR/HDR file instead");
+      return EnvironmentMap::Load(p, a.env_scale);
+    }
+  if (!fs::exists(a.env)) {
+    std::string names;
+    for (const auto& n : EnvironmentMap::NamedEnvironments()) names += n + "|";
+    MESOSCAN_BAD_INPUT(a.env << ": --env: expected sky|constant|" << names << "FILE.exr|FILE.hdr");
+  }
+  return EnvironmentMap::Load(a.env, a.env_scale);
+}
+
+// The base colour map for --albedo: "none", "R,G,B", or "scan" (albedo.exr/png in the scan
+// folder, else the session's white frame named by report.json). A relative albedo is
+// normalised to median 1 (a tint of the BRDF's own colour), clamped to [0, 1.4]; holes -> 1.
+std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
+  if (a.albedo == "none") return std::nullopt;
+  double r, g, b;
+  char tail;
+  if (std::sscanf(a.albedo.c_str(), "%lf,%lf,%lf%c", &r, &g, &b, &tail) == 3) {
+    if (!(r >= 0 && g >= 0 && b >= 0 && r <= 1 && g <= 1 && b <= 1))
+      MESOSCAN_THROW(ErrorKind::kUsage, "--albedo: R,G,B must be in [0, 1], got " << a.albedo);
+    ImageF im(hf.width(), hf.height(), 3);
+    for (size_t i = 0; i < im.pixels(); ++i) {
+      im.channel(0)[i] = static_cast<float>(r);
+      im.channel(1)[i] = static_cast<float>(g);
+      im.channel(2)[i] = static_cast<float>(b);
+    }
+    return im;
+  }
+  if (a.albedo != "scan")
+    MESOSCAN_THROW(ErrorKind::kUsage, "--albedo: expected scan, none or R,G,B, got '" << a.albedo << "'");
+  ImageF alb;
+  for (const char* f : {"albedo.exr", "albedo.png"})
+    if (alb.pixels() == 0 && fs::exists(fs::path(a.scan) / f)) alb = ReadImage(fs::path(a.scan) / f);
+  if (alb.pixels() == 0) {
+    const Json report = Json::parse(ReadTextFile(fs::path(a.scan) / "report.json"));
+    if (!report.contains("session") || !report["session"].is_string())
+      MESOSCAN_BAD_INPUT(a.scan << "/report.json: --albedo scan: no albedo.exr/png and no \"session\" "
+                                   "whose white frame gives one");
+    fs::path session = report["session"].get<std::string>();
+    if (session.is_relative() && !fs::exists(session)) session = fs::path(a.scan) / session;
+    alb = AlbedoFromSession(hf, session);
+  }
+  if (alb.width() != hf.width() || alb.height() != hf.height())
+    MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo is " << alb.width() << "x" << alb.height()
+                              << ", the height grid " << hf.width() << "x" << hf.height());
+  const int nc = alb.channels() >= 3 ? 3 : 1;
+  std::vector<float> lum;
+  for (size_t i = 0; i < alb.pixels(); ++i)
+    if (std::isfinite(alb.channel(0)[i]) && alb.channel(0)[i] > 0) lum.push_back(alb.channel(0)[i]);
+  if (lum.empty()) MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo has no positive sample");
+  std::nth_element(lum.begin(), lum.begin() + lum.size() / 2, lum.end());
+  const double median = lum[lum.size() / 2];
+  ImageF tint(hf.width(), hf.height(), nc);
+  for (int c = 0; c < nc; ++c)
+    for (size_t i = 0; i < alb.pixels(); ++i) {
+      const float v = alb.channel(c)[i];
+      tint.channel(c)[i] = std::isfinite(v) ? static_cast<float>(std::clamp(v / median, 0.0, 1.4)) : 1.0f;
+    }
+  return tint;
+}
+
+void WritePreview(const fs::path& out, const RenderResult& r) {
+  WriteExr(out / "preview.exr", r.radiance, {"R", "G", "B"}, {}, {}, "none");
+  WritePng8(out / "preview.png", ToneMapForDisplay(r.radiance, r.tone));
+}
+
 void Run(const RenderArgs& a) {
   ThreadLimit limit(a.threads);
   RenderOptions o = a.options;
   if (std::sscanf(a.size.c_str(), "%dx%d", &o.width, &o.height) != 2)
     MESOSCAN_THROW(ErrorKind::kUsage, "--size: expected WxH, got '" << a.size << "'");
+  if (!a.camera.empty()) ParseCamera(a.camera, &o);
+  // A time budget without an explicit sample cap renders until the time is up.
+  if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
+  if (a.turntable < 0 || a.turntable > 720)
+    MESOSCAN_THROW(ErrorKind::kUsage, "--turntable: expected 0..720 frames, got " << a.turntable);
   o.Check();
+  // The height field to preview. Hook for the artist-ready maps: the caller decides which
+  // field (raw with holes or filled) the renderer sees; here the scan's height.exr.
   const HeightField hf = ReadHeightExr(fs::path(a.scan) / "height.exr");
-  EnvironmentMap env = a.env == "sky" ? EnvironmentMap::Sky(a.sun_elevation_deg, a.sun_azimuth_deg)
-                       : a.env == "constant" ? EnvironmentMap::Constant(Rgb::Constant(a.env_scale))
-                                             : EnvironmentMap::Load(a.env, a.env_scale);
-  fs::create_directories(a.out);
-  const Brdf brdf = MakeBrdf(a.brdf, a.out);
-  RenderSummary summary;
-  const ImageF radiance = RenderHeightField(hf, brdf, env, o, &summary);
-  WriteExr(fs::path(a.out) / "preview.exr", radiance, {"R", "G", "B"});
-  WritePng8(fs::path(a.out) / "preview.png", ToneMapForDisplay(radiance));
-  MESOSCAN_LOG(kInfo) << "render: " << summary.BriefReport();
-  MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "preview.png").string()
+  EnvironmentMap env = MakeEnvironment(a);
+  env.SetRotation(a.env_rotation_deg);
+  const std::optional<ImageF> albedo = MakeAlbedo(a, hf);
+  if (albedo) o.albedo = &*albedo;
+  const fs::path out = a.out;
+  fs::create_directories(out);
+  const Brdf brdf = MakeBrdf(a.brdf, out);
+
+  // Progressive output: preview.exr/png rewritten (atomically) after a round when at least 2 s
+  // have passed since the last write.
+  auto last_write = std::chrono::steady_clock::now();
+  const RenderResult result = Render(hf, brdf, env, o, [&](const RenderResult& r) {
+    const auto now = std::chrono::steady_clock::now();
+    if (std::chrono::duration<double>(now - last_write).count() < 2.0) return;
+    WritePreview(out, r);
+    last_write = now;
+  });
+  WritePreview(out, result);
+  MESOSCAN_LOG(kInfo) << "render: " << result.summary.BriefReport();
+  MESOSCAN_LOG(kInfo) << "render: wrote " << (out / "preview.png").string()
                       << " (display) and preview.exr (linear RGB)";
+
+  if (!a.compare.empty()) {
+    // Side by side: the same scan, camera and light with a second BRDF, one exposure.
+    const Brdf other = MakeBrdf(a.compare, out);
+    RenderOptions oc = o;
+    const RenderResult rb = Render(hf, other, env, oc);
+    const ImageU8 left = ToneMapForDisplay(result.radiance, result.tone);
+    const ImageU8 right = ToneMapForDisplay(rb.radiance, result.tone);
+    const int gap = 4;
+    ImageU8 both(2 * o.width + gap, o.height, 3, 255);
+    for (int c = 0; c < 3; ++c)
+      for (int y = 0; y < o.height; ++y)
+        for (int x = 0; x < o.width; ++x) {
+          both(x, y, c) = left(x, y, c);
+          both(o.width + gap + x, y, c) = right(x, y, c);
+        }
+    WritePng8(out / "side_by_side.png", both);
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (out / "side_by_side.png").string() << " (left "
+                        << a.brdf << ", right " << a.compare << ")";
+  }
+
+  if (a.turntable > 0) {
+    // The environment turns around the sample; exposure fixed from the main render so the
+    // frames do not flicker.
+    const fs::path dir = out / "turntable";
+    fs::create_directories(dir);
+    RenderOptions ot = o;
+    if (!a.turntable_size.empty() &&
+        std::sscanf(a.turntable_size.c_str(), "%dx%d", &ot.width, &ot.height) != 2)
+      MESOSCAN_THROW(ErrorKind::kUsage, "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
+    if (a.turntable_spp > 0) {
+      ot.max_spp = a.turntable_spp;
+      ot.min_spp = std::min(ot.min_spp, ot.max_spp);
+    }
+    if (o.time_limit_s > 0) ot.time_limit_s = o.time_limit_s / a.turntable;
+    std::vector<ImageU8> frames;
+    for (int k = 0; k < a.turntable; ++k) {
+      EnvironmentMap e = env;
+      e.SetRotation(a.env_rotation_deg + 360.0 * k / a.turntable);
+      const RenderResult f = Render(hf, brdf, e, ot);
+      frames.push_back(ToneMapForDisplay(f.radiance, result.tone));
+      char name[32];
+      std::snprintf(name, sizeof(name), "frame_%03d.png", k);
+      WritePng8(dir / name, frames.back());
+    }
+    WriteAnimatedGif(out / "turntable.gif", frames, 12);
+    MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to " << dir.string()
+                        << " and " << (out / "turntable.gif").string();
+  }
 }
 
 }  // namespace
@@ -73,20 +256,42 @@ void AddRenderCommand(CLI::App* app) {
   cmd->add_option("--brdf", args->brdf,
                   "lambert | ggx | ggx-merl (GGX tabulated in MERL layout) | FILE.binary | FILE.bsdf")
       ->capture_default_str();
-  cmd->add_option("--env", args->env, "sky (procedural sun and sky) | constant | FILE.exr (lat-long)")
+  cmd->add_option("--env", args->env,
+                  "sky (procedural sun and sky) | constant | studio|forest|city|courtyard|interior|"
+                  "night|sunrise|sunset (Blender's, Debian blender-data) | FILE.exr/.hdr (lat-long)")
       ->capture_default_str();
   cmd->add_option("--env-scale", args->env_scale, "Radiance multiplier of the environment")
+      ->capture_default_str();
+  cmd->add_option("--env-rotation", args->env_rotation_deg,
+                  "Turns the environment about the vertical axis, degrees")
       ->capture_default_str();
   cmd->add_option("--sun-elevation", args->sun_elevation_deg, "Procedural sky: sun elevation, degrees")
       ->capture_default_str();
   cmd->add_option("--sun-azimuth", args->sun_azimuth_deg, "Procedural sky: sun azimuth, degrees")
       ->capture_default_str();
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
-  cmd->add_option("--spp", args->options.max_spp, "Maximum samples per pixel")->capture_default_str();
+  cmd->add_option_function<int>("--spp", [args](int n) {
+       args->options.max_spp = n;
+       args->spp_given = true;
+     }, "Maximum samples per pixel (default 256; 65536 with --time)");
   cmd->add_option("--min-spp", args->options.min_spp, "Samples before a pixel may stop early")
       ->capture_default_str();
-  cmd->add_option("--rel-error", args->options.relative_error,
-                  "A pixel stops when its relative standard error is below this")
+  cmd->add_option("--noise", args->options.noise,
+                  "Adaptive sampling: a pixel stops when its standard error is below this fraction "
+                  "of the display range (0 = every pixel gets --spp)")
+      ->capture_default_str();
+  cmd->add_option("--time", args->options.time_limit_s,
+                  "Stop after about this many seconds (0 = no limit; a timed render is not "
+                  "bit-for-bit reproducible)")
+      ->capture_default_str();
+  cmd->add_option("--seed", args->options.seed,
+                  "Sampler seed: the same seed reproduces the image bit for bit, different seeds "
+                  "give independent noise")
+      ->capture_default_str();
+  cmd->add_option("--camera", args->camera,
+                  "Explicit camera eye=X,Y,Z:target=X,Y,Z[:fov=DEG] in world metres (z up, "
+                  "vertical field of view, default 30); overrides --elevation/--azimuth");
+  cmd->add_option("--fov", args->options.fov_deg, "Vertical field of view, degrees (0 = 30)")
       ->capture_default_str();
   cmd->add_option("--elevation", args->options.elevation_deg, "Camera elevation, degrees")
       ->capture_default_str();
@@ -94,6 +299,20 @@ void AddRenderCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_option("--relief", args->options.relief_scale, "Height exaggeration factor")
       ->capture_default_str();
+  cmd->add_option("--max-depth", args->options.max_depth, "Path vertices on the surface")
+      ->capture_default_str();
+  cmd->add_option("--albedo", args->albedo,
+                  "Base colour: none | scan (the scan's albedo as a tint) | R,G,B")
+      ->capture_default_str();
+  cmd->add_option("--turntable", args->turntable,
+                  "Also render N frames of the environment turning once around the sample "
+                  "(turntable/frame_NNN.png and turntable.gif)");
+  cmd->add_option("--turntable-spp", args->turntable_spp,
+                  "Samples per pixel of each turntable frame (default: as --spp)");
+  cmd->add_option("--turntable-size", args->turntable_size,
+                  "Turntable frame size WxH (default: as --size)");
+  cmd->add_option("--compare", args->compare,
+                  "Also render a second BRDF and write side_by_side.png (left --brdf, right this)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->callback([args] { Run(*args); });
 }

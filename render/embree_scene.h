@@ -8,8 +8,9 @@
 // every Embree hit on a height field is refined in double by solving the ray/bilinear-patch
 // quadratic exactly in the cells the ray crosses near the float hit, so a returned point lies
 // on the bilinear surface to ~1e-12 m. Plane hits are recomputed analytically in double.
-// Shadow rays (Occluded) still use Embree's triangulated surface; ShadowRayOrigin() lifts the
-// origin above the triangles of its cell so a surface does not shadow itself.
+// Shadow rays (Occluded) still use Embree's triangulated surface; ShadowRayOrigin() moves the
+// origin off the triangles of its cell, on the side the ray arrived from, so a surface does not
+// shadow itself.
 
 #include <memory>
 #include <optional>
@@ -63,11 +64,18 @@ class EmbreeScene {
   // True if anything blocks origin + t * direction for t in [t_near, t_far].
   bool Occluded(const Vec3d& origin, const Vec3d& direction, double t_near, double t_far) const;
 
-  // A safe origin for a shadow ray leaving `hit`: the hit point lifted along +z above the
-  // triangulated surface of its cell (plus 1e-7 m).
-  static Vec3d ShadowRayOrigin(const RayHit& hit) {
-    return hit.point + Vec3d(0, 0, hit.shadow_lift + 1e-7);
+  // A safe origin for a ray leaving `hit` on the side the incoming ray `incoming` (the
+  // direction that reached the hit) came from: above the surface for a ray that arrived from
+  // above (the usual case), below it for a ray that reached the underside of a height field
+  // through a hole. The offset clears the triangulated surface of the cell (shadow_lift, either
+  // way) plus 1e-7 m. Offsetting always towards +z (ec0309f) restarted underside paths above
+  // the sheet, where they picked up the sky (mount +1.9% under a slab with a hole).
+  static Vec3d ShadowRayOrigin(const RayHit& hit, const Vec3d& incoming) {
+    const double side = incoming.dot(hit.normal) > 0 ? -1.0 : 1.0;
+    return hit.point + Vec3d(0, 0, side * (hit.shadow_lift + 1e-7));
   }
+  // For a hit reached from above (camera / projector rays of the rig).
+  static Vec3d ShadowRayOrigin(const RayHit& hit) { return ShadowRayOrigin(hit, Vec3d(0, 0, -1)); }
 
   // Number of Intersect calls whose double refinement failed (the float hit was returned).
   int64_t unrefined_hits() const;

@@ -1,7 +1,8 @@
 #pragma once
 // Environment lighting for the preview renderer: an equirectangular (lat-long) HDR map in the
-// z-up world, importance-sampled by luminance x sin(theta) through brdf/warp2d.h (the same exact
-// bilinear warp the RGL BRDFs use), or a constant radiance that is not importance-sampled.
+// z-up world, importance-sampled texel by texel (piecewise constant density proportional to
+// luminance x solid angle, matching the nearest-texel radiance), or a constant radiance that
+// is not importance-sampled.
 //
 // Direction <-> image, Blender's world convention (so Blender's studio lights look the same):
 //   u = 0.5 - atan2(y, x) / (2 pi), row v = theta / pi with theta the angle from +z (v = 0 is
@@ -9,9 +10,10 @@
 
 #include <filesystem>
 #include <optional>
+#include <string>
+#include <vector>
 
 #include "brdf/common.h"
-#include "brdf/warp2d.h"
 #include "core/image.h"
 
 namespace mesoscan {
@@ -37,6 +39,17 @@ class EnvironmentMap {
   static EnvironmentMap Sky(double sun_elevation_deg = 25.0, double sun_azimuth_deg = 200.0,
                             int width = 512);
 
+  // Rotates the environment about +z by `degrees` (counter-clockwise seen from above): the light
+  // that came from azimuth phi comes from phi + degrees. For turntables and light placement.
+  void SetRotation(double degrees);
+  double rotation_deg() const { return rotation_deg_; }
+
+  // A named environment from Blender's studio lights (Debian package blender-data):
+  // /usr/share/blender/datafiles/studiolights/world/NAME.exr (studio, forest, city, courtyard,
+  // interior, night, sunrise, sunset). Empty if the name is unknown or the package is missing.
+  static std::filesystem::path NamedPath(const std::string& name);
+  static std::vector<std::string> NamedEnvironments();
+
   bool is_constant() const { return constant_; }
   // Radiance arriving from world direction w (unit).
   Rgb Le(const Vec3& w) const;
@@ -49,10 +62,14 @@ class EnvironmentMap {
 
  private:
   Rgb Lookup(double u, double v) const;
+  Vec3 ToMap(const Vec3& w) const;    // world -> map frame (undo the rotation)
+  Vec3 FromMap(const Vec3& w) const;  // map frame -> world
+  double rotation_deg_ = 0, cos_rot_ = 1, sin_rot_ = 0;
   bool constant_ = true;
   Rgb constant_radiance_ = Rgb::Zero();
   ImageF rgb_;
-  Warp2D warp_;
+  std::vector<double> row_cdf_;  // h + 1: cumulative mass of the rows
+  std::vector<double> col_cdf_;  // h x (w + 1): cumulative mass within each row
 };
 
 }  // namespace mesoscan

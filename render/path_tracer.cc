@@ -11,6 +11,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "render/embree_scene.h"
+#include "render/sampler.h"
 
 namespace mesoscan {
 
@@ -18,43 +19,31 @@ void RenderOptions::Check() const {
   if (width < 1 || height < 1) MESOSCAN_BAD_INPUT("render: --size must be at least 1x1");
   if (min_spp < 1 || max_spp < min_spp)
     MESOSCAN_BAD_INPUT("render: expected 1 <= min_spp <= max_spp, got " << min_spp << ", " << max_spp);
-  if (!(relative_error > 0)) MESOSCAN_BAD_INPUT("render: relative_error must be > 0");
+  if (max_spp > (1 << 24)) MESOSCAN_BAD_INPUT("render: --spp must be at most 16777216");
+  if (!(noise >= 0) || !std::isfinite(noise)) MESOSCAN_BAD_INPUT("render: --noise must be >= 0");
+  if (!(time_limit_s >= 0) || !std::isfinite(time_limit_s))
+    MESOSCAN_BAD_INPUT("render: --time must be >= 0 seconds");
   if (max_depth < 1) MESOSCAN_BAD_INPUT("render: max_depth must be >= 1");
   if (!(elevation_deg > 0 && elevation_deg <= 90))
     MESOSCAN_BAD_INPUT("render: elevation must be in (0, 90] degrees");
-  if (!(relief_scale > 0)) MESOSCAN_BAD_INPUT("render: relief_scale must be > 0");
+  if (!(fov_deg >= 0 && fov_deg < 180)) MESOSCAN_BAD_INPUT("render: fov must be in (0, 180) degrees");
+  if (!(relief_scale > 0) || !std::isfinite(relief_scale))
+    MESOSCAN_BAD_INPUT("render: relief_scale must be > 0");
+  if (camera) {
+    if (!camera->eye.allFinite() || !camera->target.allFinite() ||
+        !((camera->target - camera->eye).norm() > 0))
+      MESOSCAN_BAD_INPUT("render: --camera: eye and target must be finite and distinct");
+  }
 }
 
 std::string RenderSummary::BriefReport() const {
   std::ostringstream s;
-  s << samples << " paths in " << seconds << " s, " << pixels_converged
-    << " pixels converged before the sample limit";
+  s << samples << " paths in " << seconds << " s (" << mean_spp << " spp on average, " << rounds
+    << " rounds), " << pixels_converged << " pixels converged before the sample limit";
   return s.str();
 }
 
 namespace {
-
-// PCG32 (O'Neill 2014): a small, fast, per-pixel generator; no allocation.
-struct Pcg32 {
-  uint64_t state, inc;
-  Pcg32(uint64_t seed, uint64_t stream) : state(0), inc((stream << 1u) | 1u) {
-    Next();
-    state += seed;
-    Next();
-  }
-  uint32_t Next() {
-    const uint64_t old = state;
-    state = old * 6364136223846793005ULL + inc;
-    const uint32_t xorshifted = static_cast<uint32_t>(((old >> 18u) ^ old) >> 27u);
-    const uint32_t rot = static_cast<uint32_t>(old >> 59u);
-    return (xorshifted >> rot) | (xorshifted << ((-rot) & 31));
-  }
-  double Uniform() { return std::min(Next() * 0x1p-32, 0x1.fffffffffffffp-1); }
-  Vec2 Uniform2() {
-    const double a = Uniform();
-    return {a, Uniform()};
-  }
-};
 
 // Orthonormal frame with z = n (Duff et al. 2017).
 struct Frame {
@@ -79,66 +68,144 @@ struct Scene {
   EmbreeScene embree;
   int hf_id = -1;
   int plane_id = -1;
+  const HeightField* hf = nullptr;
+  const ImageF* albedo = nullptr;  // on hf's grid, or null
+  int max_depth = 4;
+
+  Rgb Tint(const Vec3& p) const {
+    if (!albedo) return Rgb::Ones();
+    const int i = std::clamp(static_cast<int>(std::lround(hf->I(p.x()))), 0, albedo->width() - 1);
+    const int j = std::clamp(static_cast<int>(std::lround(hf->J(p.y()))), 0, albedo->height() - 1);
+    if (albedo->channels() >= 3) return Rgb((*albedo)(i, j, 0), (*albedo)(i, j, 1), (*albedo)(i, j, 2));
+    return Rgb::Constant((*albedo)(i, j, 0));
+  }
 };
 
-// Radiance along one camera ray.
+// Radiance along one camera ray. `hit_sample` reports whether the camera ray hit the height field.
 Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
-              const EnvironmentMap& env, Vec3 origin, Vec3 dir, int max_depth, Pcg32& rng) {
+              const EnvironmentMap& env, Vec3 origin, Vec3 dir, ZSobolSampler& sampler,
+              bool* hit_sample) {
   Rgb L = Rgb::Zero(), beta = Rgb::Ones();
   double prev_brdf_pdf = 0;  // 0: the previous direction was not BRDF-sampled (camera ray)
+  const bool env_sampled = !env.is_constant();
   for (int depth = 0;; ++depth) {
     const auto hit = scene.embree.Intersect(origin, dir, 1e-9);
+    if (depth == 0) *hit_sample = hit && hit->geometry == scene.hf_id;
     if (!hit) {
       const Rgb Le = env.Le(dir);
-      const double w = (prev_brdf_pdf > 0 && !env.is_constant())
+      const double w = (prev_brdf_pdf > 0 && env_sampled)
                            ? PowerHeuristic(prev_brdf_pdf, env.Pdf(dir))
                            : 1.0;
       L += beta * Le * w;
       break;
     }
-    if (depth >= max_depth) break;
+    if (depth >= scene.max_depth) break;
     Vec3 n = hit->normal;
-    if (n.dot(dir) > 0) n = -n;  // seen from below (never for a height field from above)
+    if (n.dot(dir) > 0) n = -n;  // the underside of the height field, reached through a hole
     const Frame frame(n);
     const Vec3 wo = frame.ToLocal(-dir);
     const bool on_mount = hit->geometry == scene.plane_id;
-    auto f = [&](const Vec3& wi) { return on_mount ? mount.f(wo, wi) : brdf.f(wo, wi); };
+    const Rgb tint = on_mount ? Rgb::Ones() : scene.Tint(hit->point);
+    auto f = [&](const Vec3& wi) -> Rgb { return on_mount ? mount.f(wo, wi) : Rgb(brdf.f(wo, wi) * tint); };
     auto pdf = [&](const Vec3& wi) { return on_mount ? mount.Pdf(wo, wi) : brdf.Pdf(wo, wi); };
-    const Vec3 shadow_origin = EmbreeScene::ShadowRayOrigin(*hit);
-    // Next-event estimation towards the environment.
-    if (auto ls = env.Sample(rng.Uniform2())) {
-      const Vec3 wi = frame.ToLocal(ls->wi);
-      if (wi.z() > 0 && !scene.embree.Occluded(shadow_origin, ls->wi, 0.0, 1e30)) {
-        const Rgb fv = f(wi);
-        const double w = PowerHeuristic(ls->pdf, pdf(wi));
-        L += beta * fv * ls->Le * (wi.z() * w / ls->pdf);
+    // Continue (and test shadows) from the side the ray arrived on.
+    const Vec3 next_origin = EmbreeScene::ShadowRayOrigin(*hit, dir);
+    // Next-event estimation towards the environment (a constant one is not importance-sampled:
+    // BRDF sampling alone is then exact for a Lambert surface and needs no shadow ray).
+    if (env_sampled) {
+      Vec2 ul;
+      sampler.Get2D(&ul.x(), &ul.y());
+      if (auto ls = env.Sample(ul)) {
+        const Vec3 wi = frame.ToLocal(ls->wi);
+        if (wi.z() > 0) {
+          const Rgb fv = f(wi);
+          if ((fv > 0).any() && !scene.embree.Occluded(next_origin, ls->wi, 0.0, 1e30)) {
+            const double w = PowerHeuristic(ls->pdf, pdf(wi));
+            L += beta * fv * ls->Le * (wi.z() * w / ls->pdf);
+          }
+        }
       }
     }
     // Continue by BRDF sampling.
-    const Vec2 u = rng.Uniform2();
+    Vec2 u;
+    sampler.Get2D(&u.x(), &u.y());
+    const double u_rr = sampler.Get1D();
     const auto bs = on_mount ? mount.Sample(wo, u) : brdf.Sample(wo, u);
     if (!bs || !(bs->pdf > 0) || bs->wi.z() <= 0) break;
-    beta *= bs->f * (bs->wi.z() / bs->pdf);
-    if (!beta.allFinite()) break;
-    // Russian roulette after two bounces.
-    if (depth >= 2) {
+    beta *= bs->f * (on_mount ? Rgb::Ones() : tint) * (bs->wi.z() / bs->pdf);
+    if (!beta.allFinite() || !(beta > 0).any()) break;
+    // Russian roulette only on long paths (max_depth > 4): within the first four vertices it
+    // added variance for no saving (Cycles' default starts later too).
+    if (depth >= 3) {
       const double q = std::max(0.05, 1.0 - beta.maxCoeff());
-      if (rng.Uniform() < q) break;
+      if (u_rr < q) break;
       beta /= 1.0 - q;
     }
     prev_brdf_pdf = bs->pdf;
-    origin = shadow_origin;
+    origin = next_origin;
     dir = frame.FromLocal(bs->wi).normalized();
   }
   return L.allFinite() ? L : Rgb::Zero();
 }
 
+struct PinholeCamera {
+  Vec3 eye, fwd, right, up;
+  double tan_half = 0, aspect = 1;
+  Vec3 Direction(double px, double py) const {  // px, py in [-1, 1], py up
+    return (fwd + right * (px * tan_half * aspect) + up * (py * tan_half)).normalized();
+  }
+};
+
+PinholeCamera MakeCamera(const HeightField& hf, double zmin, double zmax, const RenderOptions& o) {
+  PinholeCamera cam;
+  const double fov = (o.fov_deg > 0 ? o.fov_deg : 30.0) * kPi / 180;
+  cam.aspect = static_cast<double>(o.width) / o.height;
+  cam.tan_half = std::tan(0.5 * fov);
+  Vec3 target;
+  if (o.camera) {
+    cam.eye = o.camera->eye;
+    target = o.camera->target;
+  } else {
+    // Frame the height field: the larger extent fills ~90% of the view.
+    const double ex = hf.width() * hf.pixel_size, ey = hf.height() * hf.pixel_size;
+    target = Vec3(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)), 0.5 * (zmin + zmax));
+    const double el = o.elevation_deg * kPi / 180, az = o.azimuth_deg * kPi / 180;
+    const double half = 0.5 * std::max(ey, ex / cam.aspect) / 0.9;
+    const double dist = half / cam.tan_half + 0.5 * (zmax - zmin);
+    cam.eye = target + dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
+                                   std::sin(el));
+  }
+  cam.fwd = (target - cam.eye).normalized();
+  cam.right = cam.fwd.cross(Vec3(0, 0, 1));
+  if (cam.right.norm() < 1e-9) cam.right = Vec3(1, 0, 0);
+  cam.right.normalize();
+  cam.up = cam.right.cross(cam.fwd);
+  return cam;
+}
+
+// Per-pixel accumulators: two interleaved half-buffers (even / odd sample numbers).
+struct PixelState {
+  double a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
+  int n = 0;        // samples taken
+  int hits = 0;     // camera rays that hit the height field
+  bool done = false;
+};
+
+double ToneCurveSlope(double v, double white) {
+  // d/dv of v (1 + v / w^2) / (1 + v).
+  const double w2 = white * white;
+  return (1 + 2 * v / w2 + v * v / w2) / ((1 + v) * (1 + v));
+}
+
 }  // namespace
 
-ImageF RenderHeightField(const HeightField& hf_in, const Brdf& brdf, const EnvironmentMap& env,
-                         const RenderOptions& options, RenderSummary* summary) {
+RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const EnvironmentMap& env,
+                    const RenderOptions& options, const RenderProgressFn& on_round) {
   options.Check();
   const auto start = std::chrono::steady_clock::now();
+  auto elapsed = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
   // Heights are exaggerated around the mount plane for previews of low relief.
   HeightField hf = hf_in;
   double zmin = 1e30, zmax = -1e30;
@@ -149,102 +216,199 @@ ImageF RenderHeightField(const HeightField& hf_in, const Brdf& brdf, const Envir
     zmax = std::max(zmax, static_cast<double>(z));
   }
   if (zmin > zmax) MESOSCAN_BAD_INPUT("render: the height field has no valid sample");
+  if (options.albedo && (options.albedo->width() != hf.width() || options.albedo->height() != hf.height()))
+    MESOSCAN_BAD_INPUT("render: the albedo map (" << options.albedo->width() << "x"
+                       << options.albedo->height() << ") does not match the height field ("
+                       << hf.width() << "x" << hf.height() << ")");
 
   Scene scene;
+  scene.hf = &hf;
+  scene.albedo = options.albedo;
+  scene.max_depth = options.max_depth;
   scene.hf_id = scene.embree.AddHeightField(hf);
-  const double ex = hf.width() * hf.pixel_size, ey = hf.height() * hf.pixel_size;
-  const double extent = std::max(ex, ey);
+  const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
   scene.plane_id = scene.embree.AddPlane(std::min(0.0, zmin) - 1e-6, 10 * extent + 1.0);
   scene.embree.Commit();
-
-  // Pinhole camera framing the height field.
-  const Vec3 centre(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)),
-                    0.5 * (zmin + zmax));
-  const double el = options.elevation_deg * kPi / 180, az = options.azimuth_deg * kPi / 180;
-  const double fov = options.fov_deg > 0 ? options.fov_deg * kPi / 180 : 30.0 * kPi / 180;
-  const double aspect = static_cast<double>(options.width) / options.height;
-  // Distance so the larger extent fills ~90% of the view.
-  const double half = 0.5 * std::max(ey, ex / aspect) / 0.9;
-  const double dist = half / std::tan(0.5 * fov) + 0.5 * (zmax - zmin);
-  const Vec3 eye = centre + dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
-                                        std::sin(el));
-  const Vec3 fwd = (centre - eye).normalized();
-  Vec3 right = fwd.cross(Vec3(0, 0, 1));
-  if (right.norm() < 1e-9) right = Vec3(1, 0, 0);
-  right.normalize();
-  const Vec3 up = right.cross(fwd);
-  const double tan_half = std::tan(0.5 * fov);
-
+  const PinholeCamera cam = MakeCamera(hf, zmin, zmax, options);
   const LambertBrdf mount(options.mount_albedo);
-  ImageF out(options.width, options.height, 3, 0.0f);
-  std::atomic<int64_t> samples{0}, converged{0};
-  Progress progress("render", options.height);
-  ParallelForRows(options.height, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) {
-      for (int x = 0; x < options.width; ++x) {
-        Pcg32 rng(options.seed, static_cast<uint64_t>(y) * options.width + x);
-        Rgb sum = Rgb::Zero();
-        double lum_sum = 0, lum_sq = 0;
-        int n = 0;
-        for (; n < options.max_spp; ++n) {
-          if (n >= options.min_spp && n % 8 == 0) {
-            const double mean = lum_sum / n;
-            const double var = std::max(0.0, lum_sq / n - mean * mean) / (n - 1);
-            if (std::sqrt(var) < options.relative_error * std::max(mean, 1e-4)) {
-              converged.fetch_add(1, std::memory_order_relaxed);
-              break;
-            }
-          }
-          const double px = (x + rng.Uniform()) / options.width * 2 - 1;
-          const double py = 1 - (y + rng.Uniform()) / options.height * 2;
-          const Vec3 dir =
-              (fwd + right * (px * tan_half * aspect) + up * (py * tan_half)).normalized();
-          const Rgb L = TracePath(scene, brdf, mount, env, eye, dir, options.max_depth, rng);
-          sum += L;
-          const double l = Luminance(L);
-          lum_sum += l;
-          lum_sq += l * l;
-        }
-        samples.fetch_add(n, std::memory_order_relaxed);
-        for (int c = 0; c < 3; ++c) out(x, y, c) = static_cast<float>(sum[c] / std::max(n, 1));
-      }
-      progress.Advance();
+
+  const int W = options.width, H = options.height;
+  int log2_spp = 0;
+  while ((1 << log2_spp) < options.max_spp) ++log2_spp;
+  log2_spp += log2_spp & 1;  // even: every prefix of 4^k samples of a pixel is a (0,2k,2)-net
+  std::vector<PixelState> px(static_cast<size_t>(W) * H);
+  RenderResult result;
+  result.radiance = ImageF(W, H, 3, 0.0f);
+  result.sample_mask = ImageF(W, H, 1, 0.0f);
+  std::atomic<int64_t> samples{0};
+  std::vector<float> var(px.size()), var_s(px.size());
+
+  auto update_images = [&] {
+    for (size_t i = 0; i < px.size(); ++i) {
+      const PixelState& p = px[i];
+      const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
+      for (int c = 0; c < 3; ++c)
+        result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
+      result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
     }
-  });
-  progress.Finish();
-  if (summary) {
-    summary->samples = samples;
-    summary->pixels_converged = converged;
-    summary->seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    result.tone = MeterExposure(result.radiance, &result.sample_mask);
+  };
+
+  Progress progress("render (pixels done)", static_cast<int64_t>(W) * H);
+  int target = std::min(options.min_spp, options.max_spp);
+  int active = W * H;
+  for (int round = 0; active > 0; ++round) {
+    // Shorten the round if it would overrun the time budget (paths/s measured so far).
+    if (options.time_limit_s > 0 && round > 0) {
+      const double rate = samples.load() / std::max(elapsed(), 1e-3);
+      const double left = options.time_limit_s - elapsed();
+      if (left <= 0) break;
+      int prev = 0;
+      for (const auto& p : px) prev = std::max(prev, p.done ? 0 : p.n);
+      const double affordable = left * rate / std::max(active, 1);
+      target = std::min(target, prev + std::max(1, static_cast<int>(affordable)));
+    }
+    ParallelForRows(H, [&](int y0, int y1) {
+      int64_t local = 0;
+      ZSobolSampler sampler(log2_spp, W, H, options.seed);
+      for (int y = y0; y < y1; ++y) {
+        if (options.time_limit_s > 0 && round > 0 && elapsed() > 1.05 * options.time_limit_s + 0.05)
+          break;  // safety: the prediction was wrong (the load changed)
+        for (int x = 0; x < W; ++x) {
+          PixelState& p = px[static_cast<size_t>(y) * W + x];
+          if (p.done) continue;
+          for (; p.n < target; ++p.n) {
+            sampler.StartPixelSample(x, y, static_cast<uint32_t>(p.n));
+            double jx, jy;
+            sampler.Get2D(&jx, &jy);
+            const double sx = (x + jx) / W * 2 - 1;
+            const double sy = 1 - (y + jy) / H * 2;
+            bool hit_sample = false;
+            const Rgb L = TracePath(scene, brdf, mount, env, cam.eye, cam.Direction(sx, sy),
+                                    sampler, &hit_sample);
+            double* acc = (p.n & 1) ? p.b : p.a;
+            for (int c = 0; c < 3; ++c) acc[c] += L[c];
+            p.hits += hit_sample;
+            ++local;
+          }
+        }
+      }
+      samples.fetch_add(local, std::memory_order_relaxed);
+    });
+    update_images();
+    // Error per pixel: (mean_a - mean_b)^2 / 4 estimates the variance of the pixel mean.
+    for (size_t i = 0; i < px.size(); ++i) {
+      const PixelState& p = px[i];
+      const int na = (p.n + 1) / 2, nb = p.n / 2;
+      if (na == 0 || nb == 0) {
+        var[i] = 0;
+        continue;
+      }
+      const Rgb ma(p.a[0] / na, p.a[1] / na, p.a[2] / na), mb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb);
+      const double d = Luminance(ma) - Luminance(mb);
+      var[i] = static_cast<float>(0.25 * d * d);
+    }
+    // 3x3 mean of the estimates (the single-pixel estimate has one degree of freedom).
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x) {
+        double s = 0;
+        int k = 0;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int xx = x + dx, yy = y + dy;
+            if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+            s += var[static_cast<size_t>(yy) * W + xx];
+            ++k;
+          }
+        var_s[static_cast<size_t>(y) * W + x] = static_cast<float>(s / k);
+      }
+    const int was_active = active;
+    active = 0;
+    for (size_t i = 0; i < px.size(); ++i) {
+      PixelState& p = px[i];
+      if (p.done) continue;
+      const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
+      if (p.n >= options.max_spp) {
+        p.done = true;
+        continue;
+      }
+      if (options.noise > 0 && p.n >= options.min_spp && p.n >= 4) {
+        const double v = result.tone.exposure *
+                         Luminance(Rgb(result.radiance(x, y, 0), result.radiance(x, y, 1),
+                                       result.radiance(x, y, 2)));
+        const double err = std::sqrt(var_s[i]) * result.tone.exposure *
+                           ToneCurveSlope(std::max(0.0, v), result.tone.white);
+        if (err < options.noise) {
+          p.done = true;
+          ++result.summary.pixels_converged;
+          continue;
+        }
+      }
+      ++active;
+    }
+    result.summary.rounds = round + 1;
+    result.summary.samples = samples.load();
+    result.summary.mean_spp = static_cast<double>(result.summary.samples) / px.size();
+    result.summary.seconds = elapsed();
+    progress.Advance(was_active - active);
+    if (on_round) on_round(result);
+    if (options.time_limit_s > 0 && elapsed() >= options.time_limit_s) break;
+    target = std::min(options.max_spp, 2 * target);
   }
-  return out;
+  progress.Finish();
+  result.summary.seconds = elapsed();
+  return result;
+}
+
+ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
+                         const RenderOptions& options, RenderSummary* summary) {
+  RenderResult r = Render(hf, brdf, env, options);
+  if (summary) *summary = r.summary;
+  return std::move(r.radiance);
+}
+
+ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask) {
+  // Exposure from the log-average luminance (key 0.18, Reinhard et al. 2002) of the sample's
+  // pixels, then the extended Reinhard curve with the white point at their 99.5th percentile, so
+  // a sun glint neither blows out the image nor darkens everything else.
+  const size_t n = radiance.pixels();
+  std::vector<float> lum;
+  lum.reserve(n);
+  double log_sum = 0;
+  for (int pass = 0; pass < 2 && lum.empty(); ++pass) {
+    for (size_t i = 0; i < n; ++i) {
+      if (pass == 0 && mask && mask->pixels() == n && !(mask->channel(0)[i] > 0.5f)) continue;
+      if (pass == 0 && !(mask && mask->pixels() == n)) continue;
+      const float l = static_cast<float>(Luminance(
+          Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i])));
+      lum.push_back(l);
+      log_sum += std::log(1e-6 + std::max(0.0f, l));
+    }
+  }
+  ToneMapping t;
+  if (lum.empty()) return t;
+  const double log_avg = std::exp(log_sum / lum.size());
+  t.exposure = log_avg > 0 ? 0.18 / log_avg : 1.0;
+  const size_t k = static_cast<size_t>(0.995 * (lum.size() - 1));
+  std::nth_element(lum.begin(), lum.begin() + k, lum.end());
+  t.white = std::max(1.0, lum[k] * t.exposure);
+  return t;
+}
+
+ImageU8 ToneMapForDisplay(const ImageF& radiance, const ToneMapping& tone) {
+  const size_t n = radiance.pixels();
+  ImageF mapped(radiance.width(), radiance.height(), 3);
+  const double w2 = tone.white * tone.white;
+  for (int c = 0; c < 3; ++c)
+    for (size_t i = 0; i < n; ++i) {
+      const double v = std::max(0.0, radiance.channel(c)[i] * tone.exposure);
+      mapped.channel(c)[i] = static_cast<float>(v * (1 + v / w2) / (1 + v));
+    }
+  return QuantizeU8(mapped, /*srgb_encode=*/true);
 }
 
 ImageU8 ToneMapForDisplay(const ImageF& radiance) {
-  // Exposure from the log-average luminance (key 0.18, Reinhard et al. 2002), then the extended
-  // Reinhard curve per channel with the white point at the 99.5th percentile, so a sun glint
-  // neither blows out the image nor darkens everything else; sRGB encoding last.
-  const size_t n = radiance.pixels();
-  std::vector<float> lum(n);
-  double log_sum = 0;
-  for (size_t i = 0; i < n; ++i) {
-    lum[i] = static_cast<float>(Luminance(
-        Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i])));
-    log_sum += std::log(1e-6 + std::max(0.0f, lum[i]));
-  }
-  const double log_avg = n ? std::exp(log_sum / n) : 1.0;
-  const double exposure = log_avg > 0 ? 0.18 / log_avg : 1.0;
-  const size_t k = n ? static_cast<size_t>(0.995 * (n - 1)) : 0;
-  if (n) std::nth_element(lum.begin(), lum.begin() + k, lum.end());
-  const double white = std::max(1.0, n ? lum[k] * exposure : 1.0);
-  ImageF mapped(radiance.width(), radiance.height(), 3);
-  for (int c = 0; c < 3; ++c)
-    for (size_t i = 0; i < n; ++i) {
-      const double v = std::max(0.0, radiance.channel(c)[i] * exposure);
-      mapped.channel(c)[i] = static_cast<float>(v * (1 + v / (white * white)) / (1 + v));
-    }
-  return QuantizeU8(mapped, /*srgb_encode=*/true);
+  return ToneMapForDisplay(radiance, MeterExposure(radiance));
 }
 
 }  // namespace mesoscan

@@ -3,9 +3,21 @@
 // one BRDF, lit by an environment map, seen by a pinhole camera. Unidirectional path tracing
 // with next-event estimation towards the environment and multiple importance sampling (power
 // heuristic) against BRDF sampling (pbrt-v4 PathIntegrator, reduced to what a preview needs).
-// Adaptive: after `min_spp`, a pixel whose relative standard error falls below
-// `relative_error` stops receiving samples.
+//
+// Sampling: Owen-scrambled Sobol points in Morton order over the image (render/sampler.h).
+// Adaptive: the image is rendered in rounds (min_spp, then doubling up to max_spp). After each
+// round every pixel's standard error is estimated from two interleaved half-buffers (even and
+// odd sample numbers: valid for correlated, stratified samples where the sample variance is
+// not), averaged over its 3x3 neighbourhood, and converted to display units through the tone
+// curve metered on the image; a pixel whose error is below `noise` (fraction of the display
+// range) stops. `time_limit_s` ends the render after the round that reaches it (the last round
+// is shortened so as not to overshoot).
+//
+// What the renderer takes: any HeightField. Which one (raw with holes, or the filled field of
+// the artist-ready maps) is the caller's choice (app/cmd_render.cc).
 
+#include <functional>
+#include <optional>
 #include <string>
 
 #include "brdf/brdf.h"
@@ -15,34 +27,66 @@
 
 namespace mesoscan {
 
+struct CameraSpec {
+  Vec3 eye = Vec3::Zero(), target = Vec3::Zero();  // world metres
+};
+
 struct RenderOptions {
   int width = 640, height = 480;  // output pixels, >= 1
   int min_spp = 16;               // samples per pixel before adaptivity starts, >= 1
   int max_spp = 256;              // upper bound per pixel, >= min_spp
-  double relative_error = 0.02;   // stop a pixel when stderr(lum) / mean(lum) < this, > 0
+  double noise = 0.01;            // adaptive threshold, fraction of the display range; 0 = off
+  double time_limit_s = 0;        // wall-clock budget; 0 = none (the render is then reproducible)
   int max_depth = 4;              // path vertices on the surface, >= 1
   double elevation_deg = 50.0;    // camera elevation above the mount plane, (0, 90]
   double azimuth_deg = -90.0;     // camera azimuth from +x towards +y (-90: looking from -y)
-  double fov_deg = 0.0;           // vertical field of view; 0 frames the height field
+  double fov_deg = 0.0;           // vertical field of view; 0: 30 degrees
+  std::optional<CameraSpec> camera;  // explicit camera; else framed from elevation/azimuth
   double relief_scale = 1.0;      // multiplies heights (exaggerated relief for previews), > 0
   Rgb mount_albedo = Rgb::Constant(0.3);  // Lambert mount plane seen through holes
+  // Spatially varying base colour: RGB (or 1-channel) on the height field's grid, multiplies the
+  // surface BRDF (nearest sample). nullptr: the BRDF as given.
+  const ImageF* albedo = nullptr;
   uint64_t seed = 1;
   void Check() const;
 };
 
 struct RenderSummary {
-  int64_t samples = 0;          // camera paths traced
-  int64_t pixels_converged = 0; // pixels that stopped before max_spp
+  int64_t samples = 0;           // camera paths traced
+  int64_t pixels_converged = 0;  // pixels that stopped before max_spp
+  int rounds = 0;
   double seconds = 0;
+  double mean_spp = 0;
   std::string BriefReport() const;
 };
+
+// Display mapping: radiance * exposure, extended Reinhard curve with white point `white`, sRGB.
+struct ToneMapping {
+  double exposure = 1.0, white = 1.0;
+};
+
+struct RenderResult {
+  ImageF radiance;     // linear RGB
+  ImageF sample_mask;  // 1 channel: fraction of each pixel's camera rays that hit the height field
+  ToneMapping tone;    // metered on the sample (mask > 0.5), not on the mount
+  RenderSummary summary;
+};
+
+// Called after every round with the current estimate (for progressive previews).
+using RenderProgressFn = std::function<void(const RenderResult&)>;
+
+RenderResult Render(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
+                    const RenderOptions& options, const RenderProgressFn& on_round = nullptr);
 
 // Renders linear RGB radiance (3 channels). Progress on stderr.
 ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
                          const RenderOptions& options, RenderSummary* summary = nullptr);
 
-// Linear radiance -> display PNG: exposure from the log-average luminance, extended Reinhard
-// tone curve (white at the 99.5th percentile), sRGB.
+// Exposure from the log-average luminance (key 0.18) of the pixels with mask > 0.5 (all pixels
+// when mask is null or empty), white point at their 99.5th percentile.
+ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask = nullptr);
+ImageU8 ToneMapForDisplay(const ImageF& radiance, const ToneMapping& tone);
+// Meters on all pixels.
 ImageU8 ToneMapForDisplay(const ImageF& radiance);
 
 }  // namespace mesoscan
