@@ -11,6 +11,7 @@
 #include "core/fs.h"
 #include "core/json.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "heightfield/export.h"
 #include "heightfield/reconstruct.h"
@@ -33,7 +34,7 @@ PixelRect ParseRoi(const std::string& s) {
 struct ReconstructArgs {
   std::string session, out, roi, mask, fitter = "fast";
   std::string export_formats, export_dir;  // --export: formats for `mesoscan export`
-  bool no_lens_shift = false, box_filter = false, no_normalize = false;
+  bool no_lens_shift = false, box_filter = false, no_normalize = false, force = false;
   int threads = 0;
   double pixel_size_um = 0.0;
 };
@@ -43,7 +44,11 @@ void Run(const ReconstructArgs& a) {
   ReconstructOptions opt;
   if (!a.roi.empty()) opt.roi = ParseRoi(a.roi);
   opt.mask_path = a.mask;
-  opt.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
+  try {
+    opt.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
+  } catch (const Error& e) {  // a bad option value is a usage error (exit 2)
+    throw Error(e.what(), ErrorKind::kUsage);
+  }
   opt.use_lens_shift = !a.no_lens_shift;
   opt.num_threads = a.threads;
   opt.lens_shift_box_filter = a.box_filter;
@@ -57,6 +62,14 @@ void Run(const ReconstructArgs& a) {
     export_options.Check();
   }
 
+  // --out (and --export-dir) must not be, contain or lie inside an input: checked before any work.
+  OutputSpec out_spec{"reconstruct", "--out", a.out, {a.session, a.mask, a.export_dir}, a.force,
+                      {"report.json", "height.exr"}};
+  CheckOutputFolder(out_spec);
+  OutputSpec export_spec{"export", "--export-dir", a.export_dir, {a.session, a.mask, a.out},
+                         a.force, {"manifest.json"}};
+  if (!a.export_formats.empty() && !a.export_dir.empty()) CheckOutputFolder(export_spec);
+
   const Session session = ReadSession(a.session);
   ReconstructSummary summary;
   Scan scan = Reconstruct(session, opt, &summary);
@@ -67,7 +80,9 @@ void Run(const ReconstructArgs& a) {
     gt = EvaluateAgainstGroundTruth(session, scan.points, opt.roi);
     scan.report["ground_truth"] = gt->ToJson();
   }
-  WriteFolderAtomically(a.out, [&](const std::filesystem::path& tmp) {
+  const bool export_inside = !a.export_formats.empty() && a.export_dir.empty();
+  std::optional<ExportSummary> export_summary;
+  WriteOutputFolder(out_spec, [&](const std::filesystem::path& tmp) {
     WritePointsExr(tmp / "points.exr", scan.points);
     WriteHeightExr(tmp / "height.exr", scan.height);
     WriteNormalExr(tmp / "normal.exr", scan.height, scan.normals);
@@ -76,6 +91,8 @@ void Run(const ReconstructArgs& a) {
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     scan.report["wall_time_s"] = total;
     WriteJsonFile(tmp / "report.json", scan.report);
+    // Default --export-dir (SCAN/export) is written with the scan, inside the same swap.
+    if (export_inside) export_summary = ExportScan(scan, export_options, tmp / "export");
   });
   MESOSCAN_LOG(kInfo) << summary.BriefReport();
   if (gt) {
@@ -95,7 +112,14 @@ void Run(const ReconstructArgs& a) {
     const std::filesystem::path dir =
         a.export_dir.empty() ? std::filesystem::path(a.out) / "export"
                              : std::filesystem::path(a.export_dir);
-    const ExportSummary es = ExportScan(scan, export_options, dir);
+    ExportSummary es;
+    if (export_summary) {
+      es = *export_summary;
+    } else {
+      WriteOutputFolder(export_spec, [&](const std::filesystem::path& tmp) {
+        es = ExportScan(scan, export_options, tmp);
+      });
+    }
     MESOSCAN_LOG(kInfo) << es.BriefReport();
     MESOSCAN_LOG(kInfo) << "exports written to " << dir.string() << " (manifest.json lists them)";
   }
@@ -126,6 +150,9 @@ void AddReconstructCommand(CLI::App* app) {
   cmd->add_option("--export-dir", args->export_dir, "Folder for --export (default SCAN/export)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_flag("--force", args->force,
+                "Replace an existing --out (or --export-dir) that is not an earlier output of "
+                "this command");
   cmd->callback([args] { Run(*args); });
 }
 
