@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "app/commands.h"
+#include "app/session_checks.h"
 #include "capture/session.h"
 #include "core/error.h"
 #include "core/fs.h"
@@ -72,7 +73,7 @@ void Run(const ReconstructArgs& a) {
 
   const Session session = ReadSession(a.session);
   ReconstructSummary summary;
-  Scan scan = Reconstruct(session, opt, &summary);
+  Scan scan = ReconstructOrExplain(session, opt, &summary);  // names session.json; no empty scan
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
   scan.report["object"] = session.object;
   std::optional<GroundTruthErrors> gt;

@@ -374,6 +374,55 @@ TEST_F(Hostile, Item6_UnsignedZeroProjectorSizeIsRefused) {
   fs::remove_all(s);
 }
 
+TEST_F(Hostile, Item6_CheckRefusesWhatReconstructWould) {
+  const fs::path s = CopySession("S_check");
+  const std::string frame = FirstFrame(s);
+  // A truncated PNG: its header is fine (--quick passes), its body is not.
+  fs::resize_file(s / frame, fs::file_size(s / frame) / 2);
+  EXPECT_EQ(Cli("check --quick " + Q(s)).code, 0);
+  ExpectRefused(Cli("check " + Q(s)), 3, frame);
+  fs::remove_all(s);
+  // Periods the unwrapping cannot resolve: refused by check as by reconstruct, naming the file.
+  const fs::path p = CopySession("S_period");
+  Json j = ReadJsonFile(p / "session.json");
+  for (Json& f : j["frames"])
+    if (f["pattern"].value("type", "") == "sine" && f["pattern"]["period_px"].get<double>() > 12)
+      f["pattern"]["period_px"] = 1e9;
+  WriteJsonFile(p / "session.json", j);
+  const Result rc = Cli("check " + Q(p));
+  EXPECT_EQ(rc.code, 3) << rc.err << rc.out;
+  EXPECT_NE(rc.err.find("session.json"), std::string::npos) << rc.err;
+  const Result rr = Cli("reconstruct " + Q(p) + " --out " + Q(Work() / "SC6"));
+  EXPECT_EQ(rr.code, 3) << rr.err;
+  EXPECT_NE(rr.err.find("session.json"), std::string::npos) << rr.err;
+  fs::remove_all(p);
+  // All frames identical: reconstruct refuses instead of writing an empty scan.
+  const fs::path same = CopySession("S_same");
+  const Json js = ReadJsonFile(same / "session.json");
+  const std::string first = FirstFrame(same);
+  for (const Json& f : js["frames"]) {
+    const std::string file = f["file"];
+    if (file != first) fs::copy_file(same / first, same / file, fs::copy_options::overwrite_existing);
+  }
+  ExpectRefused(Cli("reconstruct " + Q(same) + " --out " + Q(Work() / "SC6")), 3, "session.json");
+  EXPECT_FALSE(fs::exists(Work() / "SC6"));
+  fs::remove_all(same);
+}
+
+TEST_F(Hostile, Item6_CheckRefusesUnusableScans) {
+  const fs::path bad = CopyScan("SC_check");
+  HeightField one;
+  one.z = ImageF(1, 1, 1, 0.001f);
+  one.confidence = ImageF(1, 1, 1, 1.0f);
+  WriteHeightExr(bad / "height.exr", one);
+  ExpectRefused(Cli("check " + Q(bad)), 3, "1x1");
+  HeightField h = ReadHeightExr(*scan_ / "height.exr");
+  for (float& z : h.z.data()) z = std::numeric_limits<float>::quiet_NaN();
+  WriteHeightExr(bad / "height.exr", h);
+  ExpectRefused(Cli("check " + Q(bad)), 3, "no valid");
+  fs::remove_all(bad);
+}
+
 // ---- 7. Containment -----------------------------------------------------------------------
 
 TEST_F(Hostile, Item7_FrameSymlinkedOutsideTheSessionIsRefused) {
