@@ -1,6 +1,8 @@
 // mesoscan brdf info|plot|tabulate: inspect measured BRDFs and write MERL-layout tables.
 
+#include <cstdint>
 #include <cstdio>
+#include <fstream>
 #include <string>
 
 #include "app/commands.h"
@@ -9,6 +11,7 @@
 #include "core/error.h"
 #include "core/image_io.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 
 namespace mesoscan {
 namespace {
@@ -23,6 +26,20 @@ MerlOptions MerlOptionsFrom(bool accept_invalid) {
   MerlOptions o;
   o.accept_invalid_entries = accept_invalid;
   return o;
+}
+
+// The first bytes of `path` equal `magic` (recognises an earlier output before replacing it).
+bool StartsWith(const std::filesystem::path& path, const std::string& magic) {
+  std::ifstream in(path, std::ios::binary);
+  std::string head(magic.size(), '\0');
+  return in.read(head.data(), static_cast<std::streamsize>(head.size())) && head == magic;
+}
+
+bool IsPng(const std::filesystem::path& p) { return StartsWith(p, "\x89PNG\r\n\x1a\n"); }
+
+bool IsMerlTable(const std::filesystem::path& p) {
+  const int32_t dims[3] = {90, 90, 180};
+  return StartsWith(p, std::string(reinterpret_cast<const char*>(dims), sizeof(dims)));
 }
 
 }  // namespace
@@ -62,7 +79,7 @@ void AddBrdfCommand(CLI::App* app) {
   auto* plot = cmd->add_subcommand("plot", "Polar plots and hemisphere maps of f*cos as a PNG");
   static std::string plot_file, plot_out;
   static BrdfPlotOptions plot_options;
-  static bool plot_accept = false;
+  static bool plot_accept = false, plot_force = false;
   plot->add_option("file", plot_file, "RGL .bsdf or MERL .binary file")->required();
   plot->add_option("--out,-o", plot_out, "Output PNG (8-bit RGB)")->required();
   plot->add_option("--theta", plot_options.theta_o_deg,
@@ -71,7 +88,10 @@ void AddBrdfCommand(CLI::App* app) {
   plot->add_option("--panel", plot_options.panel_px, "Column width in pixels (>= 200)")
       ->capture_default_str();
   plot->add_flag("--accept-invalid", plot_accept, "MERL: read negative entries as 0");
+  plot->add_flag("--force", plot_force, "Replace an existing --out that is not a PNG");
   plot->callback([] {
+    CheckOutputFile({"brdf plot", "--out", plot_out, {plot_file}, plot_force, {}}, IsPng);
+    plot_options.Check();
     const Brdf brdf = LoadBrdf(plot_file, MerlOptionsFrom(plot_accept));
     BrdfPlotOptions o = plot_options;
     std::string name = std::filesystem::path(plot_file).filename().string();
@@ -87,6 +107,7 @@ void AddBrdfCommand(CLI::App* app) {
                                   "Write an analytic GGX (optionally over "
                                   "Lambert) as a MERL-layout .binary");
   static std::string tab_out;
+  static bool tab_force = false;
   static double tab_alpha = 0.2, tab_eta = 1.5;
   static std::vector<double> tab_diffuse = {0.0, 0.0, 0.0};
   static std::string tab_fresnel = "dielectric";
@@ -103,7 +124,9 @@ void AddBrdfCommand(CLI::App* app) {
   tab->add_option("--conductor-k", tab_cond_k, "Conductor k (R G B), default copper")->expected(3);
   tab->add_option("--diffuse", tab_diffuse, "Lambertian base albedo (R G B) added to the GGX")
       ->expected(3);
+  tab->add_flag("--force", tab_force, "Replace an existing --out that is not a MERL table");
   tab->callback([] {
+    CheckOutputFile({"brdf tabulate", "--out", tab_out, {}, tab_force, {}}, IsMerlTable);
     const GgxBrdf<double> ggx =
         tab_fresnel == "conductor"
             ? GgxBrdf<double>::Conductor(tab_alpha,

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "app/commands.h"
+#include "app/rehearsal.h"
 #include "capture/lens_shifter.h"
 #include "capture/patterns.h"
 #include "capture/projector_window.h"
@@ -51,7 +52,7 @@ struct Args {
   std::string out, rig, camera = "gphoto2", camera_ext = "nef", shifter, display, object;
   std::string periods = "7,11,13";
   int phases = 3, ls_frames = 50, projector_x = 0, projector_y = 0, baud = 115200;
-  bool no_white = false, no_black = false;
+  bool no_white = false, no_black = false, rehearse = false;
   SequencerOptions seq;
 };
 
@@ -82,18 +83,32 @@ void RunCapture(const Args& a) {
   s.rig = rig;
   s.frames = MakeStandardFrames(plan);
 
+  // --rehearse: a private Xvfb, the screen camera and a simulated shifter on a pty.
+  std::unique_ptr<Rehearsal> rehearsal;
+  std::string shifter_port = a.shifter;
+  std::string camera_name = a.camera;
+  if (a.rehearse) {
+    rehearsal = std::make_unique<Rehearsal>(
+        a.display, a.projector_x + rig.projector.width, a.projector_y + rig.projector.height,
+        rig.lens_shifter.has_value() && a.shifter.empty(),
+        rig.lens_shifter ? rig.lens_shifter->range_steps[0] : 0,
+        rig.lens_shifter ? rig.lens_shifter->range_steps[1] : 0);
+    if (shifter_port.empty()) shifter_port = rehearsal->shifter_port();
+    if (camera_name != "screen-dng") camera_name = "screen";
+  }
+
   // The devices: projector first (the camera may read it back), then shifter and camera.
   ProjectorWindowOptions po;
-  po.display = a.display;
+  po.display = rehearsal ? rehearsal->display() : a.display;
   po.x = a.projector_x;
   po.y = a.projector_y;
   po.width = rig.projector.width;
   po.height = rig.projector.height;
   std::unique_ptr<ProjectorDevice> projector = MakeWindowProjector(po);
   std::unique_ptr<ShifterDevice> shifter;
-  if (!a.shifter.empty() && a.shifter != "none") {
+  if (!shifter_port.empty() && shifter_port != "none") {
     LensShifterOptions so;
-    so.port = a.shifter;
+    so.port = shifter_port;
     so.baud = a.baud;
     if (rig.lens_shifter) so.range_steps = rig.lens_shifter->range_steps;
     so.Check();
@@ -102,11 +117,11 @@ void RunCapture(const Args& a) {
   std::unique_ptr<CameraDevice> camera;
   std::string ext = a.camera_ext;
   if (!ext.empty() && ext[0] != '.') ext = "." + ext;
-  if (a.camera == "screen" || a.camera == "screen-dng")
-    camera =
-        MakeScreenCamera(*projector, rig.camera.width, rig.camera.height, a.camera == "screen-dng");
-  else if (a.camera == "gphoto2" || a.camera.rfind("gphoto2:", 0) == 0)
-    camera = MakeGphoto2Camera(a.camera.size() > 8 ? a.camera.substr(8) : "", ext);
+  if (camera_name == "screen" || camera_name == "screen-dng")
+    camera = MakeScreenCamera(*projector, rig.camera.width, rig.camera.height,
+                              camera_name == "screen-dng");
+  else if (camera_name == "gphoto2" || camera_name.rfind("gphoto2:", 0) == 0)
+    camera = MakeGphoto2Camera(camera_name.size() > 8 ? camera_name.substr(8) : "", ext);
   else
     MESOSCAN_THROW(ErrorKind::kUsage, "--camera: '" << a.camera
                                                     << "': expected gphoto2, gphoto2:MODEL, "
@@ -164,6 +179,9 @@ void AddCaptureCommand(CLI::App* app) {
   cmd->add_option("--ls-frames", a.ls_frames,
                   "Lens-shift frames over the rig's shifter range (0 or >= 4; 0 without a shifter)")
       ->capture_default_str();
+  cmd->add_flag("--rehearse", a.rehearse,
+                "Rehearse without hardware: a private Xvfb (unless --display), the screen camera "
+                "and a simulated lens shifter on a pseudo-terminal");
   cmd->add_flag("--no-white", a.no_white, "No white frame");
   cmd->add_flag("--no-black", a.no_black, "No black frame");
   cmd->add_option("--object", a.object, "The session's \"object\" text");

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "app/commands.h"
+#include "app/session_checks.h"
 #include "capture/session.h"
 #include "core/error.h"
 #include "core/scan_folder.h"
@@ -44,9 +45,10 @@ std::string SampleFormat(const ImageInfo& info) {
   return oss.str();
 }
 
-void CheckSession(const fs::path& path) {
+void CheckSession(const fs::path& path, bool quick) {
   const Session s = ReadSession(path, /*check_frames=*/false);
   const std::vector<ImageInfo> infos = CheckSessionFiles(s);
+  if (!quick) CheckSessionLikeReconstruct(s);  // what reconstruct would refuse
   const Rig& rig = s.rig;
   std::ostringstream out;
   out << std::setprecision(6);
@@ -112,8 +114,9 @@ ChannelStats Stats(const ImageF& im, int c) {
   return st;
 }
 
-void CheckScan(const fs::path& dir) {
+void CheckScan(const fs::path& dir, bool quick) {
   const Scan scan = ReadScanFolder(dir);
+  if (!quick) CheckScanUsable(scan, dir);
   std::ostringstream out;
   out << std::setprecision(6);
   out << "scan: " << fs::absolute(dir).lexically_normal().string() << "\n";
@@ -161,14 +164,17 @@ void AddCheckCommand(CLI::App* app) {
   auto* cmd = app->add_subcommand(
       "check", "Validate a session folder (session.json) or a scan folder (points.exr ...)");
   auto path = std::make_shared<std::string>();
+  auto quick = std::make_shared<bool>(false);
   cmd->add_option("path", *path, "Session folder, its session.json, or a scan folder")->required();
-  cmd->callback([path] {
+  cmd->add_flag("--quick", *quick,
+                "Headers only (no frame decoding, no reconstruction test on a small window)");
+  cmd->callback([path, quick] {
     const fs::path p(*path);
     std::error_code ec;
     if (fs::is_regular_file(p, ec) || fs::exists(p / "session.json", ec)) {
-      CheckSession(p);
+      CheckSession(p, *quick);
     } else if (fs::exists(p / "points.exr", ec) || fs::exists(p / "height.exr", ec)) {
-      CheckScan(p);
+      CheckScan(p, *quick);
     } else if (!fs::exists(p, ec)) {
       MESOSCAN_BAD_INPUT(p.string() << ": not found, expected a session or scan folder");
     } else {

@@ -1,15 +1,21 @@
 // mesoscan export SCAN --out DIR: the scan's DCC exports (heightfield/export.h).
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
+#include <sstream>
 #include <iostream>
 #include <memory>
 #include <optional>
 
 #include "app/commands.h"
 #include "app/map_options.h"
+#include "core/budget.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/json.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "heightfield/export.h"
 
@@ -24,6 +30,7 @@ struct ExportArgs {
   int64_t max_triangles = ExportOptions().max_triangles;
   double mesh_tolerance_m = 0.0;
   MapArgs maps;  // map-set options: with any of them, a finished map set in OUT/maps
+  bool force = false;
 };
 
 std::string DefaultName(const fs::path& scan) {
@@ -32,6 +39,49 @@ std::string DefaultName(const fs::path& scan) {
   std::string name = p.filename().string();
   if (p.extension() == ".scan") name = p.stem().string();
   return name.empty() || name == "." || name == ".." ? "scan" : name;
+}
+
+// Sizes a user or the scan controls, checked before ExportScan allocates anything: the crop
+// (in 64 bits: X + W may overflow an int), the output grid against the memory budget, and a
+// height field with no valid sample at all.
+void ValidateExportSizes(const Scan& scan, const ExportOptions& o, const std::string& scan_dir) {
+  const HeightField& hf = scan.height;
+  int64_t w = hf.width(), h = hf.height();
+  if (!o.crop.whole()) {
+    const GridCrop& c = o.crop;
+    if (int64_t{c.x} + c.width > w || int64_t{c.y} + c.height > h)
+      MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.width
+                                                          << "," << c.height
+                                                          << ": expected a rectangle inside the "
+                                                          << w << "x" << h << " height grid");
+    w = c.width;
+    h = c.height;
+  }
+  if (!std::isfinite(o.pixel_size_m) || o.pixel_size_m < 0)
+    MESOSCAN_THROW(ErrorKind::kUsage, "export: --pixel-size: expected a finite value >= 0 (m), got "
+                                          << o.pixel_size_m);
+  double gw = static_cast<double>(w), gh = static_cast<double>(h);
+  if (o.pixel_size_m > 0) {
+    if (!(hf.pixel_size > 0) || !std::isfinite(hf.pixel_size))
+      MESOSCAN_BAD_INPUT(scan_dir << "/height.exr: " << kAttrPixelSize << " must be > 0, got "
+                                  << hf.pixel_size);
+    gw *= hf.pixel_size / o.pixel_size_m;
+    gh *= hf.pixel_size / o.pixel_size_m;
+  }
+  // Export keeps ~160 bytes per output pixel alive at its peak (height, normals, their filled and
+  // encoded copies, 16-bit quantisations, writers' interleaved buffers, the mesh).
+  std::ostringstream what;
+  what << "export: a " << std::llround(std::min(gw, 1e15)) << "x" << std::llround(std::min(gh, 1e15))
+       << " output grid";
+  CheckMemoryBudget(what.str(), gw * gh * 160.0,
+                    o.pixel_size_m > 0 || !o.crop.whole() ? ErrorKind::kUsage : ErrorKind::kBadInput);
+  bool any = false;
+  for (const float z : hf.z.data())
+    if (std::isfinite(z)) {
+      any = true;
+      break;
+    }
+  if (!any) MESOSCAN_BAD_INPUT(scan_dir << "/height.exr: no valid (finite) height sample");
 }
 
 void RunExport(const ExportArgs& a) {
@@ -47,7 +97,21 @@ void RunExport(const ExportArgs& a) {
   std::optional<MapsOptions> maps;
   if (a.maps.any()) maps = a.maps.ToOptions(o.name, a.crop);
   if (maps && !a.maps.fill.empty()) o.fill = maps->fill;
+  // Inputs: the scan, the albedo, and the session the scan came from (its white frame).
+  OutputSpec out_spec{"export", "--out", a.out, {a.scan, a.albedo}, a.force, {"manifest.json"}};
+  const fs::path report = fs::path(a.scan) / "report.json";
+  if (fs::is_regular_file(report)) {
+    try {
+      const Json r = ReadJsonFile(report);
+      if (r.is_object() && r.contains("session") && r["session"].is_string())
+        out_spec.inputs.push_back(r["session"].get<std::string>());
+    } catch (const Error&) {
+      // ReadScanFolder below names the file
+    }
+  }
+  CheckOutputFolder(out_spec);
   const Scan scan = ReadScanFolder(a.scan);
+  ValidateExportSizes(scan, o, a.scan);
   // Albedo: --albedo, else an albedo the reconstruction wrote into the scan folder, else
   // ExportScan looks for the session's white frame (report.json "session").
   fs::path albedo = a.albedo;
@@ -68,7 +132,15 @@ void RunExport(const ExportArgs& a) {
                                          << scan.height.height() << " height grid, got "
                                          << o.albedo.width() << "x" << o.albedo.height());
   }
-  const ExportSummary s = ExportScan(scan, o, a.out);
+  ExportSummary s;
+  std::optional<MapsSummary> maps_summary;
+  WriteOutputFolder(out_spec, [&](const fs::path& tmp) {
+    s = ExportScan(scan, o, tmp);
+    if (maps) {
+      maps->albedo = o.albedo;
+      maps_summary = BuildMapSet(scan, *maps, tmp / "maps");
+    }
+  });
   std::cout << s.BriefReport() << "\n";
   std::cout << "exports in " << fs::absolute(a.out).lexically_normal().string() << ":\n";
   const Json& hints = s.manifest.at("how_to_load");
@@ -78,11 +150,7 @@ void RunExport(const ExportArgs& a) {
     std::cout << "  " << file << ": " << hints.at(file).get<std::string>() << "\n";
   }
   std::cout << "  manifest.json: units, conventions, channels and files\n";
-  if (maps) {
-    maps->albedo = o.albedo;
-    const fs::path dir = fs::path(a.out) / "maps";
-    PrintMapSet(BuildMapSet(scan, *maps, dir), dir);
-  }
+  if (maps_summary) PrintMapSet(*maps_summary, fs::path(a.out) / "maps");
 }
 
 }  // namespace
@@ -92,7 +160,7 @@ void AddExportCommand(CLI::App* app) {
       "export", "Exports a scan for DCC tools: EXR / 16-bit PNG height and normal maps, GLB, PLY");
   auto a = std::make_shared<ExportArgs>();
   cmd->add_option("SCAN", a->scan, "Scan folder (written by reconstruct)")->required();
-  cmd->add_option("--out", a->out, "Output folder (created; files of the same names are replaced)")
+  cmd->add_option("--out", a->out, "Output folder (written atomically; replaces an earlier export)")
       ->required();
   cmd->add_option("--format", a->formats, "Comma-separated subset of exr,png16,glb,ply")
       ->capture_default_str();
@@ -110,6 +178,8 @@ void AddExportCommand(CLI::App* app) {
                   "Linear albedo image on the height grid (default: SCAN/albedo.exr|png, else the "
                   "session's white frame named in report.json)");
   AddMapOptions(cmd, &a->maps, /*standalone=*/false);
+  cmd->add_flag("--force", a->force,
+                "Replace an existing --out that is not an earlier output of `mesoscan export`");
   cmd->callback([a] { RunExport(*a); });
 }
 

@@ -9,11 +9,13 @@
 
 #include "app/commands.h"
 #include "app/map_options.h"
+#include "app/session_checks.h"
 #include "capture/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/json.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "heightfield/export.h"
 #include "heightfield/error_map_png.h"
@@ -38,7 +40,7 @@ PixelRect ParseRoi(const std::string& s) {
 struct ReconstructArgs {
   std::string session, out, roi, mask, fitter = "fast";
   std::string export_formats, export_dir;  // --export: formats for `mesoscan export`
-  bool no_lens_shift = false, box_filter = false, no_normalize = false;
+  bool no_lens_shift = false, box_filter = false, no_normalize = false, force = false;
   int threads = 0;
   double pixel_size_um = 0.0;
   MapArgs maps;  // with --export: also a finished map set in EXPORT_DIR/maps
@@ -49,7 +51,11 @@ void Run(const ReconstructArgs& a) {
   ReconstructOptions opt;
   if (!a.roi.empty()) opt.roi = ParseRoi(a.roi);
   opt.mask_path = a.mask;
-  opt.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
+  try {
+    opt.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
+  } catch (const Error& e) {  // a bad option value is a usage error (exit 2)
+    throw Error(e.what(), ErrorKind::kUsage);
+  }
   opt.use_lens_shift = !a.no_lens_shift;
   opt.num_threads = a.threads;
   opt.lens_shift_box_filter = a.box_filter;
@@ -70,15 +76,32 @@ void Run(const ReconstructArgs& a) {
     if (!a.maps.fill.empty()) export_options.fill = maps->fill;
   }
 
+  // --out (and --export-dir) must not be, contain or lie inside an input: checked before any work.
+  OutputSpec out_spec{"reconstruct", "--out", a.out, {a.session, a.mask, a.export_dir}, a.force,
+                      {"report.json", "height.exr"}};
+  CheckOutputFolder(out_spec);
+  OutputSpec export_spec{"export", "--export-dir", a.export_dir, {a.session, a.mask, a.out},
+                         a.force, {"manifest.json"}};
+  if (!a.export_formats.empty() && !a.export_dir.empty()) CheckOutputFolder(export_spec);
+
   const Session session = ReadSession(a.session);
   ReconstructSummary summary;
-  Scan scan = Reconstruct(session, opt, &summary);
+  Scan scan = ReconstructOrExplain(session, opt, &summary);  // names session.json; no empty scan
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
   scan.report["object"] = session.object;
   // The scan's EXRs, and the ground-truth comparison with its error map when the session has
   // ground truth (simulations), in parallel; the report last (it holds their figures).
   std::optional<GroundTruthErrors> gt;
-  WriteFolderAtomically(a.out, [&](const std::filesystem::path& tmp) {
+  const bool export_inside = !a.export_formats.empty() && a.export_dir.empty();
+  std::optional<ExportSummary> export_summary;
+  std::optional<MapsSummary> maps_summary;
+  // Writes the exports (and the map set, if asked for) into `dir`.
+  const auto write_exports = [&](const std::filesystem::path& dir) {
+    ExportSummary es = ExportScan(scan, export_options, dir);
+    if (maps) maps_summary = BuildMapSet(scan, *maps, dir / "maps");
+    return es;
+  };
+  WriteOutputFolder(out_spec, [&](const std::filesystem::path& tmp) {
     tbb::parallel_invoke([&] { WritePointsExr(tmp / "points.exr", scan.points); },
                          [&] { WriteHeightExr(tmp / "height.exr", scan.height); },
                          [&] { WriteNormalExr(tmp / "normal.exr", scan.height, scan.normals); },
@@ -92,6 +115,8 @@ void Run(const ReconstructArgs& a) {
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     scan.report["wall_time_s"] = total;
     WriteJsonFile(tmp / "report.json", scan.report);
+    // Default --export-dir (SCAN/export) is written with the scan, inside the same swap.
+    if (export_inside) export_summary = write_exports(tmp / "export");
   });
   MESOSCAN_LOG(kInfo) << summary.BriefReport();
   if (gt) {
@@ -111,10 +136,17 @@ void Run(const ReconstructArgs& a) {
     const std::filesystem::path dir =
         a.export_dir.empty() ? std::filesystem::path(a.out) / "export"
                              : std::filesystem::path(a.export_dir);
-    const ExportSummary es = ExportScan(scan, export_options, dir);
+    ExportSummary es;
+    if (export_summary) {
+      es = *export_summary;
+    } else {
+      WriteOutputFolder(export_spec, [&](const std::filesystem::path& tmp) {
+        es = write_exports(tmp);
+      });
+    }
     MESOSCAN_LOG(kInfo) << es.BriefReport();
     MESOSCAN_LOG(kInfo) << "exports written to " << dir.string() << " (manifest.json lists them)";
-    if (maps) PrintMapSet(BuildMapSet(scan, *maps, dir / "maps"), dir / "maps");
+    if (maps_summary) PrintMapSet(*maps_summary, dir / "maps");
   }
 }
 
@@ -144,6 +176,9 @@ void AddReconstructCommand(CLI::App* app) {
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
   AddMapOptions(cmd, &args->maps, /*standalone=*/false);
+  cmd->add_flag("--force", args->force,
+                "Replace an existing --out (or --export-dir) that is not an earlier output of "
+                "this command");
   cmd->callback([args] { Run(*args); });
 }
 

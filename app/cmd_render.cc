@@ -5,18 +5,22 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <optional>
 #include <sstream>
+#include <string>
 
 #include "app/commands.h"
 #include "brdf/brdf.h"
+#include "core/budget.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/json.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "core/parallel.h"
 #include "core/scan_folder.h"
 #include "heightfield/export.h"
@@ -36,6 +40,7 @@ struct RenderArgs {
   double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0, env_rotation_deg = 0;
   int threads = 0, turntable = 0, turntable_spp = 0;
   bool spp_given = false;
+  bool force = false;
 };
 
 // "lambert", "ggx", "ggx-merl" (GGX tabulated into the MERL layout, written next to the
@@ -155,31 +160,60 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
   return tint;
 }
 
+// Numbers Embree would assert on (NaN, inf, or magnitudes beyond float precision) are refused
+// here with one line, before a scene is built.
+void ValidateRenderNumbers(const RenderArgs& a, const RenderOptions& o) {
+  const auto finite = [](const char* opt, double v, double limit) {
+    if (!std::isfinite(v) || std::abs(v) > limit)
+      MESOSCAN_THROW(ErrorKind::kUsage, "render: " << opt << ": expected a finite value of at most "
+                                                   << limit << " in magnitude, got " << v);
+  };
+  finite("--azimuth", o.azimuth_deg, 1e6);
+  finite("--elevation", o.elevation_deg, 90);
+  finite("--relief", o.relief_scale, 1e6);
+  finite("--noise", o.noise, 1e6);
+  finite("--time", o.time_limit_s, 1e7);
+  finite("--sun-elevation", a.sun_elevation_deg, 90);
+  finite("--sun-azimuth", a.sun_azimuth_deg, 1e6);
+  finite("--env-scale", a.env_scale, 1e12);
+  finite("--env-rotation", a.env_rotation_deg, 1e6);
+  // Budget before allocation: radiance, sums and variance per pixel (~64 bytes).
+  CheckMemoryBudget("render: --size " + std::to_string(o.width) + "x" + std::to_string(o.height),
+                    static_cast<double>(o.width) * o.height * 64.0, ErrorKind::kUsage);
+}
+
+void ValidateHeightField(const HeightField& hf, const RenderOptions& o, const std::string& file) {
+  if (hf.width() < 2 || hf.height() < 2)
+    MESOSCAN_BAD_INPUT(file << ": a " << hf.width() << "x" << hf.height()
+                            << " height grid; rendering needs at least 2x2 samples");
+  if (!std::isfinite(hf.x0) || !std::isfinite(hf.y0) || !(hf.pixel_size > 0) ||
+      !std::isfinite(hf.pixel_size) || std::abs(hf.x0) > 1e6 || std::abs(hf.y0) > 1e6 ||
+      hf.pixel_size > 1e3)
+    MESOSCAN_BAD_INPUT(file << ": " << kAttrX0 << ", " << kAttrY0 << ", " << kAttrPixelSize
+                            << " must be finite (|x0|, |y0| <= 1e6 m, 0 < pixel size <= 1e3 m), got "
+                            << hf.x0 << ", " << hf.y0 << ", " << hf.pixel_size);
+  // Relief-scaled heights stay within a float-friendly multiple of the field's extent.
+  const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
+  double zmax = 0;
+  for (const float z : hf.z.data())
+    if (std::isfinite(z)) zmax = std::max(zmax, std::abs(static_cast<double>(z)));
+  const double scaled = zmax * o.relief_scale;
+  if (!std::isfinite(scaled) || scaled > 1e4 * extent)
+    MESOSCAN_BAD_INPUT(file << ": heights up to " << zmax << " m times --relief " << o.relief_scale
+                            << " exceed 1e4 times the field's " << extent << " m extent");
+}
+
 void WritePreview(const fs::path& out, const RenderResult& r) {
   WriteExr(out / "preview.exr", r.radiance, {"R", "G", "B"}, {}, {}, "none");
   WritePng8(out / "preview.png", ToneMapForDisplay(r.radiance, r.tone));
 }
 
-void Run(const RenderArgs& a) {
-  ThreadLimit limit(a.threads);
-  RenderOptions o = a.options;
-  if (std::sscanf(a.size.c_str(), "%dx%d", &o.width, &o.height) != 2)
-    MESOSCAN_THROW(ErrorKind::kUsage, "--size: expected WxH, got '" << a.size << "'");
-  if (!a.camera.empty()) ParseCamera(a.camera, &o);
-  // A time budget without an explicit sample cap renders until the time is up.
-  if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
-  if (a.turntable < 0 || a.turntable > 720)
-    MESOSCAN_THROW(ErrorKind::kUsage, "--turntable: expected 0..720 frames, got " << a.turntable);
-  o.Check();
-  // The height field to preview. Hook for the artist-ready maps: the caller decides which
-  // field (raw with holes or filled) the renderer sees; here the scan's height.exr.
-  const HeightField hf = ReadHeightExr(fs::path(a.scan) / "height.exr");
-  EnvironmentMap env = MakeEnvironment(a);
-  env.SetRotation(a.env_rotation_deg);
-  const std::optional<ImageF> albedo = MakeAlbedo(a, hf);
-  if (albedo) o.albedo = &*albedo;
-  const fs::path out = a.out;
-  fs::create_directories(out);
+// Everything the render writes, into `out` (the temporary folder that is swapped into place).
+// Progressive previews land there too while a long render runs.
+void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentMap& env,
+                  const RenderOptions& o, const fs::path& out) {
+  MESOSCAN_LOG(kInfo) << "render: progressive preview while sampling: "
+                      << (out / "preview.png").string();
   const Brdf brdf = MakeBrdf(a.brdf, out);
 
   // Progressive output: preview.exr/png rewritten (atomically) after a round when at least 2 s
@@ -193,8 +227,6 @@ void Run(const RenderArgs& a) {
   });
   WritePreview(out, result);
   MESOSCAN_LOG(kInfo) << "render: " << result.summary.BriefReport();
-  MESOSCAN_LOG(kInfo) << "render: wrote " << (out / "preview.png").string()
-                      << " (display) and preview.exr (linear RGB)";
 
   if (!a.compare.empty()) {
     // Side by side: the same scan, camera and light with a second BRDF, one exposure.
@@ -244,6 +276,49 @@ void Run(const RenderArgs& a) {
     MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to " << dir.string()
                         << " and " << (out / "turntable.gif").string();
   }
+}
+
+void Run(const RenderArgs& a) {
+  ThreadLimit limit(a.threads);
+  RenderOptions o = a.options;
+  if (std::sscanf(a.size.c_str(), "%dx%d", &o.width, &o.height) != 2)
+    MESOSCAN_THROW(ErrorKind::kUsage, "--size: expected WxH, got '" << a.size << "'");
+  if (!a.camera.empty()) ParseCamera(a.camera, &o);
+  // A time budget without an explicit sample cap renders until the time is up.
+  if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
+  if (a.turntable < 0 || a.turntable > 720)
+    MESOSCAN_THROW(ErrorKind::kUsage, "--turntable: expected 0..720 frames, got " << a.turntable);
+  int tw = 0, th = 0;
+  if (!a.turntable_size.empty() &&
+      (std::sscanf(a.turntable_size.c_str(), "%dx%d", &tw, &th) != 2 || tw < 1 || th < 1 ||
+       static_cast<double>(tw) * th > static_cast<double>(o.width) * o.height * 16))
+    MESOSCAN_THROW(ErrorKind::kUsage, "--turntable-size: expected WxH (positive, at most 16x the "
+                                      "--size area), got '" << a.turntable_size << "'");
+  ValidateRenderNumbers(a, o);
+  o.Check();
+  const bool brdf_file = a.brdf != "lambert" && a.brdf != "ggx" && a.brdf != "ggx-merl";
+  const bool compare_file =
+      !a.compare.empty() && a.compare != "lambert" && a.compare != "ggx" && a.compare != "ggx-merl";
+  const bool env_file = fs::exists(a.env);
+  const OutputSpec out_spec{"render", "--out", a.out,
+                            {a.scan, brdf_file ? a.brdf : "", compare_file ? a.compare : "",
+                             env_file ? a.env : ""},
+                            a.force, {"preview.exr", "preview.png"}};
+  CheckOutputFolder(out_spec);
+  // The height field to preview. Hook for the artist-ready maps: the caller decides which
+  // field (raw with holes or filled) the renderer sees; here the scan's height.exr.
+  const fs::path height_file = fs::path(a.scan) / "height.exr";
+  const HeightField hf = ReadHeightExr(height_file);
+  ValidateHeightField(hf, o, height_file.string());
+  EnvironmentMap env = MakeEnvironment(a);
+  env.SetRotation(a.env_rotation_deg);
+  const std::optional<ImageF> albedo = MakeAlbedo(a, hf);
+  if (albedo) o.albedo = &*albedo;
+  WriteOutputFolder(out_spec, [&](const fs::path& out) {
+    RenderFolder(a, hf, env, o, out);
+  });
+  MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "preview.png").string()
+                      << " (display) and preview.exr (linear RGB)";
 }
 
 }  // namespace
@@ -314,6 +389,8 @@ void AddRenderCommand(CLI::App* app) {
   cmd->add_option("--compare", args->compare,
                   "Also render a second BRDF and write side_by_side.png (left --brdf, right this)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
+  cmd->add_flag("--force", args->force,
+                "Replace an existing --out that is not an earlier output of `mesoscan render`");
   cmd->callback([args] { Run(*args); });
 }
 

@@ -6,7 +6,10 @@
 
 #include "app/commands.h"
 #include "core/error.h"
+#include <filesystem>
+
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {
@@ -57,7 +60,7 @@ void AddSimulateCommand(CLI::App* app) {
   struct Args {
     SimulateOptions o;
     std::string out, periods = "7,11,13", crop;
-    bool no_white = false, no_black = false, no_shadows = false;
+    bool no_white = false, no_black = false, no_shadows = false, force = false;
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
@@ -122,6 +125,8 @@ void AddSimulateCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_option("--gain-jitter", o.gain_jitter, "Per-frame gain jitter, relative sigma")
       ->capture_default_str();
+  cmd->add_flag("--force", args->force,
+                "Replace an existing --out that is not an earlier output of `mesoscan simulate`");
   cmd->callback([args] {
     SimulateOptions opt = args->o;
     opt.ps_periods_px = ParsePeriods(args->periods);
@@ -129,7 +134,16 @@ void AddSimulateCommand(CLI::App* app) {
     opt.white = !args->no_white;
     opt.black = !args->no_black;
     opt.shadows = !args->no_shadows;
-    const SimulateSummary summary = Simulate(opt, args->out);
+    // A FILE.exr object and a RIG.json are inputs: --out must not be, contain or lie in them.
+    const auto is_file = [](const std::string& v) { return std::filesystem::exists(v); };
+    const OutputSpec out_spec{"simulate", "--out", args->out,
+                              {is_file(opt.object) ? opt.object : "",
+                               is_file(opt.rig) ? opt.rig : ""},
+                              args->force, {}};
+    SimulateSummary summary;
+    WriteOutputFolder(out_spec, [&](const std::filesystem::path& tmp) {
+      summary = Simulate(opt, tmp);  // its own temporary folder inside ours, renamed onto tmp
+    });
     MESOSCAN_LOG(kInfo) << args->out << ": " << summary.BriefReport();
   });
 }

@@ -8,9 +8,11 @@
 #include "core/error.h"
 #include "core/log.h"
 #include "core/progress.h"
+#include "core/stderr_filter.h"
 
 int main(int argc, char** argv) {
   using namespace mesoscan;
+  FilterLibraryNoiseOnStderr();  // no stray "libpng error:" line before ours
   CLI::App app{"mesoscan: lens-shifted structured light to calibrated height fields", "mesoscan"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "mesoscan 0.1.0");

@@ -192,6 +192,13 @@ void BrdfPlotOptions::Check() const {
   for (double t : theta_o_deg)
     if (!(t >= 0 && t <= 89)) MESOSCAN_BAD_INPUT("plot: theta_o " << t << " outside [0, 89] deg");
   if (panel_px < 200) MESOSCAN_BAD_INPUT("plot: panel_px " << panel_px << " < 200");
+  // Budget before allocation: the image is columns * panel_px by ~2.7 * panel_px RGB.
+  constexpr int kMaxPanel = 4096, kMaxColumns = 32;
+  if (panel_px > kMaxPanel)
+    MESOSCAN_BAD_INPUT("plot: panel_px " << panel_px << " exceeds the limit of " << kMaxPanel);
+  if (theta_o_deg.size() > kMaxColumns)
+    MESOSCAN_BAD_INPUT("plot: " << theta_o_deg.size() << " theta_o columns exceed the limit of "
+                                << kMaxColumns);
 }
 
 ImageU8 PlotBrdf(const Brdf& brdf, const BrdfPlotOptions& options) {

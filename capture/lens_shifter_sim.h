@@ -2,7 +2,7 @@
 // A simulated lens-shifter controller: answers the line protocol of capture/lens_shifter.h on the
 // master side of a pseudo-terminal (posix_openpt) from its own thread. Open Port() (the slave
 // device, e.g. /dev/pts/7) with LensShifterController exactly as a real serial port. Used by the
-// tests and by `capture --dry-run` style rehearsals without hardware.
+// tests and by `capture --rehearse` (app/rehearsal.h) rehearsals without hardware.
 
 #include <array>
 #include <atomic>

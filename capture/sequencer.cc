@@ -190,6 +190,34 @@ SequencerSummary RunAcquisition(const Session& plan_in, CameraDevice& camera,
   // Step 2: a completed session is left alone unless forced.
   const fs::path manifest = root / "session.json";
   const fs::path journal_path = root / kCaptureJournal;
+  if (fs::exists(manifest) && fs::exists(journal_path) && !options.force) {
+    // Killed between writing session.json and removing the journal (step 5): if the journal is
+    // this plan's and session.json is the completed plan, finish that step and report done.
+    Json plan_json = SessionToJson(s);
+    plan_json.erase("created");
+    Journal left;
+    bool same = ReadJournal(journal_path, &left) && left.plan == plan_json;
+    if (same) {
+      try {
+        Json written = ReadJsonFile(manifest);
+        written.erase("created");
+        same = written == plan_json;
+      } catch (const Error&) {
+        same = false;
+      }
+    }
+    if (same) {
+      fs::remove(journal_path);
+      SequencerSummary done;
+      done.frames = static_cast<int>(n);
+      done.reused = static_cast<int>(n);
+      done.complete = true;
+      done.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      MESOSCAN_LOG(kInfo) << manifest.string()
+                          << ": complete; removed the capture journal an interrupted run left";
+      return done;
+    }
+  }
   if (fs::exists(manifest)) {
     if (!options.force)
       MESOSCAN_THROW(ErrorKind::kUsage, manifest.string()

@@ -180,6 +180,25 @@ TEST_F(SequencerTest, InterruptedThenResumedEqualsUninterrupted) {
   ExpectSameSession(dir_ / "whole", dir_ / "parts");
 }
 
+// Issue 10 item 9: a kill between writing session.json and removing the journal leaves both;
+// the re-run finishes that step (the journal goes) instead of refusing the completed session.
+TEST_F(SequencerTest, AJournalLeftBesideTheCompletedSessionIsRemovedOnReRun) {
+  auto screen = MakeScreenCamera(*projector_, kCamW, kCamH, false);
+  SequencerOptions part = options_;
+  part.max_new_frames = 11;
+  ASSERT_FALSE(Run(dir_ / "k", *screen, part).complete);
+  const fs::path journal = dir_ / "k" / kCaptureJournal;
+  fs::copy_file(journal, dir_ / "journal.copy");
+  ASSERT_TRUE(Run(dir_ / "k", *screen, options_).complete);
+  ASSERT_FALSE(fs::exists(journal));
+  fs::copy_file(dir_ / "journal.copy", journal);  // as if killed before the journal's removal
+  const SequencerSummary sum = Run(dir_ / "k", *screen, options_);
+  EXPECT_TRUE(sum.complete);
+  EXPECT_EQ(sum.captured, 0);
+  EXPECT_FALSE(fs::exists(journal));
+  EXPECT_TRUE(fs::exists(dir_ / "k" / "session.json"));
+}
+
 TEST_F(SequencerTest, AChangedFrameIsCapturedAgainFromThere) {
   auto screen = MakeScreenCamera(*projector_, kCamW, kCamH, false);
   SequencerOptions part = options_;

@@ -14,6 +14,7 @@
 
 #include "capture/raw_frame.h"
 #include "core/error.h"
+#include "core/output_dir.h"
 #include "core/fs.h"
 #include "core/log.h"
 #include "core/parallel.h"
@@ -110,7 +111,9 @@ class Parser {
     if (v.is_number_integer()) {
       if (v.is_number_unsigned()) {
         const uint64_t u = v.get<uint64_t>();
-        if (u > static_cast<uint64_t>(hi)) Expected(key, expected, v);
+        // Lower bound too: a positive lo (e.g. width >= 1) must refuse an unsigned 0.
+        if (u > static_cast<uint64_t>(hi) || static_cast<int64_t>(u) < lo)
+          Expected(key, expected, v);
         return static_cast<int64_t>(u);
       }
       const int64_t i = v.get<int64_t>();
@@ -297,7 +300,17 @@ Json ResponseToJson(const Response& r) {
 bool IsRawExtension(const fs::path& p) { return IsCameraRawPath(p); }
 
 // ReadImageInfo with the message's absolute path replaced by the path as written in the session.
-ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const std::string& key) {
+// Also refuses a file that resolves (through symlinks) outside the session folder `root`, and
+// a symlink loop, naming the key.
+ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const std::string& key,
+                           const fs::path& root) {
+  std::error_code ec;
+  const fs::path real = fs::weakly_canonical(path, ec);
+  if (ec) MESOSCAN_BAD_INPUT(label << ": cannot resolve the path (" << ec.message() << ") (" << key << ")");
+  const fs::path real_root = fs::weakly_canonical(fs::absolute(root), ec);
+  if (!ec && !PathIsWithin(real, real_root))
+    MESOSCAN_BAD_INPUT(label << ": resolves to " << real.string()
+                             << ", outside the session folder (a symlink leaving it) (" << key << ")");
   if (!fs::exists(path)) MESOSCAN_BAD_INPUT(label << ": file not found (" << key << ")");
   try {
     return ReadImageInfo(path);
@@ -651,7 +664,7 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s) {
   ParallelFor(static_cast<int64_t>(n), [&](int64_t i) {
     const Frame& f = s.frames[i];
     try {
-      ImageInfo info = ReadInfoLabelled(s.FramePath(i), f.file, Index("frames", i) + ".file");
+      ImageInfo info = ReadInfoLabelled(s.FramePath(i), f.file, Index("frames", i) + ".file", s.root);
       const bool raw = IsRawExtension(f.file);
       const bool ok = raw ? (info.width / 2 == w && info.height / 2 == h)
                           : (info.width == w && info.height == h);
@@ -681,7 +694,7 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s) {
                               const std::vector<std::string>& channels, bool camera_grid) {
       if (rel.empty()) return;
       const std::string k = std::string("ground_truth.") + key;
-      const ImageInfo info = ReadInfoLabelled(s.root / rel, rel, k);
+      const ImageInfo info = ReadInfoLabelled(s.root / rel, rel, k, s.root);
       for (const std::string& c : channels)
         if (std::find(info.channel_names.begin(), info.channel_names.end(), c) ==
             info.channel_names.end())

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/output_dir.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -52,29 +53,7 @@ std::string ReadTextFile(const fs::path& path) {
 
 void WriteFolderAtomically(const fs::path& final_dir,
                            const std::function<void(const fs::path&)>& fill) {
-  fs::path abs = fs::absolute(final_dir).lexically_normal();
-  if (abs.filename().empty()) abs = abs.parent_path();
-  std::error_code ec;
-  fs::create_directories(abs.parent_path(), ec);
-  const fs::path tmp = TempSiblingPath(abs);
-  fs::remove_all(tmp, ec);
-  fs::create_directories(tmp, ec);
-  if (ec) MESOSCAN_BAD_INPUT(abs.string() << ": cannot create output folder (" << ec.message() << ")");
-  try {
-    fill(tmp);
-    fs::path old;
-    if (fs::exists(abs)) {
-      old = TempSiblingPath(abs);
-      fs::rename(abs, old, ec);
-      if (ec) MESOSCAN_BAD_INPUT(abs.string() << ": cannot replace existing folder (" << ec.message() << ")");
-    }
-    fs::rename(tmp, abs, ec);
-    if (ec) MESOSCAN_BAD_INPUT(abs.string() << ": cannot write folder (" << ec.message() << ")");
-    if (!old.empty()) fs::remove_all(old, ec);
-  } catch (...) {
-    fs::remove_all(tmp, ec);
-    throw;
-  }
+  ReplaceFolderAtomically(final_dir, "", fill);
 }
 
 }  // namespace mesoscan

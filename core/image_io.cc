@@ -3,9 +3,12 @@
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 
+#include "core/budget.h"
 #include "core/error.h"
+#include "core/image_input.h"
 #include "core/fs.h"
 
 namespace mesoscan {
@@ -34,17 +37,7 @@ ImageInfo InfoFromSpec(const oiio::ImageSpec& spec) {
   return info;
 }
 
-std::unique_ptr<oiio::ImageInput> OpenInput(const fs::path& path) {
-  if (!fs::exists(path)) MESOSCAN_BAD_INPUT(path.string() << ": file not found");
-  auto in = oiio::ImageInput::open(path.string());
-  if (!in) {
-    std::string err = oiio::geterror();
-    if (err.empty()) err = "unknown format";
-    std::replace(err.begin(), err.end(), '\n', ' ');
-    MESOSCAN_BAD_INPUT(path.string() << ": cannot read image (" << err << ")");
-  }
-  return in;
-}
+std::unique_ptr<oiio::ImageInput> OpenInput(const fs::path& path) { return OpenImageInput(path); }
 
 // Interleaved -> planar.
 void Deinterleave(const std::vector<float>& inter, ImageF* out) {
@@ -82,6 +75,67 @@ void WriteWithOiio(const fs::path& path, const oiio::ImageSpec& spec, oiio::Type
 }
 
 }  // namespace
+
+// Only regular files are opened (a FIFO or a device would block or never end), with the reader
+// the file's extension names (OIIO's open() otherwise tries every format in turn, e.g. DICOM
+// on a zero-filled .png), and the header's size is checked against the file size and the memory
+// budget before anything is decoded.
+void CheckRegularFile(const fs::path& path, const std::string& label_in) {
+  const std::string label = label_in.empty() ? path.string() : label_in;
+  std::error_code ec;
+  const fs::file_status st = fs::status(path, ec);
+  if (ec && ec != std::errc::no_such_file_or_directory)
+    MESOSCAN_BAD_INPUT(label << ": cannot open (" << ec.message() << ")");
+  if (!fs::exists(st)) MESOSCAN_BAD_INPUT(label << ": file not found");
+  if (!fs::is_regular_file(st))
+    MESOSCAN_BAD_INPUT(label << ": expected a regular image file, got "
+                                     << (fs::is_directory(st) ? "a folder"
+                                         : fs::is_fifo(st)    ? "a FIFO"
+                                         : fs::is_character_file(st) || fs::is_block_file(st)
+                                             ? "a device"
+                                             : "a special file"));
+}
+
+std::unique_ptr<oiio::ImageInput> OpenImageInput(const fs::path& path, const std::string& label_in) {
+  const std::string label = label_in.empty() ? path.string() : label_in;
+  CheckRegularFile(path, label);
+  std::error_code ec;
+  std::string ext = path.extension().string();
+  if (!ext.empty()) ext = ext.substr(1);
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  auto in = ext.empty() ? nullptr : oiio::ImageInput::create(ext);
+  if (!in) {
+    oiio::geterror();  // clear
+    MESOSCAN_BAD_INPUT(label << ": cannot read image (no reader for the extension '."
+                                     << ext << "')");
+  }
+  oiio::ImageSpec spec;
+  if (!in->open(path.string(), spec)) {
+    std::string err = in->geterror();
+    if (err.empty()) err = oiio::geterror();
+    if (err.empty()) err = "not a valid ." + ext + " file";
+    std::replace(err.begin(), err.end(), '\n', ' ');
+    MESOSCAN_BAD_INPUT(label << ": cannot read image (" << err << ")");
+  }
+  const oiio::ImageSpec& h = in->spec();
+  if (h.width <= 0 || h.height <= 0 || h.nchannels <= 0)
+    MESOSCAN_BAD_INPUT(label << ": header declares " << h.width << "x" << h.height << "x"
+                                     << h.nchannels << " pixels");
+  const double values = static_cast<double>(h.width) * h.height * h.nchannels;
+  // Decoded as float, interleaved then planar: 8 bytes per value.
+  CheckMemoryBudget(label + ": a " + std::to_string(h.width) + "x" +
+                        std::to_string(h.height) + "x" + std::to_string(h.nchannels) + " image",
+                    values * 8.0);
+  // No format we read stores more than ~2x its raw pixel size plus headers (EXR offset tables,
+  // PNG filter bytes and chunks): a bigger file does not hold what its header says.
+  const double raw = values * static_cast<double>(h.format.size());
+  const auto size = fs::file_size(path, ec);
+  if (!ec && static_cast<double>(size) > 2.0 * raw + (1 << 20))
+    MESOSCAN_BAD_INPUT(label << ": file is " << size << " bytes, more than its "
+                                     << h.width << "x" << h.height << "x" << h.nchannels
+                                     << " header allows");
+  return in;
+}
 
 ImageInfo ReadImageInfo(const fs::path& path) { return InfoFromSpec(OpenInput(path)->spec()); }
 

@@ -10,6 +10,7 @@
 
 #include "capture/raw_frame.h"
 #include "core/error.h"
+#include "core/image_input.h"
 #include "core/log.h"
 #include "core/parallel.h"
 #include "core/progress.h"
@@ -41,6 +42,7 @@ struct DecodedFrame {
 DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
                     std::vector<uint16_t>* direct = nullptr) {
   if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (capture/raw_frame.h)
+    CheckRegularFile(path, label);
     ImageU16 grey = ReadRawGrey(path, label);
     DecodedFrame d;
     d.width = grey.width();
@@ -49,12 +51,7 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     d.u16 = std::move(grey.data());
     return d;
   }
-  auto in = OIIO::ImageInput::open(path.string());
-  if (!in) {
-    std::string err = OIIO::geterror();
-    std::replace(err.begin(), err.end(), '\n', ' ');
-    MESOSCAN_BAD_INPUT(label << ": cannot read image (" << err << ")");
-  }
+  auto in = OpenImageInput(path, label);  // regular file, extension's reader, size vs header
   const OIIO::ImageSpec& spec = in->spec();
   DecodedFrame d;
   d.width = spec.width;
@@ -129,8 +126,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
     std::transform(ext.begin(), ext.end(), ext.begin(),
                    [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
     if (ext == ".png") continue;
-    auto in = OIIO::ImageInput::open(path.string());
-    if (!in) MESOSCAN_BAD_INPUT(path.string() << ": frames[" << f << "]: cannot read image");
+    auto in = OpenImageInput(path, path.string() + ": frames[" + std::to_string(f) + "]");
     any_float |= in->spec().format.is_floating_point();
   }
   s.is_float_ = any_float;

@@ -1,5 +1,9 @@
 #include "heightfield/resample.h"
 
+#include <sstream>
+
+#include "core/budget.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -70,8 +74,19 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   // Grid aligned to multiples of the pixel size, covering the points.
   hf.x0 = std::ceil(xmin / hf.pixel_size) * hf.pixel_size;
   hf.y0 = std::floor(ymax / hf.pixel_size) * hf.pixel_size;
-  const int gw = static_cast<int>(std::floor((xmax - hf.x0) / hf.pixel_size)) + 1;
-  const int gh = static_cast<int>(std::floor((hf.y0 - ymin) / hf.pixel_size)) + 1;
+  // Budget before allocation (and before the int casts): z, confidence, normals and the EXR
+  // writers' interleaved copies, ~48 bytes per grid pixel.
+  const double gw_d = std::floor((xmax - hf.x0) / hf.pixel_size) + 1;
+  const double gh_d = std::floor((hf.y0 - ymin) / hf.pixel_size) + 1;
+  {
+    std::ostringstream what;
+    what << "resample: a " << gw_d << "x" << gh_d << " height grid at pixel size "
+         << hf.pixel_size * 1e6 << " um";
+    if (!(gw_d < 1 << 30 && gh_d < 1 << 30)) CheckMemoryBudget(what.str(), 1e300);
+    CheckMemoryBudget(what.str(), gw_d * gh_d * 48.0);
+  }
+  const int gw = static_cast<int>(gw_d);
+  const int gh = static_cast<int>(gh_d);
   MESOSCAN_CHECK(gw > 0 && gh > 0);
   hf.z = ImageF(gw, gh, 1, kNaN);
   hf.confidence = ImageF(gw, gh, 1, 0.0f);

@@ -214,3 +214,31 @@ TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
 
 }  // namespace
 }  // namespace mesoscan
+
+namespace mesoscan {
+namespace {
+
+// Issue 10 item 9: `capture --rehearse` needs no hardware, no display and no shifter port: its
+// own Xvfb, the screen camera and the simulated shifter on a pty; the session passes check.
+TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheck) {
+  if (::access("/usr/bin/Xvfb", X_OK) != 0) GTEST_SKIP() << "Xvfb not installed";
+  const fs::path dir = CliTempDir("capture_cli", "rehearse");
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  Session s;
+  s.rig = SmallTestRig(32, 24, 64, 48, true);
+  s.frames = {Frame{"frames/white.png", Pattern{}, 0}};
+  std::ofstream(dir / "rig.json") << Json{{"rig", SessionToJson(s)["rig"]}}.dump(2);
+  const CliResult r = RunMesoscan("-q capture --rehearse --out " + (dir / "R").string() +
+                                  " --rig " + (dir / "rig.json").string() +
+                                  " --periods 7,11 --ls-frames 4 --settle 0");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(dir / "R" / "session.json"));
+  EXPECT_FALSE(fs::exists(dir / "R" / kCaptureJournal));
+  const CliResult c = RunMesoscan("check " + (dir / "R").string());
+  EXPECT_EQ(c.code, 0) << c.output;
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace mesoscan

@@ -1,0 +1,209 @@
+#include "core/output_dir.h"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include "core/error.h"
+
+namespace mesoscan {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kTmpTag = ".mesoscan-tmp.";
+constexpr const char* kOldTag = ".mesoscan-old.";
+
+// Absolute, symlinks resolved for the part that exists, `..` folded. Never throws.
+fs::path Resolve(const fs::path& p) {
+  std::error_code ec;
+  fs::path abs = fs::absolute(p, ec);
+  if (ec) abs = p;
+  fs::path c = fs::weakly_canonical(abs, ec);
+  if (ec) c = abs.lexically_normal();
+  if (c.has_filename() == false && c.has_parent_path() && c != c.root_path()) c = c.parent_path();
+  return c;
+}
+
+fs::path Sibling(const fs::path& final_path, const char* tag) {
+  static std::atomic<int> counter{0};
+  std::string name = ".";
+  name.append(final_path.filename().string()).append(tag).append(std::to_string(getpid()));
+  name.append(".").append(std::to_string(counter++));
+  return final_path.parent_path() / name;
+}
+
+bool ProcessAlive(long pid) {
+  if (pid <= 0) return false;
+  if (pid == static_cast<long>(getpid())) return true;  // this process: never stale
+  return kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM;
+}
+
+std::string MarkerText(const std::string& command) {
+  std::string t = "mesoscan ";
+  return t.append(command).append("\n");
+}
+
+bool HasMarker(const fs::path& dir, const std::string& command) {
+  std::ifstream in(dir / kOutputMarker);
+  if (!in) return false;
+  std::string line;
+  std::getline(in, line);
+  return line + "\n" == MarkerText(command);
+}
+
+[[noreturn]] void Refuse(const OutputSpec& s, const std::string& what) {
+  MESOSCAN_THROW(ErrorKind::kUsage, s.command << ": " << s.option << " " << s.out.string() << ": "
+                                              << what);
+}
+
+// The checks shared by folders and files: not empty, not an input, not around an input.
+fs::path CheckAgainstInputs(const OutputSpec& s) {
+  if (s.out.empty()) Refuse(s, "expected a path, got an empty string");
+  const fs::path out = Resolve(s.out);
+  if (out == out.root_path()) Refuse(s, "refusing to write to the filesystem root");
+  for (const fs::path& in_raw : s.inputs) {
+    if (in_raw.empty()) continue;
+    const fs::path in = Resolve(in_raw);
+    if (out == in)
+      Refuse(s, "is the input " + in_raw.string() + " (it would be overwritten); choose another folder");
+    if (PathIsWithin(out, in))
+      Refuse(s, "lies inside the input " + in_raw.string() + "; choose a folder outside it");
+    if (PathIsWithin(in, out))
+      Refuse(s, "contains the input " + in_raw.string() +
+                    " (replacing it would delete the input); choose another folder");
+  }
+  return out;
+}
+
+}  // namespace
+
+bool PathIsWithin(const fs::path& inner, const fs::path& outer) {
+  auto i = inner.begin(), o = outer.begin();
+  for (; o != outer.end(); ++o, ++i) {
+    if (o->empty()) continue;  // trailing separator
+    if (i == inner.end() || *i != *o) return false;
+  }
+  return true;
+}
+
+void CleanStaleOutputs(const fs::path& final_path) {
+  const fs::path dir = final_path.parent_path();
+  std::string base = ".";
+  base.append(final_path.filename().string());
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return;
+  std::vector<std::pair<fs::path, bool>> stale;  // path, is backup
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.rfind(base, 0) != 0) continue;
+    const std::string rest = name.substr(base.size());
+    bool backup;
+    if (rest.rfind(kTmpTag, 0) == 0) backup = false;
+    else if (rest.rfind(kOldTag, 0) == 0) backup = true;
+    else continue;
+    const std::string pid_text = rest.substr(std::string(kTmpTag).size());
+    char* end_ptr = nullptr;
+    const long pid = std::strtol(pid_text.c_str(), &end_ptr, 10);
+    if (end_ptr == pid_text.c_str() || ProcessAlive(pid)) continue;
+    stale.emplace_back(it->path(), backup);
+  }
+  for (const auto& [p, backup] : stale) {
+    std::error_code e2;
+    if (backup && !fs::exists(fs::symlink_status(final_path, e2))) {
+      fs::rename(p, final_path, e2);  // an interrupted replacement: the old output comes back
+      if (!e2) continue;
+    }
+    fs::remove_all(p, e2);
+  }
+}
+
+fs::path CheckOutputFolder(const OutputSpec& s) {
+  const fs::path out = CheckAgainstInputs(s);
+  CleanStaleOutputs(out);
+  std::error_code ec;
+  const fs::file_status st = fs::status(out, ec);
+  if (fs::exists(st)) {
+    if (!fs::is_directory(st)) Refuse(s, "exists and is not a folder");
+    bool ok = s.force || HasMarker(out, s.command) || fs::is_empty(out, ec);
+    if (!ok && !s.legacy_signature.empty()) {
+      ok = true;
+      for (const std::string& f : s.legacy_signature) ok = ok && fs::exists(out / f, ec);
+    }
+    if (!ok)
+      Refuse(s, "exists and is not an earlier output of 'mesoscan " + s.command +
+                    "'; choose a new folder or add --force to replace it");
+  }
+  return out;
+}
+
+void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marker_command,
+                             const std::function<void(const fs::path&)>& fill) {
+  fs::path out = Resolve(final_dir);
+  CleanStaleOutputs(out);
+  std::error_code ec;
+  fs::create_directories(out.parent_path(), ec);
+  const fs::path tmp = Sibling(out, kTmpTag);
+  fs::create_directory(tmp, ec);
+  if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot create output folder (" << ec.message() << ")");
+  try {
+    fill(tmp);
+    if (!marker_command.empty()) {
+      std::ofstream marker(tmp / kOutputMarker);
+      marker << MarkerText(marker_command);
+      if (!marker) MESOSCAN_BAD_INPUT(out.string() << ": cannot write " << kOutputMarker);
+    }
+    if (fs::exists(fs::symlink_status(out, ec))) {
+      // One atomic step where the filesystem supports it; tmp then holds the old output.
+      if (::renameat2(AT_FDCWD, tmp.c_str(), AT_FDCWD, out.c_str(), RENAME_EXCHANGE) == 0) {
+        fs::remove_all(tmp, ec);
+        return;
+      }
+      // Fallback: old -> backup, new -> final, remove backup (a kill in between leaves the
+      // backup, which CleanStaleOutputs renames back).
+      const fs::path old = Sibling(out, kOldTag);
+      fs::rename(out, old, ec);
+      if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot replace the existing folder (" << ec.message() << ")");
+      fs::rename(tmp, out, ec);
+      if (ec) {
+        std::error_code e2;
+        fs::rename(old, out, e2);
+        MESOSCAN_BAD_INPUT(out.string() << ": cannot write folder (" << ec.message() << ")");
+      }
+      fs::remove_all(old, ec);
+      return;
+    }
+    fs::rename(tmp, out, ec);
+    if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot write folder (" << ec.message() << ")");
+  } catch (...) {
+    fs::remove_all(tmp, ec);
+    throw;
+  }
+}
+
+void WriteOutputFolder(const OutputSpec& s, const std::function<void(const fs::path&)>& fill) {
+  ReplaceFolderAtomically(CheckOutputFolder(s), s.command, fill);
+}
+
+fs::path CheckOutputFile(const OutputSpec& s,
+                         const std::function<bool(const fs::path&)>& accept_existing) {
+  const fs::path out = CheckAgainstInputs(s);
+  std::error_code ec;
+  const fs::file_status st = fs::status(out, ec);
+  if (fs::exists(st)) {
+    if (fs::is_directory(st)) Refuse(s, "is a folder; expected a file name");
+    if (!fs::is_regular_file(st)) Refuse(s, "exists and is not a regular file");
+    if (!s.force && !(accept_existing && accept_existing(out)))
+      Refuse(s, "exists and is not an earlier output of 'mesoscan " + s.command +
+                    "'; choose a new name or add --force to replace it");
+  }
+  return out;
+}
+
+}  // namespace mesoscan

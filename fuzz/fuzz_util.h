@@ -1,0 +1,54 @@
+#pragma once
+// Shared by the libFuzzer targets (fuzz/README.md): each writes the fuzzer's bytes to a file
+// under a per-process folder and calls the loader the CLI calls. A mesoscan::Error of a
+// bad-input or usage kind is the expected answer to a malformed file; anything else (an
+// internal error, another exception, a sanitizer report, a hang) is a finding.
+
+#include <unistd.h>
+
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "core/error.h"
+
+namespace mesoscan::fuzz {
+
+inline std::filesystem::path WorkDir() {
+  static const std::filesystem::path dir = [] {
+    auto d = std::filesystem::temp_directory_path() /
+             ("mesoscan_fuzz_" + std::to_string(getpid()));
+    std::filesystem::create_directories(d);
+    return d;
+  }();
+  return dir;
+}
+
+inline std::filesystem::path WriteInput(const std::string& name, const uint8_t* data, size_t size) {
+  const auto path = WorkDir() / name;
+  std::filesystem::create_directories(path.parent_path());
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(size));
+  return path;
+}
+
+template <typename Fn>
+void Expect(Fn&& fn) {
+  try {
+    fn();
+  } catch (const Error& e) {
+    if (e.kind() == ErrorKind::kInternal) {
+      std::fprintf(stderr, "fuzz finding: internal error: %s\n", e.what());
+      std::abort();
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "fuzz finding: exception outside mesoscan::Error: %s\n", e.what());
+    std::abort();
+  }
+}
+
+}  // namespace mesoscan::fuzz
