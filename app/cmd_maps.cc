@@ -10,6 +10,7 @@
 #include "app/map_options.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "heightfield/maps.h"
 
@@ -76,6 +77,7 @@ namespace {
 struct MapsCmdArgs {
   std::string scan, out, crop, name, albedo, normals = "gl";
   MapArgs maps;
+  bool force = false;
 };
 
 std::string DefaultMapsName(const fs::path& scan) {
@@ -89,6 +91,9 @@ std::string DefaultMapsName(const fs::path& scan) {
 void RunMaps(const MapsCmdArgs& a) {
   MapsOptions o = a.maps.ToOptions(a.name.empty() ? DefaultMapsName(a.scan) : a.name, a.crop);
   o.normals = a.normals == "dx" ? NormalConvention::kDirectX : NormalConvention::kOpenGl;
+  // --out must not be, contain or lie inside the scan or the albedo (core/output_dir.h).
+  const OutputSpec out_spec{"maps", "--out", a.out, {a.scan, a.albedo}, a.force, {"manifest.json"}};
+  CheckOutputFolder(out_spec);
   const Scan scan = ReadScanFolder(a.scan);
   if (!a.albedo.empty()) {
     o.albedo = ReadImage(a.albedo);
@@ -101,7 +106,8 @@ void RunMaps(const MapsCmdArgs& a) {
       o.albedo = std::move(rgb);
     }
   }
-  const MapsSummary s = BuildMapSet(scan, o, a.out);
+  MapsSummary s;
+  WriteOutputFolder(out_spec, [&](const fs::path& tmp) { s = BuildMapSet(scan, o, tmp); });
   PrintMapSet(s, a.out);
 }
 
@@ -121,6 +127,8 @@ void AddMapsCommand(CLI::App* app) {
       ->check(CLI::IsMember({"gl", "dx"}))
       ->capture_default_str();
   AddMapOptions(cmd, &a->maps, /*standalone=*/true);
+  cmd->add_flag("--force", a->force,
+                "Replace an existing --out that is not an earlier output of `mesoscan maps`");
   cmd->callback([a] { RunMaps(*a); });
 }
 

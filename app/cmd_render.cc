@@ -24,6 +24,7 @@
 #include "core/parallel.h"
 #include "core/scan_folder.h"
 #include "heightfield/export.h"
+#include "heightfield/maps_fill.h"
 #include "render/animation.h"
 #include "render/env_map.h"
 #include "render/path_tracer.h"
@@ -35,7 +36,7 @@ namespace {
 
 struct RenderArgs {
   std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480", camera, albedo = "none";
-  std::string compare, turntable_size;
+  std::string compare, turntable_size, fill = "harmonic";
   RenderOptions options;
   double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0, env_rotation_deg = 0;
   int threads = 0, turntable = 0, turntable_spp = 0;
@@ -305,11 +306,19 @@ void Run(const RenderArgs& a) {
                              env_file ? a.env : ""},
                             a.force, {"preview.exr", "preview.png"}};
   CheckOutputFolder(out_spec);
-  // The height field to preview. Hook for the artist-ready maps: the caller decides which
-  // field (raw with holes or filled) the renderer sees; here the scan's height.exr.
+  // The height field to preview: the scan's height.exr with its bounded holes filled
+  // (heightfield/maps_fill.h, as the artist-ready maps fill them) unless --fill none, so a
+  // shadowed rim is not previewed as a trench; large holes and the outside stay open.
   const fs::path height_file = fs::path(a.scan) / "height.exr";
-  const HeightField hf = ReadHeightExr(height_file);
+  HeightField hf = ReadHeightExr(height_file);
   ValidateHeightField(hf, o, height_file.string());
+  FillOptions fill;
+  fill.method = ParseFillMethod(a.fill);
+  if (fill.method != FillMethod::kNone) {
+    FillResult filled = FillHoles(hf, fill);
+    MESOSCAN_LOG(kInfo) << "render: " << filled.BriefReport();
+    hf = std::move(filled.field);
+  }
   EnvironmentMap env = MakeEnvironment(a);
   env.SetRotation(a.env_rotation_deg);
   const std::optional<ImageF> albedo = MakeAlbedo(a, hf);
@@ -388,6 +397,9 @@ void AddRenderCommand(CLI::App* app) {
                   "Turntable frame size WxH (default: as --size)");
   cmd->add_option("--compare", args->compare,
                   "Also render a second BRDF and write side_by_side.png (left --brdf, right this)");
+  cmd->add_option("--fill", args->fill,
+                  "Hole filling of the previewed height field: harmonic | biharmonic | none")
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out that is not an earlier output of `mesoscan render`");
