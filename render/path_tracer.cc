@@ -255,7 +255,9 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   };
 
   Progress progress("render (pixels done)", static_cast<int64_t>(W) * H);
-  int target = std::min(options.min_spp, options.max_spp);
+  // Under a time budget the rounds start at 1 spp (so even the first round respects the
+  // budget on a slow or loaded machine); adaptivity still waits for min_spp.
+  int target = options.time_limit_s > 0 ? 1 : std::min(options.min_spp, options.max_spp);
   int active = W * H;
   for (int round = 0; active > 0; ++round) {
     // Shorten the round if it would overrun the time budget (paths/s measured so far).
