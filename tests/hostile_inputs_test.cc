@@ -463,6 +463,23 @@ TEST_F(Hostile, Item8_ExitCodesMatchTheReadme) {
   EXPECT_FALSE(fs::exists(Work() / "E8"));
   EXPECT_FALSE(fs::exists(Work() / "SC8"));
   fs::remove(Work() / "a_file");
+  // K = 1e999: a number beyond double range is bad input, not an internal error.
+  const fs::path k = CopySession("S_k");
+  std::string text = ReadTextFile(k / "session.json");
+  const size_t at = text.find("\"K\"");
+  ASSERT_NE(at, std::string::npos);
+  const size_t num = text.find_first_of("-0123456789", at);
+  text.insert(num, "1e999, ");
+  text.erase(text.find(',', num + 7), 0);
+  { std::ofstream(k / "session.json") << text; }
+  // (the inserted number makes row 0 of K four long or overflows first: either way exit 3)
+  ExpectRefused(Cli("check --quick " + Q(k)), 3, "session.json");
+  fs::remove_all(k);
+  // brdf: a folder, and a .bsdf shorter than its header.
+  ExpectRefused(Cli("brdf info " + Q(Work())), 3, "a folder");
+  std::ofstream(Work() / "tiny.bsdf") << "abc";
+  ExpectRefused(Cli("brdf info " + Q(Work() / "tiny.bsdf")), 3, "RGL");
+  fs::remove(Work() / "tiny.bsdf");
 }
 
 }  // namespace
