@@ -727,6 +727,8 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
   const std::string label = manifest.filename().string();
 
   if (fs::is_directory(manifest, ec)) MESOSCAN_BAD_INPUT(label << ": cannot read (a folder)");
+  if (!fs::is_regular_file(manifest, ec))  // a FIFO or a device would block or never end
+    MESOSCAN_BAD_INPUT(label << ": cannot read (not a regular file)");
   std::string text;
   {
     errno = 0;
@@ -745,6 +747,10 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
     const auto [line, col] = LineColumn(text, e.byte);
     MESOSCAN_BAD_INPUT(label << ": not valid JSON (syntax error at line " << line << ", column "
                              << col << ")");
+  } catch (const Json::exception& e) {  // e.g. a number beyond double range (K = 1e999)
+    std::string what = e.what();
+    if (const size_t close = what.find("] "); close != std::string::npos) what = what.substr(close + 2);
+    MESOSCAN_BAD_INPUT(label << ": not valid JSON (" << what << ")");
   }
   Session s =
       ParseSession(j, fs::absolute(root.empty() ? fs::path(".") : root).lexically_normal(), label);

@@ -44,6 +44,12 @@ void WriteTextFile(const fs::path& path, const std::string& text) {
 }
 
 std::string ReadTextFile(const fs::path& path) {
+  // Only regular files: a FIFO or a device would block or never end.
+  std::error_code ec;
+  const fs::file_status st = fs::status(path, ec);
+  if (fs::exists(st) && !fs::is_regular_file(st))
+    MESOSCAN_BAD_INPUT(path.string() << ": expected a regular file, got "
+                                     << (fs::is_directory(st) ? "a folder" : "a special file"));
   std::ifstream in(path, std::ios::binary);
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
   std::ostringstream ss;

@@ -11,6 +11,11 @@ Json ReadJsonFile(const std::filesystem::path& path) {
     return Json::parse(text);
   } catch (const Json::parse_error& e) {
     MESOSCAN_BAD_INPUT(path.string() << ": not valid JSON (byte " << e.byte << ")");
+  } catch (const Json::exception& e) {  // e.g. a number beyond double range (1e999)
+    std::string what = e.what();
+    const size_t close = what.find("] ");
+    if (close != std::string::npos) what = what.substr(close + 2);
+    MESOSCAN_BAD_INPUT(path.string() << ": not valid JSON (" << what << ")");
   }
 }
 

@@ -12,6 +12,7 @@ mesoscan::Scan SmallScan() {
   Scan s;
   s.points.xyz = ImageF(4, 3, 3, 0.0f);
   s.points.confidence = ImageF(4, 3, 1, 1.0f);
+  s.points.projector_u = ImageF(4, 3, 1, 0.5f);  // same size as xyz (WriteScanFolder checks it)
   s.height.z = ImageF(4, 3, 1, 0.0f);
   s.height.confidence = ImageF(4, 3, 1, 1.0f);
   s.height.pixel_size = 1e-5;

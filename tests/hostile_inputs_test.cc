@@ -18,6 +18,7 @@
 #include <map>
 #include <sstream>
 #include <thread>
+#include <vector>
 
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -338,29 +339,66 @@ void RunAndKill(const std::string& args, int ms, int sig) {
   waitpid(pid, &status, 0);
 }
 
-TEST_F(Hostile, Item5_KilledExportLeavesOldOrNewOutputNeverAMix) {
-  const fs::path e = Work() / "E5";
-  ASSERT_EQ(Cli("export " + Q(*scan_) + " --out " + Q(e)).code, 0);
-  const auto complete = Snapshot(e).size();
-  for (int trial = 0; trial < 8; ++trial) {
-    RunAndKill("export " + Q(*scan_) + " --out " + Q(e), 30 + 40 * trial, trial % 2 ? SIGINT : SIGKILL);
-    ASSERT_TRUE(fs::exists(e / "manifest.json")) << "trial " << trial;
-    EXPECT_EQ(Snapshot(e).size(), complete) << "trial " << trial;
+// Hidden files below `dir` other than the output marker: temporaries of interrupted writes.
+std::vector<std::string> HiddenLeftovers(const fs::path& dir) {
+  std::vector<std::string> found;
+  if (!fs::exists(dir)) return found;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    if (name[0] == '.' && name != kOutputMarker) found.push_back(e.path().string());
   }
+  return found;
+}
+
+TEST_F(Hostile, Item5_KilledExportLeavesNothingOrAWholeExport) {
+  // A 3x finer grid than the scan's makes the export take long enough to be killed mid-way.
+  const double px = ReadHeightExr(*scan_ / "height.exr").pixel_size / 3;
+  std::ostringstream args;
+  args.precision(9);
+  args << "export " << Q(*scan_) << " --out " << Q(Work() / "E5") << " --pixel-size " << px;
+  const Result full = Cli(args.str());
+  ASSERT_EQ(full.code, 0) << full.err;
+  const auto complete = Snapshot(Work() / "E5").size();
+  fs::remove_all(Work() / "E5");
+  int killed_mid_way = 0;
+  for (int trial = 0; trial < 10; ++trial) {
+    const int ms = static_cast<int>(full.seconds * 1000 * (trial + 0.5) / 10);
+    RunAndKill(args.str(), ms, trial % 2 ? SIGINT : SIGKILL);
+    if (!fs::exists(Work() / "E5")) {
+      ++killed_mid_way;
+      continue;
+    }
+    EXPECT_TRUE(fs::exists(Work() / "E5" / "manifest.json")) << "trial " << trial;
+    EXPECT_EQ(Snapshot(Work() / "E5").size(), complete) << "trial " << trial;
+    EXPECT_TRUE(HiddenLeftovers(Work() / "E5").empty()) << "trial " << trial;
+    fs::remove_all(Work() / "E5");
+  }
+  EXPECT_GT(killed_mid_way, 0) << "no trial was killed before the export finished";
+  // A killed replacement of an existing export keeps the old one whole.
+  ASSERT_EQ(Cli(args.str()).code, 0);
+  RunAndKill(args.str(), static_cast<int>(full.seconds * 500), SIGKILL);
+  EXPECT_TRUE(fs::exists(Work() / "E5" / "manifest.json"));
+  EXPECT_EQ(Snapshot(Work() / "E5").size(), complete);
   // The next successful run removes what the killed runs left behind.
-  ASSERT_EQ(Cli("export " + Q(*scan_) + " --out " + Q(e)).code, 0);
+  ASSERT_EQ(Cli(args.str()).code, 0);
   for (const auto& f : fs::directory_iterator(Work()))
-    EXPECT_EQ(f.path().filename().string().find(".E5.mesoscan-"), std::string::npos) << f.path();
-  fs::remove_all(e);
+    EXPECT_EQ(f.path().filename().string().find(".E5"), std::string::npos) << f.path();
+  EXPECT_TRUE(HiddenLeftovers(Work() / "E5").empty());
+  fs::remove_all(Work() / "E5");
 }
 
 TEST_F(Hostile, Item5_FailedRunsLeaveNoOutputFolder) {
-  ExpectRefused(Cli("render " + Q(*scan_) + " --out " + Q(Work() / "R5") + " --env /nonexistent.exr"),
+  ExpectRefused(Cli("render " + Q(*scan_) + " --out " + Q(Work() / "R5") +
+                    " --size 32x24 --spp 1 --min-spp 1 --brdf /nonexistent.binary"),
                 3, "nonexistent");
   EXPECT_FALSE(fs::exists(Work() / "R5"));
-  ExpectRefused(Cli("export " + Q(*scan_) + " --out " + Q(Work() / "E5b") + " --albedo /nonexistent.png"),
-                3, "nonexistent");
+  const fs::path bad = CopyScan("SC_nan5");
+  HeightField h = ReadHeightExr(*scan_ / "height.exr");
+  for (float& z : h.z.data()) z = std::numeric_limits<float>::quiet_NaN();
+  WriteHeightExr(bad / "height.exr", h);
+  ExpectRefused(Cli("export " + Q(bad) + " --out " + Q(Work() / "E5b")), 3, "no valid");
   EXPECT_FALSE(fs::exists(Work() / "E5b"));
+  fs::remove_all(bad);
 }
 
 // ---- 6. check is as strict as reconstruct (headers) ---------------------------------------
@@ -463,6 +501,23 @@ TEST_F(Hostile, Item8_ExitCodesMatchTheReadme) {
   EXPECT_FALSE(fs::exists(Work() / "E8"));
   EXPECT_FALSE(fs::exists(Work() / "SC8"));
   fs::remove(Work() / "a_file");
+  // K = 1e999: a number beyond double range is bad input, not an internal error.
+  const fs::path k = CopySession("S_k");
+  std::string text = ReadTextFile(k / "session.json");
+  const size_t at = text.find("\"K\"");
+  ASSERT_NE(at, std::string::npos);
+  const size_t num = text.find_first_of("-0123456789", at);
+  text.insert(num, "1e999, ");
+  text.erase(text.find(',', num + 7), 0);
+  { std::ofstream(k / "session.json") << text; }
+  // (the inserted number makes row 0 of K four long or overflows first: either way exit 3)
+  ExpectRefused(Cli("check --quick " + Q(k)), 3, "session.json");
+  fs::remove_all(k);
+  // brdf: a folder, and a .bsdf shorter than its header.
+  ExpectRefused(Cli("brdf info " + Q(Work())), 3, "a folder");
+  std::ofstream(Work() / "tiny.bsdf") << "abc";
+  ExpectRefused(Cli("brdf info " + Q(Work() / "tiny.bsdf")), 3, "RGL");
+  fs::remove(Work() / "tiny.bsdf");
 }
 
 }  // namespace
