@@ -175,9 +175,19 @@ TEST(Export, NormalMapConventionsDifferOnlyInGreen) {
   const ImageF gl = ReadImage(dir / "s_normal_gl.png"), dx = ReadImage(dir / "s_normal_dx.png");
   const double q = 1.0 / 65535;
   int checked = 0;
+  // Next to the filled hole the normals come from the filled surface (issue 15): skipped.
+  auto near_hole = [&](int i, int j) {
+    for (int dj = -1; dj <= 1; ++dj)
+      for (int di = -1; di <= 1; ++di) {
+        const int x = i + di, y = j + dj;
+        if (x >= 0 && y >= 0 && x < gl.width() && y < gl.height() && !std::isfinite(scan.height.z(x, y)))
+          return true;
+      }
+    return false;
+  };
   for (int j = 0; j < gl.height(); ++j) {
     for (int i = 0; i < gl.width(); ++i) {
-      if (!std::isfinite(scan.height.z(i, j))) continue;
+      if (!std::isfinite(scan.height.z(i, j)) || near_hole(i, j)) continue;
       for (int k = 0; k < 3; ++k) {
         const double sign = k == 1 ? -1 : 1;
         EXPECT_NEAR(2 * gl(i, j, k) - 1, scan.normals(i, j, k), 2 * q);
