@@ -10,6 +10,8 @@
 
 #include <opencv2/photo.hpp>
 
+#include <sys/resource.h>
+
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -70,6 +72,13 @@ fs::path OutDir(const std::string& name) {
   return fs::path(env ? env : fs::temp_directory_path().string()) / ("bench_maps_" + name);
 }
 
+// CPU seconds (user + system, all threads) of this process so far.
+double CpuSeconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
 double LoadAverage() {
   std::ifstream in("/proc/loadavg");
   double l = -1;
@@ -98,13 +107,19 @@ void BM_Maps(benchmark::State& state, std::string label, FillMethod fill, bool t
   o.tile = tile;
   o.tile_options.size_m = 20e-3;
   MapsSummary s;
-  for (auto _ : state) s = BuildMapSet(scan, o, OutDir(label));
+  double cpu = 0;
+  for (auto _ : state) {
+    const double c0 = CpuSeconds();
+    s = BuildMapSet(scan, o, OutDir(label));
+    cpu = CpuSeconds() - c0;
+  }
+  state.counters["cpu_s"] = cpu;
   state.counters["fill_s"] = s.seconds_per_stage["fill"];
   state.counters["pixels_filled"] = static_cast<double>(s.fill.filled_pixels);
   state.counters["load_avg"] = LoadAverage();
   std::string stages;
   for (const auto& [k, v] : s.seconds_per_stage) stages += k + "=" + std::to_string(v) + " ";
-  Csv(label, s.seconds, s.seconds_per_stage["fill"], stages);
+  Csv(label, s.seconds, s.seconds_per_stage["fill"], "cpu=" + std::to_string(cpu) + " " + stages);
 }
 
 // The plain baseline: OpenCV's Navier-Stokes inpainting of the same holes (16-bit heights, as
@@ -121,14 +136,17 @@ void BM_OpenCvInpaint(benchmark::State& state) {
       src.at<uint16_t>(y, x) = std::isfinite(v) ? static_cast<uint16_t>((v - lo) / (hi - lo) * 65535) : 0;
       mask.at<uint8_t>(y, x) = std::isfinite(v) ? 0 : 255;
     }
-  double sec = 0;
+  double sec = 0, cpu = 0;
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
+    const double c0 = CpuSeconds();
     cv::inpaint(src, mask, dst, 3, cv::INPAINT_NS);
     sec = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    cpu = CpuSeconds() - c0;
   }
+  state.counters["cpu_s"] = cpu;
   state.counters["load_avg"] = LoadAverage();
-  Csv("opencv_inpaint_ns", sec, sec, "fill only");
+  Csv("opencv_inpaint_ns", sec, sec, "fill only; cpu=" + std::to_string(cpu));
 }
 
 BENCHMARK_CAPTURE(BM_Maps, tile_harmonic, std::string("tile_harmonic"), FillMethod::kHarmonic, true)

@@ -370,7 +370,10 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
       writers.push_back([&, f = n + "_height_removed.exr"](const fs::path& d) {
         WriteExr(d / f, flat.removed, {"Y"},
                  {{kAttrX0, cropped.x0}, {kAttrY0, cropped.y0}, {kAttrPixelSize, cropped.pixel_size}},
-                 {{"mesoscan:units", "m"}, {"mesoscan:flatten", FlattenName(o.flatten)}});
+                 {{"mesoscan:units", "m"}, {"mesoscan:flatten", FlattenName(o.flatten)}},
+                 // Uncompressed: the whole source grid (3 M samples at full resolution), where
+                 // ZIP costs ~1 s of CPU for a smooth map.
+                 "none");
       });
     }
   }

@@ -19,9 +19,11 @@ constexpr double kPi = 3.14159265358979323846;
 // Monomials u^a v^b with a + b <= degree, u and v the pixel coordinates mapped to [-1, 1].
 int Terms(int degree) { return (degree + 1) * (degree + 2) / 2; }
 void Basis(double u, double v, int degree, double* out) {
+  double pu[7] = {1}, pv[7] = {1};
+  for (int d = 1; d <= degree; ++d) pu[d] = pu[d - 1] * u, pv[d] = pv[d - 1] * v;
   int k = 0;
   for (int d = 0; d <= degree; ++d)
-    for (int b = 0; b <= d; ++b) out[k++] = std::pow(u, d - b) * std::pow(v, b);
+    for (int b = 0; b <= d; ++b) out[k++] = pu[d - b] * pv[b];
 }
 
 struct PolyFit {

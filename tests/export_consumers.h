@@ -256,6 +256,15 @@ inline double MaxBakedNormalError(const Json& bake, const HeightField& hf, const
   for (int j = 0; j < hf.height(); ++j) {
     for (int i = 0; i < hf.width(); ++i) {
       if (!std::isfinite(hf.z(i, j))) continue;
+      // Next to a filled hole the exported normal comes from the filled surface (issue 15).
+      bool near_hole = false;
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int di = -1; di <= 1; ++di) {
+          const int x = i + di, y = j + dj;
+          near_hole = near_hole || (x >= 0 && y >= 0 && x < hf.width() && y < hf.height() &&
+                                    !std::isfinite(hf.z(x, y)));
+        }
+      if (near_hole) continue;
       const std::array<double, 3> b = BakedNormal(bake, i, j);
       const double e[3] = {normals(i, j, 0), y_sign * normals(i, j, 1), normals(i, j, 2)};
       for (int k = 0; k < 3; ++k) worst = std::max(worst, std::abs(b[k] - e[k]));
