@@ -16,9 +16,9 @@
 #include "capture/patterns.h"
 #include "capture/projector_window.h"
 #include "capture/sequencer.h"
+#include "capture/session.h"
 #include "core/error.h"
 #include "core/log.h"
-#include "sim/virtual_rig.h"
 
 namespace mesoscan {
 namespace {

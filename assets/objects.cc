@@ -7,13 +7,12 @@
 #include <map>
 
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/scan_folder.h"
 
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 double SmoothStep(double e0, double e1, double x) {
   const double t = std::clamp((x - e0) / (e1 - e0), 0.0, 1.0);

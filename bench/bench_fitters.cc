@@ -26,12 +26,12 @@
 #include <string>
 #include <vector>
 
+#include "core/numbers.h"
 #include "heightfield/lens_shift_fit.h"
 
 namespace mesoscan {
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 constexpr double kF0 = 0.5;
 
 struct ProfileSet {

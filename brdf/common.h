@@ -12,13 +12,14 @@
 #include <numbers>
 #include <optional>
 
+#include "core/numbers.h"  // kPi
+
 namespace mesoscan {
 
 using Vec3 = Eigen::Vector3d;
 using Vec2 = Eigen::Vector2d;
 using Rgb = Eigen::Array3d;
 
-inline constexpr double kPi = std::numbers::pi;
 inline constexpr double kInvPi = 1.0 / std::numbers::pi;
 
 // One importance sample: the sampled direction, the BRDF value there and the solid-angle pdf.

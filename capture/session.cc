@@ -718,6 +718,19 @@ std::string SessionTimeNow() {
   return buf;
 }
 
+Rig LoadRigFile(const fs::path& path) {
+  const Json j = ReadJsonFile(path);
+  if (!j.is_object() || !j.contains("rig") || !j["rig"].is_object())
+    MESOSCAN_BAD_INPUT(path.string() << ": rig: expected an object (the session format's rig)");
+  // Parse through the session parser so the rig is validated exactly as in a session.
+  Json wrapper = {{"format", kSessionFormat},
+                  {"rig", j["rig"]},
+                  {"frames", Json::array({{{"file", "frames/white.png"},
+                                           {"pattern", {{"type", "white"}}},
+                                           {"shift_steps", 0}}})}};
+  return ParseSession(wrapper, path.parent_path(), path.string()).rig;
+}
+
 Session ReadSession(const fs::path& dir, bool check_frames) {
   fs::path root = dir;
   std::error_code ec;

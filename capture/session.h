@@ -132,6 +132,10 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s);
 Session ParseSession(const Json& j, const std::filesystem::path& root,
                      const std::string& file_label = "session.json");
 
+// A rig from a JSON file holding a "rig" object in the session format (validated by the session
+// parser; errors name the file and the key): `mesoscan capture --rig` and `simulate --rig`.
+Rig LoadRigFile(const std::filesystem::path& path);
+
 Json SessionToJson(const Session& s);
 
 // Writes session.json atomically into s.root (frames must already be there).

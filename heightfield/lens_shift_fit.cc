@@ -15,11 +15,11 @@
 #include <type_traits>
 
 #include "core/error.h"
+#include "core/numbers.h"
 
 namespace mesoscan {
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
 // kFast: the data moments W_m = sum y t^m e^{i w_j x} (t = x / X, X = max |x|) are taken around a

@@ -16,12 +16,12 @@
 #include <Eigen/LU>
 
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
 
 namespace mesoscan {
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 constexpr double kF0 = 0.5;  // 2-px stripes: 0.5 cycles per projector px
 
 // Shift positions as the pipeline passes them: n frames uniformly over [-1, 1] projector px

@@ -17,6 +17,7 @@
 
 #include "capture/session.h"
 #include "core/image_io.h"
+#include "core/numbers.h"
 #include "core/scan_folder.h"
 #include "core/progress.h"
 #include "heightfield/frames.h"
@@ -28,7 +29,6 @@ namespace mesoscan {
 namespace {
 
 namespace fs = std::filesystem;
-constexpr double kPi = 3.14159265358979323846;
 
 Rig TestRig(int w, int h, bool distortion) {
   Rig rig;

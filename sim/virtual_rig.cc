@@ -17,6 +17,7 @@
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/log.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
@@ -27,7 +28,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr int kTableSamplesPerPx = 128;  // light tables: samples per projector pixel
 constexpr double kMaxSigmaStepPx = 0.02;  // light tables: largest blur step between levels
 // zlib level of the frame PNGs: level 1 encodes noisy 16-bit frames ~2.5x faster than the
@@ -292,19 +292,6 @@ Rig PaperRig() {
   ls.range_steps = {-2048, 2048};
   rig.lens_shifter = ls;
   return rig;
-}
-
-Rig LoadRigFile(const fs::path& path) {
-  const Json j = ReadJsonFile(path);
-  if (!j.is_object() || !j.contains("rig") || !j["rig"].is_object())
-    MESOSCAN_BAD_INPUT(path.string() << ": rig: expected an object (the session format's rig)");
-  // Parse through the session parser so the rig is validated exactly as in a session.
-  Json wrapper = {{"format", kSessionFormat},
-                  {"rig", j["rig"]},
-                  {"frames", Json::array({{{"file", "frames/white.png"},
-                                           {"pattern", {{"type", "white"}}},
-                                           {"shift_steps", 0}}})}};
-  return ParseSession(wrapper, path.parent_path(), path.string()).rig;
 }
 
 PinholeCamera CropCamera(const PinholeCamera& camera, const std::array<int, 4>& c) {

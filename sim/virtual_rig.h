@@ -100,9 +100,6 @@ NoiseModel MakeNoiseModel(const SimulateOptions& options);
 
 // The built-in "paper" rig (sim/README.md "The paper rig").
 Rig PaperRig();
-// A rig from a JSON file holding a "rig" object in the session format (validated by the session
-// parser; errors name the file and the key).
-Rig LoadRigFile(const std::filesystem::path& path);
 // options.rig resolved ("paper" or a file), with options.crop applied.
 Rig ResolveRig(const SimulateOptions& options);
 // Applies a camera crop {W, H, X, Y}; throws Error(kUsage) if it leaves the camera.

@@ -29,6 +29,7 @@
 #include "assets/objects.h"
 #include "core/image_io.h"
 #include "core/json.h"
+#include "core/numbers.h"
 #include "core/scan_folder.h"
 #include "tests/export_consumers.h"
 
@@ -42,7 +43,6 @@ constexpr const char* kDemoSimulate = "simulate --object coin --rig paper --crop
 constexpr double kCoinRadius = 9.5e-3, kField = 1.2e-3, kRim = 1.3e-3, kLetters = 40e-6;
 // Decimated GLB: a third of the lossless mesh's ~300k triangles.
 constexpr int64_t kDecimatedTriangles = 100'000;
-constexpr double kPi = 3.14159265358979323846;
 
 double Median(std::vector<double> v) {
   if (v.empty()) return std::nan("");

@@ -15,6 +15,7 @@
 #include "assets/objects.h"
 #include "capture/session.h"
 #include "core/image_io.h"
+#include "core/numbers.h"
 #include "core/progress.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/ground_truth.h"
@@ -24,7 +25,6 @@
 namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
-constexpr double kPi = 3.14159265358979323846;
 
 fs::path TempDir(const std::string& name) {
   return fs::temp_directory_path() / ("mesoscan_reconsim_" + std::to_string(getpid()) + "_" + name);
