@@ -15,5 +15,6 @@ void AddExportCommand(CLI::App* app);       // cmd_export.cc
 void AddBrdfCommand(CLI::App* app);         // cmd_brdf.cc
 void AddRenderCommand(CLI::App* app);       // cmd_render.cc
 void AddCaptureCommand(CLI::App* app);      // cmd_capture.cc
+void AddCalibrateCommand(CLI::App* app);    // cmd_calibrate.cc
 
 }  // namespace mesoscan

@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
 
   AddCaptureCommand(&app);
   AddSimulateCommand(&app);
+  AddCalibrateCommand(&app);
   AddReconstructCommand(&app);
   AddExportCommand(&app);
   AddCheckCommand(&app);

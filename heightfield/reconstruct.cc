@@ -229,6 +229,10 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   StageTimer timer(&sum);
   ThreadLimit thread_limit(options.num_threads);
   const Rig& rig = session.rig;
+  if (rig.uncalibrated)
+    MESOSCAN_BAD_INPUT(session.root.string()
+                       << "/session.json: rig: a calibration session (no calibrated K, distortion "
+                          "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
   const int cam_w = rig.camera.width, cam_h = rig.camera.height;
   sum.pixels_total = static_cast<int64_t>(cam_w) * cam_h;
 
