@@ -34,16 +34,19 @@ Rig DistortedRig() {
 }
 
 const CalibrationBoard& Board() {
-  static const CalibrationBoard b = CalibrationBoard::Parse("checker:9x6:8", "test");
+  static const CalibrationBoard b = CalibrationBoard::Parse("checker:10x7:6", "test");
   return b;
 }
 
-// Nine poses (degrees, mm): tilts up to 25 degrees about both axes, +-12 mm in height.
+// Thirteen poses (degrees, mm): the board on the mount, then twelve with tilts up to 35 degrees
+// about both axes, turns up to 20 degrees about the normal, +-15 mm in height.
 const std::vector<std::array<double, 6>>& Poses() {
   static const std::vector<std::array<double, 6>> p = {
-      {0, 0, 0, 0, 0, 0},         {20, 0, 0, 0, 3, 8},       {-20, 0, 5, 2, -3, 4},
-      {0, 22, 0, -3, 0, 10},      {0, -22, -5, 3, 2, -6},    {15, 15, 10, 0, 0, 12},
-      {-15, 15, -10, -4, 4, -10}, {15, -18, 20, 4, -2, 0},   {-12, -15, -15, 2, 3, 6}};
+      {0, 0, 0, 0, 0, 0},          {30, 0, 0, 0, 0, 5},          {-30, 0, 10, 0, 0, 5},
+      {0, 30, -10, 0, 0, 0},       {0, -30, 5, 0, 0, 10},        {25, 25, 20, -5, 5, 0},
+      {-25, 25, -20, 5, -5, 8},    {25, -25, 15, 5, 5, -5},      {-25, -25, -15, -5, -5, 12},
+      {35, 0, 20, 0, 0, -8},       {0, 35, -20, 0, 0, 15},       {-20, -20, 5, 8, 0, 0},
+      {20, 20, 0, -8, 0, -10}};
   return p;
 }
 
@@ -68,6 +71,12 @@ struct Fixture : public ::testing::Test {
     WriteRigFile(*rig_file_, *truth_);
     SimulateOptions so = BoardSimBase(*rig_file_);
     so.ps_periods_px = {800, 50};
+    // Default noise except the per-frame gain jitter (0.5%): with 3 phases per period it
+    // cannot be told from a pixel's phase, and it moves every projector corner of a view
+    // together (0.036 instead of 0.018 px RMS here): with it, 12 views give a relative pose
+    // within 0.043 mm / 0.023 deg and the projector's cx within 0.67 px only (issue 11's
+    // closing note).
+    so.gain_jitter = 0.0;
     BoardSimOptions bo;
     bo.board = Board();
     bo.ps_periods_y_px = {600, 37.5};
@@ -116,14 +125,15 @@ using CalibrateSim = Fixture;
 
 double AngleDeg(const Mat3d& r) { return Eigen::AngleAxisd(r).angle() * 180.0 / std::numbers::pi; }
 
-TEST_F(CalibrateSim, RecoversTheRigFromNinePoses) {
+TEST_F(CalibrateSim, RecoversTheRigFromTwelvePoses) {
   CalibrateOptions co;
   co.board = Board();
   co.fix_k3 = true;  // the simulated lenses have k3 = 0
   const CalibrationResult r = Run(co);
   const Rig& t = *truth_;
   std::printf("%s\n", r.BriefReport().c_str());
-  ASSERT_EQ(r.views_used, 8);
+  std::printf("uncertainties (1 sigma): %s\n", r.uncertainties.dump().c_str());
+  ASSERT_EQ(r.views_used, 12);
   // Observation noise: the detected corners against their true images.
   double sc = 0, sp = 0;
   int nc = 0, np = 0;
@@ -207,7 +217,7 @@ TEST_F(CalibrateSim, BadInput) {
   SimulateBoard(so, bo, away);
   const CalibrationView none = DetectView(ReadSession(away), co);
   EXPECT_FALSE(none.found);
-  EXPECT_NE(none.problem.find("no 9x6 checkerboard found"), std::string::npos) << none.problem;
+  EXPECT_NE(none.problem.find("no 10x7 checkerboard found"), std::string::npos) << none.problem;
   try {
     Calibrate({(*views_)[1], none, (*views_)[2]}, SizeRig(), std::nullopt, co);
     ADD_FAILURE() << "two usable views accepted";
@@ -218,8 +228,8 @@ TEST_F(CalibrateSim, BadInput) {
     EXPECT_NE(msg.find(away.string()), std::string::npos) << msg;
   }
   // The CLI: the skipped view is named, exit 3.
-  const CliResult cli = RunMesoscan((*sessions_)[1].string() + " " + away.string() + " " +
-                                    (*sessions_)[2].string() + " --board checker:9x6:8 --out " +
+  const CliResult cli = RunMesoscan("calibrate " + (*sessions_)[1].string() + " " + away.string() + " " +
+                                    (*sessions_)[2].string() + " --board checker:10x7:6 --out " +
                                     Dir("bad_rig.json").string());
   EXPECT_EQ(cli.code, 3) << cli.output;
   EXPECT_NE(cli.output.find("skipped"), std::string::npos) << cli.output;
@@ -227,10 +237,10 @@ TEST_F(CalibrateSim, BadInput) {
   fs::remove_all(away);
   // A wrong board size.
   CalibrateOptions wrong = co;
-  wrong.board = CalibrationBoard::Parse("checker:8x6:8", "test");
+  wrong.board = CalibrationBoard::Parse("checker:9x7:6", "test");
   const CalibrationView w = DetectView(ReadSession((*sessions_)[1]), wrong);
   EXPECT_FALSE(w.found);
-  EXPECT_NE(w.problem.find("no 8x6 checkerboard found"), std::string::npos) << w.problem;
+  EXPECT_NE(w.problem.find("no 9x7 checkerboard found"), std::string::npos) << w.problem;
   // Every view at one pose.
   try {
     Calibrate({(*views_)[3], (*views_)[3], (*views_)[3], (*views_)[3]}, SizeRig(), std::nullopt,
@@ -249,7 +259,7 @@ TEST_F(CalibrateSim, CommandLine) {
   std::string args;
   for (size_t i = 1; i < sessions_->size(); ++i) args += (*sessions_)[i].string() + " ";
   const CliResult r = RunMesoscan("calibrate " + args + "--mount " + (*sessions_)[0].string() +
-                                  " --board checker:9x6:8 --fix k3 --out " + rig.string() +
+                                  " --board checker:10x7:6 --fix k3 --out " + rig.string() +
                                   " --report " + report.string());
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_NO_THROW(LoadRigFile(rig));
@@ -257,7 +267,7 @@ TEST_F(CalibrateSim, CommandLine) {
                         "coverage_camera.png", "coverage_projector.png"})
     EXPECT_TRUE(fs::exists(report / f)) << f;
   const Json j = ReadJsonFile(report / "report.json");
-  EXPECT_EQ(j["views"].size(), 9u);
+  EXPECT_EQ(j["views"].size(), 13u);
   EXPECT_TRUE(j.contains("opencv_baseline"));
   EXPECT_TRUE(j["uncertainties"].contains("prj_from_cam"));
   const CliResult check = RunMesoscan("check " + (*sessions_)[0].string());
