@@ -182,6 +182,21 @@ TEST_F(CalibrateSim, RecoversTheRigFromTwelvePoses) {
   const double dr_deg = AngleDeg(rel.rotation * rel_true.rotation.transpose());
   std::printf("relative pose error: %.4f mm, %.5f deg (baseline %.2f mm)\n", dt_mm, dr_deg,
               rel_true.translation.norm() * 1e3);
+  {
+    // The plain baseline on the same corners: OpenCV's stereoCalibrate refining everything.
+    const Json& j = r.opencv["joint"];
+    const Vec3d t_cv(j["prj_from_cam_translation_m"][0].get<double>(),
+                     j["prj_from_cam_translation_m"][1].get<double>(),
+                     j["prj_from_cam_translation_m"][2].get<double>());
+    std::printf("OpenCV stereoCalibrate: camera fx %.3f cx %.3f cy %.3f, projector fx %.3f cx %.3f "
+                "cy %.3f, translation error %.4f mm, rotation %.5f deg (true %.5f), RMS %.4f px\n",
+                j["camera"]["fx"].get<double>(), j["camera"]["cx"].get<double>(),
+                j["camera"]["cy"].get<double>(), j["projector"]["fx"].get<double>(),
+                j["projector"]["cx"].get<double>(), j["projector"]["cy"].get<double>(),
+                (t_cv - rel_true.translation).norm() * 1e3,
+                j["prj_from_cam_rotation_deg"].get<double>(), AngleDeg(rel_true.rotation),
+                j["rms_px"].get<double>());
+  }
   EXPECT_LT(dt_mm, 0.02);
   EXPECT_LT(dr_deg, 0.01);
   // The world is the mount board, which lies at the true world origin: absolute poses too.
