@@ -55,6 +55,9 @@ void CheckSession(const fs::path& path, bool quick) {
   out << "session: " << s.root.string() << "\n";
   if (!s.object.empty()) out << "object: " << s.object << "\n";
   if (!s.created.empty()) out << "created: " << s.created << "\n";
+  if (rig.uncalibrated)
+    out << "calibration session: the rig holds device sizes only (input of `mesoscan calibrate`; "
+           "reconstruct needs a calibrated rig)\n";
   out << "camera: " << rig.camera.width << "x" << rig.camera.height << ", fx " << rig.camera.K(0, 0)
       << " px, response " << ResponseName(rig.camera_response) << ", black level "
       << rig.black_level << (rig.camera.HasDistortion() ? ", distortion" : "") << "\n";

@@ -10,6 +10,7 @@
 
 #include "core/log.h"
 #include "core/output_dir.h"
+#include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {
@@ -61,11 +62,15 @@ void AddSimulateCommand(CLI::App* app) {
     SimulateOptions o;
     std::string out, periods = "7,11,13", crop;
     bool no_white = false, no_black = false, no_shadows = false, force = false;
+    // Calibration boards (--object board:checker:COLSxROWS:SQUARE_MM).
+    std::string pose = "0,0,0,0,0,0", periods_y, frame_format = "png16";
+    bool low_contrast = false;
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
   cmd->add_option("--object", o.object,
-                  "coin | plane | ramp | leaf | fabric | metal | FILE.exr (a height EXR in the scan-outputs layout)")
+                  "coin | plane | ramp | leaf | fabric | metal | FILE.exr (a height EXR in the "
+                  "scan-outputs layout) | board:checker:COLSxROWS:SQUARE_MM (a calibration session)")
       ->capture_default_str();
   cmd->add_option("--rig", o.rig, "paper (built-in rig) | RIG.json (a file with a \"rig\" object)")
       ->capture_default_str();
@@ -127,8 +132,45 @@ void AddSimulateCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out that is not an earlier output of `mesoscan simulate`");
+  cmd->add_option("--pose", args->pose,
+                  "Board only: world pose rx,ry,rz,tx,ty,tz (rotation vector in degrees, mm)")
+      ->capture_default_str();
+  cmd->add_option("--ps-periods-y", args->periods_y,
+                  "Board only: sine periods along projector y (default: the projector height "
+                  "and 1/16 of it; --ps-periods defaults to the width and 1/16 of it)");
+  cmd->add_option("--frame-format", args->frame_format,
+                  "Board only: png16 | png8 | bmp | tif8 (8-bit formats ignore --adc-bits)")
+      ->capture_default_str();
+  cmd->add_flag("--low-contrast", args->low_contrast,
+                "Board only: grey squares (albedo 0.45) on white paper (0.8)");
   cmd->callback([args] {
     SimulateOptions opt = args->o;
+    if (IsBoardObject(opt.object)) {
+      BoardSimOptions bo;
+      bo.board = CalibrationBoard::Parse(opt.object.substr(6), "--object");
+      bo.pose = ParseBoardPose(args->pose);
+      bo.frame_format = args->frame_format;
+      if (args->low_contrast) bo.dark_albedo = 0.45, bo.light_albedo = 0.8;
+      opt.crop.reset();
+      if (!args->crop.empty()) opt.crop = ParseCrop(args->crop);
+      const Rig rig = ResolveRig(opt);
+      opt.ps_periods_px = ParsePeriods(args->periods);
+      bo.ps_periods_y_px = ParsePeriods(args->periods_y);
+      if (args->periods == "7,11,13")  // not given: a one-period cue and 16 periods
+        opt.ps_periods_px = {double(rig.projector.width), rig.projector.width / 16.0};
+      if (args->periods_y.empty())
+        bo.ps_periods_y_px = {double(rig.projector.height), rig.projector.height / 16.0};
+      opt.white = !args->no_white;
+      opt.black = !args->no_black;
+      const OutputSpec board_spec{"simulate", "--out", args->out,
+                                  {std::filesystem::exists(opt.rig) ? opt.rig : ""}, args->force, {}};
+      SimulateSummary summary;
+      WriteOutputFolder(board_spec, [&](const std::filesystem::path& tmp) {
+        summary = SimulateBoard(opt, bo, tmp);
+      });
+      MESOSCAN_LOG(kInfo) << args->out << ": " << summary.BriefReport();
+      return;
+    }
     opt.ps_periods_px = ParsePeriods(args->periods);
     if (!args->crop.empty()) opt.crop = ParseCrop(args->crop);
     opt.white = !args->no_white;

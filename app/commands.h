@@ -16,5 +16,6 @@ void AddBrdfCommand(CLI::App* app);         // cmd_brdf.cc
 void AddRenderCommand(CLI::App* app);       // cmd_render.cc
 void AddCaptureCommand(CLI::App* app);      // cmd_capture.cc
 void AddMapsCommand(CLI::App* app);         // cmd_maps.cc
+void AddCalibrateCommand(CLI::App* app);    // cmd_calibrate.cc
 
 }  // namespace mesoscan

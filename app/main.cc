@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
 
   AddCaptureCommand(&app);
   AddSimulateCommand(&app);
+  AddCalibrateCommand(&app);
   AddReconstructCommand(&app);
   AddExportCommand(&app);
   AddMapsCommand(&app);

@@ -172,8 +172,29 @@ class Parser {
     return p;
   }
 
-  PinholeCamera Device(const Json& obj, const std::string& parent) const {
+  // *uncalibrated (if given) is set when K, distortion or world_from_device is absent (a
+  // calibration session, spec "Calibration sessions"); without it all three are required.
+  PinholeCamera Device(const Json& obj, const std::string& parent,
+                       bool* uncalibrated = nullptr) const {
     PinholeCamera cam;
+    if (uncalibrated && (!Find(obj, "K") || !Find(obj, "distortion") ||
+                         !Find(obj, "world_from_device"))) {
+      *uncalibrated = true;
+      // Whatever is present is an initial guess: validated, then kept.
+      const std::string side = "an integer in [1, " + std::to_string(kMaxImageSide) + "]";
+      cam.width = static_cast<int>(Integer(Require(obj, parent, "width", side),
+                                           Join(parent, "width"), 1, kMaxImageSide, side));
+      cam.height = static_cast<int>(Integer(Require(obj, parent, "height", side),
+                                            Join(parent, "height"), 1, kMaxImageSide, side));
+      Json full = obj;
+      if (!Find(obj, "K"))
+        full["K"] = {{1.0, 0.0, 0.5 * (cam.width - 1)}, {0.0, 1.0, 0.5 * (cam.height - 1)},
+                     {0.0, 0.0, 1.0}};
+      if (!Find(obj, "distortion")) full["distortion"] = {0, 0, 0, 0, 0};
+      if (!Find(obj, "world_from_device"))
+        full["world_from_device"] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}};
+      return Device(full, parent);
+    }
     const std::string side = "an integer in [1, " + std::to_string(kMaxImageSide) + "]";
     cam.width = static_cast<int>(Integer(Require(obj, parent, "width", side), Join(parent, "width"),
                                          1, kMaxImageSide, side));
@@ -491,7 +512,7 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
   // rig
   const Json& rig = p.RequireObject(j, "", "rig", "an object with camera and projector");
   const Json& cam = p.RequireObject(rig, "rig", "camera", "an object");
-  s.rig.camera = p.Device(cam, "rig.camera");
+  s.rig.camera = p.Device(cam, "rig.camera", &s.rig.uncalibrated);
   s.rig.camera_response = p.ReadResponse(cam, "rig.camera", /*allow_srgb=*/true);
   if (const Json* v = Parser::Find(cam, "black_level")) {
     const std::string expected = "a finite number in [0, 1)";
@@ -500,7 +521,7 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
       p.Expected("rig.camera.black_level", expected, *v);
   }
   const Json& proj = p.RequireObject(rig, "rig", "projector", "an object");
-  s.rig.projector = p.Device(proj, "rig.projector");
+  s.rig.projector = p.Device(proj, "rig.projector", &s.rig.uncalibrated);
   s.rig.projector_response = p.ReadResponse(proj, "rig.projector", /*allow_srgb=*/false);
   if (const Json* ls = Parser::Find(rig, "lens_shifter")) {
     const std::string ls_expected = "an object with axis, steps_per_px and range_steps";
@@ -780,6 +801,9 @@ Json SessionToJson(const Session& s) {
   cam["response"] = ResponseToJson(s.rig.camera_response);
   cam["black_level"] = s.rig.black_level;
   Json proj = DeviceToJson(s.rig.projector);
+  if (s.rig.uncalibrated)  // a calibration session: the devices' sizes only
+    for (Json* d : {&cam, &proj})
+      for (const char* k : {"K", "distortion", "world_from_device"}) d->erase(k);
   proj["response"] = ResponseToJson(s.rig.projector_response);
   j["rig"] = {{"camera", cam}, {"projector", proj}};
   if (s.rig.lens_shifter) {

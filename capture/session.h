@@ -62,6 +62,10 @@ struct Rig {
   PinholeCamera projector;
   Response projector_response;  // kLinear or kGamma only
   std::optional<LensShifter> lens_shifter;
+  // A calibration session's rig (spec "Calibration sessions"): a device lacks K, distortion or
+  // world_from_device; camera and projector then hold the sizes (and any initial guess) only.
+  // `check` says so; `reconstruct` refuses it.
+  bool uncalibrated = false;
 };
 
 struct GroundTruth {

@@ -252,8 +252,30 @@ TEST_F(SessionTest, ErrorNonFiniteOrMalformedK) {
             msg);
   EXPECT_EQ(ParseError([](Json& j) { j["rig"]["camera"]["K"][2].erase(2); }), msg);
   EXPECT_EQ(ParseError([](Json& j) { j["rig"]["camera"]["K"] = "eye"; }), msg);
-  EXPECT_EQ(ParseError([](Json& j) { j["rig"]["camera"].erase("K"); }),
-            "session.json: rig.camera.K: missing, expected a 3x3 array of finite numbers");
+}
+
+// A rig whose devices lack K, distortion or world_from_device is a calibration session (spec
+// "Calibration sessions"): accepted, flagged, written back with the devices' sizes only; what is
+// present is still validated.
+TEST_F(SessionTest, CalibrationSession) {
+  Json j = *valid_;
+  for (const char* d : {"camera", "projector"})
+    for (const char* k : {"K", "distortion", "world_from_device"}) j["rig"][d].erase(k);
+  const Session s = ParseSession(j, *dir_);
+  EXPECT_TRUE(s.rig.uncalibrated);
+  EXPECT_EQ(s.rig.camera.width, (*valid_)["rig"]["camera"]["width"].get<int>());
+  const Json back = SessionToJson(s);
+  EXPECT_FALSE(back["rig"]["camera"].contains("K"));
+  EXPECT_FALSE(back["rig"]["projector"].contains("world_from_device"));
+  EXPECT_TRUE(ParseSession(back, *dir_).rig.uncalibrated);
+  EXPECT_FALSE(ParseSession(*valid_, *dir_).rig.uncalibrated);
+  EXPECT_EQ(ParseError([](Json& j) { j["rig"]["camera"].erase("K"); }), "(no error)");
+  // An initial guess present but malformed is still refused.
+  EXPECT_EQ(ParseError([](Json& j) {
+              j["rig"]["camera"].erase("world_from_device");
+              j["rig"]["camera"]["K"] = "eye";
+            }),
+            "session.json: rig.camera.K: expected a 3x3 array of finite numbers");
 }
 
 TEST_F(SessionTest, ErrorSingularK) {

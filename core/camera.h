@@ -22,13 +22,14 @@ struct PinholeCamera {
     return false;
   }
 
-  // Normalised image coordinates (x/z, y/z) -> distorted normalised coordinates.
-  template <typename T>
-  static void Distort(const double* d, const T& x, const T& y, T* xd, T* yd) {
+  // Normalised image coordinates (x/z, y/z) -> distorted normalised coordinates. The
+  // coefficients d may be a scalar type of their own (Ceres jets in calibration).
+  template <typename D, typename T>
+  static void Distort(const D* d, const T& x, const T& y, T* xd, T* yd) {
     const T r2 = x * x + y * y;
     const T radial = T(1) + r2 * (T(d[0]) + r2 * (T(d[1]) + r2 * T(d[4])));
-    *xd = x * radial + T(2 * d[2]) * x * y + T(d[3]) * (r2 + T(2) * x * x);
-    *yd = y * radial + T(d[2]) * (r2 + T(2) * y * y) + T(2 * d[3]) * x * y;
+    *xd = x * radial + (T(2) * T(d[2])) * x * y + T(d[3]) * (r2 + T(2) * x * x);
+    *yd = y * radial + T(d[2]) * (r2 + T(2) * y * y) + (T(2) * T(d[3])) * x * y;
   }
 
   // Point in device coordinates -> pixel. Returns false if behind the device (z <= 0).
@@ -40,6 +41,20 @@ struct PinholeCamera {
     Distort(distortion.data(), x, y, &xd, &yd);
     uv[0] = T(K(0, 0)) * xd + T(K(0, 1)) * yd + T(K(0, 2));
     uv[1] = T(K(1, 1)) * yd + T(K(1, 2));
+    return true;
+  }
+
+  // The same model with every parameter of type T (calibration's bundle adjustment: Ceres
+  // autodiff differentiates this code): intrinsics {fx, fy, cx, cy} (zero skew), distortion
+  // {k1, k2, p1, p2, k3}, p a point in device coordinates. Returns false behind the device.
+  template <typename T>
+  static bool ProjectWithParams(const T* intrinsics, const T* distortion, const T* p, T* uv) {
+    if (!(p[2] > T(0))) return false;
+    const T x = p[0] / p[2], y = p[1] / p[2];
+    T xd, yd;
+    Distort(distortion, x, y, &xd, &yd);
+    uv[0] = intrinsics[0] * xd + intrinsics[2];
+    uv[1] = intrinsics[1] * yd + intrinsics[3];
     return true;
   }
 

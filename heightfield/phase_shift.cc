@@ -203,6 +203,9 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
   const double step = 0.002 * p_min;
   const double d_end = range_px_ - 1.0;
   separation_cycles_ = 0.5;
+  // The first column distance whose code separation falls below the minimum (or none).
+  double d_bad = std::numeric_limits<double>::infinity();
+  double separation_below_bad = 0.5;  // min separation over distances < d_bad
   if (d_end > 0.5 * p_min) {
     const double n_steps = std::ceil((d_end - 0.5 * p_min) / step);
     if (n_steps > 5e7)
@@ -213,6 +216,22 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
       double worst = 0.0;
       for (double p : periods_) worst = std::max(worst, std::abs(WrapCycles(d / p)));
       separation_cycles_ = std::min(separation_cycles_, worst);
+      if (worst < kMinSeparationCycles && !std::isfinite(d_bad)) d_bad = d;
+      if (!std::isfinite(d_bad)) separation_below_bad = std::min(separation_below_bad, worst);
+    }
+  }
+  // Small separation only at distances close to the width (a cue period equal to the width, or
+  // a period set that almost repeats at the width): only pairs of columns within
+  // edge_margin_px_ of opposite edges can be confused (any column farther in is at most
+  // R - 1 - E from every other column), so those columns are marked invalid by Unwrap() instead
+  // of refusing the set. Allowed if the band is at most kMaxEdgeFraction of the width.
+  if (separation_cycles_ < kMinSeparationCycles) {
+    // Columns live in [-0.5, R - 0.5): an interior column is at most R - E from any other one,
+    // which must stay below d_bad (one pixel of slack for the sampling and the noise).
+    const double margin = std::ceil(range_px_ - d_bad) + 1.0;
+    if (std::isfinite(d_bad) && margin <= kMaxEdgeFraction * range_px_) {
+      edge_margin_px_ = margin;
+      separation_cycles_ = separation_below_bad;
     }
   }
   if (separation_cycles_ < kMinSeparationCycles) {
@@ -403,6 +422,12 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   result.residual = m > 1 ? std::sqrt(best_chi2 / (m - 1)) : 0.0;
   result.valid = std::isfinite(result.u) && result.residual <= max_residual_ &&
                  result.u >= -1.0 && result.u < range_px_;
+  // Columns in the ambiguous edge bands (see edge_margin_px()): the other edge's code is as close.
+  if (edge_margin_px_ > 0.0 &&
+      (best_u < edge_margin_px_ - 0.5 || best_u > range_px_ - 0.5 - edge_margin_px_)) {
+    result.valid = false;
+    result.ambiguous_edge = true;
+  }
   return result;
 }
 

@@ -54,6 +54,8 @@ struct UnwrapResult {
   // weighted squared circular residuals at u; ~1 for consistent data, 0 for a single period.
   double residual = 0.0;
   bool valid = false;     // inputs finite, weights > 0 and residual <= the unwrapper's limit
+  // u fell in an ambiguous edge band (TemporalUnwrapper::edge_margin_px()): valid is false.
+  bool ambiguous_edge = false;
 };
 
 // Temporal unwrapping (one API for both cases):
@@ -73,7 +75,9 @@ class TemporalUnwrapper {
   // periods: > 0 projector px, any order, at least 1; range_px: projector width (px) > 0.
   // max_residual: Unwrap() marks results with residual above it invalid (sigma units).
   // Throws mesoscan::Error (bad input) if the periods cannot tell apart two columns of
-  // [0, range): separation_cycles() < kMinSeparationCycles.
+  // [0, range): separation_cycles() < kMinSeparationCycles, unless the separation is small only
+  // for columns near opposite edges (a one-period cue equal to the width, e.g. 16 periods + cue):
+  // then the columns within edge_margin_px() of either edge are marked invalid by Unwrap().
   TemporalUnwrapper(std::vector<double> periods, double range_px, double max_residual = 4.0);
 
   // theta[i]: wrapped phase of period i in [0, 2 pi) (any real is accepted and wrapped);
@@ -86,6 +90,10 @@ class TemporalUnwrapper {
   // below about half of it (in cycles, per period) cannot cause a wrong fringe order.
   double separation_cycles() const { return separation_cycles_; }
   static constexpr double kMinSeparationCycles = 0.02;
+  // Width (px) of the band at each edge whose columns the code cannot tell from the other edge's;
+  // 0 when every column is unambiguous. At most kMaxEdgeFraction of the width.
+  double edge_margin_px() const { return edge_margin_px_; }
+  static constexpr double kMaxEdgeFraction = 0.02;
 
   const std::vector<double>& periods() const { return periods_; }
   double range_px() const { return range_px_; }
@@ -96,7 +104,8 @@ class TemporalUnwrapper {
   double max_residual_;
   std::vector<int> order_;   // period indices, coarsest first
   int anchor_ = 0;           // index of the coarsest period
-  double separation_cycles_ = 0.0;
+  double separation_cycles_ = 0.0;  // over the column distances that are not edge pairs
+  double edge_margin_px_ = 0.0;
   std::vector<double> inv_periods_;  // 1 / period
   std::vector<double> phase_rate_;   // d theta / d u = 2 pi / period
   // Per period: the number q of the anchor's fringe orders after which its residual repeats

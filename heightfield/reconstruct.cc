@@ -16,6 +16,10 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   StageTimer timer(&sum.timings_s);
   ThreadLimit thread_limit(options.num_threads);
   const Rig& rig = session.rig;
+  if (rig.uncalibrated)
+    MESOSCAN_BAD_INPUT(session.root.string()
+                       << "/session.json: rig: a calibration session (no calibrated K, distortion "
+                          "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
 
   const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
   const FrameStack stack = LoadFrames(session, plan.frames, options.Load());

@@ -1,0 +1,410 @@
+#include "sim/board_sim.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+#include <sstream>
+
+#include "core/error.h"
+#include "core/fs.h"
+#include "core/image_io.h"
+#include "core/json.h"
+#include "core/parallel.h"
+#include "core/progress.h"
+
+namespace fs = std::filesystem;
+
+namespace mesoscan {
+namespace {
+
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+
+#define BOARD_USAGE(expr) MESOSCAN_THROW(ErrorKind::kUsage, expr)
+
+// splitmix64, deterministic per (seed, frame, pixel).
+inline uint64_t SplitMix(uint64_t z) {
+  z += 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+inline double UniformOf(uint64_t x) {
+  return (static_cast<double>(x >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+}
+// A standard normal from a 64-bit key (Box-Muller, one of the pair).
+inline double NormalOf(uint64_t key) {
+  const double u1 = UniformOf(SplitMix(key)), u2 = UniformOf(SplitMix(key ^ 0xA5A5A5A5u));
+  return std::sqrt(-2.0 * std::log(u1)) * std::cos(kTwoPi * u2);
+}
+
+// Integral of the square wave (-1)^floor(f) from 0 to f (a triangle wave of period 2).
+inline double SquareWaveIntegral(double f) {
+  const double t = f - 2.0 * std::floor(0.5 * f);
+  return t < 1.0 ? t : 2.0 - t;
+}
+// The square wave (-1)^floor(f) averaged over [f - h, f + h] (h in the wave's units).
+inline double BoxedSquareWave(double f, double h) {
+  if (h < 1e-9) return (static_cast<long>(std::floor(f)) % 2 == 0) ? 1.0 : -1.0;
+  return (SquareWaveIntegral(f + h) - SquareWaveIntegral(f - h)) / (2.0 * h);
+}
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+std::string Num(double v) {
+  std::ostringstream o;
+  o << v;
+  return o.str();
+}
+
+}  // namespace
+
+void BoardSimOptions::Check() const {
+  if (board.cols < 2 || board.rows < 2 || !(board.square_m > 0))
+    BOARD_USAGE("--object: expected board:checker:COLSxROWS:SQUARE_MM");
+  for (double v : pose)
+    if (!std::isfinite(v)) BOARD_USAGE("--pose: expected six finite numbers");
+  if (!(dark_albedo >= 0 && dark_albedo <= 1 && light_albedo >= 0 && light_albedo <= 1))
+    BOARD_USAGE("board albedo: expected values in [0, 1]");
+  if (!(margin_squares >= 0 && margin_squares < 100)) BOARD_USAGE("board margin: expected [0, 100)");
+  for (double p : ps_periods_y_px)
+    if (!(p > 2.0) || !std::isfinite(p))
+      BOARD_USAGE("--ps-periods-y: expected periods > 2 px, got " << p);
+  if (frame_format != "png16" && frame_format != "png8" && frame_format != "bmp" &&
+      frame_format != "tif8")
+    BOARD_USAGE("--frame-format: '" << frame_format << "', expected png16, png8, bmp or tif8");
+}
+
+bool IsBoardObject(const std::string& object) { return object.rfind("board:", 0) == 0; }
+
+std::array<double, 6> ParseBoardPose(const std::string& text) {
+  std::array<double, 6> pose{};
+  std::stringstream ss(text);
+  std::string item;
+  int n = 0;
+  while (std::getline(ss, item, ',')) {
+    if (n >= 6) BOARD_USAGE("--pose: '" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
+    try {
+      size_t used = 0;
+      pose[n] = std::stod(item, &used);
+      if (used != item.size() || !std::isfinite(pose[n])) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      BOARD_USAGE("--pose: '" << text
+                              << "': expected six numbers rx,ry,rz,tx,ty,tz (degrees, mm)");
+    }
+    ++n;
+  }
+  if (n != 6) BOARD_USAGE("--pose: '" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
+  return pose;
+}
+
+Rigid3d BoardPoseToRigid(const std::array<double, 6>& pose) {
+  const Vec3d r(pose[0], pose[1], pose[2]);
+  const double angle = r.norm() * std::numbers::pi / 180.0;
+  Rigid3d t;
+  t.rotation = angle > 0 ? Eigen::AngleAxisd(angle, r.normalized()).toRotationMatrix()
+                         : Mat3d::Identity();
+  t.translation = Vec3d(pose[3], pose[4], pose[5]) * 1e-3;
+  return t;
+}
+
+void WriteRigFile(const fs::path& path, const Rig& rig) {
+  Session s;
+  s.rig = rig;
+  const Json j = SessionToJson(s);
+  WriteJsonFile(path, Json{{"rig", j["rig"]}});
+}
+
+SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOptions& bo,
+                              const fs::path& out_dir) {
+  const auto t_start = std::chrono::steady_clock::now();
+  bo.Check();
+  SimulateOptions o = options;
+  o.ls_frames = 0;
+  o.object = "plane";  // Check() wants a known object; the board replaces it
+  o.Check();
+  if (o.ps_periods_px.empty() || bo.ps_periods_y_px.empty())
+    BOARD_USAGE("board: expected sine periods along both axes (--ps-periods, --ps-periods-y)");
+  const Rig rig = ResolveRig(o);
+  const PinholeCamera& cam = rig.camera;
+  const PinholeCamera& prj = rig.projector;
+  const CalibrationBoard& board = bo.board;
+  const Rigid3d world_from_board = BoardPoseToRigid(bo.pose);
+  const Rigid3d board_from_world = world_from_board.Inverse();
+  const Rigid3d prj_from_world = prj.world_from_device.Inverse();
+  const Vec3d n_world = world_from_board.rotation.col(2);
+  const Vec3d b0 = world_from_board.translation;
+  const Vec3d cam_centre = cam.CentreInWorld(), prj_centre = prj.CentreInWorld();
+  const double r0 = prj_centre.norm();
+  const int W = cam.width, H = cam.height, S = o.supersample;
+  if (n_world.dot(cam_centre - b0) <= 0)
+    BOARD_USAGE("--pose: the camera sees the back of the board at this pose");
+
+  // ---- frame plan: sines along x then y (every period, phases 2 pi k / N), white, black ----
+  const std::string ext = bo.frame_format == "bmp"    ? ".bmp"
+                          : bo.frame_format == "tif8" ? ".tif"
+                                                      : ".png";
+  std::vector<Frame> frames;
+  struct SineSet {
+    char axis;
+    double period;
+  };
+  std::vector<SineSet> sets;
+  for (double p : o.ps_periods_px) sets.push_back({'x', p});
+  for (double p : bo.ps_periods_y_px) sets.push_back({'y', p});
+  std::vector<int> frame_set, frame_phase;  // per frame: set index (-1 white, -2 black), phase k
+  for (size_t si = 0; si < sets.size(); ++si)
+    for (int k = 0; k < o.ps_phases; ++k) {
+      Frame f;
+      f.pattern.type = PatternType::kSine;
+      f.pattern.axis = sets[si].axis;
+      f.pattern.period_px = sets[si].period;
+      f.pattern.phase = kTwoPi * k / o.ps_phases;
+      f.file = "frames/ps" + std::string(1, sets[si].axis) + "_" + Num(sets[si].period) + "_" +
+               std::to_string(k) + ext;
+      frames.push_back(f);
+      frame_set.push_back(static_cast<int>(si));
+      frame_phase.push_back(k);
+    }
+  if (o.white) {
+    Frame f;
+    f.pattern.type = PatternType::kWhite;
+    f.file = "frames/white" + ext;
+    frames.push_back(f);
+    frame_set.push_back(-1);
+    frame_phase.push_back(0);
+  }
+  if (o.black) {
+    Frame f;
+    f.pattern.type = PatternType::kBlack;
+    f.file = "frames/black" + ext;
+    frames.push_back(f);
+    frame_set.push_back(-2);
+    frame_phase.push_back(0);
+  }
+  const int nf = static_cast<int>(frames.size());
+  std::vector<double> cos_phase(nf), sin_phase(nf);
+  for (int f = 0; f < nf; ++f) {
+    cos_phase[f] = std::cos(frames[f].pattern.phase);
+    sin_phase[f] = std::sin(frames[f].pattern.phase);
+  }
+
+  // ---- ray directions: undistorted normalised coordinates on a grid every kGrid px, bilinear
+  // in between (the distortion is smooth: < 1e-4 px error for |k1| ~ 0.1 at 4 px spacing) ----
+  constexpr int kGrid = 4;
+  const int gw = W / kGrid + 3, gh = H / kGrid + 3;
+  std::vector<Vec2d> grid(static_cast<size_t>(gw) * gh);
+  ParallelFor(gh, [&](int64_t gy) {
+    for (int gx = 0; gx < gw; ++gx)
+      grid[gy * gw + gx] = cam.UndistortNormalized(Vec2d(-1.0 + gx * kGrid, -1.0 + gy * kGrid));
+  });
+  auto normalised = [&](double x, double y) {
+    const double fx = (x + 1.0) / kGrid, fy = (y + 1.0) / kGrid;
+    const int ix = std::clamp(static_cast<int>(fx), 0, gw - 2);
+    const int iy = std::clamp(static_cast<int>(fy), 0, gh - 2);
+    const double ax = fx - ix, ay = fy - iy;
+    const Vec2d& a = grid[iy * gw + ix];
+    const Vec2d& b = grid[iy * gw + ix + 1];
+    const Vec2d& c = grid[(iy + 1) * gw + ix];
+    const Vec2d& d = grid[(iy + 1) * gw + ix + 1];
+    return Vec2d((1 - ay) * ((1 - ax) * a + ax * b) + ay * ((1 - ax) * c + ax * d));
+  };
+
+  const NoiseModel noise = MakeNoiseModel(o);
+  const bool eight_bit = bo.frame_format != "png16";
+  const int dn_max = eight_bit ? 255 : (1 << o.adc_bits) - 1;
+  std::vector<double> gains(nf, 1.0);
+  for (int f = 0; f < nf; ++f)
+    gains[f] = 1.0 + noise.GainJitterSigma() * NormalOf(SplitMix(o.seed * 7919 + f));
+  const double half_w = board.HalfWidth() + bo.margin_squares * board.square_m;
+  const double half_h = board.HalfHeight() + bo.margin_squares * board.square_m;
+  const double inv_ss = 1.0 / (S * S);
+  const int nsets = static_cast<int>(sets.size());
+  std::vector<double> rate(nsets);
+  for (int si = 0; si < nsets; ++si) rate[si] = kTwoPi / sets[si].period;
+  std::vector<std::vector<uint16_t>> images(nf, std::vector<uint16_t>(static_cast<size_t>(W) * H));
+  std::atomic<int64_t> lit_pixels{0};
+  SimulateSummary summary;
+  summary.width = W;
+  summary.height = H;
+  summary.frames = nf;
+  const auto t_ray = std::chrono::steady_clock::now();
+  {
+    Progress progress("simulate board", H);
+    ParallelForRows(
+        H,
+        [&](int y0, int y1) {
+          std::vector<double> acc(nf);
+          std::vector<double> set_cos(nsets), set_sin(nsets);
+          for (int py = y0; py < y1; ++py) {
+            for (int px = 0; px < W; ++px) {
+              std::fill(acc.begin(), acc.end(), 0.0);
+              double amb = 0.0;
+              bool any_lit = false;
+              for (int sy = 0; sy < S; ++sy)
+                for (int sx = 0; sx < S; ++sx) {
+                  const double qx = px - 0.5 + (sx + 0.5) / S, qy = py - 0.5 + (sy + 0.5) / S;
+                  // The board point of an image point (NaN if the ray misses the front).
+                  auto board_point = [&](double x, double y, Vec3d* world) {
+                    const Vec2d n = normalised(x, y);
+                    const Vec3d d = cam.world_from_device.rotation * Vec3d(n.x(), n.y(), 1.0);
+                    const double nd = n_world.dot(d);
+                    if (!(nd < 0)) return false;  // parallel to, or the back of, the board
+                    const double t = n_world.dot(b0 - cam_centre) / nd;
+                    if (!(t > 0)) return false;
+                    *world = cam_centre + t * d;
+                    return true;
+                  };
+                  Vec3d p, px_next, py_next;
+                  if (!board_point(qx, qy, &p)) continue;
+                  const Vec3d pb = board_from_world * p;
+                  double albedo = bo.background_albedo;
+                  if (std::abs(pb.x()) <= half_w && std::abs(pb.y()) <= half_h) {
+                    albedo = bo.light_albedo;
+                    if (std::abs(pb.x()) < board.HalfWidth() &&
+                        std::abs(pb.y()) < board.HalfHeight()) {
+                      // The checker box-filtered over the subsample's footprint (its extent
+                      // along the board's axes, from the neighbouring subsamples' board points):
+                      // dark fraction = (1 + <sx> <sy>) / 2, the box filter being separable.
+                      double hx = 0, hy = 0;
+                      if (board_point(qx + 0.5 / S, qy, &px_next) &&
+                          board_point(qx, qy + 0.5 / S, &py_next)) {
+                        const Vec3d ex = board_from_world.rotation * (px_next - p);
+                        const Vec3d ey = board_from_world.rotation * (py_next - p);
+                        hx = (std::abs(ex.x()) + std::abs(ey.x())) / board.square_m;
+                        hy = (std::abs(ex.y()) + std::abs(ey.y())) / board.square_m;
+                      }
+                      const double fx = pb.x() / board.square_m + 0.5 * (board.cols - 1) + 1.0;
+                      const double fy = pb.y() / board.square_m + 0.5 * (board.rows - 1) + 1.0;
+                      const double dark =
+                          0.5 * (1.0 + BoxedSquareWave(fx, hx) * BoxedSquareWave(fy, hy));
+                      albedo = bo.light_albedo + (bo.dark_albedo - bo.light_albedo) * dark;
+                    }
+                  }
+                  amb += albedo;
+                  const Vec3d p_dev = prj_from_world * p;
+                  double uv[2];
+                  if (!prj.ProjectDevice(p_dev.data(), uv)) continue;
+                  if (uv[0] < -0.5 || uv[0] > prj.width - 0.5 || uv[1] < -0.5 ||
+                      uv[1] > prj.height - 0.5)
+                    continue;
+                  Vec3d l = prj_centre - p;
+                  const double r = l.norm();
+                  const double cos_i = n_world.dot(l) / r;
+                  if (!(cos_i > 0)) continue;
+                  any_lit = true;
+                  const double sh = albedo * cos_i * (r0 / r) * (r0 / r);
+                  const double sigma =
+                      o.blur_sigma_px + o.defocus_px_per_m * std::abs(p.z() - o.focus_height_m);
+                  for (int si = 0; si < nsets; ++si) {
+                    const double x = sets[si].axis == 'x' ? uv[0] : uv[1];
+                    // The projected sine blurred by a Gaussian (sigma) and a pixel box of the
+                    // fill factor: its amplitude times exp(-2 pi^2 s^2 / p^2) sinc(fill / p).
+                    const double pf = sets[si].period;
+                    const double arg = std::numbers::pi * o.fill_factor / pf;
+                    const double att =
+                        std::exp(-2.0 * std::numbers::pi * std::numbers::pi * sigma * sigma /
+                                 (pf * pf)) *
+                        std::sin(arg) / arg;
+                    set_cos[si] = sh * 0.5 * att * std::cos(rate[si] * x);
+                    set_sin[si] = sh * 0.5 * att * std::sin(rate[si] * x);
+                  }
+                  for (int f = 0; f < nf; ++f) {
+                    const int si = frame_set[f];
+                    if (si >= 0)
+                      acc[f] += 0.5 * sh + set_cos[si] * cos_phase[f] - set_sin[si] * sin_phase[f];
+                    else if (si == -1)
+                      acc[f] += sh;
+                  }
+                }
+              if (any_lit) lit_pixels.fetch_add(1, std::memory_order_relaxed);
+              const size_t pix = static_cast<size_t>(py) * W + px;
+              for (int f = 0; f < nf; ++f) {
+                const double light = frame_set[f] == -2 ? 0.0 : acc[f] * inv_ss;
+                const double mean = o.exposure * (light + o.ambient * amb * inv_ss);
+                double value = rig.projector_response.kind == Response::Kind::kLinear
+                                   ? mean
+                                   : mean;  // the board is simulated with a linear projector
+                value *= gains[f];
+                if (o.noise > 0)
+                  value += noise.Sigma(mean) *
+                           NormalOf(SplitMix((o.seed << 40) ^ (static_cast<uint64_t>(f) << 32) ^
+                                             pix));
+                const int dn =
+                    static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
+                images[f][pix] = eight_bit ? static_cast<uint16_t>(dn)
+                                           : static_cast<uint16_t>(std::lround(
+                                                 dn * (65535.0 / dn_max)));
+              }
+            }
+            progress.Advance();
+          }
+        },
+        8);
+    progress.Finish();
+  }
+  summary.seconds_raycast = Seconds(t_ray);
+  summary.lit_pixels = lit_pixels.load();
+  summary.rays = static_cast<int64_t>(W) * H * S * S;
+
+  const auto t_frames = std::chrono::steady_clock::now();
+  auto fill = [&](const fs::path& dir) {
+    fs::create_directories(dir / "frames");
+    ParallelFor(nf, [&](int64_t f) {
+      const fs::path path = dir / frames[f].file;
+      if (!eight_bit) {
+        ImageU16 image(W, H, 1);
+        std::copy(images[f].begin(), images[f].end(), image.channel(0));
+        WritePng16(path, image, 1);
+        return;
+      }
+      std::vector<uint8_t> bytes(images[f].begin(), images[f].end());
+      auto out = OIIO::ImageOutput::create(path.string());
+      if (!out) MESOSCAN_THROW(ErrorKind::kInternal, path.string() << ": no image writer");
+      OIIO::ImageSpec spec(W, H, 1, OIIO::TypeDesc::UINT8);
+      if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::UINT8, bytes.data()) ||
+          !out->close())
+        MESOSCAN_THROW(ErrorKind::kInternal, path.string() << ": cannot write (" << out->geterror()
+                                                           << ")");
+    });
+    Session s;
+    s.root = dir;
+    s.created = SessionTimeNow();
+    s.object = "calibration board " + board.ToString();
+    s.rig = rig;
+    s.rig.uncalibrated = true;
+    s.rig.lens_shifter.reset();
+    s.frames = frames;
+    Session truth;
+    truth.rig = rig;
+    truth.rig.uncalibrated = false;
+    const Json truth_json = SessionToJson(truth);
+    s.extra["simulation"] = {
+        {"board", board.ToString()},
+        {"pose_deg_mm", Json(std::vector<double>(bo.pose.begin(), bo.pose.end()))},
+        {"world_from_board", Json::array()},
+        {"true_rig", truth_json["rig"]},
+        {"dark_albedo", bo.dark_albedo},
+        {"light_albedo", bo.light_albedo},
+        {"noise", o.noise},
+        {"full_well_e", o.full_well_e},
+        {"read_noise_e", o.read_noise_e},
+        {"supersample", o.supersample},
+        {"frame_format", bo.frame_format},
+        {"seed", o.seed}};
+    const Mat4d m = world_from_board.Matrix();
+    for (int r = 0; r < 4; ++r)
+      s.extra["simulation"]["world_from_board"].push_back({m(r, 0), m(r, 1), m(r, 2), m(r, 3)});
+    WriteSessionJson(s);
+  };
+  WriteFolderAtomically(out_dir, fill);
+  summary.seconds_frames = Seconds(t_frames);
+  summary.seconds_total = Seconds(t_start);
+  return summary;
+}
+
+}  // namespace mesoscan

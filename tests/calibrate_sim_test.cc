@@ -1,0 +1,496 @@
+// Calibration round trips through the virtual rig (heightfield/calibrate.h, sim/board_sim.h):
+// boards at known poses in front of a rig with distortion on both devices, calibrated, compared
+// with the truth; then the coin and the empty mount reconstructed with the calibrated rig.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <numbers>
+
+#include "capture/session.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/progress.h"
+#include "core/scan_folder.h"
+#include "heightfield/calibrate.h"
+#include "heightfield/reconstruct.h"
+#include "sim/board_sim.h"
+#include "sim/virtual_rig.h"
+#include "tests/cli_util.h"
+
+namespace fs = std::filesystem;
+
+namespace mesoscan {
+namespace {
+
+// The paper rig (sim/README.md) with lens distortion on both devices.
+Rig DistortedRig() {
+  Rig rig = PaperRig();
+  rig.camera.distortion = {-0.09, 0.15, 3e-4, -2e-4, 0.0};
+  rig.projector.distortion = {0.06, -0.08, -2e-4, 3e-4, 0.0};
+  return rig;
+}
+
+const CalibrationBoard& Board() {
+  static const CalibrationBoard b = CalibrationBoard::Parse("checker:10x7:6", "test");
+  return b;
+}
+
+// Thirteen poses (degrees, mm): the board on the mount, then twelve with tilts up to 35 degrees
+// about both axes, turns up to 20 degrees about the normal, +-15 mm in height.
+const std::vector<std::array<double, 6>>& Poses() {
+  static const std::vector<std::array<double, 6>> p = {
+      {0, 0, 0, 0, 0, 0},          {30, 0, 0, 0, 0, 5},          {-30, 0, 10, 0, 0, 5},
+      {0, 30, -10, 0, 0, 0},       {0, -30, 5, 0, 0, 10},        {25, 25, 20, -5, 5, 0},
+      {-25, 25, -20, 5, -5, 8},    {25, -25, 15, 5, 5, -5},      {-25, -25, -15, -5, -5, 12},
+      {35, 0, 20, 0, 0, -8},       {0, 35, -20, 0, 0, 15},       {-20, -20, 5, 8, 0, 0},
+      {20, 20, 0, -8, 0, -10}};
+  return p;
+}
+
+fs::path Dir(const std::string& name) { return CliTempDir("calibrate_sim", name); }
+
+SimulateOptions BoardSimBase(const fs::path& rig_file) {
+  SimulateOptions so;
+  so.rig = rig_file.string();
+  so.supersample = 1;  // the checker is box-filtered analytically (sim/board_sim.cc)
+  so.ps_phases = 3;
+  so.white = false;
+  so.black = false;
+  so.ls_frames = 0;
+  return so;
+}
+
+struct Fixture : public ::testing::Test {
+  static void SetUpTestSuite() {
+    Progress::SetEnabled(false);
+    truth_ = new Rig(DistortedRig());
+    rig_file_ = new fs::path(Dir("true_rig.json"));
+    WriteRigFile(*rig_file_, *truth_);
+    SimulateOptions so = BoardSimBase(*rig_file_);
+    so.ps_periods_px = {800, 50};
+    // Default noise except the per-frame gain jitter (0.5%): with 3 phases per period it
+    // cannot be told from a pixel's phase, and it moves every projector corner of a view
+    // together (0.036 instead of 0.018 px RMS here): with it, 12 views give a relative pose
+    // within 0.043 mm / 0.023 deg and the projector's cx within 0.67 px only (issue 11's
+    // closing note).
+    so.gain_jitter = 0.0;
+    BoardSimOptions bo;
+    bo.board = Board();
+    bo.ps_periods_y_px = {600, 37.5};
+    sessions_ = new std::vector<fs::path>;
+    views_ = new std::vector<CalibrationView>;
+    CalibrateOptions co;
+    co.board = Board();
+    for (size_t i = 0; i < Poses().size(); ++i) {
+      bo.pose = Poses()[i];
+      so.seed = 100 + i;
+      const fs::path dir = Dir("view" + std::to_string(i));
+      SimulateBoard(so, bo, dir);
+      sessions_->push_back(dir);
+      views_->push_back(DetectView(ReadSession(dir), co));
+    }
+  }
+  static void TearDownTestSuite() {
+    for (const auto& d : *sessions_) fs::remove_all(d);
+    fs::remove(*rig_file_);
+    delete sessions_;
+    delete views_;
+    delete truth_;
+    delete rig_file_;
+  }
+  // The mount view is Poses()[0] (the board lying on the mount): views 1.. are the others.
+  static CalibrationResult Run(const CalibrateOptions& co) {
+    std::vector<CalibrationView> views(views_->begin() + 1, views_->end());
+    return Calibrate(views, SizeRig(), (*views_)[0], co);
+  }
+  static Rig SizeRig() {
+    Rig r = *truth_;
+    r.uncalibrated = true;
+    return r;
+  }
+  static Rig* truth_;
+  static fs::path* rig_file_;
+  static std::vector<fs::path>* sessions_;
+  static std::vector<CalibrationView>* views_;
+};
+Rig* Fixture::truth_ = nullptr;
+fs::path* Fixture::rig_file_ = nullptr;
+std::vector<fs::path>* Fixture::sessions_ = nullptr;
+std::vector<CalibrationView>* Fixture::views_ = nullptr;
+
+using CalibrateSim = Fixture;
+
+double AngleDeg(const Mat3d& r) { return Eigen::AngleAxisd(r).angle() * 180.0 / std::numbers::pi; }
+
+TEST_F(CalibrateSim, RecoversTheRigFromTwelvePoses) {
+  CalibrateOptions co;
+  co.board = Board();
+  co.fix_k3 = true;  // the simulated lenses have k3 = 0
+  const CalibrationResult r = Run(co);
+  const Rig& t = *truth_;
+  std::printf("%s\n", r.BriefReport().c_str());
+  std::printf("uncertainties (1 sigma): %s\n", r.uncertainties.dump().c_str());
+  ASSERT_EQ(r.views_used, 12);
+  // Observation noise: the detected corners against their true images.
+  double sc = 0, sp = 0;
+  int nc = 0, np = 0;
+  for (size_t i = 0; i < Poses().size(); ++i) {
+    const CalibrationView& v = (*views_)[i];
+    ASSERT_TRUE(v.found) << v.name;
+    const Rigid3d world_from_board = BoardPoseToRigid(Poses()[i]);
+    for (int k = 0; k < Board().num_corners(); ++k) {
+      const Vec3d x = world_from_board * Board().Corner(k);
+      Vec2d uc, up;
+      ASSERT_TRUE(t.camera.Project(x, &uc));
+      ASSERT_TRUE(t.projector.Project(x, &up));
+      sc += (v.camera_px[k] - uc).squaredNorm();
+      ++nc;
+      if (v.projector_px[k].allFinite()) {
+        sp += (v.projector_px[k] - up).squaredNorm();
+        ++np;
+      }
+    }
+  }
+  const double obs_cam = std::sqrt(sc / nc), obs_prj = std::sqrt(sp / np);
+  std::printf("observation error RMS: camera corners %.4f px, projector corners %.4f px (%d of %d "
+              "decoded)\n",
+              obs_cam, obs_prj, np, nc);
+  EXPECT_EQ(np, nc);
+  const auto& cam = r.rig.camera;
+  const auto& prj = r.rig.projector;
+  std::printf("camera fx %.3f fy %.3f cx %.3f cy %.3f (true %.3f %.3f %.3f %.3f)\n", cam.K(0, 0),
+              cam.K(1, 1), cam.K(0, 2), cam.K(1, 2), t.camera.K(0, 0), t.camera.K(1, 1),
+              t.camera.K(0, 2), t.camera.K(1, 2));
+  std::printf("projector fx %.3f fy %.3f cx %.3f cy %.3f (true %.3f %.3f %.3f %.3f)\n", prj.K(0, 0),
+              prj.K(1, 1), prj.K(0, 2), prj.K(1, 2), t.projector.K(0, 0), t.projector.K(1, 1),
+              t.projector.K(0, 2), t.projector.K(1, 2));
+  for (int d = 0; d < 2; ++d) {
+    const PinholeCamera& e = d ? prj : cam;
+    const PinholeCamera& g = d ? t.projector : t.camera;
+    EXPECT_NEAR(e.K(0, 0) / g.K(0, 0), 1.0, 1e-3) << d;
+    EXPECT_NEAR(e.K(1, 1) / g.K(1, 1), 1.0, 1e-3) << d;
+    EXPECT_NEAR(e.K(0, 2), g.K(0, 2), 0.5) << d;
+    EXPECT_NEAR(e.K(1, 2), g.K(1, 2), 0.5) << d;
+  }
+  // Relative pose prj_from_cam.
+  const Rigid3d rel = prj.world_from_device.Inverse() * cam.world_from_device;
+  const Rigid3d rel_true = t.projector.world_from_device.Inverse() * t.camera.world_from_device;
+  const double dt_mm = (rel.translation - rel_true.translation).norm() * 1e3;
+  const double dr_deg = AngleDeg(rel.rotation * rel_true.rotation.transpose());
+  std::printf("relative pose error: %.4f mm, %.5f deg (baseline %.2f mm)\n", dt_mm, dr_deg,
+              rel_true.translation.norm() * 1e3);
+  {
+    // The plain baseline on the same corners: OpenCV's stereoCalibrate refining everything.
+    const Json& j = r.opencv["joint"];
+    const Vec3d t_cv(j["prj_from_cam_translation_m"][0].get<double>(),
+                     j["prj_from_cam_translation_m"][1].get<double>(),
+                     j["prj_from_cam_translation_m"][2].get<double>());
+    std::printf("OpenCV stereoCalibrate: camera fx %.3f cx %.3f cy %.3f, projector fx %.3f cx %.3f "
+                "cy %.3f, translation error %.4f mm, rotation %.5f deg (true %.5f), RMS %.4f px\n",
+                j["camera"]["fx"].get<double>(), j["camera"]["cx"].get<double>(),
+                j["camera"]["cy"].get<double>(), j["projector"]["fx"].get<double>(),
+                j["projector"]["cx"].get<double>(), j["projector"]["cy"].get<double>(),
+                (t_cv - rel_true.translation).norm() * 1e3,
+                j["prj_from_cam_rotation_deg"].get<double>(), AngleDeg(rel_true.rotation),
+                j["rms_px"].get<double>());
+  }
+  EXPECT_LT(dt_mm, 0.02);
+  EXPECT_LT(dr_deg, 0.01);
+  // The world is the mount board, which lies at the true world origin: absolute poses too.
+  const double cam_mm = (cam.world_from_device.translation - t.camera.world_from_device.translation).norm() * 1e3;
+  std::printf("camera centre error %.4f mm\n", cam_mm);
+  EXPECT_LT(cam_mm, 0.1);
+  // Reprojection RMS consistent with the observation noise: the adjustment fits n - p of the
+  // n residual degrees of freedom, so RMS ~ observation RMS (to within the model's own error).
+  std::printf("reprojection RMS camera %.4f px (observations %.4f), projector %.4f (%.4f)\n",
+              r.rms_camera_px, obs_cam, r.rms_projector_px, obs_prj);
+  EXPECT_GT(r.rms_camera_px, 0.6 * obs_cam);
+  EXPECT_LT(r.rms_camera_px, 1.2 * obs_cam);
+  EXPECT_GT(r.rms_projector_px, 0.6 * obs_prj);
+  EXPECT_LT(r.rms_projector_px, 1.2 * obs_prj);
+  // Uncertainties were computed.
+  EXPECT_TRUE(r.uncertainties.contains("camera")) << r.uncertainties.dump();
+  for (const auto& v : r.views) EXPECT_FALSE(v.outlier) << v.name;
+}
+
+// Bad input: a view without the board is named and skipped, and with fewer than 3 usable views
+// calibration refuses; a wrong board size finds nothing; views all at one pose are degenerate.
+TEST_F(CalibrateSim, BadInput) {
+  CalibrateOptions co;
+  co.board = Board();
+  // The board moved out of the camera's view.
+  SimulateOptions so = BoardSimBase(*rig_file_);
+  so.ps_periods_px = {800, 50};
+  BoardSimOptions bo;
+  bo.board = Board();
+  bo.ps_periods_y_px = {600, 37.5};
+  bo.pose = {0, 0, 0, 150, 0, 0};
+  const fs::path away = Dir("away");
+  SimulateBoard(so, bo, away);
+  const CalibrationView none = DetectView(ReadSession(away), co);
+  EXPECT_FALSE(none.found);
+  EXPECT_NE(none.problem.find("no 10x7 checkerboard found"), std::string::npos) << none.problem;
+  try {
+    Calibrate({(*views_)[1], none, (*views_)[2]}, SizeRig(), std::nullopt, co);
+    ADD_FAILURE() << "two usable views accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("2 of 3 views usable"), std::string::npos) << msg;
+    EXPECT_NE(msg.find(away.string()), std::string::npos) << msg;
+  }
+  // The CLI: the skipped view is named, exit 3.
+  const CliResult cli = RunMesoscan("calibrate " + (*sessions_)[1].string() + " " + away.string() + " " +
+                                    (*sessions_)[2].string() + " --board checker:10x7:6 --out " +
+                                    Dir("bad_rig.json").string());
+  EXPECT_EQ(cli.code, 3) << cli.output;
+  EXPECT_NE(cli.output.find("skipped"), std::string::npos) << cli.output;
+  EXPECT_FALSE(fs::exists(Dir("bad_rig.json")));
+  fs::remove_all(away);
+  // A wrong board size.
+  CalibrateOptions wrong = co;
+  wrong.board = CalibrationBoard::Parse("checker:9x7:6", "test");
+  const CalibrationView w = DetectView(ReadSession((*sessions_)[1]), wrong);
+  EXPECT_FALSE(w.found);
+  EXPECT_NE(w.problem.find("no 9x7 checkerboard found"), std::string::npos) << w.problem;
+  // Every view at one pose.
+  try {
+    Calibrate({(*views_)[3], (*views_)[3], (*views_)[3], (*views_)[3]}, SizeRig(), std::nullopt,
+              co);
+    ADD_FAILURE() << "views at one pose accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
+    EXPECT_NE(std::string(e.what()).find("one pose"), std::string::npos) << e.what();
+  }
+}
+
+// `mesoscan calibrate` writes a rig `reconstruct` reads, the report and its PNGs; `check` calls a
+// board session a calibration session and `reconstruct` refuses it (exit 3).
+TEST_F(CalibrateSim, CommandLine) {
+  const fs::path rig = Dir("rig.json"), report = Dir("report");
+  std::string args;
+  for (size_t i = 1; i < sessions_->size(); ++i) args += (*sessions_)[i].string() + " ";
+  const CliResult r = RunMesoscan("calibrate " + args + "--mount " + (*sessions_)[0].string() +
+                                  " --board checker:10x7:6 --fix k3 --out " + rig.string() +
+                                  " --report " + report.string());
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NO_THROW(LoadRigFile(rig));
+  for (const char* f : {"report.json", "residuals_camera.png", "residuals_projector.png",
+                        "coverage_camera.png", "coverage_projector.png"})
+    EXPECT_TRUE(fs::exists(report / f)) << f;
+  const Json j = ReadJsonFile(report / "report.json");
+  EXPECT_EQ(j["views"].size(), 13u);
+  EXPECT_TRUE(j.contains("opencv_baseline"));
+  EXPECT_TRUE(j["uncertainties"].contains("prj_from_cam"));
+  const CliResult check = RunMesoscan("check " + (*sessions_)[0].string());
+  EXPECT_EQ(check.code, 0) << check.output;
+  EXPECT_NE(check.output.find("calibration session"), std::string::npos) << check.output;
+  const CliResult rec =
+      RunMesoscan("reconstruct " + (*sessions_)[0].string() + " --out " + Dir("scan").string());
+  EXPECT_EQ(rec.code, 3) << rec.output;
+  EXPECT_NE(rec.output.find("calibration session"), std::string::npos) << rec.output;
+  fs::remove_all(report);
+  fs::remove(rig);
+}
+
+// Reconstructs `object` on the demo crop with the true rig and with `calibrated` (same frames).
+struct TwoScans {
+  ImageF true_z, calibrated_z;
+};
+TwoScans ScanBoth(const std::string& object, const fs::path& rig_file, const Rig& calibrated,
+                  const std::array<int, 4>& crop, uint64_t seed) {
+  SimulateOptions so;
+  so.object = object;
+  so.rig = rig_file.string();
+  so.crop = crop;
+  so.seed = seed;
+  const fs::path dir = Dir("scan_" + std::to_string(seed));
+  Simulate(so, dir);
+  Session s = ReadSession(dir);
+  ReconstructOptions ro;
+  TwoScans out;
+  out.true_z = Reconstruct(s, ro).points.xyz;
+  Rig rig = calibrated;
+  rig.camera = CropCamera(rig.camera, crop);
+  rig.lens_shifter = s.rig.lens_shifter;
+  s.rig.camera = rig.camera;
+  s.rig.projector = rig.projector;
+  out.calibrated_z = Reconstruct(s, ro).points.xyz;
+  fs::remove_all(dir);
+  return out;
+}
+
+// The coin reconstructed with the calibrated rig: depth within 1 um RMS of the true-rig scan, no
+// gross errors; the empty mount at z = 0 within 2 um RMS.
+TEST_F(CalibrateSim, CoinAndMountWithTheCalibratedRig) {
+  CalibrateOptions co;
+  co.board = Board();
+  co.fix_k3 = true;
+  const CalibrationResult r = Run(co);
+  const std::array<int, 4> crop = {400, 400, 888, 517};  // the demo window
+  {
+    const TwoScans t = ScanBoth("coin", *rig_file_, r.rig, crop, 7);
+    double s = 0;
+    int n = 0, gross = 0;
+    for (size_t i = 0; i < t.true_z.pixels(); ++i) {
+      const float a = t.true_z.channel(2)[i], b = t.calibrated_z.channel(2)[i];
+      if (!std::isfinite(a) || !std::isfinite(b)) continue;
+      s += (a - b) * (a - b);
+      gross += std::abs(a - b) > 10e-6;
+      ++n;
+    }
+    const double rms = std::sqrt(s / n);
+    std::printf("coin: depth RMS calibrated vs true rig %.3f um over %d pixels, %d > 10 um\n",
+                rms * 1e6, n, gross);
+    EXPECT_GT(n, 100000);
+    EXPECT_LT(rms, 1e-6);
+    EXPECT_EQ(gross, 0);
+  }
+  {
+    // The empty mount: a flat height field of zeros (the mount plane z = 0 extends beyond it).
+    const fs::path flat = Dir("flat.exr");
+    HeightField hf;
+    hf.z = ImageF(4, 4, 1, 0.0f);
+    hf.confidence = ImageF(4, 4, 1, 1.0f);
+    hf.pixel_size = 1e-3;
+    hf.x0 = -1.5e-3;
+    hf.y0 = 1.5e-3;
+    WriteHeightExr(flat, hf);
+    const TwoScans t = ScanBoth(flat.string(), *rig_file_, r.rig, crop, 8);
+    double s = 0, s_true = 0;
+    int n = 0;
+    for (size_t i = 0; i < t.calibrated_z.pixels(); ++i) {
+      const float b = t.calibrated_z.channel(2)[i], a = t.true_z.channel(2)[i];
+      if (!std::isfinite(b) || !std::isfinite(a)) continue;
+      s += b * b;
+      s_true += a * a;
+      ++n;
+    }
+    const double rms = std::sqrt(s / n);
+    std::printf("empty mount: z RMS %.3f um with the calibrated rig, %.3f um with the true rig "
+                "(%d pixels)\n",
+                rms * 1e6, std::sqrt(s_true / n) * 1e6, n);
+    EXPECT_GT(n, 100000);
+    EXPECT_LT(rms, 2e-6);
+    fs::remove(flat);
+  }
+}
+
+// The held-back real captures' shape: 8-bit BMP frames 1688x1352, projector 1824x1140, 3 phases
+// of 16 periods (114 px / 71.25 px) and of a one-period cue as wide (high) as the projector per
+// axis, no white frame, a low-contrast 13x9 board of 10 mm squares. The session reads as a
+// calibration session, its frames load as 8-bit, the board is found on the mean of a phase set
+// and every corner is taken into the projector.
+TEST(CalibrateRealShape, EightBitBmpSixteenPeriodsPlusCue) {
+  Progress::SetEnabled(false);
+  Rig rig;
+  rig.camera.width = 1688;
+  rig.camera.height = 1352;
+  rig.camera.K << 3400, 0, 843.5, 0, 3400, 675.5, 0, 0, 1;
+  rig.camera.distortion = {-0.05, 0.08, 0, 0, 0};
+  Mat4d m;
+  m << 1, 0, 0, 0, 0, -1, 0, 0, 0, 0, -1, 0.4, 0, 0, 0, 1;
+  rig.camera.world_from_device = Rigid3d::FromMatrix(m);
+  rig.projector.width = 1824;
+  rig.projector.height = 1140;
+  rig.projector.K << 3000, 0, 911.5, 0, 3000, 569.5, 0, 0, 1;
+  rig.projector.distortion = {0.03, 0, 0, 0, 0};
+  const double a = 15.0 * std::numbers::pi / 180.0, dist = 0.42;
+  rig.projector.world_from_device.rotation.col(0) = Vec3d(std::cos(a), 0, -std::sin(a));
+  rig.projector.world_from_device.rotation.col(1) = Vec3d(0, -1, 0);
+  rig.projector.world_from_device.rotation.col(2) = Vec3d(-std::sin(a), 0, -std::cos(a));
+  rig.projector.world_from_device.translation = Vec3d(dist * std::sin(a), 0, dist * std::cos(a));
+  const fs::path rig_file = Dir("real_shape_rig.json");
+  WriteRigFile(rig_file, rig);
+  SimulateOptions so = BoardSimBase(rig_file);
+  so.ps_periods_px = {1824, 114};
+  so.defocus_px_per_m = 50;
+  // Per-frame gain jitter off: with 3 phases per period it cannot be told from each pixel's
+  // phase (frames.h), and 0.5% of it moves the projector corners by ~0.11 px RMS (0.154 px
+  // without the shared-offset gain estimate; 0.026 px without jitter). This test is about the
+  // shape of the data (8-bit BMP, one-period cue, no white frame).
+  so.gain_jitter = 0.0;
+  BoardSimOptions bo;
+  bo.board = CalibrationBoard::Parse("checker:13x9:10", "test");
+  bo.ps_periods_y_px = {1140, 71.25};
+  bo.frame_format = "bmp";
+  bo.dark_albedo = 0.45;
+  bo.light_albedo = 0.8;
+  bo.pose = {10, -8, 3, 5, -4, 5};
+  const fs::path dir = Dir("real_shape");
+  SimulateBoard(so, bo, dir);
+  const Session s = ReadSession(dir);
+  EXPECT_TRUE(s.rig.uncalibrated);
+  EXPECT_EQ(s.frames.size(), 12u);
+  for (const ImageInfo& info : CheckSessionFiles(s)) EXPECT_EQ(info.bits_per_sample, 8);
+  CalibrateOptions co;
+  co.board = bo.board;
+  const CalibrationView v = DetectView(s, co);
+  ASSERT_TRUE(v.found) << v.problem;
+  // Corners against their true images (the 13x9 board is symmetric under a half turn: either
+  // labelling is a valid board frame, so compare with the nearer one).
+  const Rigid3d world_from_board = BoardPoseToRigid(bo.pose);
+  const int nc = bo.board.num_corners();
+  double best_c = 1e30, best_p = 1e30;
+  int decoded = 0;
+  for (int flip = 0; flip < 2; ++flip) {
+    double sc = 0, sp = 0;
+    int np = 0;
+    for (int k = 0; k < nc; ++k) {
+      const Vec3d x = world_from_board * bo.board.Corner(flip ? nc - 1 - k : k);
+      Vec2d uc, up;
+      ASSERT_TRUE(rig.camera.Project(x, &uc));
+      ASSERT_TRUE(rig.projector.Project(x, &up));
+      sc += (v.camera_px[k] - uc).squaredNorm();
+      if (v.projector_px[k].allFinite()) {
+        sp += (v.projector_px[k] - up).squaredNorm();
+        ++np;
+      }
+    }
+    if (sc < best_c) {
+      best_c = sc;
+      best_p = np ? sp / np : 1e30;
+      decoded = np;
+    }
+  }
+  const double rms_c = std::sqrt(best_c / nc), rms_p = std::sqrt(best_p);
+  std::printf("real shape: camera corners RMS %.4f px, projector corners RMS %.4f px (%d of %d)\n",
+              rms_c, rms_p, decoded, nc);
+  EXPECT_EQ(decoded, nc);
+  // Measured 0.032 / 0.026 px; the noise-free floor of the simulation is 0.027 / 0.022 px.
+  EXPECT_LT(rms_c, 0.06);
+  EXPECT_LT(rms_p, 0.06);
+  // Decoded (u, v) along a row through the board against the truth.
+  std::vector<uint32_t> pixels;
+  for (int x = 500; x < 1200; ++x) pixels.push_back(676u * 1688u + x);
+  const ProjectorCoordinates pc = DecodeProjectorCoordinates(s, pixels, co);
+  EXPECT_EQ(pc.eight_bit_frames, 12);
+  int ok = 0;
+  double su = 0;
+  Vec2d mean_err(0, 0);
+  const Vec3d n = world_from_board.rotation.col(2), b0 = world_from_board.translation;
+  for (size_t i = 0; i < pixels.size(); ++i) {
+    if (!std::isfinite(pc.u[i]) || !std::isfinite(pc.v[i])) continue;
+    const Vec2d uv(pixels[i] % 1688, pixels[i] / 1688);
+    const Vec3d d = rig.camera.RayDirectionInWorld(uv), o = rig.camera.CentreInWorld();
+    const Vec3d x = o + d * (n.dot(b0 - o) / n.dot(d));
+    Vec2d up;
+    ASSERT_TRUE(rig.projector.Project(x, &up));
+    su += (Vec2d(pc.u[i], pc.v[i]) - up).squaredNorm();
+    mean_err += Vec2d(pc.u[i], pc.v[i]) - up;
+    ++ok;
+  }
+  std::printf("real shape: %d of %zu row pixels decoded, (u, v) RMS error %.3f px, mean %.3f "
+              "%.3f px\n",
+              ok, pixels.size(), std::sqrt(su / ok), mean_err.x() / ok, mean_err.y() / ok);
+  EXPECT_GT(ok, 600);
+  EXPECT_LT(std::sqrt(su / ok), 0.5);  // 8-bit, 3 phases: per-pixel noise, no gross errors
+  fs::remove_all(dir);
+  fs::remove(rig_file);
+}
+
+}  // namespace
+}  // namespace mesoscan
