@@ -98,8 +98,8 @@ void AddSimulateCommand(CLI::App* app) {
                   "Blur sigma growth per metre of |z - focus height|, px/m")
       ->capture_default_str();
   cmd->add_option("--focus-height", o.focus_height_m,
-                  "Height of the projector's focus plane, m (0 = the mount)")
-      ->capture_default_str();
+                  "Height of the projector's focus plane, m (0 = the mount; default: the "
+                  "object's mid height)");
   cmd->add_option("--shift-gain-x", o.shift_gain_x, "Lens-shifter gain: linear term in un")
       ->capture_default_str();
   cmd->add_option("--shift-gain-y", o.shift_gain_y, "Lens-shifter gain: linear term in vn")
@@ -121,6 +121,9 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--adc-bits", o.adc_bits, "ADC bits (8..16), stored in 16-bit PNG")
       ->capture_default_str();
   cmd->add_option("--gain-jitter", o.gain_jitter, "Per-frame gain jitter, relative sigma")
+      ->capture_default_str();
+  cmd->add_option("--shift-position-error", o.shift_position_error_px,
+                  "Lens-shifter position error per frame, RMS in projector px")
       ->capture_default_str();
   cmd->callback([args] {
     SimulateOptions opt = args->o;

@@ -19,6 +19,7 @@
 #include "core/log.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "heightfield/frame_corrections.h"
 #include "heightfield/phase_shift.h"
 #include "heightfield/triangulate.h"
 
@@ -144,6 +145,9 @@ void ReconstructOptions::Check() const {
   if (!(min_confidence >= 0 && min_confidence < 1))
     MESOSCAN_BAD_INPUT("min_confidence: expected a value in [0, 1), got " << min_confidence);
   mixed_pixels.Check();
+  if (!(phase_shift_fallback_confidence > 0 && phase_shift_fallback_confidence <= 1))
+    MESOSCAN_BAD_INPUT("phase_shift_fallback_confidence: expected a value in (0, 1], got "
+                       << phase_shift_fallback_confidence);
   if (!(systematic_phase_noise >= 0))
     MESOSCAN_BAD_INPUT("systematic_phase_noise: expected >= 0, got " << systematic_phase_noise);
   resample.Check();
@@ -160,6 +164,10 @@ Json ReconstructOptions::ToJson() const {
   j["lens_shift_box_filter"] = lens_shift_box_filter;
   j["fit_frequency"] = fit_frequency;
   j["smooth_frequency"] = smooth_frequency;
+  j["phase_shift_fallback"] = phase_shift_fallback;
+  j["phase_shift_fallback_confidence"] = phase_shift_fallback_confidence;
+  j["frame_gain_method"] = FrameGainMethodName(frame_gain_method);
+  j["correct_positions"] = correct_positions;
   j["min_lit"] = min_lit;
   j["min_modulation"] = min_modulation;
   j["max_unwrap_residual"] = max_unwrap_residual;
@@ -213,6 +221,7 @@ Json ReconstructSummary::ToJson() const {
                  {"rejected_discontinuity", pixels_rejected_discontinuity}};
   j["frames"] = {{"lens_shift", lens_shift_frames}, {"phase_shift", phase_shift_frames}};
   j["frame_gains"] = frame_gains;
+  j["frame_corrections"] = frame_corrections;
   j["unwrapping"] = unwrapping;
   j["used_lens_shift"] = used_lens_shift;
   j["predicted_depth_rms_m"] = predicted_depth_rms_m;
@@ -516,6 +525,10 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                 f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
             if (!fit.valid) {
               state[i] = kFitFailed;
+              if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
+                ls_rms[i] = static_cast<float>(fit.residual_rms);
+                ls_n[i] = static_cast<float>(fit.samples_used);
+              }
               continue;
             }
             // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
@@ -547,6 +560,15 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
       if (!f_map.empty()) {
         LensShiftFitOptions fo2 = fo;
         fo2.fit_frequency = false;
+        if (!box) {  // issue 13: joint frame gains and positions
+          FrameCorrectionOptions fco;
+          fco.method = options.frame_gain_method;
+          fco.estimate_positions = options.correct_positions;
+          const FrameCorrections fc =
+              CorrectLensShiftFrames(stack, ls_stack, ls_freq, f_map, &x, &inv_gain, fco);
+          for (int k = 0; k < nls; ++k) sum.frame_gains[wanted[ls_stack[k]]] = 1.0 / inv_gain[ls_stack[k]];
+          sum.frame_corrections = fc.ToJson();
+        }
         fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
       } else if (subset.stride > 1) {
         // No frequency map: the 4-parameter fit everywhere else too.
@@ -564,9 +586,14 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   // ---- 5./6. Unwrapping, combination (paper Eq. 2), confidence (paper Eq. 4).
   std::vector<float> u_final(np, kNaN), u_coarse(np, kNaN), unwrap_res(np, kNaN),
       conf(np, 0.0f), sigma_u(np, kNaN);
+  // Which cue fixed u (points.exr `source`): 0 lens shift, 1 phase shifting alone.
+  std::vector<uint8_t> source(np, use_ls ? 0 : 1);
+  const bool fallback = use_ls && options.phase_shift_fallback;
   ParallelForRows(h, [&](int y0, int y1) {
     std::vector<double> th(nper), wt(nper);
     for (size_t i = static_cast<size_t>(y0) * w; i < static_cast<size_t>(y1) * w; ++i) {
+      // Issue 13, graceful defocus: a failed lens-shift fit falls back to phase shifting.
+      if (state[i] == kFitFailed && fallback) state[i] = kActive;
       if (state[i] != kActive) continue;
       // Per-sample noise: from the lens-shift residual (many samples) or the phase-shift
       // residuals (K > 3), else a floor of 1% of the white level; plus a systematic part
@@ -602,7 +629,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         continue;
       }
       double u = ur.u, c = 1.0;
-      if (use_ls) {
+      bool ls_pixel = use_ls && std::isfinite(ls_phase0[i]);
+      if (ls_pixel) {
         sigma_u[i] = static_cast<float>(
             std::sqrt(2.0 * sigma * sigma / (ls_n[i] * ls_amp[i] * ls_amp[i])) / kPi);
         // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
@@ -610,14 +638,19 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         const double phi = Wrap2Pi(kPi / 2 - ls_phase0[i]) / (2 * kPi);  // cycles in [0, 1)
         u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
         const double comb = ur.u - u;
-        if (std::abs(comb) > options.max_combination_residual_px) {
-          state[i] = kCombination;
-          continue;
-        }
         const double e = std::pow(ls_rms[i] / ls_amp[i], 2);  // Eq. 4's E, normalised units
         c = 1.0 - std::sqrt(e * options.confidence_t);
         c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
-      } else {
+        if (fallback && !(c >= options.min_confidence && c > 0)) {
+          ls_pixel = false;  // the stripes have lost their contrast: phase shifting decides
+          u = ur.u;
+        } else if (std::abs(comb) > options.max_combination_residual_px) {
+          state[i] = kCombination;  // the cues disagree: neither is trusted
+          continue;
+        }
+      }
+      if (!ls_pixel) {
+        source[i] = 1;
         double info = 0.0;  // Fisher information of u from the periods
         for (int p = 0; p < nper; ++p)
           info += std::pow(2 * kPi / periods[p].period, 2) /
@@ -627,6 +660,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         for (int p = 0; p < nper; ++p)
           e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
         c = 1.0 - std::sqrt(e * options.confidence_t);
+        if (use_ls) c *= options.phase_shift_fallback_confidence;
       }
       if (nper > 1) c *= 1.0 - std::pow(ur.residual / options.max_unwrap_residual, 2);
       c = std::clamp(c, 0.0, 1.0);
@@ -646,6 +680,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   scan.points.xyz = ImageF(cam_w, cam_h, 3, kNaN);
   scan.points.confidence = ImageF(cam_w, cam_h, 1, 0.0f);
   scan.points.projector_u = NaNImage(cam_w, cam_h);
+  scan.points.source = NaNImage(cam_w, cam_h);
   ImageF dz_du;
   if (options.keep_diagnostics) dz_du = NaNImage(cam_w, cam_h);
   std::vector<float> sigma_z(np, kNaN);  // predicted depth sigma: sigma_u |dZ/du|, m
@@ -664,6 +699,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         }
         for (int c = 0; c < 3; ++c) scan.points.xyz(cx, cy, c) = static_cast<float>((*p)[c]);
         scan.points.confidence(cx, cy) = conf[i];
+        scan.points.source(cx, cy) = source[i];
         state[i] = kOk;
         // dZ/du by a forward difference (the map is smooth on this scale).
         const auto b = tri.Intersect(ray, u_final[i] + 0.5);
@@ -712,6 +748,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
       const int cx = static_cast<int>(i % w) + roi.x, cy = static_cast<int>(i / w) + roi.y;
       for (int c = 0; c < 3; ++c) scan.points.xyz(cx, cy, c) = kNaN;
       scan.points.confidence(cx, cy) = 0.0f;
+      scan.points.source(cx, cy) = kNaN;
     }
   }
   for (size_t i = 0; i < np; ++i) {
@@ -759,6 +796,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
     d.ls_samples = to_cam(ls_n);
     d.dz_du = std::move(dz_du);
     d.u = to_cam(u_final);
+    d.sigma_u = to_cam(sigma_u);
   }
   sum.total_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
