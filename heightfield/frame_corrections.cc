@@ -303,7 +303,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
   int it = 0;
   std::vector<double> g = g_start, delta(nk, 0.0);
   double c_a = cost(g, delta);
-  if (est_g) c_a = solve(true, false, false, &g, &delta, &it);
+  if (est_g) c_a = solve(true, false, options.freeze_in_band_gains, &g, &delta, &it);
   if (!std::isfinite(c_a)) return out;
   out.model = "gains";
   if (est_d) {
@@ -355,6 +355,25 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
 
 namespace mesoscan {
 
+std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<int>& frames,
+                                   const std::vector<uint32_t>& pixels) {
+  std::vector<double> g;
+  double total = 0;
+  for (int k : frames) {
+    double m = 0;
+    for (uint32_t i : pixels) m += stack.Value(k, i);
+    g.push_back(m);
+    total += m;
+  }
+  bool ok = total > 0 && std::isfinite(total);
+  for (double& v : g) {
+    v *= static_cast<double>(frames.size()) / total;
+    ok = ok && v > 0 && std::isfinite(v);
+  }
+  if (!ok) g.assign(frames.size(), 1.0);
+  return g;
+}
+
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
                                         const std::vector<float>& fitted_freq,
                                         const std::vector<float>& f_map, std::vector<double>* x,
@@ -367,7 +386,8 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
   std::vector<double> g0;
   for (int k : frames) g0.push_back(1.0 / (*inv_gain)[k]);
   if (options.method == FrameGainMethod::kAlternating) return {};
-  if (options.method == FrameGainMethod::kFrameMeans) {
+  if (options.method == FrameGainMethod::kFrameMeans ||
+      (options.method == FrameGainMethod::kJoint && options.start_from_frame_means)) {
     FrameCorrections fc;
     fc.positions_px.assign(frames.size(), 0.0);
     double total = 0;
@@ -384,8 +404,13 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
     }
     fc.pixels_used = static_cast<int>(pixels.size());
     fc.valid = true;
-    for (size_t k = 0; k < frames.size(); ++k) (*inv_gain)[frames[k]] = static_cast<float>(1.0 / fc.gains[k]);
-    return fc;
+    fc.model = "means";
+    if (options.method == FrameGainMethod::kFrameMeans) {
+      for (size_t k = 0; k < frames.size(); ++k)
+        (*inv_gain)[frames[k]] = static_cast<float>(1.0 / fc.gains[k]);
+      return fc;
+    }
+    g0 = fc.gains;
   }
   FrameCorrections fc = EstimateFrameCorrections(stack, frames, pixels, f_map, *x, g0, options);
   if (fc.valid) {

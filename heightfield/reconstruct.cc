@@ -376,7 +376,9 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         ps.frames.push_back(periods[p].stack_frames[k]);
         ps.design.push_back(row);
       }
-    apply(ps, EstimateFrameGains(stack, ps, sample));
+    apply(ps, options.frame_gain_method == FrameGainMethod::kAlternating
+                  ? EstimateFrameGains(stack, ps, sample)
+                  : FrameMeanGains(stack, ps.frames, sample));  // issue 13: see frame_corrections.h
     if (use_ls) {
       // Lens-shift frames: DC plus the nominal sinusoid and its first two derivatives by
       // frequency (x^m cos, x^m sin; the per-pixel frequency deviates from nominal by several
@@ -652,9 +654,11 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
       if (!ls_pixel) {
         source[i] = 1;
         double info = 0.0;  // Fisher information of u from the periods
+        // Fallback pixels: the model errors (systematic_phase_noise) count as in the weights.
+        const double sys2 = use_ls ? std::pow(options.systematic_phase_noise, 2) : 0.0;
         for (int p = 0; p < nper; ++p)
           info += std::pow(2 * kPi / periods[p].period, 2) /
-                  solvers[p].ThetaVariance(sigma, modulation[p][i]);
+                  (solvers[p].ThetaVariance(sigma, modulation[p][i]) + sys2);
         sigma_u[i] = static_cast<float>(1.0 / std::sqrt(info));
         double e = 0.0;
         for (int p = 0; p < nper; ++p)

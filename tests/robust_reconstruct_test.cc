@@ -33,7 +33,7 @@ struct Figures {
   Scan scan;
 };
 
-Figures Run(const Session& s, const SimulateOptions& so, const ReconstructOptions& ro_in = {}) {
+Figures RunCase(const Session& s, const SimulateOptions& so, const ReconstructOptions& ro_in = {}) {
   ReconstructOptions ro = ro_in;
   ro.keep_diagnostics = true;
   Figures f;
@@ -71,12 +71,12 @@ TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
   Simulate(s0, d0);
   Simulate(s1, d1);
   const Session a = ReadSession(d0), b = ReadSession(d1);
-  const Figures clean = Run(a, s0), jit = Run(b, s1);
+  const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
   ReconstructOptions als;
   als.frame_gain_method = FrameGainMethod::kAlternating;
   ReconstructOptions means;
   means.frame_gain_method = FrameGainMethod::kFrameMeans;
-  const Figures jit_als = Run(b, s1, als), jit_means = Run(b, s1, means);
+  const Figures jit_als = RunCase(b, s1, als), jit_means = RunCase(b, s1, means);
   Print("coin, no jitter", clean);
   Print("coin, jitter 0.02 (joint)", jit);
   Print("coin, jitter 0.02 (als, before)", jit_als);
@@ -84,7 +84,25 @@ TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
   // True gains against the estimate (the simulator records them).
   const Json sim = ReadJsonFile(d1 / "session.json")["simulation"];
   std::printf("frame corrections: %s\n", jit.sum.frame_corrections.dump().c_str());
-  (void)sim;
+  // Gain error of the lens-shift frames (both normalised to mean 1 over those frames).
+  auto gain_error = [&](const Figures& f) {
+    std::vector<double> t, e;
+    for (size_t k = 0; k < b.frames.size(); ++k)
+      if (b.frames[k].pattern.type == PatternType::kStripes) {
+        t.push_back(sim["frame_gains"][k].get<double>());
+        e.push_back(f.sum.frame_gains[k]);
+      }
+    double mt = 0, me = 0;
+    for (size_t k = 0; k < t.size(); ++k) {
+      mt += t[k] / t.size();
+      me += e[k] / t.size();
+    }
+    double s2 = 0;
+    for (size_t k = 0; k < t.size(); ++k) s2 += std::pow(e[k] / me - t[k] / mt, 2);
+    return std::sqrt(s2 / t.size());
+  };
+  std::printf("lens-shift frame gain error RMS: joint %.2e, als %.2e, means %.2e (jitter 2e-2)\n",
+              gain_error(jit), gain_error(jit_als), gain_error(jit_means));
   EXPECT_GE(jit.e.coverage, clean.e.coverage - 0.002);
   EXPECT_LE(jit.e.rms_m, 1.05 * clean.e.rms_m);
   EXPECT_LE(jit.e.median_abs_m, 1.05 * clean.e.median_abs_m);
@@ -104,7 +122,17 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   const fs::path dir = TempDir("leaf");
   Simulate(so, dir);
   const Session s = ReadSession(dir);
-  Figures f = Run(s, so);
+  Figures f = RunCase(s, so);
+  {  // before issue 13: alternating least squares gains (on the same pixels as below)
+    ReconstructOptions als;
+    als.frame_gain_method = FrameGainMethod::kAlternating;
+    Figures b = RunCase(s, so, als);
+    ScanPoints plain_b = testing::PlainLsDecode(s, b.scan.points.projector_u);
+    testing::IntersectPoints(&b.scan.points, &plain_b);
+    std::printf("leaf, als gains (before): pipeline RMS %.3f um, plain LS %.3f um\n",
+                EvaluateAgainstGroundTruth(s, b.scan.points).rms_m * 1e6,
+                EvaluateAgainstGroundTruth(s, plain_b).rms_m * 1e6);
+  }
   ScanPoints plain = testing::PlainLsDecode(s, f.scan.points.projector_u);
   testing::IntersectPoints(&f.scan.points, &plain);
   const GroundTruthErrors ep = EvaluateAgainstGroundTruth(s, f.scan.points);
@@ -132,7 +160,7 @@ TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
   const Session s = ReadSession(dir);
   ReconstructOptions off;
   off.phase_shift_fallback = false;
-  const Figures before = Run(s, so, off), f = Run(s, so);
+  const Figures before = RunCase(s, so, off), f = RunCase(s, so);
   Print("defocused plane, no fallback", before);
   Print("defocused plane, fallback", f);
   const ReconstructDiagnostics& d = f.sum.diagnostics;
@@ -205,7 +233,7 @@ TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
   const Session a = ReadSession(d0), b = ReadSession(d1);
   ReconstructOptions nopos;
   nopos.correct_positions = false;
-  const Figures clean = Run(a, s0), corrected = Run(b, s1), uncorrected = Run(b, s1, nopos);
+  const Figures clean = RunCase(a, s0), corrected = RunCase(b, s1), uncorrected = RunCase(b, s1, nopos);
   Print("coin, exact positions", clean);
   Print("coin, 0.02 px errors, estimated", corrected);
   Print("coin, 0.02 px errors, nominal", uncorrected);
