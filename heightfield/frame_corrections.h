@@ -54,10 +54,17 @@ struct FrameCorrectionOptions {
   bool freeze_in_band_gains = true;
   // Pipeline hook: start from frame means over the fitted pixels (else from the given gains).
   bool start_from_frame_means = true;
+  // ... but only where the view's stripes average out: |sum a e^{i phi}| / sum d over the
+  // first-pass fits at most this (else the start is the given gains, in band too).
+  // CorrectLensShiftFrames with amp/phase/offset only.
+  double max_residual_stripe = 2e-3;
   int max_pixels = 12000;  // pixels used (a regular subsample of the candidates), >= 16
   // Positions beyond this many projector pixels from nominal mark the estimate as failed (the
   // nominal positions are kept), > 0.
   double max_position_error_px = 0.3;
+  // Positions are kept only if their RMS reaches this (px): smaller errors cost nothing
+  // measurable, and in-band gain jitter left in the gains can pose as such small positions.
+  double min_position_rms_px = 0.003;
   // Gains outside [1 - this, 1 + this] likewise, in (0, 1).
   double max_gain_deviation = 0.3;
 };
@@ -70,7 +77,8 @@ struct FrameCorrections {
   // "gains" or "gains+positions" ("positions" if gains were not estimated): see the .cc on why
   // in-band gains and positions are not estimated together.
   std::string model;
-  double position_chi2_gain = 0.0;  // drop of the weighted objective when positions are added
+  double position_chi2_gain = 0.0;
+  double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe  // drop of the weighted objective when positions are added
   bool valid = false;  // false: the starting gains and zero positions are returned
   double position_rms_px = 0.0;
   Json ToJson() const;
@@ -112,6 +120,9 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
                                         const std::vector<float>& fitted_freq,
                                         const std::vector<float>& f_map, std::vector<double>* x,
                                         std::vector<float>* inv_gain,
-                                        const FrameCorrectionOptions& options);
+                                        const FrameCorrectionOptions& options,
+                                        const std::vector<float>* amp = nullptr,
+                                        const std::vector<float>* phase = nullptr,
+                                        const std::vector<float>* offset = nullptr);
 
 }  // namespace mesoscan

@@ -376,9 +376,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
         ps.frames.push_back(periods[p].stack_frames[k]);
         ps.design.push_back(row);
       }
-    apply(ps, options.frame_gain_method == FrameGainMethod::kAlternating
-                  ? EstimateFrameGains(stack, ps, sample)
-                  : FrameMeanGains(stack, ps.frames, sample));  // issue 13: see frame_corrections.h
+    apply(ps, EstimateFrameGains(stack, ps, sample));
     if (use_ls) {
       // Lens-shift frames: DC plus the nominal sinusoid and its first two derivatives by
       // frequency (x^m cos, x^m sin; the per-pixel frequency deviates from nominal by several
@@ -567,7 +565,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
           fco.method = options.frame_gain_method;
           fco.estimate_positions = options.correct_positions;
           const FrameCorrections fc =
-              CorrectLensShiftFrames(stack, ls_stack, ls_freq, f_map, &x, &inv_gain, fco);
+              CorrectLensShiftFrames(stack, ls_stack, ls_freq, f_map, &x, &inv_gain, fco,
+                                     &ls_amp, &ls_phase0, &ls_off);
           for (int k = 0; k < nls; ++k) sum.frame_gains[wanted[ls_stack[k]]] = 1.0 / inv_gain[ls_stack[k]];
           sum.frame_corrections = fc.ToJson();
         }

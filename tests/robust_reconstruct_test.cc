@@ -353,5 +353,26 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
   fs::remove_all(dir);
 }
 
+// Row 5 (issue item 5): another scanner's pattern set, 3 phases of 16 periods across the
+// projector plus 3 phases of a one-period cue as wide as the projector. Needs issue 11's
+// unwrapper (a cue period equal to the projector width, ambiguous columns marked instead of a
+// refused session): enable (drop DISABLED_) once that is merged.
+TEST(RobustReconstruct, DISABLED_CuePeriodEqualToTheProjectorWidth) {
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = "plane";
+  so.crop = std::array<int, 4>{128, 96, 960, 620};
+  const double width = ResolveRig(so).projector.width;
+  so.ps_periods_px = {width / 16, width};
+  so.ps_phases = 3;
+  const fs::path dir = TempDir("cue_width");
+  Simulate(so, dir);
+  const Session s = ReadSession(dir);
+  const Figures f = RunCase(s, so);
+  Print("plane, cue = projector width", f);
+  EXPECT_GE(f.e.coverage, 0.95);
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace mesoscan
