@@ -57,7 +57,7 @@ struct FrameCorrectionOptions {
   // ... but only where the view's stripes average out: |sum a e^{i phi}| / sum d over the
   // first-pass fits at most this (else the start is the given gains, in band too).
   // CorrectLensShiftFrames with amp/phase/offset only.
-  double max_residual_stripe = 2e-3;
+  double max_residual_stripe = 5e-3;
   int max_pixels = 12000;  // pixels used (a regular subsample of the candidates), >= 16
   // Positions beyond this many projector pixels from nominal mark the estimate as failed (the
   // nominal positions are kept), > 0.
