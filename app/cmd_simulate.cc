@@ -106,8 +106,8 @@ void AddSimulateCommand(CLI::App* app) {
                   "Blur sigma growth per metre of |z - focus height|, px/m")
       ->capture_default_str();
   cmd->add_option("--focus-height", o.focus_height_m,
-                  "Height of the projector's focus plane, m (0 = the mount)")
-      ->capture_default_str();
+                  "Height of the projector's focus plane, m (0 = the mount; default: the "
+                  "object's mid height)");
   cmd->add_option("--shift-gain-x", o.shift_gain_x, "Lens-shifter gain: linear term in un")
       ->capture_default_str();
   cmd->add_option("--shift-gain-y", o.shift_gain_y, "Lens-shifter gain: linear term in vn")
@@ -143,6 +143,9 @@ void AddSimulateCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_flag("--low-contrast", args->low_contrast,
                 "Board only: grey squares (albedo 0.45) on white paper (0.8)");
+  cmd->add_option("--shift-position-error", o.shift_position_error_px,
+                  "Lens-shifter position error per frame, RMS in projector px")
+      ->capture_default_str();
   cmd->callback([args] {
     SimulateOptions opt = args->o;
     if (IsBoardObject(opt.object)) {

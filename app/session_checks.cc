@@ -56,6 +56,9 @@ void CheckSessionLikeReconstruct(const Session& session) {
     if (!finite)
       MESOSCAN_BAD_INPUT(session.frames[i].file << ": no finite sample (frames[" << i << "])");
   }
+  // A calibration session has no calibrated rig to reconstruct with: its frames are checked
+  // above, its decoding is calibrate's.
+  if (session.rig.uncalibrated) return;
   // The reconstruction's own tests (periods, phases, unwrapping, projector size), on a 32x32
   // window at the image centre.
   ReconstructOptions o;

@@ -61,6 +61,7 @@ SimulateOptions PlaneOptions(int w, int h, uint64_t seed) {
   const int cx = static_cast<int>(std::lround(1087.5 - 17e-3 / 55e-6));
   o.crop = std::array<int, 4>{w, h, cx - w / 2, 717 - h / 2};
   o.seed = seed;
+  o.focus_height_m = 0.0;  // focused on the mount (the bar near it)
   return o;
 }
 
@@ -80,11 +81,14 @@ std::vector<Row> Table1(const fs::path& work) {
   struct Config {
     std::string name;
     int phases, ls;
+    double jitter = 0.005, position_error = 0.0;  // issue 13 rows: disturbances of real rigs
   };
   const std::vector<Config> configs = {{"PS 9", 3, 0},          {"PS 21", 7, 0},
                                        {"LS 15 + PS 9", 3, 15},  {"LS 25 + PS 9", 3, 25},
                                        {"LS 50 + PS 9", 3, 50},  {"LS 100 + PS 9", 3, 100},
-                                       {"LS 200 + PS 9", 3, 200}};
+                                       {"LS 200 + PS 9", 3, 200},
+                                       {"LS 50 + PS 9 jitter 0.02", 3, 50, 0.02, 0.0},
+                                       {"LS 50 + PS 9 shifter 0.02px", 3, 50, 0.005, 0.02}};
   std::vector<Row> rows;
   for (const Config& c : configs) {
     Session sessions[2];
@@ -93,8 +97,12 @@ std::vector<Row> Table1(const fs::path& work) {
       so[k] = PlaneOptions(128, 96, 21 + k);
       so[k].ps_phases = c.phases;
       so[k].ls_frames = c.ls;
+      so[k].gain_jitter = c.jitter;
+      so[k].shift_position_error_px = c.position_error;
       const fs::path dir = work / ("t1_" + std::to_string(c.phases) + "_" + std::to_string(c.ls) +
-                                   "_" + std::to_string(k));
+                                   "_" + std::to_string(k) +
+                                   (c.jitter != 0.005 ? "_j" + std::to_string(c.jitter) : "") +
+                                   (c.position_error > 0 ? "_p" + std::to_string(c.position_error) : ""));
       if (!fs::exists(dir / "session.json")) Simulate(so[k], dir);
       sessions[k] = ReadSession(dir);
     }
@@ -135,7 +143,7 @@ std::vector<Row> Table1(const fs::path& work) {
       }
       r.repeat_um = n ? std::sqrt(s2 / n / 2) * 1e6 : NAN;
       r.crlb_um = CrlbDepthRms(sessions[0], so[0], sum[0], e) * 1e6;
-      std::printf("%-14s %-6s frames %3d  total %7.3f s  fit %7.3f s  RMS %6.3f um  D %6.3f um  "
+      std::printf("%-28s %-6s frames %3d  total %7.3f s  fit %7.3f s  RMS %6.3f um  D %6.3f um  "
                   "RMS/CRLB %5.3f  coverage %.4f\n",
                   r.config.c_str(), r.fitter.c_str(), r.frames, r.seconds, r.fit_seconds, r.rms_um,
                   r.repeat_um, r.rms_um / r.crlb_um, r.coverage);

@@ -53,13 +53,23 @@ ImageF Plane(const ImageF& all, int c0, int n) {
 }  // namespace
 
 void WritePointsExr(const fs::path& path, const ScanPoints& p) {
+  if (!p.source.empty()) {
+    WriteExr(path, Stack({&p.xyz, &p.confidence, &p.projector_u, &p.source}),
+             {"X", "Y", "Z", "confidence", "projector_u", "source"}, {}, {}, kScanExrCompression);
+    return;
+  }
   WriteExr(path, Stack({&p.xyz, &p.confidence, &p.projector_u}),
            {"X", "Y", "Z", "confidence", "projector_u"}, {}, {}, kScanExrCompression);
 }
 
 ScanPoints ReadPointsExr(const fs::path& path) {
+  try {  // `source` is optional (scan-outputs.md)
+    ImageF all = ReadExrChannels(path, {"X", "Y", "Z", "confidence", "projector_u", "source"});
+    return {Plane(all, 0, 3), Plane(all, 3, 1), Plane(all, 4, 1), Plane(all, 5, 1)};
+  } catch (const Error&) {
+  }
   ImageF all = ReadExrChannels(path, {"X", "Y", "Z", "confidence", "projector_u"});
-  return {Plane(all, 0, 3), Plane(all, 3, 1), Plane(all, 4, 1)};
+  return {Plane(all, 0, 3), Plane(all, 3, 1), Plane(all, 4, 1), ImageF()};
 }
 
 void WriteHeightExr(const fs::path& path, const HeightField& hf) {

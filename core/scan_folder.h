@@ -14,6 +14,9 @@ struct ScanPoints {
   ImageF xyz;          // 3 channels X, Y, Z, world metres; NaN where no point
   ImageF confidence;   // [0, 1], 0 where xyz is NaN
   ImageF projector_u;  // decoded absolute projector column, NaN where unknown
+  // Optional: which cue fixed the pixel, 0 lens shift, 1 phase shifting alone; NaN where xyz is
+  // NaN. Empty: not recorded.
+  ImageF source;
 };
 
 struct Scan {

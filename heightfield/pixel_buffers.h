@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/json.h"
 #include "heightfield/frames.h"
 
 namespace mesoscan {
@@ -21,7 +22,8 @@ enum class PixelState : uint8_t {
   kUnlit,           // classify (white - black < min_lit) or phase shift (no white frame:
                     // twice the phase-shift offset < min_lit)
   kUnmodulated,     // phase shift: modulation of some period < min_modulation x white level
-  kFitFailed,       // lens shift: the profile fit is invalid
+  kFitFailed,       // lens shift: the profile fit is invalid (with phase_shift_fallback the
+                    // combine stage lets such a pixel back in, decided by phase shifting alone)
   kUnwrapFailed,    // combine: temporal unwrapping inconsistent (residual > max_unwrap_residual)
   kCombination,     // combine: coarse and fine disagree (a period jump, paper Eq. 2)
   kLowConfidence,   // combine: paper Eq. 4 confidence below min_confidence
@@ -71,6 +73,9 @@ struct LensShiftPixels {
   std::vector<float> residual_rms;  // linear units
   std::vector<float> samples;       // samples used
   int64_t pixels_fitted = 0;        // profiles fitted (valid or not)
+  // Per-frame gains and shifter positions estimated jointly with the fits
+  // (heightfield/frame_corrections.h FrameCorrections::ToJson); null if not run.
+  Json frame_corrections;
   bool empty() const { return phase0.empty(); }
 };
 
@@ -81,6 +86,9 @@ struct CombinedPixels {
   std::vector<float> unwrap_residual;  // sigma units
   std::vector<float> confidence;       // [0, 1]; 0 if rejected
   std::vector<float> sigma_u;          // predicted sigma of u, px
+  // Which cue fixed u (points.exr `source`): 0 lens shift (phase shifting for the period),
+  // 1 phase shifting alone.
+  std::vector<uint8_t> source;
 };
 
 }  // namespace mesoscan

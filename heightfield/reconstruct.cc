@@ -28,13 +28,13 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   PixelClasses classes =
       ClassifyPixels(stack, plan, rig.camera.width, rig.camera.height, options.Classify());
   PixelStates& state = classes.state;
-  const FrameGains gains =
+  FrameGains gains =  // refined by the lens-shift stage (frame corrections)
       EstimateLuminanceGains(stack, plan, state, session.frames.size(), options.Gains());
   timer.Stage("normalize");
   const PhaseShiftPixels ps =
       DecodePhaseShift(stack, plan, gains, classes, options.PhaseShift(rig), &state);
   timer.Stage("phase_shift");
-  const LensShiftPixels ls = FitLensShift(stack, plan, gains, options.LensShift(), &state);
+  const LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
   timer.Stage("lens_shift");
   const CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
   timer.Stage("unwrap_combine");
@@ -59,6 +59,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   CountFinalStates(state, &sum);
   sum.predicted_depth_rms_m = PredictedDepthRms(grid, state, tri.sigma_z);
   sum.frame_gains = gains.session_gain;
+  sum.frame_corrections = ls.frame_corrections;
   sum.unwrapping = plan.unwrapping;
   sum.used_lens_shift = plan.use_lens_shift();
   sum.lens_shift_frames = static_cast<int>(plan.ls_stack.size());

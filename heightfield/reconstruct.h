@@ -31,6 +31,7 @@
 #include "core/json.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
+#include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/mixed_pixels.h"
@@ -69,6 +70,17 @@ struct ReconstructOptions {
   // (the shifter's gain varies smoothly with the optics) and fit the phase again with f held
   // there: the 3-parameter fit has lower variance where the 4-parameter one gains nothing.
   bool smooth_frequency = true;
+  // With smooth_frequency: per-frame gains and shifter position errors of the lens-shift frames
+  // estimated jointly with the per-pixel fits (heightfield/frame_corrections.h) before the
+  // fixed-frequency pass.
+  // With lens shift: a pixel whose lens-shift fit failed or fell below min_confidence (defocus
+  // blurred the 2-px stripes away) takes the phase-shift estimate of u instead, with its own
+  // predicted sigma and its confidence scaled by phase_shift_fallback_confidence (in (0, 1]);
+  // points.exr `source` = 1 there.
+  bool phase_shift_fallback = true;
+  double phase_shift_fallback_confidence = 0.5;
+  FrameGainMethod frame_gain_method = FrameGainMethod::kJoint;
+  bool correct_positions = true;  // kJoint: estimate the positions too (gains only if false)
 
   // Thresholds, all in normalised units: frame values divided by the pixel's white level
   // (white - black frame, or twice the phase-shift mean when there are no white/black frames).
@@ -128,6 +140,7 @@ struct ReconstructDiagnostics {
   ImageF ls_samples;       // samples used
   ImageF dz_du;            // dZ/du of the triangulation, metres per projector px
   ImageF u;                // final projector column
+  ImageF sigma_u;          // predicted sigma of u, px (lens shift or phase shift, per source)
 };
 
 struct ReconstructSummary {
@@ -146,6 +159,7 @@ struct ReconstructSummary {
   int64_t pixels_rejected_discontinuity = 0;
   int lens_shift_frames = 0, phase_shift_frames = 0;
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated
+  Json frame_corrections;  // lens-shift frames: FrameCorrections::ToJson() (null if not run)
   std::string unwrapping;           // "temporal", "hierarchical" or "single"
   bool used_lens_shift = false;
   double total_s = 0.0;

@@ -22,6 +22,9 @@ void ReconstructOptions::Check() const {
   if (!(min_confidence >= 0 && min_confidence < 1))
     MESOSCAN_BAD_INPUT("min_confidence: expected a value in [0, 1), got " << min_confidence);
   mixed_pixels.Check();
+  if (!(phase_shift_fallback_confidence > 0 && phase_shift_fallback_confidence <= 1))
+    MESOSCAN_BAD_INPUT("phase_shift_fallback_confidence: expected a value in (0, 1], got "
+                       << phase_shift_fallback_confidence);
   if (!(systematic_phase_noise >= 0))
     MESOSCAN_BAD_INPUT("systematic_phase_noise: expected >= 0, got " << systematic_phase_noise);
   resample.Check();
@@ -38,6 +41,10 @@ Json ReconstructOptions::ToJson() const {
   j["lens_shift_box_filter"] = lens_shift_box_filter;
   j["fit_frequency"] = fit_frequency;
   j["smooth_frequency"] = smooth_frequency;
+  j["phase_shift_fallback"] = phase_shift_fallback;
+  j["phase_shift_fallback_confidence"] = phase_shift_fallback_confidence;
+  j["frame_gain_method"] = FrameGainMethodName(frame_gain_method);
+  j["correct_positions"] = correct_positions;
   j["min_lit"] = min_lit;
   j["min_modulation"] = min_modulation;
   j["max_unwrap_residual"] = max_unwrap_residual;
@@ -98,6 +105,8 @@ LensShiftStageOptions ReconstructOptions::LensShift() const {
   o.box_filter = lens_shift_box_filter;
   o.fit_frequency = fit_frequency;
   o.smooth_frequency = smooth_frequency;
+  o.frame_gain_method = frame_gain_method;
+  o.correct_positions = correct_positions;
   return o;
 }
 
@@ -109,6 +118,8 @@ CombineOptions ReconstructOptions::Combine() const {
   o.confidence_t = confidence_t;
   o.min_confidence = min_confidence;
   o.four_parameter_fit = fit_frequency && !smooth_frequency;
+  o.phase_shift_fallback = phase_shift_fallback;
+  o.phase_shift_fallback_confidence = phase_shift_fallback_confidence;
   return o;
 }
 

@@ -219,7 +219,7 @@ TEST(StageLensShift, NoiselessProfilesGiveThePhaseAtShiftZero) {
   gains.inv_gain.assign(N, 1.0f);
   PixelStates state(n, PixelState::kActive);
   state[7] = PixelState::kUnlit;  // never fitted
-  const LensShiftPixels ls = FitLensShift(stack, plan, gains, {}, &state);
+  const LensShiftPixels ls = FitLensShift(stack, plan, &gains, {}, &state);
   ASSERT_FALSE(ls.empty());
   EXPECT_EQ(ls.pixels_fitted, n - 1);
   EXPECT_TRUE(std::isnan(ls.phase0[7]));
@@ -233,7 +233,7 @@ TEST(StageLensShift, NoiselessProfilesGiveThePhaseAtShiftZero) {
   // No lens-shift frames: nothing fitted, nothing changed.
   ReconstructPlan none;
   PixelStates s2(n, PixelState::kActive);
-  EXPECT_TRUE(FitLensShift(stack, none, gains, {}, &s2).empty());
+  EXPECT_TRUE(FitLensShift(stack, none, &gains, {}, &s2).empty());
   EXPECT_EQ(s2, PixelStates(n, PixelState::kActive));
 }
 

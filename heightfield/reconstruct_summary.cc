@@ -41,6 +41,7 @@ Json ReconstructSummary::ToJson() const {
                  {"rejected_discontinuity", pixels_rejected_discontinuity}};
   j["frames"] = {{"lens_shift", lens_shift_frames}, {"phase_shift", phase_shift_frames}};
   j["frame_gains"] = frame_gains;
+  j["frame_corrections"] = frame_corrections;
   j["unwrapping"] = unwrapping;
   j["used_lens_shift"] = used_lens_shift;
   j["predicted_depth_rms_m"] = predicted_depth_rms_m;
@@ -105,6 +106,7 @@ ReconstructDiagnostics CollectDiagnostics(const Rig& rig, const RoiGrid& grid,
   d.ls_samples = to_cam(ls.samples);
   d.dz_du = std::move(dz_du);
   d.u = to_cam(combined.u);
+  d.sigma_u = to_cam(combined.sigma_u);
   return d;
 }
 

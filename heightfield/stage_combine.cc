@@ -42,6 +42,8 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   out.unwrap_residual.assign(np, kNaN);
   out.confidence.assign(np, 0.0f);
   out.sigma_u.assign(np, kNaN);
+  out.source.assign(np, use_ls ? 0 : 1);
+  const bool fallback = use_ls && options.phase_shift_fallback;
   // Rows of the ROI do not matter here: blocks of 4096 pixels.
   constexpr int kBlock = 4096;
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
@@ -49,6 +51,8 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
     std::vector<double> th(nper), wt(nper);
     const size_t i_end = std::min(np, static_cast<size_t>(b1) * kBlock);
     for (size_t i = static_cast<size_t>(b0) * kBlock; i < i_end; ++i) {
+      // Graceful defocus: a failed lens-shift fit falls back to phase shifting.
+      if (fallback && state[i] == PixelState::kFitFailed) state[i] = PixelState::kActive;
       if (state[i] != PixelState::kActive) continue;
       // Per-sample noise: from the lens-shift residual (many samples) or the phase-shift
       // residuals (K > 3), else a floor of 1% of the white level; plus a systematic part
@@ -84,7 +88,8 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         continue;
       }
       double u = ur.u, c = 1.0;
-      if (use_ls) {
+      bool ls_pixel = use_ls && std::isfinite(ls.phase0[i]);
+      if (ls_pixel) {
         out.sigma_u[i] = static_cast<float>(
             std::sqrt(2.0 * sigma * sigma / (ls.samples[i] * ls.amplitude[i] * ls.amplitude[i])) /
             kPi);
@@ -93,23 +98,31 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
         u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
         const double comb = ur.u - u;
-        if (std::abs(comb) > options.max_combination_residual_px) {
-          state[i] = PixelState::kCombination;
-          continue;
-        }
         const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
         c = 1.0 - std::sqrt(e * options.confidence_t);
         c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
-      } else {
+        if (fallback && !(c >= options.min_confidence && c > 0)) {
+          ls_pixel = false;  // the stripes have lost their contrast: phase shifting decides
+          u = ur.u;
+        } else if (std::abs(comb) > options.max_combination_residual_px) {
+          state[i] = PixelState::kCombination;  // the cues disagree: neither is trusted
+          continue;
+        }
+      }
+      if (!ls_pixel) {
+        out.source[i] = 1;
         double info = 0.0;  // Fisher information of u from the periods
+        // Fallback pixels: the model errors (systematic_phase_noise) count as in the weights.
+        const double sys2 = use_ls ? std::pow(options.systematic_phase_noise, 2) : 0.0;
         for (int p = 0; p < nper; ++p)
           info += std::pow(2 * kPi / periods[p].period, 2) /
-                  solvers[p].ThetaVariance(sigma, modulation[p][i]);
+                  (solvers[p].ThetaVariance(sigma, modulation[p][i]) + sys2);
         out.sigma_u[i] = static_cast<float>(1.0 / std::sqrt(info));
         double e = 0.0;
         for (int p = 0; p < nper; ++p)
           e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
         c = 1.0 - std::sqrt(e * options.confidence_t);
+        if (use_ls) c *= options.phase_shift_fallback_confidence;
       }
       if (nper > 1) c *= 1.0 - std::pow(ur.residual / options.max_unwrap_residual, 2);
       c = std::clamp(c, 0.0, 1.0);

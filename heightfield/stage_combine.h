@@ -24,6 +24,12 @@ struct CombineOptions {
   // The lens-shift fit had 4 free parameters (frequency fitted and not smoothed): the noise
   // sigma's degrees of freedom.
   bool four_parameter_fit = false;
+  // Graceful defocus (issue 13): with lens shift, a pixel whose lens-shift fit failed or fell
+  // below min_confidence (defocus blurred the 2-px stripes away) takes the phase-shift estimate
+  // of u instead, with its own predicted sigma (systematic_phase_noise included) and its
+  // confidence scaled by phase_shift_fallback_confidence, in (0, 1]; source 1 there.
+  bool phase_shift_fallback = true;
+  double phase_shift_fallback_confidence = 0.5;
 };
 
 // `ls` may be empty (phase shifting alone).

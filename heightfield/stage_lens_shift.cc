@@ -67,7 +67,7 @@ std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h)
 }
 
 LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
-                             const FrameGains& gains, const LensShiftStageOptions& options,
+                             FrameGains* gains, const LensShiftStageOptions& options,
                              PixelStates* state_out) {
   LensShiftPixels out;
   if (!plan.use_lens_shift()) return out;
@@ -78,7 +78,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
   const size_t np = grid.pixels();
   const std::vector<int>& ls_stack = plan.ls_stack;
   const std::vector<double>& ls_shift_px = plan.ls_shift_px;
-  const std::vector<float>& inv_gain = gains.inv_gain;
+  std::vector<float>& inv_gain = gains->inv_gain;  // refined by the frame corrections
   const int nls = static_cast<int>(ls_stack.size());
   for (auto* v :
        {&out.phase0, &out.amplitude, &out.frequency, &out.offset, &out.residual_rms, &out.samples})
@@ -142,6 +142,10 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
               f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
           if (!fit.valid) {
             state[i] = PixelState::kFitFailed;
+            if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
+              out.residual_rms[i] = static_cast<float>(fit.residual_rms);
+              out.samples[i] = static_cast<float>(fit.samples_used);
+            }
             continue;
           }
           // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
@@ -173,6 +177,19 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     if (!f_map.empty()) {
       LensShiftFitOptions fo2 = fo;
       fo2.fit_frequency = false;
+      if (!box) {  // issue 13: joint frame gains and shifter positions
+        FrameCorrectionOptions fco;
+        fco.method = options.frame_gain_method;
+        fco.estimate_positions = options.correct_positions;
+        const FrameCorrections fc =
+            CorrectLensShiftFrames(stack, ls_stack, out.frequency, f_map, &x, &inv_gain, fco,
+                                   &out.amplitude, &out.phase0, &out.offset);
+        for (int k = 0; k < nls; ++k) {
+          const size_t f = static_cast<size_t>(plan.frames[ls_stack[k]]);
+          if (f < gains->session_gain.size()) gains->session_gain[f] = 1.0 / inv_gain[ls_stack[k]];
+        }
+        out.frame_corrections = fc.ToJson();
+      }
       fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
     } else if (subset.stride > 1) {
       // No frequency map: the 4-parameter fit everywhere else too.

@@ -3,11 +3,13 @@
 // frames (heightfield/lens_shift_fit.h), positions referenced to the centre of the shift range.
 // With fit_frequency and smooth_frequency: the 4-parameter fit on a regular subsample (~100000
 // pixels), a robust quadratic frequency map over the image (SmoothFrequencyMap), then the
-// 3-parameter fit of every pixel with f held at the map. Moves pixels to kFitFailed. Returns empty
-// arrays when the plan has no lens-shift frames.
+// 3-parameter fit of every pixel with f held at the map; between the two, the per-frame
+// corrections (gains, shifter positions) refine gains->inv_gain and the positions. Moves pixels
+// to kFitFailed. Returns empty arrays when the plan has no lens-shift frames.
 
 #include <vector>
 
+#include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/pixel_buffers.h"
@@ -24,10 +26,15 @@ struct LensShiftStageOptions {
   bool fit_frequency = true;
   // ... and replace it by the robust quadratic map, then fit the phase again with f held.
   bool smooth_frequency = true;
+  // With smooth_frequency (and no box filter): per-frame gains, and shifter position errors if
+  // correct_positions, estimated jointly with the per-pixel fits before the fixed-frequency pass
+  // (heightfield/frame_corrections.h, issue 13).
+  FrameGainMethod frame_gain_method = FrameGainMethod::kJoint;
+  bool correct_positions = true;
 };
 
 LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
-                             const FrameGains& gains, const LensShiftStageOptions& options,
+                             FrameGains* gains, const LensShiftStageOptions& options,
                              PixelStates* state);
 
 // A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),

@@ -38,6 +38,7 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
     const int cx = static_cast<int>(i % w) + roi.x, cy = static_cast<int>(i / w) + roi.y;
     for (int c = 0; c < 3; ++c) points->xyz(cx, cy, c) = kNaN;
     points->confidence(cx, cy) = 0.0f;
+    if (!points->source.empty()) points->source(cx, cy) = std::numeric_limits<float>::quiet_NaN();
   }
   return n;
 }

@@ -22,6 +22,7 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
   ScanPoints& points = out.points;
   points.xyz = ImageF(cam_w, cam_h, 3, kNaN);
   points.confidence = ImageF(cam_w, cam_h, 1, 0.0f);
+  points.source = ImageF(cam_w, cam_h, 1, std::numeric_limits<float>::quiet_NaN());
   points.projector_u = ImageF(cam_w, cam_h, 1, kNaN);
   if (options.keep_dz_du) out.dz_du = ImageF(cam_w, cam_h, 1, kNaN);
   out.sigma_z.assign(grid.pixels(), kNaN);
@@ -40,6 +41,7 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
         }
         for (int c = 0; c < 3; ++c) points.xyz(cx, cy, c) = static_cast<float>((*p)[c]);
         points.confidence(cx, cy) = combined.confidence[i];
+        points.source(cx, cy) = combined.source[i];
         state[i] = PixelState::kOk;
         // dZ/du by a forward difference (the map is smooth on this scale).
         const auto b = tri.Intersect(ray, u[i] + 0.5);

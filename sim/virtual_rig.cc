@@ -229,7 +229,7 @@ void SimulateOptions::Check() const {
     SIM_USAGE("--blur: expected a sigma in (0.05, 20] px, got " << blur_sigma_px);
   if (!(defocus_px_per_m >= 0 && defocus_px_per_m <= 1e5))
     SIM_USAGE("--defocus: expected [0, 1e5] px/m, got " << defocus_px_per_m);
-  if (!(std::abs(focus_height_m) < 1.0))
+  if (!std::isnan(focus_height_m) && !(std::abs(focus_height_m) < 1.0))
     SIM_USAGE("--focus-height: expected |z| < 1 m, got " << focus_height_m);
   if (!(std::abs(shift_gain_x) + std::abs(shift_gain_y) + 2 * std::abs(shift_gain_r) < 0.5))
     SIM_USAGE("--shift-gain: expected |gx| + |gy| + 2|gr| < 0.5");
@@ -241,6 +241,8 @@ void SimulateOptions::Check() const {
   if (!(full_well_e > 0)) SIM_USAGE("--full-well: expected > 0 electrons, got " << full_well_e);
   if (!(read_noise_e >= 0)) SIM_USAGE("--read-noise: expected >= 0 electrons, got " << read_noise_e);
   if (adc_bits < 8 || adc_bits > 16) SIM_USAGE("--adc-bits: expected 8..16, got " << adc_bits);
+  if (!(shift_position_error_px >= 0 && shift_position_error_px < 0.5))
+    SIM_USAGE("--shift-position-error: expected [0, 0.5) px, got " << shift_position_error_px);
   if (!(gain_jitter >= 0 && gain_jitter < 0.2))
     SIM_USAGE("--gain-jitter: expected [0, 0.2), got " << gain_jitter);
   if (crop) {
@@ -392,6 +394,16 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   SceneObject object = MakeObject(options.object, options.object_pixel_size_m);
   EmbreeScene scene;
   scene.AddHeightField(object.height);
+  double focus_z = options.focus_height_m;
+  if (std::isnan(focus_z)) {  // the object's mid height
+    double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+    for (float z : object.height.z.data())
+      if (std::isfinite(z)) {
+        lo = std::min(lo, static_cast<double>(z));
+        hi = std::max(hi, static_cast<double>(z));
+      }
+    focus_z = std::isfinite(lo) ? 0.5 * (lo + hi) : 0.0;
+  }
   scene.AddPlane(0.0, 10.0);
   scene.Commit();
   summary.seconds_scene = Seconds(t_start);
@@ -442,7 +454,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     const double cos_i = hit->normal.dot(l);
     if (!(cos_i > 0)) return s;
     if (options.shadows && scene.Occluded(EmbreeScene::ShadowRayOrigin(*hit), l, 0.0, r)) return s;
-    s.sigma = options.blur_sigma_px + options.defocus_px_per_m * std::abs(s.point.z() - options.focus_height_m);
+    s.sigma = options.blur_sigma_px + options.defocus_px_per_m * std::abs(s.point.z() - focus_z);
     s.shading = s.albedo * cos_i * (r0 / r) * (r0 / r);
     s.lit = s.u >= -0.5 && s.u <= prj.width - 0.5 && s.v >= -0.5 && s.v <= prj.height - 0.5;
     return s;
@@ -561,6 +573,13 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     Rng rng(MixSeed(options.seed, 2 * f + 1));
     frame_gains[f] = 1.0 + noise.GainJitterSigma() * rng.Normal();
   }
+  std::vector<double> position_errors(frames.size(), 0.0);
+  if (options.shift_position_error_px > 0)
+    for (size_t f = 0; f < frames.size(); ++f) {
+      if (frames[f].pattern.type != PatternType::kStripes) continue;
+      Rng rng(MixSeed(options.seed ^ 0x5eedf00dULL, 2 * f + 1));
+      position_errors[f] = options.shift_position_error_px * rng.Normal();
+    }
   const double inv_ss = 1.0 / (S * S);
 
   auto fill = [&](const fs::path& dir) {
@@ -570,7 +589,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
       const Frame& frame = frames[f];
       const LightTables& tab = tables[frame_table[f]];
       const double shift_px =
-          rig.lens_shifter ? frame.shift_steps / rig.lens_shifter->steps_per_px : 0.0;
+          (rig.lens_shifter ? frame.shift_steps / rig.lens_shifter->steps_per_px : 0.0) +
+          position_errors[f];
       const bool dark = frame.pattern.type == PatternType::kBlack;
       Rng rng(MixSeed(options.seed, 2 * f + 2));
       ImageU16 image(W, H, 1);
@@ -654,7 +674,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     sim["projector"] = {{"fill_factor", options.fill_factor},
                         {"blur_sigma_px", options.blur_sigma_px},
                         {"defocus_px_per_m", options.defocus_px_per_m},
-                        {"focus_height_m", options.focus_height_m},
+                        {"focus_height_m", focus_z},
                         {"gamma", options.projector_gamma},
                         {"blur_sigma_range_px", {levels.sigma_min, levels.Sigma(levels.count - 1)}}};
     sim["lens_shifter_gain"] = {
@@ -679,6 +699,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
                     {"png", "16-bit, DN replicated to 16 bits: png = DN << (16 - bits) | "
                             "DN >> (2*bits - 16); png / 65535 = DN / (2^bits - 1)"}};
     sim["frame_gains"] = frame_gains;
+    sim["shift_position_errors_px"] = position_errors;
     sim["seed"] = options.seed;
     session.extra["simulation"] = sim;
     WriteSessionJson(session);

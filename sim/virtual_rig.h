@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -49,15 +50,21 @@ struct SimulateOptions {
   double fill_factor = 0.9;       // lit fraction of the pixel pitch along each axis, (0, 1]
   double blur_sigma_px = 0.35;    // Gaussian blur sigma at the focus distance, projector px, > 0
   // The projector is focused on the plane z = focus_height_m (a Scheimpflug projector focused
-  // on the mount); sigma = blur_sigma_px + defocus_px_per_m * |z - focus_height_m|.
+  // parallel to the mount); sigma = blur_sigma_px + defocus_px_per_m * |z - focus_height_m|.
   double defocus_px_per_m = 200;  // sigma growth per metre off the focus plane, >= 0
-  double focus_height_m = 0.0;    // world height of the focus plane, metres
+  // World height of the focus plane, metres; NaN (the default): the object's mid height, half
+  // way between the lowest and the highest point of its height field (as an operator focuses).
+  double focus_height_m = std::numeric_limits<double>::quiet_NaN();
   // Lens-shifter gain g(u, v) = 1 + gx * un + gy * vn + gr * (un^2 + vn^2), with un = (u - cx) /
   // (W/2), vn = (v - cy) / (H/2) the projector coordinates of the surface point at shift 0.
   // The true displacement of the image is shift_steps / steps_per_px * g. |g - 1| < 0.5.
   double shift_gain_x = 0.04;
   double shift_gain_y = -0.02;
   double shift_gain_r = 0.03;
+  // Lens-shifter position errors (missed steps, backlash, lead-screw non-linearity): every
+  // lens-shift frame's shifter position is off by an independent N(0, this^2) error in projector
+  // px (seeded; not scaled by `noise`), the same for all pixels. >= 0, < 0.5.
+  double shift_position_error_px = 0.0;
   // Projector response: displayed value v emits light v^gamma. 1 = linear (no response key
   // written); otherwise projector.response = {"gamma": g}. In (0, 5].
   double projector_gamma = 1.0;

@@ -31,6 +31,7 @@ SimulateOptions Small(const std::string& object, std::array<int, 4> crop) {
   o.ls_frames = 4;
   o.supersample = 2;
   o.noise = 0.0;
+  o.focus_height_m = 0.0;  // the analytic light models below assume the focus on the mount
   return o;
 }
 

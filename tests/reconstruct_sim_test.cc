@@ -38,6 +38,7 @@ SimulateOptions PlaneOptions(int w, int h) {
   const int cx = static_cast<int>(std::lround(1087.5 - 17e-3 / 55e-6));
   o.crop = std::array<int, 4>{w, h, cx - w / 2, 717 - h / 2};
   o.seed = 11;
+  o.focus_height_m = 0.0;  // focused on the mount (the crop's bar is near it)
   return o;
 }
 

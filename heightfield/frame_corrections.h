@@ -1,0 +1,128 @@
+#pragma once
+// Per-frame corrections of a lens-shift capture, estimated jointly with the per-pixel fits.
+//
+// Every camera pixel j sees the lens-shift profile
+//   I_kj = g_k (d_j + alpha_j cos theta_kj + beta_j sin theta_kj) + noise,
+//   theta_kj = 2 pi f_j (x_k + delta_k),
+// with f_j the pixel's frequency (the smoothed frequency map), x_k the nominal shift positions
+// (referenced to the centre of the range), g_k the frame's brightness gain (lamp, shutter) and
+// delta_k the shifter's position error of frame k (missed steps, backlash, lead-screw
+// non-linearity), both shared by all pixels of the frame.
+//
+// Why joint: the part of the gain jitter that lies in the band of each pixel's sinusoid (a cosine
+// and a sine at f in the frame index) is absorbed by a per-pixel fit and biases its phase by
+// ~ (d / a) * jitter; a frame mean or a few alternating least-squares steps from g = 1 leave it
+// there. Multiplied by the pixel's own modulation that jitter also puts energy at 2 f (out of the
+// band) with a phase that follows the pixel's phase, so over many pixels with different phases it
+// is identifiable. EstimateFrameCorrections minimises the weighted least-squares objective over
+// all frame parameters and all per-pixel coefficients together: Gauss-Newton on the frame
+// parameters with the per-pixel coefficients eliminated exactly (Schur complement, variable
+// projection), a handful of iterations from the given starting gains.
+//
+// Gauges: the gains are normalised to mean 1 (a common scale is absorbed by every pixel's
+// coefficients); the positions are identifiable up to an affine map x -> s0 + s1 x (the phase
+// and the frequency map absorb it), so delta is returned orthogonal to {1, x}.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "core/json.h"
+
+namespace mesoscan {
+
+class FrameStack;
+
+// How the pipeline sets the gains of the lens-shift frames: the joint estimate (default), the
+// alternating least squares of frames.h alone (the pre-issue-13 behaviour), or frame means over
+// the fitted pixels (the classic baseline).
+enum class FrameGainMethod { kJoint, kAlternating, kFrameMeans };
+const char* FrameGainMethodName(FrameGainMethod m);  // "joint", "als", "means"
+
+struct FrameCorrectionOptions {
+  FrameGainMethod method = FrameGainMethod::kJoint;
+  bool estimate_gains = true;
+  bool estimate_positions = true;
+  int iterations = 6;      // Gauss-Newton iterations, >= 1
+  // Keep the gains' components in the band of the sinusoid (cos / sin of 2 pi f x over the
+  // frames) at their start instead of estimating them (see the .cc).
+  // Default: kept. Measured on the simulator (coin, 15 frames, 2% jitter, gain error RMS of the
+  // lens-shift frames): joint in-band 4.2e-3, frame means 9.0e-4, means with the out-of-band part
+  // joint 9.0e-4; on harmonic-free synthetic profiles the joint in-band estimate reaches the
+  // floor (frame_corrections_test). The stripes' own 2 f harmonic (duty cycle 0.45 at fill
+  // factor 0.9) is the suspected bias of the in-band estimate.
+  bool freeze_in_band_gains = true;
+  // Pipeline hook: start from frame means over the fitted pixels (else from the given gains).
+  bool start_from_frame_means = true;
+  // ... but only where the view's stripes average out: |sum a e^{i phi}| / sum d over the
+  // first-pass fits at most this (else the start is the given gains, in band too).
+  // CorrectLensShiftFrames with amp/phase/offset only.
+  double max_residual_stripe = 5e-3;
+  int max_pixels = 12000;  // pixels used (a regular subsample of the candidates), >= 16
+  // Positions beyond this many projector pixels from nominal mark the estimate as failed (the
+  // nominal positions are kept), > 0.
+  double max_position_error_px = 0.3;
+  // Positions are kept only if their RMS reaches this (px): smaller errors cost nothing
+  // measurable, and in-band gain jitter left in the gains can pose as such small positions.
+  double min_position_rms_px = 0.003;
+  // Gains outside [1 - this, 1 + this] likewise, in (0, 1).
+  double max_gain_deviation = 0.3;
+};
+
+struct FrameCorrections {
+  std::vector<double> gains;         // per frame, mean 1 (the starting gains if not estimated)
+  std::vector<double> positions_px;  // per-frame position error delta_k, orthogonal to {1, x}
+  int pixels_used = 0;
+  int iterations = 0;
+  // "gains" or "gains+positions" ("positions" if gains were not estimated): see the .cc on why
+  // in-band gains and positions are not estimated together.
+  std::string model;
+  double position_chi2_gain = 0.0;
+  double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe  // drop of the weighted objective when positions are added
+  bool valid = false;  // false: the starting gains and zero positions are returned
+  double position_rms_px = 0.0;
+  Json ToJson() const;
+};
+
+// samples[j * nk + k]: frame k of pixel j (linear radiance, not gain-normalised), n pixels;
+// freq[j] the pixel's frequency (cycles per projector px), x[k] the nominal positions,
+// initial_gains[k] the starting gains (e.g. from frame means). Non-finite samples or frequencies
+// drop the pixel; robust to outlier pixels (relative residual beyond median + 4 MAD). Never
+// throws on data, never returns non-finite values.
+FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int nk,
+                                          const std::vector<double>& freq,
+                                          const std::vector<double>& x,
+                                          const std::vector<double>& initial_gains,
+                                          const FrameCorrectionOptions& options);
+
+// The same on frames `frames` (stack indices) of `stack` at stack pixels `pixels`, with the
+// per-pixel frequency f_map[pixel].
+FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::vector<int>& frames,
+                                          const std::vector<uint32_t>& pixels,
+                                          const std::vector<float>& f_map,
+                                          const std::vector<double>& x,
+                                          const std::vector<double>& initial_gains,
+                                          const FrameCorrectionOptions& options);
+
+}  // namespace mesoscan
+
+namespace mesoscan {
+
+// Gains of `frames` as their means over `pixels`, normalised to mean 1 (1 where undefined).
+std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<int>& frames,
+                                   const std::vector<uint32_t>& pixels);
+
+// Pipeline hook (between the frequency pass and the fixed-frequency pass of the lens-shift fit):
+// estimates the corrections of frames `frames` on the pixels whose first-pass frequency
+// `fitted_freq` is finite (f held at `f_map`), starting from gains 1 / inv_gain[frames[k]].
+// If valid, writes the new gains into inv_gain (as 1 / g) and adds the positions to *x.
+FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
+                                        const std::vector<float>& fitted_freq,
+                                        const std::vector<float>& f_map, std::vector<double>* x,
+                                        std::vector<float>* inv_gain,
+                                        const FrameCorrectionOptions& options,
+                                        const std::vector<float>* amp = nullptr,
+                                        const std::vector<float>* phase = nullptr,
+                                        const std::vector<float>* offset = nullptr);
+
+}  // namespace mesoscan

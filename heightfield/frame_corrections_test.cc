@@ -1,0 +1,202 @@
+#include "heightfield/frame_corrections.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+namespace mesoscan {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+struct Synthetic {
+  int nk = 50, n = 1500;
+  std::vector<double> x, g, delta, freq, phase, amp, offset;
+  std::vector<float> samples;
+};
+
+// Profiles I_kj = g_k (d_j + a_j sin(phi_j + 2 pi f_j (x_k + delta_k))) + N(0, sigma^2).
+Synthetic Make(double jitter, double pos_rms, double sigma, unsigned seed, int n = 1500) {
+  Synthetic s;
+  s.n = n;
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> nd;
+  std::uniform_real_distribution<double> ud(0, 1);
+  for (int k = 0; k < s.nk; ++k) {
+    s.x.push_back(-1.0 + 2.0 * k / (s.nk - 1));
+    s.g.push_back(1.0 + jitter * nd(rng));
+    s.delta.push_back(pos_rms * nd(rng));
+  }
+  for (int j = 0; j < s.n; ++j) {
+    s.freq.push_back(0.5 * (0.94 + 0.12 * ud(rng)));
+    s.phase.push_back(2 * kPi * ud(rng));
+    s.amp.push_back(0.05 + 0.2 * ud(rng));
+    s.offset.push_back(0.3 + 0.3 * ud(rng));
+    for (int k = 0; k < s.nk; ++k) {
+      const double m = s.offset[j] + s.amp[j] * std::sin(s.phase[j] + 2 * kPi * s.freq[j] *
+                                                                          (s.x[k] + s.delta[k]));
+      s.samples.push_back(static_cast<float>(s.g[k] * m + sigma * nd(rng)));
+    }
+  }
+  return s;
+}
+
+// RMS over pixels of the phase error of a 3-parameter fit at the true frequency with the given
+// gains and positions (radians; the affine part of the positions does not matter here because it
+// is the same in every variant compared... except its constant/linear part, so both are removed
+// from the truth before use).
+double PhaseRms(const Synthetic& s, const std::vector<double>& g, const std::vector<double>& d) {
+  double s2 = 0;
+  for (int j = 0; j < s.n; ++j) {
+    double A[3][3] = {}, b[3] = {};
+    for (int k = 0; k < s.nk; ++k) {
+      const double th = 2 * kPi * s.freq[j] * (s.x[k] + d[k]);
+      const double D[3] = {1, std::cos(th), std::sin(th)};
+      const double I = s.samples[static_cast<size_t>(j) * s.nk + k] / g[k];
+      for (int p = 0; p < 3; ++p) {
+        b[p] += D[p] * I;
+        for (int q = 0; q < 3; ++q) A[p][q] += D[p] * D[q];
+      }
+    }
+    // Cramer on the 3x3.
+    auto det = [](double M[3][3]) {
+      return M[0][0] * (M[1][1] * M[2][2] - M[1][2] * M[2][1]) -
+             M[0][1] * (M[1][0] * M[2][2] - M[1][2] * M[2][0]) +
+             M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0]);
+    };
+    const double D0 = det(A);
+    double c[3];
+    for (int p = 0; p < 3; ++p) {
+      double M[3][3];
+      for (int r = 0; r < 3; ++r)
+        for (int q = 0; q < 3; ++q) M[r][q] = q == p ? b[r] : A[r][q];
+      c[p] = det(M) / D0;
+    }
+    // a sin(phi + th) = a sin phi cos th + a cos phi sin th.
+    const double phi = std::atan2(c[1], c[2]);
+    const double e = std::remainder(phi - s.phase[j], 2 * kPi);
+    s2 += e * e;
+  }
+  return std::sqrt(s2 / s.n);
+}
+
+std::vector<double> AffineFree(const Synthetic& s, std::vector<double> d) {
+  // Least-squares line through d(x), removed.
+  double sx = 0, sxx = 0, sd = 0, sxd = 0;
+  for (int k = 0; k < s.nk; ++k) {
+    sx += s.x[k];
+    sxx += s.x[k] * s.x[k];
+    sd += d[k];
+    sxd += s.x[k] * d[k];
+  }
+  const double n = s.nk, b = (n * sxd - sx * sd) / (n * sxx - sx * sx), a = (sd - b * sx) / n;
+  for (int k = 0; k < s.nk; ++k) d[k] -= a + b * s.x[k];
+  return d;
+}
+
+TEST(FrameCorrections, GainJitterToTheFloor) {
+  // Enough pixels that the estimate's own noise is small against the per-pixel phase noise.
+  const Synthetic s = Make(0.02, 0.0, 0.002, 1, 4000);
+  const Synthetic clean = Make(0.0, 0.0, 0.002, 1, 4000);
+  std::vector<double> ones(s.nk, 1.0), zero(s.nk, 0.0);
+  // Baseline: frame means.
+  std::vector<double> means(s.nk, 0.0);
+  for (int k = 0; k < s.nk; ++k) {
+    for (int j = 0; j < s.n; ++j) means[k] += s.samples[static_cast<size_t>(j) * s.nk + k];
+    means[k] /= s.n;
+  }
+  FrameCorrectionOptions o;
+  o.estimate_positions = false;
+  o.freeze_in_band_gains = false;  // the full joint estimate
+  const FrameCorrections fc = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, means, o);
+  ASSERT_TRUE(fc.valid);
+  const double e_none = PhaseRms(s, ones, zero), e_means = PhaseRms(s, means, zero),
+               e_joint = PhaseRms(s, fc.gains, zero), e_true = PhaseRms(s, s.g, zero),
+               e_clean = PhaseRms(clean, ones, zero);
+  std::printf("phase RMS (rad): no gains %.5f, frame means %.5f, joint %.5f, true gains %.5f, "
+              "no jitter %.5f\n",
+              e_none, e_means, e_joint, e_true, e_clean);
+  double gm = 0;
+  for (double v : s.g) gm += v / s.nk;
+  double ge = 0;
+  for (int k = 0; k < s.nk; ++k) ge += std::pow(fc.gains[k] - s.g[k] / gm, 2);
+  std::printf("gain error RMS %.2e (jitter 2e-2)\n", std::sqrt(ge / s.nk));
+  EXPECT_LT(std::sqrt(ge / s.nk), 1e-3);
+  EXPECT_LE(e_joint, 1.02 * e_true);
+  EXPECT_LE(e_joint, 1.05 * e_clean);
+  EXPECT_GT(e_means, 1.1 * e_joint);  // the baseline is measurably worse here
+}
+
+TEST(FrameCorrections, PositionErrorsUpToAnAffineMap) {
+  const Synthetic s = Make(0.005, 0.02, 0.002, 2);
+  std::vector<double> zero(s.nk, 0.0);
+  const FrameCorrections fc =
+      EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, std::vector<double>(s.nk, 1.0), {});
+  ASSERT_TRUE(fc.valid);
+  const std::vector<double> truth = AffineFree(s, s.delta);
+  double err = 0, ref = 0;
+  for (int k = 0; k < s.nk; ++k) {
+    err += std::pow(fc.positions_px[k] - truth[k], 2);
+    ref += truth[k] * truth[k];
+  }
+  err = std::sqrt(err / s.nk);
+  ref = std::sqrt(ref / s.nk);
+  std::printf("positions: true (affine-free) RMS %.4f px, estimate error RMS %.5f px\n", ref, err);
+  {
+    double gm = 0, ge = 0;
+    for (double v : s.g) gm += v / s.nk;
+    for (int k = 0; k < s.nk; ++k) ge += std::pow(fc.gains[k] - s.g[k] / gm, 2);
+    std::printf("gain error RMS %.2e (jitter 5e-3), %d iterations, %d pixels\n",
+                std::sqrt(ge / s.nk), fc.iterations, fc.pixels_used);
+  }
+  EXPECT_LT(err, 0.1 * ref);
+  // The per-pixel phases with the estimate (at the true frequencies, which absorb no affine part
+  // here, so the truth's affine part is added back for the comparison) match those with the truth.
+  std::vector<double> est = fc.positions_px;
+  for (int k = 0; k < s.nk; ++k) est[k] += s.delta[k] - truth[k];
+  const double e_est = PhaseRms(s, fc.gains, est), e_true = PhaseRms(s, s.g, s.delta),
+               e_nominal = PhaseRms(s, fc.gains, zero);
+  std::printf("phase RMS: nominal positions %.5f, estimated %.5f, true %.5f, true positions "
+              "with the estimated gains %.5f\n",
+              e_nominal, e_est, e_true, PhaseRms(s, fc.gains, s.delta));
+  // The in-band part of the gain jitter (0.5% here) cannot be told from in-band position errors
+  // (see frame_corrections.cc) and stays at its start: ~6% above the truth in this setting.
+  EXPECT_LE(e_est, 1.10 * e_true);
+  EXPECT_LT(e_est, 0.5 * e_nominal);
+  EXPECT_EQ(fc.model, "gains+positions");
+}
+
+TEST(FrameCorrections, NoPositionModelWithoutPositionErrors) {
+  const Synthetic s = Make(0.02, 0.0, 0.002, 3);
+  FrameCorrectionOptions o;
+  o.freeze_in_band_gains = false;
+  const FrameCorrections fc =
+      EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, std::vector<double>(s.nk, 1.0), o);
+  ASSERT_TRUE(fc.valid);
+  std::printf("model %s, objective drop with positions %.1f (%d frames)\n", fc.model.c_str(),
+              fc.position_chi2_gain, s.nk);
+  EXPECT_EQ(fc.model, "gains");
+  for (double d : fc.positions_px) EXPECT_EQ(d, 0.0);
+}
+
+TEST(FrameCorrections, DegenerateInputKeepsTheStart) {
+  std::vector<double> x(10), g(10, 1.0);
+  for (int k = 0; k < 10; ++k) x[k] = 0.2 * (k - 4.5);
+  // Constant, NaN and empty data: valid == false, finite start returned.
+  std::vector<float> flat(10 * 40, 0.5f);
+  std::vector<double> f(40, 0.5);
+  FrameCorrections fc = EstimateFrameCorrections(flat, 10, f, x, g, {});
+  EXPECT_FALSE(fc.valid);
+  for (double v : fc.gains) EXPECT_TRUE(std::isfinite(v));
+  std::vector<float> nan(10 * 40, std::numeric_limits<float>::quiet_NaN());
+  fc = EstimateFrameCorrections(nan, 10, f, x, g, {});
+  EXPECT_FALSE(fc.valid);
+  fc = EstimateFrameCorrections({}, 10, {}, x, g, {});
+  EXPECT_FALSE(fc.valid);
+  EXPECT_EQ(fc.gains, g);
+}
+
+}  // namespace
+}  // namespace mesoscan

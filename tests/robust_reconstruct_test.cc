@@ -1,0 +1,380 @@
+// Issue 13: reconstruction under the disturbances of real rigs, one test per row of the issue's
+// table, on the project's simulator (sim/virtual_rig.h) with ground truth. Figures are printed
+// (before/after numbers of the issue's closing note come from these lines).
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include "capture/session.h"
+#include "core/image_io.h"
+#include "core/progress.h"
+#include "heightfield/lens_shift_fit.h"
+#include "heightfield/ground_truth.h"
+#include "heightfield/reconstruct.h"
+#include "sim/virtual_rig.h"
+#include "tests/plain_ls_decoder.h"
+
+namespace mesoscan {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path TempDir(const std::string& name) {
+  return fs::temp_directory_path() / ("mesoscan_robust_" + std::to_string(getpid()) + "_" + name);
+}
+
+struct Figures {
+  GroundTruthErrors e;
+  double crlb = 0;          // RMS Cramer-Rao depth floor over the scored pixels, m
+  ReconstructSummary sum;
+  Scan scan;
+};
+
+Figures RunCase(const Session& s, const SimulateOptions& so, const ReconstructOptions& ro_in = {}) {
+  ReconstructOptions ro = ro_in;
+  ro.keep_diagnostics = true;
+  Figures f;
+  f.scan = Reconstruct(s, ro, &f.sum);
+  f.e = EvaluateAgainstGroundTruth(s, f.scan.points);
+  const NoiseModel noise = MakeNoiseModel(so);
+  f.crlb = LensShiftDepthCrlbRms(s, f.sum.diagnostics, f.e.error,
+                                 [&](double m) { return noise.Sigma(m); });
+  return f;
+}
+
+void Print(const char* label, const Figures& f) {
+  std::printf("%-34s RMS %.3f um, median |e| %.3f um, CRLB %.3f um (RMS/CRLB %.3f), coverage %.4f\n",
+              label, f.e.rms_m * 1e6, f.e.median_abs_m * 1e6, f.crlb * 1e6, f.e.rms_m / f.crlb,
+              f.e.coverage);
+}
+
+// Row 1 (and row 2, on this simulator): the coin with 15 lens-shift frames and strong ambient
+// light, per-frame gain jitter 0 vs 0.02. Same seed: the same pixel noise, only the jitter differs.
+SimulateOptions CoinJitter(double jitter) {
+  SimulateOptions so;
+  so.object = "coin";
+  so.crop = std::array<int, 4>{400, 300, 1000, 600};
+  so.ls_frames = 15;
+  so.ambient = 0.15;
+  so.gain_jitter = jitter;
+  so.seed = 1;
+  return so;
+}
+
+TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
+  Progress::SetEnabled(false);
+  const fs::path d0 = TempDir("coin_j0"), d1 = TempDir("coin_j2");
+  const SimulateOptions s0 = CoinJitter(0.0), s1 = CoinJitter(0.02);
+  Simulate(s0, d0);
+  Simulate(s1, d1);
+  const Session a = ReadSession(d0), b = ReadSession(d1);
+  const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
+  ReconstructOptions als;
+  als.frame_gain_method = FrameGainMethod::kAlternating;
+  ReconstructOptions means;
+  means.frame_gain_method = FrameGainMethod::kFrameMeans;
+  const Figures jit_als = RunCase(b, s1, als), jit_means = RunCase(b, s1, means);
+  Print("coin, no jitter", clean);
+  Print("coin, jitter 0.02 (joint)", jit);
+  Print("coin, jitter 0.02 (als, before)", jit_als);
+  Print("coin, jitter 0.02 (frame means)", jit_means);
+  // True gains against the estimate (the simulator records them).
+  const Json sim = ReadJsonFile(d1 / "session.json")["simulation"];
+  std::printf("frame corrections: %s\n", jit.sum.frame_corrections.dump().c_str());
+  // Gain error of the lens-shift frames (both normalised to mean 1 over those frames).
+  auto gain_error = [&](const Figures& f) {
+    std::vector<double> t, e;
+    for (size_t k = 0; k < b.frames.size(); ++k)
+      if (b.frames[k].pattern.type == PatternType::kStripes) {
+        t.push_back(sim["frame_gains"][k].get<double>());
+        e.push_back(f.sum.frame_gains[k]);
+      }
+    double mt = 0, me = 0;
+    for (size_t k = 0; k < t.size(); ++k) {
+      mt += t[k] / t.size();
+      me += e[k] / t.size();
+    }
+    double s2 = 0;
+    for (size_t k = 0; k < t.size(); ++k) s2 += std::pow(e[k] / me - t[k] / mt, 2);
+    return std::sqrt(s2 / t.size());
+  };
+  std::printf("lens-shift frame gain error RMS: joint %.2e, als %.2e, means %.2e (jitter 2e-2)\n",
+              gain_error(jit), gain_error(jit_als), gain_error(jit_means));
+  EXPECT_GE(jit.e.coverage, clean.e.coverage - 0.002);
+  EXPECT_LE(jit.e.rms_m, 1.05 * clean.e.rms_m);
+  EXPECT_LE(jit.e.median_abs_m, 1.05 * clean.e.median_abs_m);
+  fs::remove_all(d0);
+  fs::remove_all(d1);
+}
+
+// Row 3 (and issue item 2): the low-contrast leaf. The default pipeline's error is at or below
+// the plain fixed-frequency linear least-squares decoder's (tests/plain_ls_decoder.h) on the same
+// frames and the same pixels.
+TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = "leaf";
+  so.crop = std::array<int, 4>{384, 288, 900, 600};
+  so.blur_sigma_px = 0.7;
+  const fs::path dir = TempDir("leaf");
+  Simulate(so, dir);
+  const Session s = ReadSession(dir);
+  Figures f = RunCase(s, so);
+  {  // before issue 13: alternating least squares gains (on the same pixels as below)
+    ReconstructOptions als;
+    als.frame_gain_method = FrameGainMethod::kAlternating;
+    Figures b = RunCase(s, so, als);
+    ScanPoints plain_b = testing::PlainLsDecode(s, b.scan.points.projector_u);
+    testing::IntersectPoints(&b.scan.points, &plain_b);
+    std::printf("leaf, als gains (before): pipeline RMS %.3f um, plain LS %.3f um\n",
+                EvaluateAgainstGroundTruth(s, b.scan.points).rms_m * 1e6,
+                EvaluateAgainstGroundTruth(s, plain_b).rms_m * 1e6);
+  }
+  ScanPoints plain = testing::PlainLsDecode(s, f.scan.points.projector_u);
+  testing::IntersectPoints(&f.scan.points, &plain);
+  const GroundTruthErrors ep = EvaluateAgainstGroundTruth(s, f.scan.points);
+  const GroundTruthErrors eq = EvaluateAgainstGroundTruth(s, plain);
+  std::printf("leaf (blur 0.7), same %lld pixels: pipeline RMS %.3f um, plain LS %.3f um; "
+              "CRLB %.3f um\n",
+              static_cast<long long>(ep.pixels_both), ep.rms_m * 1e6, eq.rms_m * 1e6,
+              f.crlb * 1e6);
+  EXPECT_GT(ep.pixels_both, 50000);
+  EXPECT_LE(ep.rms_m, eq.rms_m);
+  fs::remove_all(dir);
+}
+
+// Row 4 (issue item 3): the tilted plane 1.6-3.3 mm above the focus plane (focus on the mount,
+// as before the simulator focused at the object's mid height). Where the 2-px stripes are blurred
+// away, phase shifting decides (source 1), with its own predicted sigma and a lower confidence.
+TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = "plane";
+  so.crop = std::array<int, 4>{256, 192, 960, 620};
+  so.focus_height_m = 0.0;
+  const fs::path dir = TempDir("plane_defocus");
+  Simulate(so, dir);
+  const Session s = ReadSession(dir);
+  ReconstructOptions off;
+  off.phase_shift_fallback = false;
+  const Figures before = RunCase(s, so, off), f = RunCase(s, so);
+  Print("defocused plane, no fallback", before);
+  Print("defocused plane, fallback", f);
+  const ReconstructDiagnostics& d = f.sum.diagnostics;
+  double s2[2] = {0, 0}, c_max[2] = {0, 0}, c_min[2] = {1, 1};
+  int64_t n[2] = {0, 0};
+  for (int y = 0; y < d.u.height(); ++y)
+    for (int x = 0; x < d.u.width(); ++x) {
+      const float e = f.e.error(x, y), src = f.scan.points.source(x, y);
+      const float conf = f.scan.points.confidence(x, y);
+      if (conf > 0) {
+        ASSERT_TRUE(src == 0.0f || src == 1.0f) << x << "," << y;
+      } else {
+        ASSERT_TRUE(std::isnan(src));
+      }
+      if (!std::isfinite(e) || !(conf > 0)) continue;
+      const int k = static_cast<int>(src);
+      const double sz = d.sigma_u(x, y) * std::abs(d.dz_du(x, y));
+      ASSERT_TRUE(sz > 0) << x << "," << y;
+      s2[k] += (e / sz) * (e / sz);
+      ++n[k];
+      c_max[k] = std::max<double>(c_max[k], conf);
+      c_min[k] = std::min<double>(c_min[k], conf);
+    }
+  const double r_ls = n[0] ? std::sqrt(s2[0] / n[0]) : 0, r_ps = n[1] ? std::sqrt(s2[1] / n[1]) : 0;
+  std::printf("lens-shift pixels %lld (RMS error / predicted sigma %.3f, confidence %.2f-%.2f); "
+              "phase-shift pixels %lld (%.3f, confidence %.2f-%.2f)\n",
+              static_cast<long long>(n[0]), r_ls, c_min[0], c_max[0],
+              static_cast<long long>(n[1]), r_ps, c_min[1], c_max[1]);
+  EXPECT_GE(f.e.coverage, 0.99);
+  EXPECT_GT(n[1], 1000);  // the fallback is exercised
+  EXPECT_LE(r_ps, 1.2);
+  EXPECT_LE(c_max[1], 0.5);
+  fs::remove_all(dir);
+}
+
+// The simulator focuses at the object's mid height unless told otherwise.
+TEST(RobustReconstruct, SimulatorFocusesAtTheObjectsMidHeight) {
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = "plane";
+  so.crop = std::array<int, 4>{16, 12, 960, 620};
+  so.ls_frames = 0;
+  const fs::path dir = TempDir("plane_focus");
+  Simulate(so, dir);
+  const Json sim = ReadJsonFile(dir / "session.json")["simulation"];
+  const double focus = sim["projector"]["focus_height_m"].get<double>();
+  std::printf("plane: focus at %.4f mm\n", focus * 1e3);
+  EXPECT_GT(focus, 0.5e-3);
+  so.focus_height_m = 0.0;
+  Simulate(so, dir);
+  EXPECT_EQ(ReadJsonFile(dir / "session.json")["simulation"]["projector"]["focus_height_m"]
+                .get<double>(),
+            0.0);
+  fs::remove_all(dir);
+}
+
+// Issue item 4: per-frame lens-shifter position errors of 0.02 px RMS cost at most 5% of the
+// depth error of the error-free session once the positions are estimated jointly; the estimate
+// matches the simulator's errors up to an affine map.
+TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
+  Progress::SetEnabled(false);
+  SimulateOptions s0 = CoinJitter(0.005);
+  s0.ls_frames = 50;
+  s0.ambient = 0.03;
+  SimulateOptions s1 = s0;
+  s1.shift_position_error_px = 0.02;
+  const fs::path d0 = TempDir("coin_p0"), d1 = TempDir("coin_p2");
+  Simulate(s0, d0);
+  Simulate(s1, d1);
+  const Session a = ReadSession(d0), b = ReadSession(d1);
+  ReconstructOptions nopos;
+  nopos.correct_positions = false;
+  const Figures clean = RunCase(a, s0), corrected = RunCase(b, s1), uncorrected = RunCase(b, s1, nopos);
+  Print("coin, exact positions", clean);
+  Print("coin, 0.02 px errors, estimated", corrected);
+  Print("coin, 0.02 px errors, nominal", uncorrected);
+  // Estimated positions against the truth with its affine part removed (shift order = frame order
+  // of the stripes frames, which the simulator writes by ascending shift).
+  const Json sim = ReadJsonFile(d1 / "session.json")["simulation"];
+  std::vector<std::pair<double, double>> by_shift;  // the pipeline's order: ascending shift
+  for (size_t f = 0; f < b.frames.size(); ++f)
+    if (b.frames[f].pattern.type == PatternType::kStripes)
+      by_shift.emplace_back(b.frames[f].shift_steps / b.rig.lens_shifter->steps_per_px,
+                            sim["shift_position_errors_px"][f].get<double>());
+  std::sort(by_shift.begin(), by_shift.end());
+  std::vector<double> truth, x;
+  for (const auto& [xs, t] : by_shift) {
+    x.push_back(xs);
+    truth.push_back(t);
+  }
+  const Json& fc = corrected.sum.frame_corrections;
+  ASSERT_TRUE(fc.is_object());
+  ASSERT_TRUE(fc["valid"].get<bool>());
+  const std::vector<double> est = fc["positions_px"].get<std::vector<double>>();
+  ASSERT_EQ(est.size(), truth.size());
+  {
+    const double nk = static_cast<double>(x.size());
+    double sx = 0, sxx = 0, sd = 0, sxd = 0;
+    for (size_t k = 0; k < x.size(); ++k) {
+      sx += x[k];
+      sxx += x[k] * x[k];
+      sd += truth[k];
+      sxd += x[k] * truth[k];
+    }
+    const double bb = (nk * sxd - sx * sd) / (nk * sxx - sx * sx), aa = (sd - bb * sx) / nk;
+    double e2 = 0, t2 = 0;
+    for (size_t k = 0; k < x.size(); ++k) {
+      const double t = truth[k] - aa - bb * x[k];
+      e2 += (est[k] - t) * (est[k] - t);
+      t2 += t * t;
+    }
+    std::printf("positions: truth (affine-free) RMS %.4f px, estimate error RMS %.4f px\n",
+                std::sqrt(t2 / nk), std::sqrt(e2 / nk));
+    EXPECT_LT(std::sqrt(e2 / nk), 0.25 * std::sqrt(t2 / nk));
+  }
+  EXPECT_LE(corrected.e.rms_m, 1.05 * clean.e.rms_m);
+  EXPECT_GE(corrected.e.coverage, clean.e.coverage - 0.002);
+  fs::remove_all(d0);
+  fs::remove_all(d1);
+}
+
+// Stress (issue 13): 8-bit frames, weak stripes (strong ambient light, blur), saturation in 10% of the frames, gain jitter and shifter position errors: no NaN
+// where confidence > 0, finite frame corrections.
+TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = "coin";
+  so.crop = std::array<int, 4>{160, 120, 1100, 650};
+  so.adc_bits = 8;
+  so.ambient = 10.0;
+  so.exposure = 0.08;
+  so.blur_sigma_px = 1.0;
+  so.gain_jitter = 0.02;
+  so.shift_position_error_px = 0.02;
+  so.seed = 3;
+  const fs::path dir = TempDir("stress");
+  Simulate(so, dir);
+  Session s = ReadSession(dir);
+  // Saturate a block and a sprinkle of pixels in every tenth frame.
+  int saturated_frames = 0;
+  for (size_t f = 0; f < s.frames.size(); f += 10) {
+    const fs::path file = dir / s.frames[f].file;
+    const ImageF im = ReadImage(file);
+    ImageU16 out(im.width(), im.height(), 1);
+    for (int y = 0; y < im.height(); ++y)
+      for (int x = 0; x < im.width(); ++x) {
+        const bool sat = (x >= 40 && x < 80 && y >= 30 && y < 70) || (x * 7 + y * 13) % 97 == 0;
+        out(x, y) = sat ? 65535 : static_cast<uint16_t>(std::lround(im(x, y) * 65535.0));
+      }
+    WritePng16(file, out);
+    ++saturated_frames;
+  }
+  s = ReadSession(dir);
+  ReconstructOptions ro;
+  ro.keep_diagnostics = true;
+  ReconstructSummary sum;
+  const Scan scan = Reconstruct(s, ro, &sum);
+  // Stripe amplitude relative to white, median over the fitted pixels.
+  std::vector<float> rel;
+  const ReconstructDiagnostics& d = sum.diagnostics;
+  for (int y = 0; y < d.ls_amplitude.height(); ++y)
+    for (int x = 0; x < d.ls_amplitude.width(); ++x)
+      if (std::isfinite(d.ls_amplitude(x, y)) && d.white_level(x, y) > 0)
+        rel.push_back(d.ls_amplitude(x, y) / d.white_level(x, y));
+  std::sort(rel.begin(), rel.end());
+  const double med = rel.empty() ? 0 : rel[rel.size() / 2];
+  std::printf("stress: %d frames saturated, stripe amplitude / white median %.4f (p10 %.4f), "
+              "%lld points, %lld saturated pixels, frame corrections %s\n",
+              saturated_frames, med, rel.empty() ? 0.0 : rel[rel.size() / 10],
+              static_cast<long long>(sum.pixels_valid), static_cast<long long>(sum.pixels_saturated),
+              sum.frame_corrections.dump().c_str());
+  // Note: the amplitude of the pixels whose stripe fit is valid stays ~10% of white here (the
+  // weaker ones fail their fit and fall back); the 0.5% level is exercised by
+  // frame_corrections_test and lens_shift_fit_test, not by this session.
+  EXPECT_GT(sum.pixels_saturated, 1000);
+  int64_t bad = 0, valid = 0;
+  for (int y = 0; y < scan.points.confidence.height(); ++y)
+    for (int x = 0; x < scan.points.confidence.width(); ++x) {
+      const float c = scan.points.confidence(x, y);
+      ASSERT_FALSE(std::isnan(c));
+      if (!(c > 0)) continue;
+      ++valid;
+      bad += !std::isfinite(scan.points.xyz(x, y, 0)) || !std::isfinite(scan.points.xyz(x, y, 1)) ||
+             !std::isfinite(scan.points.xyz(x, y, 2)) || !std::isfinite(scan.points.source(x, y)) ||
+             !std::isfinite(scan.points.projector_u(x, y));
+    }
+  EXPECT_EQ(bad, 0);
+  EXPECT_GT(valid, 0);
+  for (double g : sum.frame_gains) EXPECT_TRUE(std::isfinite(g) && g > 0);
+  for (float z : scan.height.z.data()) EXPECT_FALSE(std::isinf(z));
+  fs::remove_all(dir);
+}
+
+// Row 5 (issue item 5): another scanner's pattern set, 3 phases of 16 periods across the
+// projector plus 3 phases of a one-period cue as wide as the projector. Needs issue 11's
+// unwrapper (a cue period equal to the projector width, ambiguous columns marked instead of a
+// refused session): enable (drop DISABLED_) once that is merged.
+TEST(RobustReconstruct, DISABLED_CuePeriodEqualToTheProjectorWidth) {
+  Progress::SetEnabled(false);
+  SimulateOptions so;
+  so.object = "plane";
+  so.crop = std::array<int, 4>{128, 96, 960, 620};
+  const double width = ResolveRig(so).projector.width;
+  so.ps_periods_px = {width / 16, width};
+  so.ps_phases = 3;
+  const fs::path dir = TempDir("cue_width");
+  Simulate(so, dir);
+  const Session s = ReadSession(dir);
+  const Figures f = RunCase(s, so);
+  Print("plane, cue = projector width", f);
+  EXPECT_GE(f.e.coverage, 0.95);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace mesoscan
