@@ -407,23 +407,34 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
     }
     residual_stripe = dsum > 0 ? std::hypot(re, im) / dsum : 1.0;
   }
-  const bool means_ok = residual_stripe <= options.max_residual_stripe;
+  // Frame means over the fitted pixels, normalised to a mean gain of 1.
+  std::vector<double> mean_gains;
+  double total = 0;
+  for (int k : frames) {
+    double m = 0;
+    for (uint32_t i : pixels) m += stack.Value(k, i);
+    mean_gains.push_back(m);
+    total += m;
+  }
+  bool means_valid = total > 0 && std::isfinite(total);
+  double spread2 = 0;  // the jitter the frame means see
+  for (double& g : mean_gains) {
+    g *= static_cast<double>(frames.size()) / total;
+    means_valid = means_valid && g > 0;
+    spread2 += (g - 1) * (g - 1);
+  }
+  const double spread = means_valid ? std::sqrt(spread2 / mean_gains.size()) : 0.0;
+  // The means' bias is bounded by the residual stripe: they are worth starting from only where
+  // that bias is small both absolutely and against the jitter they correct (a small view of a
+  // steady lamp keeps the given gains: its stripes do not average out to below its jitter).
+  const bool means_ok = means_valid && residual_stripe <= options.max_residual_stripe &&
+                        residual_stripe <= options.max_stripe_to_jitter * spread;
   if (options.method == FrameGainMethod::kFrameMeans ||
       (options.method == FrameGainMethod::kJoint && options.start_from_frame_means && means_ok)) {
+    if (!means_valid) return {};
     FrameCorrections fc;
     fc.positions_px.assign(frames.size(), 0.0);
-    double total = 0;
-    for (int k : frames) {
-      double m = 0;
-      for (uint32_t i : pixels) m += stack.Value(k, i);
-      fc.gains.push_back(m);
-      total += m;
-    }
-    if (!(total > 0) || !std::isfinite(total)) return {};
-    for (double& g : fc.gains) {
-      g *= static_cast<double>(frames.size()) / total;
-      if (!(g > 0)) return {};
-    }
+    fc.gains = mean_gains;
     fc.pixels_used = static_cast<int>(pixels.size());
     fc.valid = true;
     fc.model = "means";

@@ -58,6 +58,9 @@ struct FrameCorrectionOptions {
   // first-pass fits at most this (else the start is the given gains, in band too).
   // CorrectLensShiftFrames with amp/phase/offset only.
   double max_residual_stripe = 5e-3;
+  // ... and at most this fraction of the RMS deviation of the frame-mean gains from 1 (the
+  // jitter they would correct), so their bias stays well below what they remove, >= 0.
+  double max_stripe_to_jitter = 0.25;
   int max_pixels = 12000;  // pixels used (a regular subsample of the candidates), >= 16
   // Positions beyond this many projector pixels from nominal mark the estimate as failed (the
   // nominal positions are kept), > 0.

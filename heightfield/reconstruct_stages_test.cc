@@ -323,9 +323,22 @@ TEST(StageCombine, LensShiftFinePhaseAndPeriodJumps) {
   CombineInput in = MakeCombineInput({100.5, 101.1, 400.25}, {100.3, 100.3, 400.25});
   in.ls.residual_rms[2] = 0.16f;  // E = (0.16 / 0.3)^2: c = 1 - sqrt(4 E) < 0
   PixelStates state(3, PixelState::kActive);
-  const CombinedPixels c = CombinePhases(in.plan, in.ps, in.ls, {}, &state);
+  CombineOptions no_fallback;
+  no_fallback.phase_shift_fallback = false;
+  const CombinedPixels c = CombinePhases(in.plan, in.ps, in.ls, no_fallback, &state);
   EXPECT_EQ(state, (PixelStates{PixelState::kActive, PixelState::kCombination,
                                 PixelState::kLowConfidence}));
+  // With the fallback (the default) the noisy-profile pixel is decided by phase shifting alone,
+  // at a lower confidence; the period jump of good stripes is still rejected.
+  PixelStates state_fb(3, PixelState::kActive);
+  const CombinedPixels fb = CombinePhases(in.plan, in.ps, in.ls, {}, &state_fb);
+  EXPECT_EQ(state_fb, (PixelStates{PixelState::kActive, PixelState::kCombination,
+                                   PixelState::kActive}));
+  EXPECT_EQ(fb.source[0], 0);
+  EXPECT_EQ(fb.source[2], 1);
+  EXPECT_NEAR(fb.u[2], fb.u_coarse[2], 1e-6);
+  EXPECT_GT(fb.confidence[2], 0.0f);
+  EXPECT_LE(fb.confidence[2], 0.5f);
   EXPECT_NEAR(c.u[0], 100.3, 1e-4);
   EXPECT_NEAR(c.u_coarse[0], 100.5, 1e-3);
   // sigma_u = sqrt(2 sigma^2 / (N a^2)) / pi with sigma = rms sqrt(N / (N - 3)).

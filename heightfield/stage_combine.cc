@@ -100,13 +100,15 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         const double comb = ur.u - u;
         const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
         c = 1.0 - std::sqrt(e * options.confidence_t);
-        c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
         if (fallback && !(c >= options.min_confidence && c > 0)) {
           ls_pixel = false;  // the stripes have lost their contrast: phase shifting decides
           u = ur.u;
         } else if (std::abs(comb) > options.max_combination_residual_px) {
-          state[i] = PixelState::kCombination;  // the cues disagree: neither is trusted
+          // Good stripes that disagree with the coarse column by a period: neither is trusted.
+          state[i] = PixelState::kCombination;
           continue;
+        } else {
+          c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
         }
       }
       if (!ls_pixel) {

@@ -41,7 +41,7 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
         }
         for (int c = 0; c < 3; ++c) points.xyz(cx, cy, c) = static_cast<float>((*p)[c]);
         points.confidence(cx, cy) = combined.confidence[i];
-        points.source(cx, cy) = combined.source[i];
+        if (!combined.source.empty()) points.source(cx, cy) = combined.source[i];
         state[i] = PixelState::kOk;
         // dZ/du by a forward difference (the map is smooth on this scale).
         const auto b = tri.Intersect(ray, u[i] + 0.5);

@@ -132,6 +132,9 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   const Rig rig = ResolveRig(o);
   const PinholeCamera& cam = rig.camera;
   const PinholeCamera& prj = rig.projector;
+  // NaN focus (the object's mid height for objects): a calibration plan keeps the focus of the
+  // scans it calibrates for, on the mount plane.
+  const double focus_z = std::isnan(o.focus_height_m) ? 0.0 : o.focus_height_m;
   const CalibrationBoard& board = bo.board;
   const Rigid3d world_from_board = BoardPoseToRigid(bo.pose);
   const Rigid3d board_from_world = world_from_board.Inverse();
@@ -299,7 +302,7 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
                   any_lit = true;
                   const double sh = albedo * cos_i * (r0 / r) * (r0 / r);
                   const double sigma =
-                      o.blur_sigma_px + o.defocus_px_per_m * std::abs(p.z() - o.focus_height_m);
+                      o.blur_sigma_px + o.defocus_px_per_m * std::abs(p.z() - focus_z);
                   for (int si = 0; si < nsets; ++si) {
                     const double x = sets[si].axis == 'x' ? uv[0] : uv[1];
                     // The projected sine blurred by a Gaussian (sigma) and a pixel box of the

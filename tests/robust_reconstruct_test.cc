@@ -356,10 +356,9 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
 }
 
 // Row 5 (issue item 5): another scanner's pattern set, 3 phases of 16 periods across the
-// projector plus 3 phases of a one-period cue as wide as the projector. Needs issue 11's
-// unwrapper (a cue period equal to the projector width, ambiguous columns marked instead of a
-// refused session): enable (drop DISABLED_) once that is merged.
-TEST(RobustReconstruct, DISABLED_CuePeriodEqualToTheProjectorWidth) {
+// projector plus 3 phases of a one-period cue as wide as the projector: reconstructs (issue 11's
+// unwrapper marks the ambiguous edge columns instead of refusing the session).
+TEST(RobustReconstruct, CuePeriodEqualToTheProjectorWidth) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "plane";
