@@ -38,7 +38,8 @@ namespace {
 using namespace consumers;  // NOLINT: the shared consumer helpers of tests/export_consumers.h
 
 // scripts/demo's simulate step, verbatim (DemoScriptSimulatesThisCoin keeps the two in step).
-constexpr const char* kDemoSimulate = "simulate --object coin --rig paper --crop 400x400+888+517";
+constexpr const char* kDemoSimulate =
+    "simulate --object coin --rig paper --crop 400x400+888+517 --focus-height 0";
 // The simulated coin (assets/objects.cc MakeCoin).
 constexpr double kCoinRadius = 9.5e-3, kField = 1.2e-3, kRim = 1.3e-3, kLetters = 40e-6;
 // Decimated GLB: a third of the lossless mesh's ~300k triangles.
