@@ -226,17 +226,6 @@ ImageF NormaliseAlbedo(const ImageF& a) {
   return out;
 }
 
-std::string SessionPathFromReport(const Json& report) {
-  for (const char* key : {"session", "session_dir", "session_path"}) {
-    if (!report.contains(key)) continue;
-    const Json& v = report.at(key);
-    if (v.is_string()) return v.get<std::string>();
-    if (v.is_object())
-      for (const char* sub : {"path", "dir", "root"})
-        if (v.contains(sub) && v.at(sub).is_string()) return v.at(sub).get<std::string>();
-  }
-  return {};
-}
 
 Json GridJson(const HeightField& hf) {
   return {{"width_px", hf.width()},
@@ -250,6 +239,18 @@ Json GridJson(const HeightField& hf) {
 }
 
 }  // namespace
+
+std::string SessionPathFromReport(const Json& report) {
+  for (const char* key : {"session", "session_dir", "session_path"}) {
+    if (!report.contains(key)) continue;
+    const Json& v = report.at(key);
+    if (v.is_string()) return v.get<std::string>();
+    if (v.is_object())
+      for (const char* sub : {"path", "dir", "root"})
+        if (v.contains(sub) && v.at(sub).is_string()) return v.at(sub).get<std::string>();
+  }
+  return {};
+}
 
 // ---- public helpers -------------------------------------------------------------------------
 

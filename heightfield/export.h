@@ -111,4 +111,8 @@ ImageF AlbedoFromSession(const HeightField& hf, const std::filesystem::path& ses
 // rgb = 0.5 + 0.5 * n, with the convention's sign of green.
 ImageF EncodeNormalMap(const ImageF& n, NormalConvention convention);
 
+// The session folder a scan's report.json names ("session", or the older "session_dir" /
+// "session_path", a string or an object with "path"/"dir"/"root"); "" if none.
+std::string SessionPathFromReport(const Json& report);
+
 }  // namespace mesoscan

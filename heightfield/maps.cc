@@ -1,5 +1,6 @@
 #include "heightfield/maps.h"
 
+
 #include <tbb/task_group.h>
 
 #include <opencv2/imgproc.hpp>
@@ -17,6 +18,7 @@
 #include "core/image_io.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "heightfield/export.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -29,18 +31,6 @@ using Clock = std::chrono::steady_clock;
 
 double Since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-// The session folder named by a scan's report.json (as export reads it).
-std::string SessionOf(const Json& report) {
-  for (const char* key : {"session", "session_dir", "session_path"}) {
-    if (!report.contains(key)) continue;
-    const Json& v = report.at(key);
-    if (v.is_string()) return v.get<std::string>();
-    if (v.is_object())
-      for (const char* sub : {"path", "dir", "root"})
-        if (v.contains(sub) && v.at(sub).is_string()) return v.at(sub).get<std::string>();
-  }
-  return {};
-}
 
 // Value of the q-quantile of the finite values of channel 0..nc-1 (mean over channels).
 double Quantile(const ImageF& im, double q) {
@@ -228,7 +218,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
       albedo = CropAndResampleImage(o.albedo, scan.height, o.crop, 0.0);
       albedo_source = "given on the height grid (no falloff correction)";
     } else if (o.albedo_from_session) {
-      const std::string session = SessionOf(scan.report);
+      const std::string session = SessionPathFromReport(scan.report);
       if (!session.empty() && fs::is_directory(session)) {
         try {
           const Session s = ReadSession(session, /*check_frames=*/false);
