@@ -374,7 +374,7 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
     v *= static_cast<double>(frames.size()) / total;
     ok = ok && v > 0 && std::isfinite(v);
   }
-  if (!ok) g.assign(frames.size(), 1.0);
+  if (!ok) g.clear();
   return g;
 }
 
@@ -408,21 +408,10 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
     residual_stripe = dsum > 0 ? std::hypot(re, im) / dsum : 1.0;
   }
   // Frame means over the fitted pixels, normalised to a mean gain of 1.
-  std::vector<double> mean_gains;
-  double total = 0;
-  for (int k : frames) {
-    double m = 0;
-    for (uint32_t i : pixels) m += stack.Value(k, i);
-    mean_gains.push_back(m);
-    total += m;
-  }
-  bool means_valid = total > 0 && std::isfinite(total);
+  const std::vector<double> mean_gains = FrameMeanGains(stack, frames, pixels);
+  const bool means_valid = !mean_gains.empty();
   double spread2 = 0;  // the jitter the frame means see
-  for (double& g : mean_gains) {
-    g *= static_cast<double>(frames.size()) / total;
-    means_valid = means_valid && g > 0;
-    spread2 += (g - 1) * (g - 1);
-  }
+  for (double g : mean_gains) spread2 += (g - 1) * (g - 1);
   const double spread = means_valid ? std::sqrt(spread2 / mean_gains.size()) : 0.0;
   // The means' bias is bounded by the residual stripe: they are worth starting from only where
   // that bias is small both absolutely and against the jitter they correct (a small view of a

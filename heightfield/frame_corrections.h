@@ -111,7 +111,8 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
 
 namespace mesoscan {
 
-// Gains of `frames` as their means over `pixels`, normalised to mean 1 (1 where undefined).
+// Gains of `frames` as their means over `pixels`, normalised to mean 1; empty where undefined
+// (no positive, finite total or a gain <= 0).
 std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<int>& frames,
                                    const std::vector<uint32_t>& pixels);
 
