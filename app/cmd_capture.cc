@@ -8,7 +8,6 @@
 #include <csignal>
 #include <iostream>
 #include <memory>
-#include <sstream>
 
 #include "app/commands.h"
 #include "app/rehearsal.h"
@@ -26,57 +25,58 @@ namespace {
 std::atomic<bool> g_interrupt{false};
 extern "C" void OnSigint(int) { g_interrupt.store(true); }
 
-std::vector<double> ParsePeriodList(const std::string& text) {
-  std::vector<double> periods;
-  if (text == "none") return periods;
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    size_t used = 0;
-    double p = 0;
-    try {
-      p = std::stod(item, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    if (used != item.size() || !(p > 2) || !std::isfinite(p))
-      MESOSCAN_THROW(ErrorKind::kUsage, "--periods: '" << text
-                                                       << "': expected comma-separated periods "
-                                                          "> 2 px, e.g. 7,11,13, or 'none'");
-    periods.push_back(p);
-  }
-  return periods;
-}
-
 struct Args {
   std::string out, rig, camera = "gphoto2", camera_ext = "nef", shifter, display, object;
-  std::string periods = "7,11,13";
+  std::string plan = "scan", periods = "7,11,13", periods_y;
   int phases = 3, ls_frames = 50, projector_x = 0, projector_y = 0, baud = 115200;
   bool no_white = false, no_black = false, rehearse = false;
+  bool periods_given = false, periods_y_given = false, ls_frames_given = false;
   SequencerOptions seq;
 };
 
-void RunCapture(const Args& a) {
-  // The plan: the rig's devices and the standard frames (phase shift + lens shift + white/black).
-  const Rig rig = LoadRigFile(a.rig);
-  FramePlanOptions plan;
-  plan.periods_px = ParsePeriodList(a.periods);
+// The frames to capture (capture/patterns.h, the generator `simulate` uses too): a scan (sines
+// along the shifter's axis, lens shift over its range, white, black) or a calibration plan (sines
+// along both projector axes, white, black; no lens shift).
+FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
   if (a.phases < 3) MESOSCAN_THROW(ErrorKind::kUsage, "--phases: expected >= 3, got " << a.phases);
-  plan.phases = a.phases;
-  plan.lens_shift_frames = rig.lens_shifter ? a.ls_frames : 0;
-  if (rig.lens_shifter) {
-    plan.axis = rig.lens_shifter->axis;
-    plan.range_steps = rig.lens_shifter->range_steps;
+  FramePlanOptions plan;
+  if (a.plan == "calibration") {
+    if (a.ls_frames_given && a.ls_frames != 0)
+      MESOSCAN_THROW(ErrorKind::kUsage,
+                     "--ls-frames: a calibration plan has no lens-shift frames (omit --ls-frames)");
+    plan = CalibrationPlan(rig.projector.width, rig.projector.height);
+    if (a.periods_given) plan.periods_px = ParsePeriodList(a.periods, "--periods");
+    if (a.periods_y_given) plan.cross_periods_px = ParsePeriodList(a.periods_y, "--periods-y");
+    if (plan.periods_px.empty() || plan.cross_periods_px.empty())
+      MESOSCAN_THROW(ErrorKind::kUsage, "--plan calibration: expected sine periods along both "
+                                        "axes (--periods, --periods-y)");
+  } else if (a.plan == "scan") {
+    if (a.periods_y_given)
+      MESOSCAN_THROW(ErrorKind::kUsage, "--periods-y: only with --plan calibration");
+    plan.periods_px = ParsePeriodList(a.periods, "--periods");
+    plan.lens_shift_frames = rig.lens_shifter ? a.ls_frames : 0;
+    if (rig.lens_shifter) {
+      plan.axis = rig.lens_shifter->axis;
+      plan.range_steps = rig.lens_shifter->range_steps;
+    }
+    const int64_t positions = int64_t{plan.range_steps[1]} - plan.range_steps[0] + 1;
+    if (plan.lens_shift_frames != 0 &&
+        (plan.lens_shift_frames < 4 || plan.lens_shift_frames > positions))
+      MESOSCAN_THROW(ErrorKind::kUsage, "--ls-frames: expected 0 or 4.."
+                                            << positions
+                                            << " (the shifter's positions), got " << a.ls_frames);
+  } else {
+    MESOSCAN_THROW(ErrorKind::kUsage, "--plan: '" << a.plan << "': expected scan or calibration");
   }
-  if (plan.lens_shift_frames != 0 &&
-      (plan.lens_shift_frames < 4 ||
-       plan.lens_shift_frames > plan.range_steps[1] - plan.range_steps[0]))
-    MESOSCAN_THROW(ErrorKind::kUsage, "--ls-frames: expected 0 or 4.."
-                                          << plan.range_steps[1] - plan.range_steps[0]
-                                          << " (the shifter's range in steps), got "
-                                          << a.ls_frames);
+  plan.phases = a.phases;
   plan.white = !a.no_white;
   plan.black = !a.no_black;
+  return plan;
+}
+
+void RunCapture(const Args& a) {
+  const Rig rig = LoadRigFile(a.rig);
+  const FramePlanOptions plan = CapturePlan(a, rig);
   Session s;
   s.root = a.out;
   s.object = a.object;
@@ -173,8 +173,17 @@ void AddCaptureCommand(CLI::App* app) {
   cmd->add_option("--projector-y", a.projector_y,
                   "Top of the projector's output on the X screen, px")
       ->capture_default_str();
-  cmd->add_option("--periods", a.periods, "Sine periods, projector px, comma-separated, or 'none'")
+  cmd->add_option("--plan", a.plan,
+                  "scan (sines, lens shift, white, black) | calibration (sines along projector x "
+                  "and y, white, black: a board for `mesoscan calibrate`)")
       ->capture_default_str();
+  cmd->add_option("--periods", a.periods,
+                  "Sine periods, projector px, comma-separated, or 'none' (calibration plan: "
+                  "along x; default the projector width and 1/16 of it)")
+      ->capture_default_str();
+  cmd->add_option("--periods-y", a.periods_y,
+                  "Calibration plan: sine periods along projector y (default the projector "
+                  "height and 1/16 of it)");
   cmd->add_option("--phases", a.phases, "Phases per sine period (>= 3)")->capture_default_str();
   cmd->add_option("--ls-frames", a.ls_frames,
                   "Lens-shift frames over the rig's shifter range (0 or >= 4; 0 without a shifter)")
@@ -193,7 +202,12 @@ void AddCaptureCommand(CLI::App* app) {
   cmd->add_option("--max-frames", a.seq.max_new_frames,
                   "Capture at most this many new frames, then stop (resume later); -1: all")
       ->capture_default_str();
-  cmd->callback([args] { RunCapture(*args); });
+  cmd->callback([args, cmd] {
+    args->periods_given = cmd->count("--periods") > 0;
+    args->periods_y_given = cmd->count("--periods-y") > 0;
+    args->ls_frames_given = cmd->count("--ls-frames") > 0;
+    RunCapture(*args);
+  });
 }
 
 }  // namespace mesoscan

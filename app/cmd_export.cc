@@ -48,14 +48,14 @@ void ValidateExportSizes(const Scan& scan, const ExportOptions& o, const std::st
   const HeightField& hf = scan.height;
   int64_t w = hf.width(), h = hf.height();
   if (!o.crop.whole()) {
-    const GridCrop& c = o.crop;
-    if (int64_t{c.x} + c.width > w || int64_t{c.y} + c.height > h)
-      MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.width
-                                                          << "," << c.height
+    const PixelRect& c = o.crop;
+    if (int64_t{c.x} + c.w > w || int64_t{c.y} + c.h > h)
+      MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.w
+                                                          << "," << c.h
                                                           << ": expected a rectangle inside the "
                                                           << w << "x" << h << " height grid");
-    w = c.width;
-    h = c.height;
+    w = c.w;
+    h = c.h;
   }
   if (!std::isfinite(o.pixel_size_m) || o.pixel_size_m < 0)
     MESOSCAN_THROW(ErrorKind::kUsage, "export: --pixel-size: expected a finite value >= 0 (m), got "
@@ -89,7 +89,7 @@ void RunExport(const ExportArgs& a) {
   ParseExportFormats(a.formats, &o);
   o.normals = a.normals == "dx" ? NormalConvention::kDirectX : NormalConvention::kOpenGl;
   o.pixel_size_m = a.pixel_size_m;
-  if (!a.crop.empty()) o.crop = ParseGridCrop(a.crop);
+  if (!a.crop.empty()) o.crop = ParsePixelRect(a.crop, "--crop");
   o.max_triangles = a.max_triangles;
   o.mesh_tolerance_m = a.mesh_tolerance_m;
   o.name = a.name.empty() ? DefaultName(a.scan) : a.name;

@@ -25,18 +25,6 @@
 namespace mesoscan {
 namespace {
 
-PixelRect ParseRoi(const std::string& s) {
-  PixelRect r;
-  char c1, c2, c3;
-  std::istringstream in(s);
-  if (!(in >> r.x >> c1 >> r.y >> c2 >> r.w >> c3 >> r.h) || c1 != ',' || c2 != ',' ||
-      c3 != ',' || !in.eof() || r.x < 0 || r.y < 0 || r.w <= 0 || r.h <= 0)
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--roi: expected x,y,w,h (non-negative integers, w and h > 0), got '" << s
-                                                                                        << "'");
-  return r;
-}
-
 struct ReconstructArgs {
   std::string session, out, roi, mask, fitter = "fast";
   std::string export_formats, export_dir;  // --export: formats for `mesoscan export`
@@ -49,7 +37,7 @@ struct ReconstructArgs {
 void Run(const ReconstructArgs& a) {
   const auto t0 = std::chrono::steady_clock::now();
   ReconstructOptions opt;
-  if (!a.roi.empty()) opt.roi = ParseRoi(a.roi);
+  if (!a.roi.empty()) opt.roi = ParsePixelRect(a.roi, "--roi");
   opt.mask_path = a.mask;
   try {
     opt.fitter = ParseLensShiftFitter(a.fitter, "--fitter");

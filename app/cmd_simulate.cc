@@ -1,57 +1,18 @@
 // mesoscan simulate: the virtual rig (sim/virtual_rig.h, model in sim/README.md).
 
 #include <cstdio>
-#include <regex>
-#include <sstream>
-
-#include "app/commands.h"
-#include "core/error.h"
 #include <filesystem>
 
+#include "app/commands.h"
+#include "capture/patterns.h"
+#include "core/error.h"
 #include "core/log.h"
+#include "core/rect.h"
 #include "core/output_dir.h"
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {
-namespace {
-
-// "7,11,13" -> {7, 11, 13}; "" or "none" -> {}.
-std::vector<double> ParsePeriods(const std::string& text) {
-  std::vector<double> out;
-  if (text.empty() || text == "none") return out;
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    try {
-      size_t used = 0;
-      const double v = std::stod(item, &used);
-      if (used != item.size()) throw std::invalid_argument(item);
-      out.push_back(v);
-    } catch (const std::exception&) {
-      MESOSCAN_THROW(ErrorKind::kUsage,
-                     "--ps-periods: '" << text << "': expected comma-separated numbers > 2");
-    }
-  }
-  return out;
-}
-
-// "WxH+X+Y" -> {W, H, X, Y}.
-std::array<int, 4> ParseCrop(const std::string& text) {
-  static const std::regex re(R"(^(\d+)x(\d+)\+(\d+)\+(\d+)$)");
-  std::smatch m;
-  if (!std::regex_match(text, m, re))
-    MESOSCAN_THROW(ErrorKind::kUsage, "--crop: '" << text << "': expected WxH+X+Y, e.g. 256x192+960+620");
-  std::array<int, 4> c;
-  for (int k = 0; k < 4; ++k) {
-    const long v = std::stol(m[k + 1].str());
-    if (v > 1 << 20) MESOSCAN_THROW(ErrorKind::kUsage, "--crop: '" << text << "': value too large");
-    c[k] = static_cast<int>(v);
-  }
-  return c;
-}
-
-}  // namespace
 
 void AddSimulateCommand(CLI::App* app) {
   auto* cmd = app->add_subcommand(
@@ -85,7 +46,8 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_flag("--no-white", args->no_white, "Do not write the white frame");
   cmd->add_flag("--no-black", args->no_black, "Do not write the black frame");
   cmd->add_option("--crop", args->crop,
-                  "Camera crop WxH+X+Y (pixels of the rig's camera; K's cx, cy are shifted)");
+                  "Camera crop X,Y,W,H or WxH+X+Y (pixels of the rig's camera; K's cx, cy are "
+                  "shifted)");
   cmd->add_option("--noise", o.noise, "Noise scale: shot, read and gain jitter (0 = noiseless)")
       ->capture_default_str();
   cmd->add_option("--seed", o.seed, "Random seed")->capture_default_str();
@@ -146,7 +108,7 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--shift-position-error", o.shift_position_error_px,
                   "Lens-shifter position error per frame, RMS in projector px")
       ->capture_default_str();
-  cmd->callback([args] {
+  cmd->callback([args, cmd] {
     SimulateOptions opt = args->o;
     if (IsBoardObject(opt.object)) {
       BoardSimOptions bo;
@@ -155,14 +117,17 @@ void AddSimulateCommand(CLI::App* app) {
       bo.frame_format = args->frame_format;
       if (args->low_contrast) bo.dark_albedo = 0.45, bo.light_albedo = 0.8;
       opt.crop.reset();
-      if (!args->crop.empty()) opt.crop = ParseCrop(args->crop);
+      if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "--crop");
       const Rig rig = ResolveRig(opt);
-      opt.ps_periods_px = ParsePeriods(args->periods);
-      bo.ps_periods_y_px = ParsePeriods(args->periods_y);
-      if (args->periods == "7,11,13")  // not given: a one-period cue and 16 periods
-        opt.ps_periods_px = {double(rig.projector.width), rig.projector.width / 16.0};
-      if (args->periods_y.empty())
-        bo.ps_periods_y_px = {double(rig.projector.height), rig.projector.height / 16.0};
+      // The calibration plan of `capture --plan calibration` (capture/patterns.h), periods as
+      // given.
+      const FramePlanOptions plan = CalibrationPlan(rig.projector.width, rig.projector.height);
+      opt.ps_periods_px = cmd->count("--ps-periods") == 0
+                              ? plan.periods_px
+                              : ParsePeriodList(args->periods, "--ps-periods");
+      bo.ps_periods_y_px = cmd->count("--ps-periods-y") == 0
+                               ? plan.cross_periods_px
+                               : ParsePeriodList(args->periods_y, "--ps-periods-y");
       opt.white = !args->no_white;
       opt.black = !args->no_black;
       const OutputSpec board_spec{"simulate", "--out", args->out,
@@ -174,8 +139,8 @@ void AddSimulateCommand(CLI::App* app) {
       MESOSCAN_LOG(kInfo) << args->out << ": " << summary.BriefReport();
       return;
     }
-    opt.ps_periods_px = ParsePeriods(args->periods);
-    if (!args->crop.empty()) opt.crop = ParseCrop(args->crop);
+    opt.ps_periods_px = ParsePeriodList(args->periods, "--ps-periods");
+    if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "--crop");
     opt.white = !args->no_white;
     opt.black = !args->no_black;
     opt.shadows = !args->no_shadows;

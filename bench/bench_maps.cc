@@ -114,12 +114,12 @@ void BM_Maps(benchmark::State& state, std::string label, FillMethod fill, bool t
     cpu = CpuSeconds() - c0;
   }
   state.counters["cpu_s"] = cpu;
-  state.counters["fill_s"] = s.seconds_per_stage["fill"];
+  state.counters["fill_s"] = StageSeconds(s.seconds_per_stage, "fill");
   state.counters["pixels_filled"] = static_cast<double>(s.fill.filled_pixels);
   state.counters["load_avg"] = LoadAverage();
   std::string stages;
   for (const auto& [k, v] : s.seconds_per_stage) stages += k + "=" + std::to_string(v) + " ";
-  Csv(label, s.seconds, s.seconds_per_stage["fill"], "cpu=" + std::to_string(cpu) + " " + stages);
+  Csv(label, s.seconds, StageSeconds(s.seconds_per_stage, "fill"), "cpu=" + std::to_string(cpu) + " " + stages);
 }
 
 // The plain baseline: OpenCV's Navier-Stokes inpainting of the same holes (16-bit heights, as

@@ -59,7 +59,7 @@ SimulateOptions PlaneOptions(int w, int h, uint64_t seed) {
   SimulateOptions o;
   o.object = "plane";
   const int cx = static_cast<int>(std::lround(1087.5 - 17e-3 / 55e-6));
-  o.crop = std::array<int, 4>{w, h, cx - w / 2, 717 - h / 2};
+  o.crop = PixelRect{cx - w / 2, 717 - h / 2, w, h};
   o.seed = seed;
   o.focus_height_m = 0.0;  // focused on the mount (the bar near it)
   return o;

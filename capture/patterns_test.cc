@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <numbers>
+#include <set>
 
 namespace mesoscan {
 namespace {
@@ -68,16 +69,63 @@ TEST(PatternsTest, StandardPlanIsAValidSession) {
   FramePlanOptions o;
   const std::vector<Frame> frames = MakeStandardFrames(o);
   ASSERT_EQ(frames.size(), 9u + 50u + 2u);
-  EXPECT_EQ(frames[0].file, "frames/ps7_0.png");
+  EXPECT_EQ(frames[0].file, "frames/ps07_0.png");  // the spec's example name
+  EXPECT_EQ(frames[8].file, "frames/ps13_2.png");
   EXPECT_NEAR(frames[1].pattern.phase, 2 * std::numbers::pi / 3, 1e-15);
+  // Lens shift over the whole range, both ends included: round(-2048 + i * 4096 / 49).
+  EXPECT_EQ(frames[9].file, "frames/ls_000.png");
   EXPECT_EQ(frames[9].shift_steps, -2048);
-  EXPECT_EQ(frames[10].shift_steps, -1966);
-  EXPECT_EQ(frames[58].shift_steps, 1966);
+  EXPECT_EQ(frames[10].shift_steps, -1964);
+  EXPECT_EQ(frames[58].shift_steps, 2048);
+  EXPECT_EQ(frames[59].file, "frames/white.png");
+  EXPECT_EQ(frames[60].file, "frames/black.png");
   const FramePlan plan = MakeFramePlan(frames);
   EXPECT_EQ(plan.sine.size(), 3u);
   EXPECT_EQ(plan.distinct_shift_steps, 50);
+  EXPECT_EQ(plan.max_shift_steps - plan.min_shift_steps, 4096);
   o.phases = 2;
   EXPECT_THROW(MakeStandardFrames(o), Error);
+}
+
+TEST(PatternsTest, CalibrationPlanHasSinesAlongBothAxesWhiteAndBlack) {
+  FramePlanOptions o = CalibrationPlan(800, 600);
+  o.extension = ".bmp";
+  const std::vector<Frame> frames = MakeStandardFrames(o);
+  ASSERT_EQ(frames.size(), 4u * 3u + 2u);
+  EXPECT_EQ(frames[0].file, "frames/ps800_0.bmp");
+  EXPECT_EQ(frames[3].file, "frames/ps50_0.bmp");
+  EXPECT_EQ(frames[6].file, "frames/psy600_0.bmp");
+  EXPECT_EQ(frames[9].file, "frames/psy37.5_0.bmp");
+  EXPECT_EQ(frames[9].pattern.axis, 'y');
+  EXPECT_EQ(frames[13].pattern.type, PatternType::kBlack);
+  for (const Frame& f : frames) EXPECT_EQ(f.shift_steps, 0) << f.file;
+  const FramePlan plan = MakeFramePlan(frames);
+  EXPECT_EQ(plan.Periods('x'), (std::vector<double>{50, 800}));
+  EXPECT_EQ(plan.Periods('y'), (std::vector<double>{37.5, 600}));
+  EXPECT_TRUE(plan.lens_shift.empty());
+  EXPECT_EQ(plan.white.size(), 1u);
+  EXPECT_EQ(plan.black.size(), 1u);
+  // Every file name is distinct.
+  std::set<std::string> names;
+  for (const Frame& f : frames) names.insert(f.file);
+  EXPECT_EQ(names.size(), frames.size());
+}
+
+TEST(PatternsTest, PeriodListsParseOrNameTheOption) {
+  EXPECT_EQ(ParsePeriodList("7,11,13", "--periods"), (std::vector<double>{7, 11, 13}));
+  EXPECT_EQ(ParsePeriodList("800,50", "--periods"), (std::vector<double>{800, 50}));
+  EXPECT_EQ(ParsePeriodList("37.5", "--periods-y"), (std::vector<double>{37.5}));
+  EXPECT_TRUE(ParsePeriodList("none", "--periods").empty());
+  EXPECT_TRUE(ParsePeriodList("", "--periods").empty());
+  for (const char* bad : {"7,x", "7,,11", "7,11,", "2", "1e999", "nan", "7 ", "-7"}) {
+    try {
+      ParsePeriodList(bad, "--ps-periods");
+      ADD_FAILURE() << "'" << bad << "' must be refused";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kUsage) << bad;
+      EXPECT_EQ(std::string(e.what()).rfind("--ps-periods: '", 0), 0u) << e.what();
+    }
+  }
 }
 
 }  // namespace

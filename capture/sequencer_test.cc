@@ -21,7 +21,7 @@ namespace fs = std::filesystem;
 constexpr int kProjW = 64, kProjH = 48, kCamW = 32, kCamH = 24;
 
 // A plan: projector 64 x 48, camera 32 x 24 (the screen camera box-averages 2 x 2 screen
-// pixels), periods 7 and 11 (LCM 77 >= 64) x 3 phases, 4 lens-shift frames over [-2048, 2048),
+// pixels), periods 7 and 11 (LCM 77 >= 64) x 3 phases, 4 lens-shift frames over [-2048, 2048] (both ends),
 // white, black: 12 frames.
 Session Plan(const fs::path& root) {
   Session s;
@@ -114,7 +114,7 @@ TEST_F(SequencerTest, CapturesWhatTheProjectorShowsUnderTheSpecNames) {
   EXPECT_EQ(sum.reused, 0);
   const Session s = ReadSession(dir_ / "a");
   ASSERT_EQ(s.frames.size(), 12u);
-  EXPECT_EQ(s.frames[0].file, "frames/ps7_0.png");
+  EXPECT_EQ(s.frames[0].file, "frames/ps07_0.png");
   // Every frame is the 2x2 box mean of the 8-bit window pixels of its pattern.
   for (size_t i = 0; i < s.frames.size(); ++i) {
     const ImageF frame = ReadImageGrey(s.FramePath(i));
@@ -291,7 +291,7 @@ TEST_F(SequencerTest, RawScreenCameraWritesDngsThatDecodeToThePngValues) {
   ASSERT_TRUE(Run(dir_ / "png", *png, options_).complete);
   ASSERT_TRUE(Run(dir_ / "dng", *dng, options_).complete);
   const Session a = ReadSession(dir_ / "png"), b = ReadSession(dir_ / "dng");
-  EXPECT_EQ(b.frames[0].file, "frames/ps7_0.dng");
+  EXPECT_EQ(b.frames[0].file, "frames/ps07_0.dng");
   for (size_t i = 0; i < a.frames.size(); ++i) {
     const ImageU16 grey = ReadRawGrey(b.FramePath(i));
     const ImageF ref = ReadImage(a.FramePath(i));

@@ -177,14 +177,21 @@ TEST_F(SessionTest, ConformanceCoinEdgeExample) {
   EXPECT_EQ(plan.max_shift_steps, 1966);
   EXPECT_EQ(plan.white.size(), 1u);
   EXPECT_EQ(plan.black.size(), 1u);
-  // Our standard plan is the same acquisition.
+  // Our standard plan is the same acquisition: the same patterns in the same order, 50
+  // lens-shift positions from -2048. The example spaces them (max - min) / 50 apart (last 1966);
+  // the one generator (capture and simulate) spans the shifter's whole range, both ends
+  // included, (max - min) / 49 apart (last 2048), as the simulator always has.
   const std::vector<Frame> standard = MakeStandardFrames(FramePlanOptions());
   ASSERT_EQ(standard.size(), s.frames.size());
   for (size_t i = 0; i < standard.size(); ++i) {
-    EXPECT_EQ(standard[i].shift_steps, s.frames[i].shift_steps) << i;
+    EXPECT_EQ(standard[i].pattern.type, s.frames[i].pattern.type) << i;
     EXPECT_EQ(standard[i].pattern.period_px, s.frames[i].pattern.period_px) << i;
     EXPECT_NEAR(standard[i].pattern.phase, s.frames[i].pattern.phase, 1e-15) << i;
   }
+  const FramePlan ours = MakeFramePlan(standard);
+  EXPECT_EQ(ours.distinct_shift_steps, plan.distinct_shift_steps);
+  EXPECT_EQ(ours.min_shift_steps, plan.min_shift_steps);
+  EXPECT_EQ(ours.max_shift_steps, 2048);
 }
 
 TEST_F(SessionTest, DescribeFramePlan) {
@@ -192,7 +199,7 @@ TEST_F(SessionTest, DescribeFramePlan) {
   EXPECT_EQ(MakeFramePlan(s.frames).Describe(s.rig),
             "phase shift (axis x): periods 7,11 x 3 phases; unambiguous over 77 px (projector "
             "width 60 px)\n"
-            "lens shift: 4 frames at 4 positions over -2048..1024 steps (-1..0.5 px, axis x)\n"
+            "lens shift: 4 frames at 4 positions over -2048..2048 steps (-1..1 px, axis x)\n"
             "white: yes; black: yes\n");
   Frame extra = s.frames[3];
   extra.file = "frames/ps11_3.png";
@@ -466,8 +473,8 @@ TEST_F(SessionTest, ErrorFramePaths) {
             "session.json: frames[1].file: missing, expected a relative path to the frame image");
   EXPECT_EQ(ParseError([](Json& j) { j["frames"][1]["file"] = ""; }),
             "session.json: frames[1].file: expected a relative path to the frame image, got \"\"");
-  EXPECT_EQ(ParseError([](Json& j) { j["frames"][4]["file"] = "frames/./ps7_0.png"; }),
-            "session.json: frames[4].file: \"frames/./ps7_0.png\" is also frames[0].file, "
+  EXPECT_EQ(ParseError([](Json& j) { j["frames"][4]["file"] = "frames/./ps07_0.png"; }),
+            "session.json: frames[4].file: \"frames/./ps07_0.png\" is also frames[0].file, "
             "expected each frame file once");
   EXPECT_EQ(ParseError([](Json& j) {
               j["ground_truth"] = {{"points", "../gt.exr"}};

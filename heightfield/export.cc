@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <bit>
-#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -18,6 +17,7 @@
 #include "core/image_io.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "core/stage_timer.h"
 #include "heightfield/export_gltf.h"
 #include "heightfield/export_mesh.h"
 
@@ -34,21 +34,21 @@ constexpr int kPng16Compression = 1;
 
 // ---- grid helpers ---------------------------------------------------------------------------
 
-ImageF CropImage(const ImageF& im, const GridCrop& c) {
+ImageF CropImage(const ImageF& im, const PixelRect& c) {
   if (c.whole()) return im;
-  ImageF out(c.width, c.height, im.channels());
+  ImageF out(c.w, c.h, im.channels());
   for (int k = 0; k < im.channels(); ++k)
-    for (int y = 0; y < c.height; ++y)
-      std::copy(im.row(c.y + y, k) + c.x, im.row(c.y + y, k) + c.x + c.width, out.row(y, k));
+    for (int y = 0; y < c.h; ++y)
+      std::copy(im.row(c.y + y, k) + c.x, im.row(c.y + y, k) + c.x + c.w, out.row(y, k));
   return out;
 }
 
-void CheckCrop(const GridCrop& c, int w, int h) {
+void CheckCrop(const PixelRect& c, int w, int h) {
   if (c.whole()) return;
-  if (c.x < 0 || c.y < 0 || c.width <= 0 || c.height <= 0 || c.x + c.width > w ||
-      c.y + c.height > h)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.width
-                                                        << "," << c.height << ": expected a rectangle inside the "
+  if (c.x < 0 || c.y < 0 || c.w <= 0 || c.h <= 0 || c.x + c.w > w ||
+      c.y + c.h > h)
+    MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.w
+                                                        << "," << c.h << ": expected a rectangle inside the "
                                                         << w << "x" << h << " height grid");
 }
 
@@ -293,18 +293,7 @@ void ParseExportFormats(const std::string& list, ExportOptions* o) {
   }
 }
 
-GridCrop ParseGridCrop(const std::string& text) {
-  GridCrop c;
-  char c1 = 0, c2 = 0, c3 = 0;
-  std::istringstream in(text);
-  if (!(in >> c.x >> c1 >> c.y >> c2 >> c.width >> c3 >> c.height) || c1 != ',' || c2 != ',' ||
-      c3 != ',' || !in.eof() || c.x < 0 || c.y < 0 || c.width <= 0 || c.height <= 0)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop '" << text
-                                                         << "': expected X,Y,W,H in height-grid pixels");
-  return c;
-}
-
-HeightField CropAndResample(const HeightField& hf, const GridCrop& crop, double pixel_size_m) {
+HeightField CropAndResample(const HeightField& hf, const PixelRect& crop, double pixel_size_m) {
   CheckCrop(crop, hf.width(), hf.height());
   HeightField out;
   out.z = CropImage(hf.z, crop);
@@ -335,13 +324,13 @@ HeightField CropAndResample(const HeightField& hf, const GridCrop& crop, double 
   return r;
 }
 
-ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const GridCrop& crop,
+ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const PixelRect& crop,
                             double pixel_size_m) {
   CheckCrop(crop, hf.width(), hf.height());
   MESOSCAN_CHECK(image.width() == hf.width() && image.height() == hf.height());
   ImageF c = CropImage(image, crop);
   if (!Resamples(hf, pixel_size_m)) return c;
-  const int w = crop.whole() ? hf.width() : crop.width, h = crop.whole() ? hf.height() : crop.height;
+  const int w = crop.whole() ? hf.width() : crop.w, h = crop.whole() ? hf.height() : crop.h;
   return Resample(c, hf.pixel_size, pixel_size_m, ResampledSize(w, hf.pixel_size, pixel_size_m),
                   ResampledSize(h, hf.pixel_size, pixel_size_m));
 }
@@ -409,305 +398,422 @@ ImageF EncodeNormalMap(const ImageF& n, NormalConvention convention) {
   return out;
 }
 
-// ---- the export -----------------------------------------------------------------------------
+// ---- the export's steps -----------------------------------------------------------------------
 
-ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::path& dir) {
-  o.Check();
-  const auto t_start = std::chrono::steady_clock::now();
-  if (scan.height.width() < 2 || scan.height.height() < 2)
-    MESOSCAN_BAD_INPUT("height.exr: the height grid is " << scan.height.width() << "x"
-                                                         << scan.height.height() << ", too small to export");
-  // 1. The export grid: crop, resample; normals (the scan's own unless resampled) and albedo.
-  const HeightField hf = CropAndResample(scan.height, o.crop, o.pixel_size_m);
-  const bool resampled = Resamples(scan.height, o.pixel_size_m);
-  ImageF normals;
-  if (!resampled && scan.normals.width() == scan.height.width() &&
-      scan.normals.height() == scan.height.height() && scan.normals.channels() == 3)
-    normals = CropImage(scan.normals, o.crop);
-  else
-    normals = hf.Normals();
-  ImageF confidence = hf.confidence;
-  if (confidence.empty()) {
-    confidence = ImageF(hf.width(), hf.height(), 1, 0.0f);
-    for (size_t p = 0; p < confidence.pixels(); ++p)
-      confidence.data()[p] = std::isfinite(hf.z.data()[p]) ? 1.0f : 0.0f;
-  }
-  ImageF albedo;
+namespace {
+
+// Step 1 output: the export grid and the maps on it, before hole filling.
+struct ExportGrid {
+  HeightField hf;              // the scan's height field, cropped and resampled
+  ImageF normals;              // world normals on hf's grid (3 channels, NaN in holes)
+  ImageF confidence;           // [0, 1] on hf's grid (the scan's, else 1 where valid)
+  ImageF albedo;               // relative albedo (99th percentile 1), empty if none
   std::string albedo_source = "none";
+};
+
+ExportGrid MakeExportGrid(const Scan& scan, const ExportOptions& o) {
+  ExportGrid g;
+  g.hf = CropAndResample(scan.height, o.crop, o.pixel_size_m);
+  const HeightField& hf = g.hf;
+  // Normals: the scan's own unless resampled.
+  if (!Resamples(scan.height, o.pixel_size_m) && scan.normals.width() == scan.height.width() &&
+      scan.normals.height() == scan.height.height() && scan.normals.channels() == 3)
+    g.normals = CropImage(scan.normals, o.crop);
+  else
+    g.normals = hf.Normals();
+  g.confidence = hf.confidence;
+  if (g.confidence.empty()) {
+    g.confidence = ImageF(hf.width(), hf.height(), 1, 0.0f);
+    for (size_t p = 0; p < g.confidence.pixels(); ++p)
+      g.confidence.data()[p] = std::isfinite(hf.z.data()[p]) ? 1.0f : 0.0f;
+  }
+  // Albedo: given on the scan's grid, or the white frame of the session report.json names.
   if (!o.albedo.empty()) {
     if (o.albedo.width() != scan.height.width() || o.albedo.height() != scan.height.height())
       MESOSCAN_BAD_INPUT("export: albedo: expected the " << scan.height.width() << "x"
                                                          << scan.height.height() << " height grid");
-    albedo = CropAndResampleImage(o.albedo, scan.height, o.crop, o.pixel_size_m);
-    albedo_source = "given on the height grid";
+    g.albedo = CropAndResampleImage(o.albedo, scan.height, o.crop, o.pixel_size_m);
+    g.albedo_source = "given on the height grid";
   } else if (o.albedo_from_session && (o.exr || o.png16 || o.glb)) {
     const std::string session = SessionPathFromReport(scan.report);
     if (!session.empty() && fs::is_directory(session)) {
       try {
-        albedo = CropAndResampleImage(AlbedoFromSession(scan.height, session), scan.height, o.crop,
-                                      o.pixel_size_m);
-        albedo_source = "white frame of session " + session;
+        g.albedo = CropAndResampleImage(AlbedoFromSession(scan.height, session), scan.height,
+                                        o.crop, o.pixel_size_m);
+        g.albedo_source = "white frame of session " + session;
       } catch (const Error& e) {
         MESOSCAN_LOG(kWarning) << "export: no albedo (" << e.what() << ")";
       }
     }
   }
-  if (!albedo.empty()) albedo = NormaliseAlbedo(albedo);
+  if (!g.albedo.empty()) g.albedo = NormaliseAlbedo(g.albedo);
+  return g;
+}
 
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (!fs::is_directory(dir)) MESOSCAN_BAD_INPUT(dir.string() << ": cannot create the export folder");
+// Step 2 output: the heights the DCC maps hold. Holes bounded by surface are filled (o.fill);
+// the rest hold the lowest valid height (the confidence map marks them), so displacement never
+// sees a NaN and the 16-bit range stays [min, max].
+struct ExportHeights {
+  HeightRange range;
+  float hole_value = 0;     // lowest valid height, m
+  double span = 0;          // max - min (>= 1e-9), m: the 16-bit PNG's scale
+  double midlevel = 0;      // -min / span: the 16-bit PNG's value of height 0
+  FillResult hole_fill;     // the filled field and which pixels were filled
+  ImageF filled;            // hole_fill's heights, remaining holes at hole_value
+};
 
-  const HeightRange range = RangeOf(hf.z);
-  if (range.valid == 0) MESOSCAN_BAD_INPUT("height.exr: no valid height sample in the export region");
-  // Holes are filled with the lowest valid height in the DCC maps (the confidence map marks
-  // them), so displacement never sees a NaN and the 16-bit range stays [min, max].
-  const float hole_value = static_cast<float>(range.min);
-  const double span = std::max(range.max - range.min, 1e-9);
-  const double midlevel = -range.min / span;
-  const std::string conv = o.normals == NormalConvention::kOpenGl ? "gl" : "dx";
-  const std::string conv_text = o.normals == NormalConvention::kOpenGl
-                                    ? "OpenGL (+Y: green points to image up)"
-                                    : "DirectX (-Y: green points to image down)";
-  const std::string n = o.name;
-  const std::map<std::string, double> grid_attrs = {
-      {kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size}};
-
-  // 2. The file list (manifest order) and the writers, run in parallel.
-  // Everything the tasks read or write is declared before the task groups, whose destructors
-  // wait for running tasks when an exception unwinds this function.
-  ExportSummary summary;
-  Json files = Json::array();
-  Json hints = Json::object();
-  const FillResult hole_fill = FillHoles(hf, o.fill);
-  const ImageF filled = FillHoles(hole_fill.field.z, hole_value);
-  if (hole_fill.filled_pixels > 0) {
-    // Normals of the filled pixels and of their measured neighbours from the filled surface.
-    const ImageF fn = hole_fill.field.Normals();
+// Fills the holes; the normals of filled pixels and of their measured neighbours are taken
+// from the filled surface (grid->normals is updated).
+ExportHeights FillExportHeights(const FillOptions& fill, ExportGrid* grid) {
+  const HeightField& hf = grid->hf;
+  ExportHeights h;
+  h.range = RangeOf(hf.z);
+  if (h.range.valid == 0)
+    MESOSCAN_BAD_INPUT("height.exr: no valid height sample in the export region");
+  h.hole_value = static_cast<float>(h.range.min);
+  h.span = std::max(h.range.max - h.range.min, 1e-9);
+  h.midlevel = -h.range.min / h.span;
+  h.hole_fill = FillHoles(hf, fill);
+  h.filled = FillHoles(h.hole_fill.field.z, h.hole_value);
+  if (h.hole_fill.filled_pixels > 0) {
+    const ImageF fn = h.hole_fill.field.Normals();
     for (int j = 0; j < hf.height(); ++j)
       for (int i = 0; i < hf.width(); ++i) {
         bool near = false;
         for (int dj = -1; dj <= 1 && !near; ++dj)
           for (int di = -1; di <= 1 && !near; ++di) {
             const int x = i + di, y = j + dj;
-            near = x >= 0 && y >= 0 && x < hf.width() && y < hf.height() && hole_fill.filled(x, y);
+            near = x >= 0 && y >= 0 && x < hf.width() && y < hf.height() &&
+                   h.hole_fill.filled(x, y);
           }
         if (near)
-          for (int k = 0; k < 3; ++k) normals(i, j, k) = fn(i, j, k);
+          for (int k = 0; k < 3; ++k) grid->normals(i, j, k) = fn(i, j, k);
       }
   }
-  const ImageF nmap = EncodeNormalMap(normals, o.normals);
-  GridMesh mesh;
-  std::vector<uint8_t> glb_normal_png, glb_albedo_png;
-  std::mutex timing_mutex;
-  tbb::task_group tasks, texture_tasks;
-  // Runs one writer as a task and records its wall time under `file`.
-  auto run = [&](const std::string& file, std::function<void()> fn) {
-    tasks.run([&, file, fn = std::move(fn)] {
-      const auto t0 = std::chrono::steady_clock::now();
-      fn();
-      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      std::lock_guard<std::mutex> lock(timing_mutex);
-      summary.seconds_per_file[file] = s;
-    });
-  };
-  auto add = [&](const std::string& file, Json entry, const std::string& hint) {
+  return h;
+}
+
+// Step 3: the files. Each Add* lists its files (manifest entry and Blender hint, in manifest
+// order) and runs their writers as tasks; everything a task reads lives in the caller's
+// ExportGrid / ExportHeights / ExportMaps, declared before the writer, whose task group waits
+// for running tasks when an exception unwinds ExportScan.
+class ExportWriter {
+ public:
+  ExportWriter(const fs::path& dir, ExportSummary* summary) : dir_(dir), summary_(summary) {}
+  // On an exception the other writers are waited for (their own errors dropped: the first one
+  // is reported).
+  ~ExportWriter() {
+    try {
+      tasks_.wait();
+    } catch (...) {
+    }
+  }
+  const fs::path& dir() const { return dir_; }
+  // A file of the export: its manifest entry and how to load it.
+  void Add(const std::string& file, Json entry, const std::string& hint) {
     entry["file"] = file;
-    files.push_back(std::move(entry));
-    hints[file] = hint;
-    summary.files.push_back(dir / file);
-  };
-  // The normal map in `format` ("exr" | "png"): its manifest entry and Blender hint.
-  auto add_normal_map = [&](const std::string& format, const std::string& pixel_type) {
-    const std::string fn = n + "_normal_" + conv + "." + format;
-    add(fn, {{"role", "normal"}, {"format", format}, {"pixel_type", pixel_type},
-             {"channels", {"R", "G", "B"}}, {"convention", conv_text},
-             {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
-             {"colour_space", "Non-Color (raw data)"}},
-        "Blender: Image Texture '" + fn + "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
-            (o.normals == NormalConvention::kDirectX ? "; DirectX: invert green first" : ""));
-    return fn;
-  };
+    files_.push_back(std::move(entry));
+    hints_[file] = hint;
+    summary_->files.push_back(dir_ / file);
+  }
+  // Runs one writer as a task and records its wall time under `file`.
+  void Run(const std::string& file, std::function<void()> fn) {
+    tasks_.run([this, file, fn = std::move(fn)] {
+      const Stopwatch watch;
+      fn();
+      Record(file, watch.Seconds());
+    });
+  }
+  void Record(const std::string& name, double seconds) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    summary_->seconds_per_file[name] = seconds;
+  }
+  void Wait() { tasks_.wait(); }
+  const Json& files() const { return files_; }
+  const Json& hints() const { return hints_; }
+
+ private:
+  fs::path dir_;
+  ExportSummary* summary_;
+  Json files_ = Json::array(), hints_ = Json::object();
+  std::mutex mutex_;
+  tbb::task_group tasks_;
+};
+
+// What the writers of one export share: the grid, the heights and the encoded normal map.
+struct ExportMaps {
+  const ExportOptions& o;
+  const ExportGrid& grid;
+  const ExportHeights& heights;
+  ImageF nmap;            // the normal map in o.normals' convention
+  std::string conv;       // "gl" | "dx"
+  std::string conv_text;  // the convention, spelled out
+};
+
+// <name>_normal_<conv>.<format>: its manifest entry; returns the file name.
+std::string AddNormalMap(const ExportMaps& m, const std::string& format,
+                         const std::string& pixel_type, ExportWriter* w) {
+  const std::string fn = m.o.name + "_normal_" + m.conv + "." + format;
+  w->Add(fn, {{"role", "normal"}, {"format", format}, {"pixel_type", pixel_type},
+              {"channels", {"R", "G", "B"}}, {"convention", m.conv_text},
+              {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
+              {"colour_space", "Non-Color (raw data)"}},
+         "Blender: Image Texture '" + fn + "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
+             (m.o.normals == NormalConvention::kDirectX ? "; DirectX: invert green first" : ""));
+  return fn;
+}
+
+// <name>_height.exr (metres) and <name>_normal_<conv>.exr.
+void AddExrMaps(const ExportMaps& m, ExportWriter* w) {
+  const HeightField& hf = m.grid.hf;
+  const std::string f = m.o.name + "_height.exr";
+  w->Add(f, {{"role", "height"}, {"format", "exr"}, {"pixel_type", "float32"}, {"channels", {"Y"}},
+             {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", 0.0}, {"scale", 1.0},
+             {"meaning", "metres above the mount plane z = 0"}},
+         "Blender: Image Texture '" + f + "' (Color Space Non-Color) -> Displacement node or "
+         "Displace modifier (UV), Midlevel 0, Scale 1: metres (the modifier clamps values below 0: "
+         "for heights under the mount plane use the node or the 16-bit PNG)");
+  w->Run(f, [&m, &hf, f, dir = w->dir()] {
+    WriteExr(dir / f, m.heights.filled, {"Y"},
+             {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size},
+              {"mesoscan:midlevel", 0.0}, {"mesoscan:scale", 1.0},
+              {"mesoscan:hole_value", m.heights.hole_value}},
+             {{"mesoscan:units", "m"}, {"mesoscan:content", "height above the mount plane"}});
+  });
+  const std::string fn = AddNormalMap(m, "exr", "float32", w);
+  w->Run(fn, [&m, &hf, fn, dir = w->dir()] {
+    WriteExr(dir / fn, m.nmap, {"R", "G", "B"},
+             {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size}},
+             {{"mesoscan:normal_convention", m.conv_text},
+              {"mesoscan:encoding", "rgb = 0.5 + 0.5 * n"}});
+  });
+}
+
+// <name>_height.png (16 bit, min..max) with its <name>_height.json sidecar, and
+// <name>_normal_<conv>.png.
+void AddPng16Maps(const ExportMaps& m, ExportWriter* w) {
+  const HeightField& hf = m.grid.hf;
+  const ExportHeights& h = m.heights;
+  const std::string f = m.o.name + "_height.png", fs_ = m.o.name + "_height.json";
   std::ostringstream disp;
   disp.precision(9);
-  if (o.exr) {
-    const std::string f = n + "_height.exr";
-    add(f, {{"role", "height"}, {"format", "exr"}, {"pixel_type", "float32"}, {"channels", {"Y"}},
-            {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", 0.0}, {"scale", 1.0},
-            {"meaning", "metres above the mount plane z = 0"}},
-        "Blender: Image Texture '" + f + "' (Color Space Non-Color) -> Displacement node or "
-        "Displace modifier (UV), Midlevel 0, Scale 1: metres (the modifier clamps values below 0: "
-        "for heights under the mount plane use the node or the 16-bit PNG)");
-    run(f, [&, f] {
-      WriteExr(dir / f, filled, {"Y"},
-               {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size},
-                {"mesoscan:midlevel", 0.0}, {"mesoscan:scale", 1.0}, {"mesoscan:hole_value", hole_value}},
-               {{"mesoscan:units", "m"}, {"mesoscan:content", "height above the mount plane"}});
-    });
-    const std::string fn = add_normal_map("exr", "float32");
-    run(fn, [&, fn] {
-      WriteExr(dir / fn, nmap, {"R", "G", "B"}, grid_attrs,
-               {{"mesoscan:normal_convention", conv_text},
-                {"mesoscan:encoding", "rgb = 0.5 + 0.5 * n"}});
-    });
-  }
-  if (o.png16) {
-    const std::string f = n + "_height.png", fs_ = n + "_height.json";
-    disp << "Blender: Image Texture '" << f << "' (Color Space Non-Color) -> Displacement Midlevel "
-         << midlevel << ", Scale " << span << " (metres; see " << fs_ << ")";
-    add(f, {{"role", "height"}, {"format", "png"}, {"pixel_type", "uint16"}, {"channels", {"Y"}},
-            {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", midlevel},
-            {"scale", span}, {"sidecar", fs_},
-            {"meaning", "metres = (value / 65535 - midlevel) * scale"}},
-        disp.str());
-    Json sidecar = {{"format", kExportFormat},
-                    {"file", f},
-                    {"units", "m"},
-                    {"meaning", "height above the mount plane z = 0"},
-                    {"decode", "metres = (value / 65535 - midlevel) * scale = min + value / 65535 * (max - min)"},
-                    {"min_m", range.min},
-                    {"max_m", range.max},
-                    {"midlevel", midlevel},
-                    {"scale", span},
-                    {"quantisation_step_m", span / 65535.0},
-                    {"blender", {{"midlevel", midlevel}, {"scale", span}, {"color_space", "Non-Color"}}},
-                    {"arnold", {{"zero_value", midlevel}, {"height", span}}},
-                    {"hole_value_m", hole_value},
-                    {"pixel_size_m", hf.pixel_size},
-                    {"width_px", hf.width()},
-                    {"height_px", hf.height()},
-                    {"physical_size_m", {hf.width() * hf.pixel_size, hf.height() * hf.pixel_size}}};
-    add(fs_, {{"role", "height sidecar"}, {"format", "json"}}, "the 16-bit height's min, max, midlevel, scale");
-    run(f, [&, f, fs_, sidecar] {
-      ImageU16 q(hf.width(), hf.height(), 1);
-      for (size_t p = 0; p < q.pixels(); ++p) {
-        const double v = (filled.data()[p] - range.min) / span;
-        q.data()[p] = static_cast<uint16_t>(std::lround(std::clamp(v, 0.0, 1.0) * 65535.0));
-      }
-      WritePng16(dir / f, q, kPng16Compression);
-      WriteJsonFile(dir / fs_, sidecar);
-    });
-    const std::string fn = add_normal_map("png", "uint16");
-    run(fn, [&, fn] { WritePng16(dir / fn, QuantizeU16(nmap), kPng16Compression); });
-  }
-  if (o.exr || o.png16 || o.glb) {
-    const std::string f = n + "_confidence.png";
-    add(f, {{"role", "confidence"}, {"format", "png"}, {"pixel_type", "uint8"}, {"channels", {"Y"}},
-            {"colour_space", "Non-Color (raw data)"}, {"meaning", "confidence in [0, 1]; 0 in holes"}},
-        "Blender: Image Texture '" + f + "' (Color Space Non-Color): a mask, 0 in holes");
-    run(f, [&, f] { WritePng8(dir / f, QuantizeU8(confidence)); });
-    if (!albedo.empty()) {
-      const std::string fa = n + "_albedo.png";
-      add(fa, {{"role", "albedo"}, {"format", "png"}, {"pixel_type", "uint8"},
-               {"channels", albedo.channels() == 3 ? Json{"R", "G", "B"} : Json{"Y"}},
-               {"colour_space", "sRGB"}, {"source", albedo_source},
-               {"meaning", "relative albedo: white-frame radiance (minus black), 99th percentile = 1, "
-                           "no shading correction"}},
-          "Blender: Image Texture '" + fa + "' (Color Space sRGB) -> Principled BSDF Base Color");
-      run(fa, [&, fa] { WritePng8(dir / fa, QuantizeU8(albedo, /*srgb_encode=*/true)); });
+  disp << "Blender: Image Texture '" << f << "' (Color Space Non-Color) -> Displacement Midlevel "
+       << h.midlevel << ", Scale " << h.span << " (metres; see " << fs_ << ")";
+  w->Add(f, {{"role", "height"}, {"format", "png"}, {"pixel_type", "uint16"}, {"channels", {"Y"}},
+             {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", h.midlevel},
+             {"scale", h.span}, {"sidecar", fs_},
+             {"meaning", "metres = (value / 65535 - midlevel) * scale"}},
+         disp.str());
+  Json sidecar = {{"format", kExportFormat},
+                  {"file", f},
+                  {"units", "m"},
+                  {"meaning", "height above the mount plane z = 0"},
+                  {"decode", "metres = (value / 65535 - midlevel) * scale = min + value / 65535 * (max - min)"},
+                  {"min_m", h.range.min},
+                  {"max_m", h.range.max},
+                  {"midlevel", h.midlevel},
+                  {"scale", h.span},
+                  {"quantisation_step_m", h.span / 65535.0},
+                  {"blender", {{"midlevel", h.midlevel}, {"scale", h.span}, {"color_space", "Non-Color"}}},
+                  {"arnold", {{"zero_value", h.midlevel}, {"height", h.span}}},
+                  {"hole_value_m", h.hole_value},
+                  {"pixel_size_m", hf.pixel_size},
+                  {"width_px", hf.width()},
+                  {"height_px", hf.height()},
+                  {"physical_size_m", {hf.width() * hf.pixel_size, hf.height() * hf.pixel_size}}};
+  w->Add(fs_, {{"role", "height sidecar"}, {"format", "json"}}, "the 16-bit height's min, max, midlevel, scale");
+  w->Run(f, [&h, &hf, f, fs_, sidecar, dir = w->dir()] {
+    ImageU16 q(hf.width(), hf.height(), 1);
+    for (size_t p = 0; p < q.pixels(); ++p) {
+      const double v = (h.filled.data()[p] - h.range.min) / h.span;
+      q.data()[p] = static_cast<uint16_t>(std::lround(std::clamp(v, 0.0, 1.0) * 65535.0));
     }
-  }
-  if (o.ply) {
-    const std::string f = n + ".ply";
-    add(f, {{"role", "points"}, {"format", "ply"}, {"units", "m"}, {"axes", "world: z up"},
-            {"properties", {"x", "y", "z", "nx", "ny", "nz", "confidence"}}, {"points", range.valid}},
-        "MeshLab / CloudCompare: open '" + f + "' (metres, z up; confidence as a scalar field)");
-    run(f, [&, f] { WritePly(dir / f, hf, normals); });
-  }
-  if (o.glb) {
-    const std::string f = n + ".glb";
-    // The GLB's textures are encoded while this thread builds the mesh.
-    const fs::path tex = dir / (n + "_texture.png");  // temporaries are named after it
-    texture_tasks.run([&, tex] {
-      glb_normal_png = EncodePng8(QuantizeU8(EncodeNormalMap(normals, NormalConvention::kOpenGl)), tex);
-    });
-    if (!albedo.empty())
-      texture_tasks.run([&, tex] { glb_albedo_png = EncodePng8(QuantizeU8(albedo, true), tex); });
-    GridMeshOptions mo;
-    mo.max_triangles = o.max_triangles;
-    mo.tolerance_m = o.mesh_tolerance_m;
-    const auto t_mesh = std::chrono::steady_clock::now();
-    mesh = TriangulateHeightField(hf, mo);
-    {
-      std::lock_guard<std::mutex> lock(timing_mutex);
-      summary.seconds_per_file["(mesh)"] =
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - t_mesh).count();
-    }
-    if (mesh.triangles() == 0) MESOSCAN_BAD_INPUT("height.exr: no triangle in the export region (all holes?)");
-    summary.triangles = mesh.triangles();
-    summary.vertices = mesh.vertices();
-    summary.max_height_error_m = mesh.max_height_error_m;
-    Json extras = {{"units", "m"},
-                   {"up_axis", "glTF +Y (world z); world (x, y, z) = glTF (x, -z, y)"},
-                   {"height_zero_m", 0.0},
-                   {"height_scale", 1.0},
-                   {"max_height_error_m", mesh.max_height_error_m},
-                   {"pixel_size_m", hf.pixel_size}};
-    if (o.exr) extras["height_map"] = n + "_height.exr";
-    if (o.png16) {
-      extras["height_map_png16"] = n + "_height.png";
-      extras["height_png16_midlevel"] = midlevel;
-      extras["height_png16_scale"] = span;
-    }
-    if (!extras.contains("height_map")) extras["height_map"] = o.png16 ? n + "_height.png" : "";
-    add(f, {{"role", "mesh"}, {"format", "glb"}, {"units", "m"},
-            {"axes", "glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world"},
-            {"uv", "sample (i, j) at ((i + 0.5)/W, (j + 0.5)/H), glTF top-left origin"},
-            {"triangles", mesh.triangles()}, {"vertices", mesh.vertices()},
-            {"max_triangles", o.max_triangles}, {"lossless_triangles", mesh.lossless_triangles},
-            {"max_height_error_m", mesh.max_height_error_m}, {"rtin_threshold_m", mesh.threshold_m},
-            {"uncovered_samples", mesh.uncovered_samples}, {"budget_met", mesh.budget_met},
-            {"textures", albedo.empty() ? Json{"normal (OpenGL, 8-bit)"}
-                                        : Json{"normal (OpenGL, 8-bit)", "baseColor (sRGB, 8-bit)"}}},
-        "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
-    texture_tasks.wait();
-    run(f, [&, f, extras] {
-      GlbContent c;
-      c.name = n;
-      c.grid = &hf;
-      c.normals = &normals;
-      c.mesh = &mesh;
-      c.extras = extras;
-      c.normal_png = std::move(glb_normal_png);
-      c.base_color_png = std::move(glb_albedo_png);
-      WriteGlb(dir / f, c);
-    });
-  }
-  tasks.wait();
+    WritePng16(dir / f, q, kPng16Compression);
+    WriteJsonFile(dir / fs_, sidecar);
+  });
+  const std::string fn = AddNormalMap(m, "png", "uint16", w);
+  w->Run(fn, [&m, fn, dir = w->dir()] { WritePng16(dir / fn, QuantizeU16(m.nmap), kPng16Compression); });
+}
 
-  // 3. The manifest, last: it names only files that were written completely.
-  Json m = {{"format", kExportFormat},
-            {"name", n},
-            {"units", "m"},
-            {"conventions",
-             {{"world", "metres; mount plane z = 0, +z up towards the rig"},
-              {"maps", "one grid for every map; row 0 is the +y edge, so image up = world +y"},
-              {"height", "metres above the mount plane; holes bounded by surface filled (see fill), the others with hole_value_m (see the confidence map)"},
-              {"normal_map", conv_text + "; tangent space +X = world x, +Y = world y on a flat sample"},
-              {"glb", "metres, glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world; normal texture OpenGL"},
-              {"exr_height_channel",
-               "Y: OpenEXR's luminance channel, read as grey (R = G = B) by Blender, OIIO and "
-               "Substance"}}},
-            {"grid", GridJson(hf)},
-            {"source_grid", GridJson(scan.height)},
-            {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.width, o.crop.height}},
-            {"height_range_m", {range.min, range.max}},
-            {"hole_value_m", hole_value},
-            {"fill", {{"method", FillMethodName(o.fill.method)},
-                      {"max_hole_radius_m", o.fill.max_hole_radius_m},
-                      {"pixels_filled", hole_fill.filled_pixels},
-                      {"holes_filled", hole_fill.holes_filled},
-                      {"pixels_left", hole_fill.pixels_left},
-                      {"note", "filled pixels have confidence 0; the rest of the holes hold hole_value_m"}}},
-            {"valid_samples", range.valid},
-            {"albedo", albedo_source},
-            {"files", files},
-            {"how_to_load", hints}};
-  WriteJsonFile(dir / "manifest.json", m);
+// <name>_confidence.png and, with an albedo, <name>_albedo.png (sRGB).
+void AddMaskAndAlbedo(const ExportMaps& m, ExportWriter* w) {
+  const ExportGrid& g = m.grid;
+  const std::string f = m.o.name + "_confidence.png";
+  w->Add(f, {{"role", "confidence"}, {"format", "png"}, {"pixel_type", "uint8"}, {"channels", {"Y"}},
+             {"colour_space", "Non-Color (raw data)"}, {"meaning", "confidence in [0, 1]; 0 in holes"}},
+         "Blender: Image Texture '" + f + "' (Color Space Non-Color): a mask, 0 in holes");
+  w->Run(f, [&g, f, dir = w->dir()] { WritePng8(dir / f, QuantizeU8(g.confidence)); });
+  if (g.albedo.empty()) return;
+  const std::string fa = m.o.name + "_albedo.png";
+  w->Add(fa, {{"role", "albedo"}, {"format", "png"}, {"pixel_type", "uint8"},
+              {"channels", g.albedo.channels() == 3 ? Json{"R", "G", "B"} : Json{"Y"}},
+              {"colour_space", "sRGB"}, {"source", g.albedo_source},
+              {"meaning", "relative albedo: white-frame radiance (minus black), 99th percentile = 1, "
+                          "no shading correction"}},
+         "Blender: Image Texture '" + fa + "' (Color Space sRGB) -> Principled BSDF Base Color");
+  w->Run(fa, [&g, fa, dir = w->dir()] {
+    WritePng8(dir / fa, QuantizeU8(g.albedo, /*srgb_encode=*/true));
+  });
+}
+
+// <name>.ply: the valid samples as points with normals and confidence.
+void AddPly(const ExportMaps& m, ExportWriter* w) {
+  const std::string f = m.o.name + ".ply";
+  w->Add(f, {{"role", "points"}, {"format", "ply"}, {"units", "m"}, {"axes", "world: z up"},
+             {"properties", {"x", "y", "z", "nx", "ny", "nz", "confidence"}},
+             {"points", m.heights.range.valid}},
+         "MeshLab / CloudCompare: open '" + f + "' (metres, z up; confidence as a scalar field)");
+  w->Run(f, [&m, f, dir = w->dir()] { WritePly(dir / f, m.grid.hf, m.grid.normals); });
+}
+
+// What the GLB writer reads; owned by ExportScan so that it outlives the task.
+struct GlbParts {
+  GridMesh mesh;
+  std::vector<uint8_t> normal_png, albedo_png;
+};
+
+// <name>.glb: the mesh (built on this thread while its textures are encoded) with its
+// normal (OpenGL) and base-colour textures.
+void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, ExportWriter* w) {
+  const ExportOptions& o = m.o;
+  const ExportGrid& g = m.grid;
+  const HeightField& hf = g.hf;
+  const std::string n = o.name, f = n + ".glb";
+  const fs::path tex = w->dir() / (n + "_texture.png");  // temporaries are named after it
+  tbb::task_group texture_tasks;
+  texture_tasks.run([&g, parts, tex] {
+    parts->normal_png =
+        EncodePng8(QuantizeU8(EncodeNormalMap(g.normals, NormalConvention::kOpenGl)), tex);
+  });
+  if (!g.albedo.empty())
+    texture_tasks.run([&g, parts, tex] { parts->albedo_png = EncodePng8(QuantizeU8(g.albedo, true), tex); });
+  GridMeshOptions mo;
+  mo.max_triangles = o.max_triangles;
+  mo.tolerance_m = o.mesh_tolerance_m;
+  const Stopwatch mesh_watch;
+  try {
+    parts->mesh = TriangulateHeightField(hf, mo);
+  } catch (...) {
+    texture_tasks.wait();
+    throw;
+  }
+  w->Record("(mesh)", mesh_watch.Seconds());
+  const GridMesh& mesh = parts->mesh;
+  if (mesh.triangles() == 0) {
+    texture_tasks.wait();
+    MESOSCAN_BAD_INPUT("height.exr: no triangle in the export region (all holes?)");
+  }
+  summary->triangles = mesh.triangles();
+  summary->vertices = mesh.vertices();
+  summary->max_height_error_m = mesh.max_height_error_m;
+  Json extras = {{"units", "m"},
+                 {"up_axis", "glTF +Y (world z); world (x, y, z) = glTF (x, -z, y)"},
+                 {"height_zero_m", 0.0},
+                 {"height_scale", 1.0},
+                 {"max_height_error_m", mesh.max_height_error_m},
+                 {"pixel_size_m", hf.pixel_size}};
+  if (o.exr) extras["height_map"] = n + "_height.exr";
+  if (o.png16) {
+    extras["height_map_png16"] = n + "_height.png";
+    extras["height_png16_midlevel"] = m.heights.midlevel;
+    extras["height_png16_scale"] = m.heights.span;
+  }
+  if (!extras.contains("height_map")) extras["height_map"] = o.png16 ? n + "_height.png" : "";
+  w->Add(f, {{"role", "mesh"}, {"format", "glb"}, {"units", "m"},
+             {"axes", "glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world"},
+             {"uv", "sample (i, j) at ((i + 0.5)/W, (j + 0.5)/H), glTF top-left origin"},
+             {"triangles", mesh.triangles()}, {"vertices", mesh.vertices()},
+             {"max_triangles", o.max_triangles}, {"lossless_triangles", mesh.lossless_triangles},
+             {"max_height_error_m", mesh.max_height_error_m}, {"rtin_threshold_m", mesh.threshold_m},
+             {"uncovered_samples", mesh.uncovered_samples}, {"budget_met", mesh.budget_met},
+             {"textures", g.albedo.empty() ? Json{"normal (OpenGL, 8-bit)"}
+                                           : Json{"normal (OpenGL, 8-bit)", "baseColor (sRGB, 8-bit)"}}},
+         "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
+  texture_tasks.wait();
+  w->Run(f, [&g, parts, n, f, extras, dir = w->dir()] {
+    GlbContent c;
+    c.name = n;
+    c.grid = &g.hf;
+    c.normals = &g.normals;
+    c.mesh = &parts->mesh;
+    c.extras = extras;
+    c.normal_png = std::move(parts->normal_png);
+    c.base_color_png = std::move(parts->albedo_png);
+    WriteGlb(dir / f, c);
+  });
+}
+
+// manifest.json: units, conventions, grids, fill, and the files written (in `w`'s order).
+Json ExportManifest(const Scan& scan, const ExportMaps& m, const ExportWriter& w) {
+  const ExportOptions& o = m.o;
+  const ExportHeights& h = m.heights;
+  return {{"format", kExportFormat},
+          {"name", o.name},
+          {"units", "m"},
+          {"conventions",
+           {{"world", "metres; mount plane z = 0, +z up towards the rig"},
+            {"maps", "one grid for every map; row 0 is the +y edge, so image up = world +y"},
+            {"height", "metres above the mount plane; holes bounded by surface filled (see fill), the others with hole_value_m (see the confidence map)"},
+            {"normal_map", m.conv_text + "; tangent space +X = world x, +Y = world y on a flat sample"},
+            {"glb", "metres, glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world; normal texture OpenGL"},
+            {"exr_height_channel",
+             "Y: OpenEXR's luminance channel, read as grey (R = G = B) by Blender, OIIO and "
+             "Substance"}}},
+          {"grid", GridJson(m.grid.hf)},
+          {"source_grid", GridJson(scan.height)},
+          {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.w, o.crop.h}},
+          {"height_range_m", {h.range.min, h.range.max}},
+          {"hole_value_m", h.hole_value},
+          {"fill", {{"method", FillMethodName(o.fill.method)},
+                    {"max_hole_radius_m", o.fill.max_hole_radius_m},
+                    {"pixels_filled", h.hole_fill.filled_pixels},
+                    {"holes_filled", h.hole_fill.holes_filled},
+                    {"pixels_left", h.hole_fill.pixels_left},
+                    {"note", "filled pixels have confidence 0; the rest of the holes hold hole_value_m"}}},
+          {"valid_samples", h.range.valid},
+          {"albedo", m.grid.albedo_source},
+          {"files", w.files()},
+          {"how_to_load", w.hints()}};
+}
+
+}  // namespace
+
+// ---- the export -----------------------------------------------------------------------------
+
+ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::path& dir) {
+  o.Check();
+  const Stopwatch total;
+  if (scan.height.width() < 2 || scan.height.height() < 2)
+    MESOSCAN_BAD_INPUT("height.exr: the height grid is " << scan.height.width() << "x"
+                                                         << scan.height.height() << ", too small to export");
+  // 1. The export grid: crop, resample; normals, confidence and albedo on it.
+  ExportGrid grid = MakeExportGrid(scan, o);
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (!fs::is_directory(dir)) MESOSCAN_BAD_INPUT(dir.string() << ": cannot create the export folder");
+  // 2. Holes filled for the DCC maps; the normal map encoded.
+  const ExportHeights heights = FillExportHeights(o.fill, &grid);
+  const bool gl = o.normals == NormalConvention::kOpenGl;
+  const ExportMaps maps{o, grid, heights, EncodeNormalMap(grid.normals, o.normals), gl ? "gl" : "dx",
+                        gl ? "OpenGL (+Y: green points to image up)"
+                           : "DirectX (-Y: green points to image down)"};
+  // 3. The files, written in parallel (the writer waits for its tasks, also on an exception).
+  ExportSummary summary;
+  GlbParts glb;
+  {
+    ExportWriter writer(dir, &summary);
+    if (o.exr) AddExrMaps(maps, &writer);
+    if (o.png16) AddPng16Maps(maps, &writer);
+    if (o.exr || o.png16 || o.glb) AddMaskAndAlbedo(maps, &writer);
+    if (o.ply) AddPly(maps, &writer);
+    if (o.glb) AddGlb(maps, &glb, &summary, &writer);
+    writer.Wait();
+    // 4. The manifest, last: it names only files that were written completely.
+    summary.manifest = ExportManifest(scan, maps, writer);
+  }
+  WriteJsonFile(dir / "manifest.json", summary.manifest);
   summary.files.push_back(dir / "manifest.json");
-  summary.manifest = std::move(m);
-  summary.seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  summary.seconds = total.Seconds();
   return summary;
 }
 

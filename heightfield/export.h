@@ -26,18 +26,13 @@
 #include <vector>
 
 #include "core/json.h"
+#include "core/rect.h"
 #include "core/scan_folder.h"
 #include "heightfield/maps_fill.h"
 
 namespace mesoscan {
 
 enum class NormalConvention { kOpenGl, kDirectX };
-
-// A rectangle of height-grid pixels (column x, row y). width == 0 means the whole grid.
-struct GridCrop {
-  int x = 0, y = 0, width = 0, height = 0;
-  bool whole() const { return width == 0; }
-};
 
 struct ExportOptions {
   // Formats to write. Confidence and albedo PNGs come with any of exr / png16 / glb.
@@ -52,8 +47,9 @@ struct ExportOptions {
   // Output pixel size, metres, > 0; 0 keeps the scan's grid. Larger: area-weighted average of
   // the valid samples (a hole where under half the footprint is valid); smaller: bilinear.
   double pixel_size_m = 0.0;
-  // Region of the scan's height grid to export (scan grid pixels, applied before resampling).
-  GridCrop crop;
+  // Region of the scan's height grid to export (scan grid pixels, applied before resampling);
+  // whole() = everything.
+  PixelRect crop;
   // GLB: at most this many triangles, > 0 (see heightfield/export_mesh.h).
   int64_t max_triangles = 1'000'000;
   // GLB: triangles whose RTIN error is <= this are never split (metres, >= 0).
@@ -92,13 +88,11 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& options,
 // "exr,png16,glb,ply" (any subset, any order) into the format flags of `options`.
 // Throws Error(kUsage) naming --format and the unknown entry.
 void ParseExportFormats(const std::string& list, ExportOptions* options);
-// "X,Y,W,H" (grid pixels). Throws Error(kUsage) naming --crop.
-GridCrop ParseGridCrop(const std::string& text);
 
 // The export grid: `crop` of `hf`, then resampled to `pixel_size_m` (0: unchanged). Also
 // applies the same crop/resampling to an image on the scan grid (any channel count; NaN-aware).
-HeightField CropAndResample(const HeightField& hf, const GridCrop& crop, double pixel_size_m);
-ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const GridCrop& crop,
+HeightField CropAndResample(const HeightField& hf, const PixelRect& crop, double pixel_size_m);
+ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const PixelRect& crop,
                             double pixel_size_m);
 
 // Relative albedo on the grid of `hf` from a session's white frame (minus its black frame if

@@ -276,7 +276,7 @@ TEST(Export, CropAndPixelSizeKeepWorldPositions) {
   HeightField& hf = scan.height;
   for (int j = 0; j < hf.height(); ++j)
     for (int i = 0; i < hf.width(); ++i) hf.z(i, j) = static_cast<float>(0.02 * hf.X(i) - 0.01 * hf.Y(j) + 1e-4);
-  GridCrop crop{10, 6, 40, 30};
+  PixelRect crop{10, 6, 40, 30};
   const HeightField c = CropAndResample(hf, crop, 0.0);
   EXPECT_EQ(c.width(), 40);
   EXPECT_DOUBLE_EQ(c.x0, hf.X(10));
@@ -292,7 +292,7 @@ TEST(Export, CropAndPixelSizeKeepWorldPositions) {
       }
     }
   }
-  EXPECT_THROW(CropAndResample(hf, GridCrop{90, 0, 10, 10}, 0.0), Error);
+  EXPECT_THROW(CropAndResample(hf, PixelRect{90, 0, 10, 10}, 0.0), Error);
 }
 
 TEST(Export, ParsesFormatsAndCropsAndRefusesBadOnes) {
@@ -306,11 +306,6 @@ TEST(Export, ParsesFormatsAndCropsAndRefusesBadOnes) {
     EXPECT_EQ(e.kind(), ErrorKind::kUsage);
     EXPECT_NE(std::string(e.what()).find("'obj'"), std::string::npos);
   }
-  const GridCrop c = ParseGridCrop("1,2,30,40");
-  EXPECT_EQ(c.x, 1);
-  EXPECT_EQ(c.height, 40);
-  EXPECT_THROW(ParseGridCrop("1,2,30"), Error);
-  EXPECT_THROW(ParseGridCrop("1,2,0,4"), Error);
 }
 
 TEST(Export, AlbedoIsWrittenAsSrgbAndTexturesTheGlb) {

@@ -11,14 +11,9 @@
 
 #include "capture/session.h"
 #include "core/image.h"
+#include "core/rect.h"
 
 namespace mesoscan {
-
-// A rectangle of camera pixels.
-struct PixelRect {
-  int x = 0, y = 0;  // top-left, camera pixels
-  int w = 0, h = 0;  // size; w == 0 or h == 0 means "the whole image"
-};
 
 struct FrameLoadOptions {
   // Region of the camera image to keep (clipped to the image); empty = everything.

@@ -18,6 +18,7 @@
 #include "core/image_io.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "core/stage_timer.h"
 #include "heightfield/export.h"
 
 namespace mesoscan {
@@ -27,9 +28,6 @@ namespace {
 
 constexpr const char* kMapsFormat = "mesoscan-maps/1";
 constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
-using Clock = std::chrono::steady_clock;
-
-double Since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
 
 // Value of the q-quantile of the finite values of channel 0..nc-1 (mean over channels).
@@ -186,28 +184,27 @@ std::string MapsSummary::BriefReport() const {
 
 MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& dir) {
   o.Check();
-  const auto t_start = Clock::now();
   MapsSummary summary;
-  auto stage = [&](const char* name, Clock::time_point t0) { summary.seconds_per_stage[name] = Since(t0); };
+  StageTimer timer(&summary.seconds_per_stage);
   if (scan.height.width() < 2 || scan.height.height() < 2)
     MESOSCAN_BAD_INPUT("height.exr: the height grid is " << scan.height.width() << "x"
                                                          << scan.height.height() << ", too small for maps");
   // 1. Crop.
-  auto t = Clock::now();
+  timer.Skip();
   const HeightField cropped = CropAndResample(scan.height, o.crop, 0.0);
   {
     int64_t valid = 0;
     for (float v : cropped.z.data()) valid += std::isfinite(v);
     if (valid == 0) MESOSCAN_BAD_INPUT("height.exr: no valid height sample in the map region");
   }
-  stage("crop", t);
+  timer.Stage("crop");
   // 2. Fill.
-  t = Clock::now();
+  timer.Skip();
   FillResult fill = FillHoles(cropped, o.fill);
-  stage("fill", t);
+  timer.Stage("fill");
   const HeightField& filled_field = fill.field;
   // 3. Albedo with the projector's falloff divided out.
-  t = Clock::now();
+  timer.Skip();
   ImageF albedo;
   std::string albedo_source = "none";
   if (o.maps.albedo) {
@@ -256,16 +253,16 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
       for (float& v : albedo.data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : kNan;
     }
   }
-  stage("albedo", t);
+  timer.Stage("albedo");
   // 4. Flatten (filled pixels are left out of the fit).
-  t = Clock::now();
+  timer.Skip();
   ImageU8 fit_mask(fill.filled.width(), fill.filled.height(), 1, 1);
   for (size_t p = 0; p < fit_mask.pixels(); ++p) fit_mask.data()[p] = fill.filled.data()[p] ? 0 : 1;
   FlattenResult flat = Flatten(filled_field, fit_mask, o.flatten);
   summary.flatten = flat.description;
-  stage("flatten", t);
+  timer.Stage("flatten");
   // 5. Tile.
-  t = Clock::now();
+  timer.Skip();
   HeightField final_field;
   ImageF final_albedo;
   ImageU8 final_filled;
@@ -282,7 +279,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
     final_albedo = albedo;
     final_filled = fill.filled;
   }
-  stage("tile", t);
+  timer.Stage("tile");
   const bool periodic = o.tile;
   const int w = final_field.width(), h = final_field.height();
   // Holes left (large, or outside the sample): hole_value in the maps, 0 in the mask.
@@ -294,7 +291,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
     else if (final_filled.data()[p]) mask.data()[p] = 128;
   }
   // 6. Derived maps on the final height (holes excluded, periodic for a tile).
-  t = Clock::now();
+  timer.Skip();
   ImageF normals, ao, curvature;
   {
     tbb::task_group g;
@@ -304,10 +301,10 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
       g.run([&] { curvature = MeanCurvature(final_field, o.curvature_sigma_px, periodic); });
     g.wait();
   }
-  stage("derived", t);
+  timer.Stage("derived");
 
   // 7. Files, in parallel, into a temporary folder.
-  t = Clock::now();
+  timer.Skip();
   const std::string n = o.name;
   const std::string conv = o.normals == NormalConvention::kOpenGl ? "gl" : "dx";
   const double p = final_field.pixel_size;
@@ -501,7 +498,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
       {"albedo", albedo_source},
       {"source_grid", {{"width_px", scan.height.width()}, {"height_px", scan.height.height()},
                        {"pixel_size_m", scan.height.pixel_size}}},
-      {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.width, o.crop.height}},
+      {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.w, o.crop.h}},
       {"files", files}};
   WriteFolderAtomically(dir, [&](const fs::path& tmp) {
     tbb::task_group g;
@@ -520,13 +517,13 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
     if (err) throw *err;
     WriteJsonFile(tmp / "manifest.json", manifest);
   });
-  stage("write", t);
+  timer.Stage("write");
   for (const auto& f : names) summary.files.push_back(dir / f);
   summary.files.push_back(dir / "manifest.json");
   fill.field = HeightField();
   fill.filled = ImageU8();
   summary.fill = std::move(fill);
-  summary.seconds = Since(t_start);
+  summary.seconds = timer.Total();
   manifest["seconds"] = summary.seconds;
   summary.manifest = std::move(manifest);
   return summary;

@@ -36,6 +36,7 @@
 
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "core/stage_timer.h"
 #include "heightfield/export.h"
 #include "heightfield/maps_derived.h"
 #include "heightfield/maps_fill.h"
@@ -49,7 +50,7 @@ struct MapSelection {
 };
 
 struct MapsOptions {
-  GridCrop crop;                   // region of the scan's height grid; whole if width == 0
+  PixelRect crop;                  // region of the scan's height grid; whole() = everything
   FillOptions fill;                // hole filling (default harmonic)
   FlattenOptions flatten;          // default none
   bool tile = false;               // make a tileable square of tile_options.size_m
@@ -75,7 +76,7 @@ struct MapsSummary {
   std::string tile;  // TileResult::BriefReport or ""
   SeamStats seams;
   double seconds = 0.0;
-  std::map<std::string, double> seconds_per_stage;
+  StageTimings seconds_per_stage;  // wall time per stage, in order (crop, fill, ... write)
   std::string BriefReport() const;
 };
 

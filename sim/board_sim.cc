@@ -8,6 +8,7 @@
 #include <numbers>
 #include <sstream>
 
+#include "capture/patterns.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -53,12 +54,6 @@ inline double BoxedSquareWave(double f, double h) {
 
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
-std::string Num(double v) {
-  std::ostringstream o;
-  o << v;
-  return o.str();
 }
 
 }  // namespace
@@ -147,11 +142,19 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   if (n_world.dot(cam_centre - b0) <= 0)
     BOARD_USAGE("--pose: the camera sees the back of the board at this pose");
 
-  // ---- frame plan: sines along x then y (every period, phases 2 pi k / N), white, black ----
-  const std::string ext = bo.frame_format == "bmp"    ? ".bmp"
-                          : bo.frame_format == "tif8" ? ".tif"
-                                                      : ".png";
-  std::vector<Frame> frames;
+  // ---- frame plan (capture/patterns.h, as `capture --plan calibration`): sines along x then
+  // y (every period, phases 2 pi k / N), white, black ----
+  FramePlanOptions plan;
+  plan.periods_px = o.ps_periods_px;
+  plan.cross_periods_px = bo.ps_periods_y_px;
+  plan.phases = o.ps_phases;
+  plan.lens_shift_frames = 0;
+  plan.white = o.white;
+  plan.black = o.black;
+  plan.extension = bo.frame_format == "bmp"    ? ".bmp"
+                   : bo.frame_format == "tif8" ? ".tif"
+                                               : ".png";
+  const std::vector<Frame> frames = MakeStandardFrames(plan);
   struct SineSet {
     char axis;
     double period;
@@ -159,35 +162,15 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   std::vector<SineSet> sets;
   for (double p : o.ps_periods_px) sets.push_back({'x', p});
   for (double p : bo.ps_periods_y_px) sets.push_back({'y', p});
-  std::vector<int> frame_set, frame_phase;  // per frame: set index (-1 white, -2 black), phase k
-  for (size_t si = 0; si < sets.size(); ++si)
-    for (int k = 0; k < o.ps_phases; ++k) {
-      Frame f;
-      f.pattern.type = PatternType::kSine;
-      f.pattern.axis = sets[si].axis;
-      f.pattern.period_px = sets[si].period;
-      f.pattern.phase = kTwoPi * k / o.ps_phases;
-      f.file = "frames/ps" + std::string(1, sets[si].axis) + "_" + Num(sets[si].period) + "_" +
-               std::to_string(k) + ext;
-      frames.push_back(f);
-      frame_set.push_back(static_cast<int>(si));
-      frame_phase.push_back(k);
-    }
-  if (o.white) {
-    Frame f;
-    f.pattern.type = PatternType::kWhite;
-    f.file = "frames/white" + ext;
-    frames.push_back(f);
-    frame_set.push_back(-1);
-    frame_phase.push_back(0);
-  }
-  if (o.black) {
-    Frame f;
-    f.pattern.type = PatternType::kBlack;
-    f.file = "frames/black" + ext;
-    frames.push_back(f);
-    frame_set.push_back(-2);
-    frame_phase.push_back(0);
+  std::vector<int> frame_set;  // per frame: set index (-1 white, -2 black)
+  for (const Frame& f : frames) {
+    int si = f.pattern.type == PatternType::kWhite ? -1 : -2;
+    for (size_t k = 0; k < sets.size() && f.pattern.type == PatternType::kSine; ++k)
+      if (sets[k].axis == f.pattern.axis && sets[k].period == f.pattern.period_px) {
+        si = static_cast<int>(k);
+        break;
+      }
+    frame_set.push_back(si);
   }
   const int nf = static_cast<int>(frames.size());
   std::vector<double> cos_phase(nf), sin_phase(nf);

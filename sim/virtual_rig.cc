@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <cmath>
 #include <ctime>
 #include <iomanip>
@@ -13,6 +12,7 @@
 #include <Eigen/Dense>
 
 #include "assets/objects.h"
+#include "capture/patterns.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -20,6 +20,7 @@
 #include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/stage_timer.h"
 #include "core/scan_folder.h"
 #include "render/embree_scene.h"
 
@@ -33,10 +34,6 @@ constexpr double kMaxSigmaStepPx = 0.02;  // light tables: largest blur step bet
 // zlib level of the frame PNGs: level 1 encodes noisy 16-bit frames ~2.5x faster than the
 // default 6 for ~2% larger files (PNG encoding dominated the simulation's CPU time).
 constexpr int kPngCompressionLevel = 1;
-
-double Seconds(std::chrono::steady_clock::time_point since) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
-}
 
 #define SIM_USAGE(expr) MESOSCAN_THROW(ErrorKind::kUsage, expr)
 
@@ -144,16 +141,6 @@ LightTables BuildTables(const std::vector<double>& p, const BlurLevels& levels,
   return tab;
 }
 
-std::string PeriodName(double period) {
-  std::ostringstream os;
-  if (period == std::round(period)) {
-    os << std::setw(2) << std::setfill('0') << static_cast<int>(period);
-  } else {
-    os << period;
-  }
-  return os.str();
-}
-
 // The value a float32 header attribute will hold.
 double StoredAsFloat(double v) {
   volatile float f = static_cast<float>(v);
@@ -167,7 +154,6 @@ uint16_t ToPng16(int dn, int bits) {
   return static_cast<uint16_t>((dn << (16 - bits)) | (dn >> (2 * bits - 16)));
 }
 
-// Everything the frame stage needs per camera subsample (structure of arrays).
 // Largest distance (along z) of a pixel's subsample hits from their least-squares plane
 // z = c0 + c1 x + c2 y: how far the footprint is from a single smooth surface (a step inside the
 // footprint shows as a relief of about half the step). NaN with fewer than 3 hits.
@@ -191,6 +177,8 @@ double FootprintRelief(const std::vector<Vec3d>& hits) {
   return relief;
 }
 
+// Everything the frame stage needs per camera subsample (structure of arrays), index
+// (pixel * S + b) * S + a for subsample (a, b) of an S x S pixel.
 struct SubsampleCache {
   std::vector<float> x;        // projector u at shift 0 (px)
   std::vector<float> gain;     // lens-shifter gain g(u, v) at that point
@@ -203,6 +191,373 @@ struct SubsampleCache {
     shading.assign(n, 0.0f);
   }
 };
+
+// What the ray cast reads: the rig's devices, the scene and the optics that shade a hit.
+struct RigView {
+  const PinholeCamera& cam;
+  const PinholeCamera& prj;
+  const EmbreeScene& scene;
+  const SceneObject& object;
+  const SimulateOptions& options;
+  double focus_z = 0;  // world height of the projector's focus plane, m
+  Rigid3d prj_from_world;
+  Vec3d cam_centre, prj_centre;
+  double r0 = 0;  // reference distance: projector centre to the world origin
+};
+
+RigView MakeRigView(const Rig& rig, const EmbreeScene& scene, const SceneObject& object,
+                    const SimulateOptions& options, double focus_z) {
+  RigView v{rig.camera, rig.projector, scene, object, options, focus_z, {}, {}, {}, 0};
+  v.prj_from_world = rig.projector.world_from_device.Inverse();
+  v.cam_centre = rig.camera.CentreInWorld();
+  v.prj_centre = rig.projector.CentreInWorld();
+  v.r0 = v.prj_centre.norm();
+  return v;
+}
+
+// The height of the projector's focus plane: the option, or (NaN) the object's mid height.
+double FocusHeight(const SceneObject& object, double focus_height_m) {
+  if (!std::isnan(focus_height_m)) return focus_height_m;
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (float z : object.height.z.data())
+    if (std::isfinite(z)) {
+      lo = std::min(lo, static_cast<double>(z));
+      hi = std::max(hi, static_cast<double>(z));
+    }
+  return std::isfinite(lo) ? 0.5 * (lo + hi) : 0.0;
+}
+
+// One camera ray: what it hits, where that lands in the projector, how it is lit.
+struct Sample {
+  bool hit = false, lit = false;
+  Vec3d point;
+  double albedo = 0, u = 0, v = 0, sigma = 0, shading = 0;
+};
+
+Sample Shade(const RigView& view, const Vec2d& uv) {
+  Sample s;
+  const Vec3d d = view.cam.RayDirectionInWorld(uv);
+  const std::optional<RayHit> hit = view.scene.Intersect(view.cam_centre, d);
+  if (!hit) return s;
+  s.hit = true;
+  s.point = hit->point;
+  s.albedo = view.object.Albedo(s.point.x(), s.point.y());
+  const Vec3d p_dev = view.prj_from_world * s.point;
+  double uvp[2];
+  if (!view.prj.ProjectDevice(p_dev.data(), uvp)) return s;
+  s.u = uvp[0];
+  s.v = uvp[1];
+  Vec3d l = view.prj_centre - s.point;
+  const double r = l.norm();
+  l /= r;
+  const double cos_i = hit->normal.dot(l);
+  if (!(cos_i > 0)) return s;
+  if (view.options.shadows &&
+      view.scene.Occluded(EmbreeScene::ShadowRayOrigin(*hit), l, 0.0, r))
+    return s;
+  const SimulateOptions& o = view.options;
+  s.sigma = o.blur_sigma_px + o.defocus_px_per_m * std::abs(s.point.z() - view.focus_z);
+  s.shading = s.albedo * cos_i * (view.r0 / r) * (view.r0 / r);
+  s.lit = s.u >= -0.5 && s.u <= view.prj.width - 0.5 && s.v >= -0.5 && s.v <= view.prj.height - 0.5;
+  return s;
+}
+
+// Stage 1 output: every camera subsample's projector position and shading, and the per-pixel
+// ground truth.
+struct RayCastResult {
+  SubsampleCache cache;               // x and shading set; gain and level by PrepareSubsamples
+  std::vector<float> v, sigma;        // per subsample: projector v, blur sigma (px)
+  std::vector<float> ambient_albedo;  // per pixel: mean albedo of its subsamples
+  ImageF gt_points;  // per pixel: X, Y, Z of the centre ray's hit, lit_fraction, relief
+  int64_t lit_pixels = 0;  // pixels whose centre sees a lit surface
+  int64_t rays = 0;        // camera rays cast
+};
+
+// Stage 1: one ray per camera subsample (S x S per pixel) and per pixel centre.
+RayCastResult RayCast(const RigView& view, int S) {
+  const int W = view.cam.width, H = view.cam.height;
+  const size_t n_sub = static_cast<size_t>(W) * H * S * S;
+  RayCastResult rc;
+  rc.cache.Resize(n_sub);
+  rc.v.assign(n_sub, 0.0f);
+  rc.sigma.assign(n_sub, 0.0f);
+  rc.ambient_albedo.assign(static_cast<size_t>(W) * H, 0.0f);
+  rc.gt_points = ImageF(W, H, 5, std::numeric_limits<float>::quiet_NaN());
+  std::atomic<int64_t> lit_pixels{0};
+  Progress progress("simulate: ray cast", H);
+  ParallelForRows(H, [&](int y0, int y1) {
+    for (int py = y0; py < y1; ++py) {
+      for (int px = 0; px < W; ++px) {
+        const size_t pix = static_cast<size_t>(py) * W + px;
+        double albedo_sum = 0;
+        Sample centre;
+        int lit_subsamples = 0;
+        std::vector<Vec3d> hits;
+        hits.reserve(S * S);
+        for (int b = 0; b < S; ++b)
+          for (int a = 0; a < S; ++a) {
+            const size_t k = (pix * S + b) * S + a;
+            const Sample s = Shade(view, Vec2d(px + (a + 0.5) / S - 0.5, py + (b + 0.5) / S - 0.5));
+            if (2 * a + 1 == S && 2 * b + 1 == S) centre = s;
+            albedo_sum += s.albedo;
+            lit_subsamples += s.lit;
+            if (s.hit) hits.push_back(s.point);
+            if (s.shading > 0) {
+              rc.cache.x[k] = static_cast<float>(s.u);
+              rc.v[k] = static_cast<float>(s.v);
+              rc.sigma[k] = static_cast<float>(s.sigma);
+              rc.cache.shading[k] = static_cast<float>(s.shading);
+            }
+          }
+        rc.ambient_albedo[pix] = static_cast<float>(albedo_sum / (S * S));
+        // The pixel centre is a subsample when S is odd.
+        const Sample c = S % 2 == 1 ? centre : Shade(view, Vec2d(px, py));
+        ImageF& gt = rc.gt_points;
+        if (c.lit) {
+          gt(px, py, 0) = static_cast<float>(c.point.x());
+          gt(px, py, 1) = static_cast<float>(c.point.y());
+          gt(px, py, 2) = static_cast<float>(c.point.z());
+          ++lit_pixels;
+        }
+        gt(px, py, 3) = static_cast<float>(lit_subsamples) / (S * S);
+        gt(px, py, 4) = static_cast<float>(FootprintRelief(hits));
+      }
+      progress.Advance();
+    }
+  });
+  rc.lit_pixels = lit_pixels.load();
+  rc.rays = static_cast<int64_t>(n_sub) + (S % 2 == 1 ? 0 : static_cast<int64_t>(W) * H);
+  return rc;
+}
+
+// Blur levels spanning the lit subsamples' sigmas in steps of at most kMaxSigmaStepPx.
+BlurLevels ChooseBlurLevels(const RayCastResult& rc, const SimulateOptions& options) {
+  BlurLevels levels;
+  double smin = std::numeric_limits<double>::infinity(), smax = -smin;
+  for (size_t k = 0; k < rc.sigma.size(); ++k)
+    if (rc.cache.shading[k] > 0) {
+      smin = std::min<double>(smin, rc.sigma[k]);
+      smax = std::max<double>(smax, rc.sigma[k]);
+    }
+  if (!std::isfinite(smin)) smin = smax = options.blur_sigma_px;
+  levels.sigma_min = smin;
+  levels.count = std::max(2, static_cast<int>(std::ceil((smax - smin) / kMaxSigmaStepPx)) + 1);
+  levels.step = smax > smin ? (smax - smin) / (levels.count - 1) : kMaxSigmaStepPx;
+  levels.half_support =
+      static_cast<int>(std::ceil(0.5 * options.fill_factor + 6.0 * levels.Sigma(levels.count - 1)));
+  return levels;
+}
+
+std::vector<std::vector<float>> BlurKernels(const BlurLevels& levels, double fill_factor) {
+  std::vector<std::vector<float>> kernels(levels.count);
+  ParallelFor(levels.count, [&](int64_t l) {
+    kernels[l] = Kernel(levels.Sigma(static_cast<int>(l)), fill_factor, levels.half_support);
+  });
+  return kernels;
+}
+
+// Stage 2: each lit subsample's blur level, the row profile R_v(v) folded into its shading and
+// its lens-shifter gain; releases rc->v and rc->sigma.
+void PrepareSubsamples(const BlurLevels& levels, const std::vector<std::vector<float>>& kernels,
+                       const PinholeCamera& prj, const SimulateOptions& options,
+                       RayCastResult* rc) {
+  // Along v every pattern is uniform: the light is L(u) * R_v(v), R_v = sum_v w(v' - v).
+  const LightTables rows = BuildTables(std::vector<double>(prj.height, 1.0), levels, kernels);
+  SubsampleCache& cache = rc->cache;
+  ParallelFor(
+      static_cast<int64_t>(cache.shading.size()),
+      [&](int64_t k) {
+        if (cache.shading[k] <= 0) return;
+        const float level = levels.Level(rc->sigma[k]);
+        cache.level[k] = level;
+        cache.shading[k] *= rows.Lookup(rc->v[k], level);
+        cache.gain[k] = static_cast<float>(ShifterGain(options, prj, cache.x[k], rc->v[k]));
+      },
+      4096);
+  rc->v = {};
+  rc->sigma = {};
+}
+
+// Light tables of the distinct patterns of the frames (the same pattern at another shift
+// shares its table).
+struct PatternTables {
+  std::vector<LightTables> tables;
+  std::vector<int> frame_table;  // per frame: index into tables
+};
+
+PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& rig,
+                                 const BlurLevels& levels,
+                                 const std::vector<std::vector<float>>& kernels) {
+  PatternTables out;
+  out.frame_table.resize(frames.size());
+  std::map<std::tuple<int, double, double>, int> pattern_index;
+  std::vector<const Pattern*> table_patterns;
+  for (size_t f = 0; f < frames.size(); ++f) {
+    const Pattern& p = frames[f].pattern;
+    const auto key = std::make_tuple(static_cast<int>(p.type), p.period_px, p.phase);
+    auto it = pattern_index.find(key);
+    if (it == pattern_index.end()) {
+      it = pattern_index.emplace(key, static_cast<int>(table_patterns.size())).first;
+      table_patterns.push_back(&p);
+    }
+    out.frame_table[f] = it->second;
+  }
+  out.tables.resize(table_patterns.size());
+  const PinholeCamera& prj = rig.projector;
+  for (size_t t = 0; t < table_patterns.size(); ++t) {
+    std::vector<double> p(prj.width);
+    for (int u = 0; u < prj.width; ++u)
+      p[u] = rig.projector_response.ToLinear(table_patterns[t]->Value(u, 0.0));
+    out.tables[t] = BuildTables(p, levels, kernels);
+  }
+  return out;
+}
+
+// The per-frame random draws: gain jitter (every frame) and shifter position error (lens-shift
+// frames), each from its own seeded stream.
+struct FrameDraws {
+  std::vector<double> gains;            // multiplicative, 1 + N(0, jitter^2)
+  std::vector<double> position_errors;  // projector px
+};
+
+FrameDraws DrawFrames(const std::vector<Frame>& frames, const SimulateOptions& options) {
+  FrameDraws d;
+  const NoiseModel noise = MakeNoiseModel(options);
+  d.gains.assign(frames.size(), 1.0);
+  for (size_t f = 0; f < frames.size(); ++f) {
+    Rng rng(MixSeed(options.seed, 2 * f + 1));
+    d.gains[f] = 1.0 + noise.GainJitterSigma() * rng.Normal();
+  }
+  d.position_errors.assign(frames.size(), 0.0);
+  if (options.shift_position_error_px > 0)
+    for (size_t f = 0; f < frames.size(); ++f) {
+      if (frames[f].pattern.type != PatternType::kStripes) continue;
+      Rng rng(MixSeed(options.seed ^ 0x5eedf00dULL, 2 * f + 1));
+      d.position_errors[f] = options.shift_position_error_px * rng.Normal();
+    }
+  return d;
+}
+
+// Stage 3, one frame: the light of every pixel (mean over its subsamples of shading times the
+// pattern's table at the shifted position), exposure and ambient, gain jitter, sensor noise
+// (seeded per frame) and the ADC, as 16-bit PNG codes.
+ImageU16 RenderFrame(const Frame& frame, size_t f, const LightTables& tab, const Rig& rig,
+                     const RayCastResult& rc, const FrameDraws& draws,
+                     const SimulateOptions& options) {
+  const int W = rig.camera.width, H = rig.camera.height, S = options.supersample;
+  const SubsampleCache& cache = rc.cache;
+  const NoiseModel noise = MakeNoiseModel(options);
+  const int dn_max = (1 << options.adc_bits) - 1;
+  const double inv_ss = 1.0 / (S * S);
+  const double shift_px =
+      (rig.lens_shifter ? frame.shift_steps / rig.lens_shifter->steps_per_px : 0.0) +
+      draws.position_errors[f];
+  const bool dark = frame.pattern.type == PatternType::kBlack;
+  Rng rng(MixSeed(options.seed, 2 * f + 2));
+  ImageU16 image(W, H, 1);
+  uint16_t* out = image.channel(0);
+  for (size_t pix = 0; pix < static_cast<size_t>(W) * H; ++pix) {
+    double acc = 0.0;
+    if (!dark) {
+      const size_t k0 = pix * S * S;
+      for (int s = 0; s < S * S; ++s) {
+        const size_t k = k0 + s;
+        const float sh = cache.shading[k];
+        if (sh <= 0.0f) continue;
+        acc += sh * tab.Lookup(cache.x[k] - shift_px * cache.gain[k], cache.level[k]);
+      }
+    }
+    const double mean =
+        options.exposure * (acc * inv_ss + options.ambient * rc.ambient_albedo[pix]);
+    double value = mean * draws.gains[f];
+    if (options.noise > 0) value += noise.Sigma(mean) * rng.Normal();
+    const int dn = static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
+    out[pix] = ToPng16(dn, options.adc_bits);
+  }
+  return image;
+}
+
+// The true height field on the camera's footprint on z = 0 (the rays through the image
+// corners), one camera pixel on the mount at the image centre per sample.
+HeightField GroundTruthHeight(const PinholeCamera& cam, const SceneObject& object) {
+  const int W = cam.width, H = cam.height;
+  const Vec3d cam_centre = cam.CentreInWorld();
+  HeightField gt;
+  double xmin = 1e30, xmax = -1e30, ymin = 1e30, ymax = -1e30;
+  for (double u : {-0.5, W - 0.5})
+    for (double v : {-0.5, H - 0.5}) {
+      const Vec3d d = cam.RayDirectionInWorld(Vec2d(u, v));
+      const double t = -cam_centre.z() / d.z();
+      const Vec3d p = cam_centre + t * d;
+      xmin = std::min(xmin, p.x());
+      xmax = std::max(xmax, p.x());
+      ymin = std::min(ymin, p.y());
+      ymax = std::max(ymax, p.y());
+    }
+  const Vec3d dc = cam.RayDirectionInWorld(Vec2d(cam.K(0, 2), cam.K(1, 2)));
+  gt.pixel_size = (-cam_centre.z() / dc.z()) * dc.norm() / cam.K(0, 0);
+  const int gw = std::max(1, static_cast<int>(std::floor((xmax - xmin) / gt.pixel_size + 1e-6)));
+  const int gh = std::max(1, static_cast<int>(std::floor((ymax - ymin) / gt.pixel_size + 1e-6)));
+  gt.x0 = xmin + 0.5 * gt.pixel_size;
+  gt.y0 = ymax - 0.5 * gt.pixel_size;
+  // The EXR header stores the grid in float: sample where the file says the pixels are.
+  gt.x0 = StoredAsFloat(gt.x0);
+  gt.y0 = StoredAsFloat(gt.y0);
+  gt.pixel_size = StoredAsFloat(gt.pixel_size);
+  gt.z = ImageF(gw, gh, 1);
+  ParallelForRows(gh, [&](int j0, int j1) {
+    for (int j = j0; j < j1; ++j)
+      for (int i = 0; i < gw; ++i) gt.z(i, j) = static_cast<float>(object.SurfaceZ(gt.X(i), gt.Y(j)));
+  });
+  return gt;
+}
+
+// session.json's "simulation" block: every parameter of the model and the random draws.
+Json SimulationRecord(const SimulateOptions& options, const SceneObject& object, double focus_z,
+                      const BlurLevels& levels, double r0, const FrameDraws& draws) {
+  Json sim;
+  sim["model"] = "mesoscan virtual rig 1 (sim/README.md)";
+  sim["object"] = {{"name", object.name},
+                   {"source", options.object},
+                   {"grid_pixel_size_m", object.height.pixel_size},
+                   {"grid_size", {object.height.width(), object.height.height()}}};
+  sim["rig"] = options.rig;
+  if (options.crop)  // [W, H, X, Y], as earlier sessions recorded it
+    sim["crop"] = {options.crop->w, options.crop->h, options.crop->x, options.crop->y};
+  sim["supersample"] = options.supersample;
+  sim["shadows"] = options.shadows;
+  sim["projector"] = {{"fill_factor", options.fill_factor},
+                      {"blur_sigma_px", options.blur_sigma_px},
+                      {"defocus_px_per_m", options.defocus_px_per_m},
+                      {"focus_height_m", focus_z},
+                      {"gamma", options.projector_gamma},
+                      {"blur_sigma_range_px", {levels.sigma_min, levels.Sigma(levels.count - 1)}}};
+  sim["lens_shifter_gain"] = {
+      {"formula", "g = 1 + gx*un + gy*vn + gr*(un^2 + vn^2), un = (u - cx)/(W/2), "
+                  "vn = (v - cy)/(H/2), (u, v) projector pixel at shift 0"},
+      {"gx", options.shift_gain_x},
+      {"gy", options.shift_gain_y},
+      {"gr", options.shift_gain_r}};
+  sim["radiometry"] = {
+      {"formula", "value = exposure * gain_f * (mean over subsamples of albedo * cos_i * "
+                  "(r0/r)^2 * L(u - s*g) * R(v) + ambient * albedo)"},
+      {"exposure", options.exposure},
+      {"ambient", options.ambient},
+      {"reference_distance_m", r0}};
+  sim["noise"] = {{"scale", options.noise},
+                  {"full_well_e", options.full_well_e},
+                  {"read_noise_e", options.read_noise_e},
+                  {"adc_bits", options.adc_bits},
+                  {"gain_jitter", options.gain_jitter},
+                  {"variance", "scale^2 * (m / full_well_e + (read_noise_e / full_well_e)^2) + "
+                               "q^2/12, q = 1/(2^adc_bits - 1), m in [0, 1]"},
+                  {"png", "16-bit, DN replicated to 16 bits: png = DN << (16 - bits) | "
+                          "DN >> (2*bits - 16); png / 65535 = DN / (2^bits - 1)"}};
+  sim["frame_gains"] = draws.gains;
+  sim["shift_position_errors_px"] = draws.position_errors;
+  sim["seed"] = options.seed;
+  return sim;
+}
 
 }  // namespace
 
@@ -245,11 +600,8 @@ void SimulateOptions::Check() const {
     SIM_USAGE("--shift-position-error: expected [0, 0.5) px, got " << shift_position_error_px);
   if (!(gain_jitter >= 0 && gain_jitter < 0.2))
     SIM_USAGE("--gain-jitter: expected [0, 0.2), got " << gain_jitter);
-  if (crop) {
-    const auto& c = *crop;
-    if (c[0] < 1 || c[1] < 1 || c[2] < 0 || c[3] < 0)
-      SIM_USAGE("--crop: expected WxH+X+Y with W, H >= 1 and X, Y >= 0");
-  }
+  if (crop && (crop->w < 1 || crop->h < 1 || crop->x < 0 || crop->y < 0))
+    SIM_USAGE("--crop: expected X,Y,W,H (or WxH+X+Y) with W, H >= 1 and X, Y >= 0");
 }
 
 double NoiseModel::Variance(double mean) const {
@@ -296,17 +648,16 @@ Rig PaperRig() {
   return rig;
 }
 
-PinholeCamera CropCamera(const PinholeCamera& camera, const std::array<int, 4>& c) {
-  if (c[0] < 1 || c[1] < 1 || c[2] < 0 || c[3] < 0 || c[2] + c[0] > camera.width ||
-      c[3] + c[1] > camera.height)
-    SIM_USAGE("--crop: " << c[0] << "x" << c[1] << "+" << c[2] << "+" << c[3]
-                         << " does not lie inside the " << camera.width << "x" << camera.height
-                         << " camera");
+PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& c) {
+  if (c.w < 1 || c.h < 1 || c.x < 0 || c.y < 0 || int64_t{c.x} + c.w > camera.width ||
+      int64_t{c.y} + c.h > camera.height)
+    SIM_USAGE("--crop: " << ToString(c) << " (X,Y,W,H) does not lie inside the " << camera.width
+                         << "x" << camera.height << " camera");
   PinholeCamera out = camera;
-  out.width = c[0];
-  out.height = c[1];
-  out.K(0, 2) -= c[2];
-  out.K(1, 2) -= c[3];
+  out.width = c.w;
+  out.height = c.h;
+  out.K(0, 2) -= c.x;
+  out.K(1, 2) -= c.y;
   return out;
 }
 
@@ -328,48 +679,28 @@ double ShifterGain(const SimulateOptions& o, const PinholeCamera& prj, double u,
   return 1.0 + o.shift_gain_x * un + o.shift_gain_y * vn + o.shift_gain_r * (un * un + vn * vn);
 }
 
-std::vector<Frame> MakeSimulationFrames(const SimulateOptions& o, const Rig& rig) {
-  std::vector<Frame> frames;
-  for (double period : o.ps_periods_px)
-    for (int k = 0; k < o.ps_phases; ++k) {
-      Frame f;
-      f.file = "frames/ps" + PeriodName(period) + "_" + std::to_string(k) + ".png";
-      f.pattern.type = PatternType::kSine;
-      f.pattern.axis = 'x';
-      f.pattern.period_px = period;
-      f.pattern.phase = 2 * kPi * k / o.ps_phases;
-      frames.push_back(f);
-    }
+FramePlanOptions SimulationFramePlan(const SimulateOptions& o, const Rig& rig) {
+  FramePlanOptions plan;
+  plan.periods_px = o.ps_periods_px;
+  plan.phases = o.ps_phases;
+  plan.axis = 'x';
+  plan.lens_shift_frames = o.ls_frames;
   if (o.ls_frames > 0) {
     if (!rig.lens_shifter)
       SIM_USAGE("--ls-frames " << o.ls_frames << ": the rig has no lens_shifter (use --ls-frames 0)");
-    const auto r = rig.lens_shifter->range_steps;
-    for (int k = 0; k < o.ls_frames; ++k) {
-      Frame f;
-      char name[32];
-      std::snprintf(name, sizeof(name), "frames/ls_%03d.png", k);
-      f.file = name;
-      f.pattern.type = PatternType::kStripes;
-      f.pattern.axis = 'x';
-      f.pattern.period_px = 2;
-      f.shift_steps = static_cast<int>(
-          std::lround(r[0] + static_cast<double>(k) * (r[1] - r[0]) / (o.ls_frames - 1)));
-      frames.push_back(f);
-    }
+    plan.range_steps = rig.lens_shifter->range_steps;
+    const int64_t positions = int64_t{plan.range_steps[1]} - plan.range_steps[0] + 1;
+    if (o.ls_frames > positions)
+      SIM_USAGE("--ls-frames " << o.ls_frames << ": the rig's shifter has only " << positions
+                               << " positions");
   }
-  if (o.white) {
-    Frame f;
-    f.file = "frames/white.png";
-    f.pattern.type = PatternType::kWhite;
-    frames.push_back(f);
-  }
-  if (o.black) {
-    Frame f;
-    f.file = "frames/black.png";
-    f.pattern.type = PatternType::kBlack;
-    frames.push_back(f);
-  }
-  return frames;
+  plan.white = o.white;
+  plan.black = o.black;
+  return plan;
+}
+
+std::vector<Frame> MakeSimulationFrames(const SimulateOptions& o, const Rig& rig) {
+  return MakeStandardFrames(SimulationFramePlan(o, rig));
 }
 
 std::string SimulateSummary::BriefReport() const {
@@ -382,7 +713,7 @@ std::string SimulateSummary::BriefReport() const {
 }
 
 SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir) {
-  const auto t_start = std::chrono::steady_clock::now();
+  const Stopwatch total;
   options.Check();
   SimulateSummary summary;
   const Rig rig = ResolveRig(options);
@@ -390,270 +721,46 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     SIM_USAGE("--rig: the virtual rig models a lens shifter along axis \"x\" only");
   const std::vector<Frame> frames = MakeSimulationFrames(options, rig);
 
-  // ---- scene: the object on the mount plane z = 0 ----
-  SceneObject object = MakeObject(options.object, options.object_pixel_size_m);
+  // The scene: the object on the mount plane z = 0.
+  const SceneObject object = MakeObject(options.object, options.object_pixel_size_m);
   EmbreeScene scene;
   scene.AddHeightField(object.height);
-  double focus_z = options.focus_height_m;
-  if (std::isnan(focus_z)) {  // the object's mid height
-    double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-    for (float z : object.height.z.data())
-      if (std::isfinite(z)) {
-        lo = std::min(lo, static_cast<double>(z));
-        hi = std::max(hi, static_cast<double>(z));
-      }
-    focus_z = std::isfinite(lo) ? 0.5 * (lo + hi) : 0.0;
-  }
+  const double focus_z = FocusHeight(object, options.focus_height_m);
   scene.AddPlane(0.0, 10.0);
   scene.Commit();
-  summary.seconds_scene = Seconds(t_start);
-
-  const PinholeCamera& cam = rig.camera;
-  const PinholeCamera& prj = rig.projector;
-  const Rigid3d prj_from_world = prj.world_from_device.Inverse();
-  const Vec3d cam_centre = cam.CentreInWorld(), prj_centre = prj.CentreInWorld();
-  const double r0 = prj_centre.norm();  // reference distance: projector centre to the origin
-  const int W = cam.width, H = cam.height, S = options.supersample;
-  const size_t n_sub = static_cast<size_t>(W) * H * S * S;
-  summary.width = W;
-  summary.height = H;
+  summary.seconds_scene = total.Seconds();
+  summary.width = rig.camera.width;
+  summary.height = rig.camera.height;
   summary.frames = static_cast<int>(frames.size());
 
-  // ---- stage 1: one ray per camera subsample (and per pixel centre for ground truth) ----
-  const auto t_ray = std::chrono::steady_clock::now();
-  SubsampleCache cache;
-  cache.Resize(n_sub);
-  std::vector<float> sub_v(n_sub, 0.0f), sub_sigma(n_sub, 0.0f);
-  std::vector<float> ambient_albedo(static_cast<size_t>(W) * H, 0.0f);
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  // X, Y, Z of the centre ray's hit, then the footprint: lit_fraction, relief (see sim/README.md).
-  ImageF gt_points(W, H, 5, nan);
-  std::atomic<int64_t> lit_pixels{0};
-
-  struct Sample {
-    bool hit = false, lit = false;
-    Vec3d point;
-    double albedo = 0, u = 0, v = 0, sigma = 0, shading = 0;
-  };
-  auto shade = [&](const Vec2d& uv) {
-    Sample s;
-    const Vec3d d = cam.RayDirectionInWorld(uv);
-    const std::optional<RayHit> hit = scene.Intersect(cam_centre, d);
-    if (!hit) return s;
-    s.hit = true;
-    s.point = hit->point;
-    s.albedo = object.Albedo(s.point.x(), s.point.y());
-    const Vec3d p_dev = prj_from_world * s.point;
-    double uvp[2];
-    if (!prj.ProjectDevice(p_dev.data(), uvp)) return s;
-    s.u = uvp[0];
-    s.v = uvp[1];
-    Vec3d l = prj_centre - s.point;
-    const double r = l.norm();
-    l /= r;
-    const double cos_i = hit->normal.dot(l);
-    if (!(cos_i > 0)) return s;
-    if (options.shadows && scene.Occluded(EmbreeScene::ShadowRayOrigin(*hit), l, 0.0, r)) return s;
-    s.sigma = options.blur_sigma_px + options.defocus_px_per_m * std::abs(s.point.z() - focus_z);
-    s.shading = s.albedo * cos_i * (r0 / r) * (r0 / r);
-    s.lit = s.u >= -0.5 && s.u <= prj.width - 0.5 && s.v >= -0.5 && s.v <= prj.height - 0.5;
-    return s;
-  };
-  {
-    Progress progress("simulate: ray cast", H);
-    ParallelForRows(H, [&](int y0, int y1) {
-      for (int py = y0; py < y1; ++py) {
-        for (int px = 0; px < W; ++px) {
-          const size_t pix = static_cast<size_t>(py) * W + px;
-          double albedo_sum = 0;
-          Sample centre;
-          int lit_subsamples = 0;
-          std::vector<Vec3d> hits;
-          hits.reserve(S * S);
-          for (int b = 0; b < S; ++b)
-            for (int a = 0; a < S; ++a) {
-              const size_t k = (pix * S + b) * S + a;
-              const Sample s = shade(Vec2d(px + (a + 0.5) / S - 0.5, py + (b + 0.5) / S - 0.5));
-              if (2 * a + 1 == S && 2 * b + 1 == S) centre = s;
-              albedo_sum += s.albedo;
-              lit_subsamples += s.lit;
-              if (s.hit) hits.push_back(s.point);
-              if (s.shading > 0) {
-                cache.x[k] = static_cast<float>(s.u);
-                sub_v[k] = static_cast<float>(s.v);
-                sub_sigma[k] = static_cast<float>(s.sigma);
-                cache.shading[k] = static_cast<float>(s.shading);
-              }
-            }
-          ambient_albedo[pix] = static_cast<float>(albedo_sum / (S * S));
-          // The pixel centre is a subsample when S is odd.
-          const Sample c = S % 2 == 1 ? centre : shade(Vec2d(px, py));
-          if (c.lit) {
-            gt_points(px, py, 0) = static_cast<float>(c.point.x());
-            gt_points(px, py, 1) = static_cast<float>(c.point.y());
-            gt_points(px, py, 2) = static_cast<float>(c.point.z());
-            ++lit_pixels;
-          }
-          gt_points(px, py, 3) = static_cast<float>(lit_subsamples) / (S * S);
-          gt_points(px, py, 4) = static_cast<float>(FootprintRelief(hits));
-        }
-        progress.Advance();
-      }
-    });
-  }
-  summary.rays = static_cast<int64_t>(n_sub) + (S % 2 == 1 ? 0 : static_cast<int64_t>(W) * H);
-  summary.lit_pixels = lit_pixels.load();
+  // Stages 1 and 2: ray cast, blur levels, per-subsample light set-up.
+  const Stopwatch t_ray;
+  const RigView view = MakeRigView(rig, scene, object, options, focus_z);
+  RayCastResult rc = RayCast(view, options.supersample);
+  summary.rays = rc.rays;
+  summary.lit_pixels = rc.lit_pixels;
   summary.unrefined_hits = scene.unrefined_hits();
+  const BlurLevels levels = ChooseBlurLevels(rc, options);
+  const std::vector<std::vector<float>> kernels = BlurKernels(levels, options.fill_factor);
+  PrepareSubsamples(levels, kernels, rig.projector, options, &rc);
+  summary.seconds_raycast = t_ray.Seconds();
 
-  // ---- stage 2: blur levels, the row profile R_v(v) and the shifter gain per subsample ----
-  BlurLevels levels;
-  {
-    double smin = std::numeric_limits<double>::infinity(), smax = -smin;
-    for (size_t k = 0; k < n_sub; ++k)
-      if (cache.shading[k] > 0) {
-        smin = std::min<double>(smin, sub_sigma[k]);
-        smax = std::max<double>(smax, sub_sigma[k]);
-      }
-    if (!std::isfinite(smin)) smin = smax = options.blur_sigma_px;
-    levels.sigma_min = smin;
-    levels.count = std::max(2, static_cast<int>(std::ceil((smax - smin) / kMaxSigmaStepPx)) + 1);
-    levels.step = smax > smin ? (smax - smin) / (levels.count - 1) : kMaxSigmaStepPx;
-    levels.half_support =
-        static_cast<int>(std::ceil(0.5 * options.fill_factor + 6.0 * levels.Sigma(levels.count - 1)));
-  }
-  std::vector<std::vector<float>> kernels(levels.count);
-  ParallelFor(levels.count, [&](int64_t l) {
-    kernels[l] = Kernel(levels.Sigma(static_cast<int>(l)), options.fill_factor, levels.half_support);
-  });
-  {
-    // Along v every pattern is uniform: the light is L(u) * R_v(v), R_v = sum_v w(v' - v).
-    const LightTables rows = BuildTables(std::vector<double>(prj.height, 1.0), levels, kernels);
-    ParallelFor(
-        static_cast<int64_t>(n_sub),
-        [&](int64_t k) {
-          if (cache.shading[k] <= 0) return;
-          const float level = levels.Level(sub_sigma[k]);
-          cache.level[k] = level;
-          cache.shading[k] *= rows.Lookup(sub_v[k], level);
-          cache.gain[k] = static_cast<float>(ShifterGain(options, prj, cache.x[k], sub_v[k]));
-        },
-        4096);
-  }
-  sub_v = {};
-  sub_sigma = {};
-  summary.seconds_raycast = Seconds(t_ray);
-
-  // ---- stage 3: light tables per distinct pattern, then every frame ----
-  const auto t_frames = std::chrono::steady_clock::now();
-  std::map<std::tuple<int, double, double>, int> pattern_index;
-  std::vector<int> frame_table(frames.size());
-  std::vector<const Pattern*> table_patterns;
-  for (size_t f = 0; f < frames.size(); ++f) {
-    const Pattern& p = frames[f].pattern;
-    const auto key = std::make_tuple(static_cast<int>(p.type), p.period_px, p.phase);
-    auto it = pattern_index.find(key);
-    if (it == pattern_index.end()) {
-      it = pattern_index.emplace(key, static_cast<int>(table_patterns.size())).first;
-      table_patterns.push_back(&p);
-    }
-    frame_table[f] = it->second;
-  }
-  std::vector<LightTables> tables(table_patterns.size());
-  for (size_t t = 0; t < table_patterns.size(); ++t) {
-    std::vector<double> p(prj.width);
-    for (int u = 0; u < prj.width; ++u)
-      p[u] = rig.projector_response.ToLinear(table_patterns[t]->Value(u, 0.0));
-    tables[t] = BuildTables(p, levels, kernels);
-  }
-
-  const NoiseModel noise = MakeNoiseModel(options);
-  const int dn_max = (1 << options.adc_bits) - 1;
-  std::vector<double> frame_gains(frames.size(), 1.0);
-  for (size_t f = 0; f < frames.size(); ++f) {
-    Rng rng(MixSeed(options.seed, 2 * f + 1));
-    frame_gains[f] = 1.0 + noise.GainJitterSigma() * rng.Normal();
-  }
-  std::vector<double> position_errors(frames.size(), 0.0);
-  if (options.shift_position_error_px > 0)
-    for (size_t f = 0; f < frames.size(); ++f) {
-      if (frames[f].pattern.type != PatternType::kStripes) continue;
-      Rng rng(MixSeed(options.seed ^ 0x5eedf00dULL, 2 * f + 1));
-      position_errors[f] = options.shift_position_error_px * rng.Normal();
-    }
-  const double inv_ss = 1.0 / (S * S);
-
-  auto fill = [&](const fs::path& dir) {
+  // Stage 3: light tables per distinct pattern, then every frame, ground truth and session.json.
+  const Stopwatch t_frames;
+  const PatternTables tables = BuildPatternTables(frames, rig, levels, kernels);
+  const FrameDraws draws = DrawFrames(frames, options);
+  WriteFolderAtomically(out_dir, [&](const fs::path& dir) {
     fs::create_directories(dir / "frames");
     Progress progress("simulate: frames", static_cast<int64_t>(frames.size()));
     ParallelFor(static_cast<int64_t>(frames.size()), [&](int64_t f) {
-      const Frame& frame = frames[f];
-      const LightTables& tab = tables[frame_table[f]];
-      const double shift_px =
-          (rig.lens_shifter ? frame.shift_steps / rig.lens_shifter->steps_per_px : 0.0) +
-          position_errors[f];
-      const bool dark = frame.pattern.type == PatternType::kBlack;
-      Rng rng(MixSeed(options.seed, 2 * f + 2));
-      ImageU16 image(W, H, 1);
-      uint16_t* out = image.channel(0);
-      for (size_t pix = 0; pix < static_cast<size_t>(W) * H; ++pix) {
-        double acc = 0.0;
-        if (!dark) {
-          const size_t k0 = pix * S * S;
-          for (int s = 0; s < S * S; ++s) {
-            const size_t k = k0 + s;
-            const float sh = cache.shading[k];
-            if (sh <= 0.0f) continue;
-            acc += sh * tab.Lookup(cache.x[k] - shift_px * cache.gain[k], cache.level[k]);
-          }
-        }
-        const double mean = options.exposure * (acc * inv_ss + options.ambient * ambient_albedo[pix]);
-        double value = mean * frame_gains[f];
-        if (options.noise > 0) value += noise.Sigma(mean) * rng.Normal();
-        const int dn = static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
-        out[pix] = ToPng16(dn, options.adc_bits);
-      }
-      WritePng16(dir / frame.file, image, kPngCompressionLevel);
+      const ImageU16 image = RenderFrame(frames[f], f, tables.tables[tables.frame_table[f]], rig,
+                                         rc, draws, options);
+      WritePng16(dir / frames[f].file, image, kPngCompressionLevel);
       progress.Advance();
     });
     progress.Finish();
-
-    // Ground truth: points on the camera grid, the height field on the camera footprint.
-    WriteExr(dir / "gt_points.exr", gt_points, {"X", "Y", "Z", "lit_fraction", "relief"});
-    HeightField gt;
-    {
-      // Footprint of the camera on z = 0: the rays through the image corners.
-      double xmin = 1e30, xmax = -1e30, ymin = 1e30, ymax = -1e30;
-      for (double u : {-0.5, W - 0.5})
-        for (double v : {-0.5, H - 0.5}) {
-          const Vec3d d = cam.RayDirectionInWorld(Vec2d(u, v));
-          const double t = -cam_centre.z() / d.z();
-          const Vec3d p = cam_centre + t * d;
-          xmin = std::min(xmin, p.x());
-          xmax = std::max(xmax, p.x());
-          ymin = std::min(ymin, p.y());
-          ymax = std::max(ymax, p.y());
-        }
-      // Pixel size: one camera pixel on the mount at the image centre.
-      const Vec3d dc = cam.RayDirectionInWorld(Vec2d(cam.K(0, 2), cam.K(1, 2)));
-      gt.pixel_size = (-cam_centre.z() / dc.z()) * dc.norm() / cam.K(0, 0);
-      const int gw =
-          std::max(1, static_cast<int>(std::floor((xmax - xmin) / gt.pixel_size + 1e-6)));
-      const int gh =
-          std::max(1, static_cast<int>(std::floor((ymax - ymin) / gt.pixel_size + 1e-6)));
-      gt.x0 = xmin + 0.5 * gt.pixel_size;
-      gt.y0 = ymax - 0.5 * gt.pixel_size;
-      // The EXR header stores the grid in float: sample where the file says the pixels are.
-      gt.x0 = StoredAsFloat(gt.x0);
-      gt.y0 = StoredAsFloat(gt.y0);
-      gt.pixel_size = StoredAsFloat(gt.pixel_size);
-      gt.z = ImageF(gw, gh, 1);
-      ParallelForRows(gh, [&](int j0, int j1) {
-        for (int j = j0; j < j1; ++j)
-          for (int i = 0; i < gw; ++i) gt.z(i, j) = static_cast<float>(object.SurfaceZ(gt.X(i), gt.Y(j)));
-      });
-    }
-    WriteHeightExr(dir / "gt_height.exr", gt);
-
+    WriteExr(dir / "gt_points.exr", rc.gt_points, {"X", "Y", "Z", "lit_fraction", "relief"});
+    WriteHeightExr(dir / "gt_height.exr", GroundTruthHeight(rig.camera, object));
     Session session;
     session.root = dir;
     session.created = SessionTimeNow();
@@ -661,52 +768,11 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     session.rig = rig;
     session.frames = frames;
     session.ground_truth = GroundTruth{"gt_points.exr", "gt_height.exr"};
-    Json sim;
-    sim["model"] = "mesoscan virtual rig 1 (sim/README.md)";
-    sim["object"] = {{"name", object.name},
-                     {"source", options.object},
-                     {"grid_pixel_size_m", object.height.pixel_size},
-                     {"grid_size", {object.height.width(), object.height.height()}}};
-    sim["rig"] = options.rig;
-    if (options.crop) sim["crop"] = *options.crop;
-    sim["supersample"] = S;
-    sim["shadows"] = options.shadows;
-    sim["projector"] = {{"fill_factor", options.fill_factor},
-                        {"blur_sigma_px", options.blur_sigma_px},
-                        {"defocus_px_per_m", options.defocus_px_per_m},
-                        {"focus_height_m", focus_z},
-                        {"gamma", options.projector_gamma},
-                        {"blur_sigma_range_px", {levels.sigma_min, levels.Sigma(levels.count - 1)}}};
-    sim["lens_shifter_gain"] = {
-        {"formula", "g = 1 + gx*un + gy*vn + gr*(un^2 + vn^2), un = (u - cx)/(W/2), "
-                    "vn = (v - cy)/(H/2), (u, v) projector pixel at shift 0"},
-        {"gx", options.shift_gain_x},
-        {"gy", options.shift_gain_y},
-        {"gr", options.shift_gain_r}};
-    sim["radiometry"] = {
-        {"formula", "value = exposure * gain_f * (mean over subsamples of albedo * cos_i * "
-                    "(r0/r)^2 * L(u - s*g) * R(v) + ambient * albedo)"},
-        {"exposure", options.exposure},
-        {"ambient", options.ambient},
-        {"reference_distance_m", r0}};
-    sim["noise"] = {{"scale", options.noise},
-                    {"full_well_e", options.full_well_e},
-                    {"read_noise_e", options.read_noise_e},
-                    {"adc_bits", options.adc_bits},
-                    {"gain_jitter", options.gain_jitter},
-                    {"variance", "scale^2 * (m / full_well_e + (read_noise_e / full_well_e)^2) + "
-                                 "q^2/12, q = 1/(2^adc_bits - 1), m in [0, 1]"},
-                    {"png", "16-bit, DN replicated to 16 bits: png = DN << (16 - bits) | "
-                            "DN >> (2*bits - 16); png / 65535 = DN / (2^bits - 1)"}};
-    sim["frame_gains"] = frame_gains;
-    sim["shift_position_errors_px"] = position_errors;
-    sim["seed"] = options.seed;
-    session.extra["simulation"] = sim;
+    session.extra["simulation"] = SimulationRecord(options, object, focus_z, levels, view.r0, draws);
     WriteSessionJson(session);
-  };
-  WriteFolderAtomically(out_dir, fill);
-  summary.seconds_frames = Seconds(t_frames);
-  summary.seconds_total = Seconds(t_start);
+  });
+  summary.seconds_frames = t_frames.Seconds();
+  summary.seconds_total = total.Seconds();
   return summary;
 }
 

@@ -13,8 +13,10 @@
 #include <string>
 #include <vector>
 
+#include "capture/patterns.h"
 #include "capture/session.h"
 #include "core/json.h"
+#include "core/rect.h"
 
 namespace mesoscan {
 
@@ -28,9 +30,9 @@ struct SimulateOptions {
   // "paper" (the built-in rig, sim/README.md) or a JSON file holding a "rig" object in the
   // session format.
   std::string rig = "paper";
-  // Camera crop {W, H, X, Y} in pixels of the rig's camera: the output camera is W x H with
-  // cx -= X, cy -= Y (a valid camera of its own). Must lie inside the rig's camera.
-  std::optional<std::array<int, 4>> crop;
+  // Camera crop in pixels of the rig's camera: the output camera is w x h with cx -= x,
+  // cy -= y (a valid camera of its own). Must lie inside the rig's camera.
+  std::optional<PixelRect> crop;
   // The session's "object" text; empty: the object's name.
   std::string object_label;
 
@@ -109,14 +111,17 @@ NoiseModel MakeNoiseModel(const SimulateOptions& options);
 Rig PaperRig();
 // options.rig resolved ("paper" or a file), with options.crop applied.
 Rig ResolveRig(const SimulateOptions& options);
-// Applies a camera crop {W, H, X, Y}; throws Error(kUsage) if it leaves the camera.
-PinholeCamera CropCamera(const PinholeCamera& camera, const std::array<int, 4>& crop);
+// Applies a camera crop; throws Error(kUsage) naming --crop if it leaves the camera.
+PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& crop);
 
 // The lens-shifter gain g(u, v) of the options at projector pixel (u, v).
 double ShifterGain(const SimulateOptions& options, const PinholeCamera& projector, double u,
                    double v);
 
-// The frames the options ask for (sine, then lens shift, white, black), files frames/*.png.
+// The frame plan the options ask for (capture/patterns.h: sines along x, lens shift over the rig's
+// shifter range, white, black); throws Error(kUsage) naming --ls-frames when the rig cannot do it.
+FramePlanOptions SimulationFramePlan(const SimulateOptions& options, const Rig& rig);
+// MakeStandardFrames of that plan: files frames/*.png.
 std::vector<Frame> MakeSimulationFrames(const SimulateOptions& options, const Rig& rig);
 
 struct SimulateSummary {

@@ -22,7 +22,7 @@ fs::path TempDir(const std::string& name) {
 }
 
 // Small, fast options: a crop of the paper rig, 2 x 2 supersampling, no noise.
-SimulateOptions Small(const std::string& object, std::array<int, 4> crop) {
+SimulateOptions Small(const std::string& object, PixelRect crop) {
   Progress::SetEnabled(false);
   SetLogLevel(LogLevel::kWarning);
   SimulateOptions o;
@@ -62,7 +62,7 @@ class PlaneSession : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     // A 24 x 16 crop on the tilted steel bar, 0.6 mm right of the mount centre.
-    options_ = Small("plane", {24, 16, PaperPixelOfX(0.6e-3) - 12, 709});
+    options_ = Small("plane", {PaperPixelOfX(0.6e-3) - 12, 709, 24, 16});
     dir_ = TempDir("plane");
     summary_ = Simulate(options_, dir_);
   }
@@ -221,7 +221,7 @@ TEST(VirtualRig, GroundTruthHeightMatchesGenerator) {
 TEST(VirtualRig, CoinCastsAShadowOnTheMount) {
   // The projector is on the +x side, 20 degrees off the vertical: left of the coin's edge
   // (x = -9.5 mm, 1.3 mm tall at the rim) the mount is in shadow for 1.3 mm * tan(incidence).
-  SimulateOptions o = Small("coin", {80, 8, PaperPixelOfX(-11.5e-3), 713});
+  SimulateOptions o = Small("coin", {PaperPixelOfX(-11.5e-3), 713, 80, 8});
   o.object_pixel_size_m = 40e-6;
   o.ps_periods_px = {};
   o.ls_frames = 0;
@@ -259,7 +259,7 @@ TEST(VirtualRig, CoinCastsAShadowOnTheMount) {
 TEST(VirtualRig, NoiseMatchesTheNoiseModel) {
   // On the bare mount: the residual of a noisy frame against the noiseless one, after the
   // recorded per-frame gain, has the model's variance (plus the noiseless frame's rounding).
-  SimulateOptions o = Small("plane", {64, 64, 150, 150});
+  SimulateOptions o = Small("plane", {150, 150, 64, 64});
   o.ps_periods_px = {};
   o.ls_frames = 0;
   o.supersample = 1;
@@ -296,14 +296,14 @@ TEST(VirtualRig, NoiseMatchesTheNoiseModel) {
 
 TEST(VirtualRig, CropIsACameraOfItsOwn) {
   const PinholeCamera full = PaperRig().camera;
-  const PinholeCamera crop = CropCamera(full, {100, 80, 300, 200});
+  const PinholeCamera crop = CropCamera(full, PixelRect{300, 200, 100, 80});
   EXPECT_EQ(crop.width, 100);
   EXPECT_EQ(crop.height, 80);
   const Vec3d a = crop.RayDirectionInWorld(Vec2d(10, 20));
   const Vec3d b = full.RayDirectionInWorld(Vec2d(310, 220));
   EXPECT_LT((a - b).norm(), 1e-15);
   try {
-    CropCamera(full, {100, 80, 2100, 0});
+    CropCamera(full, PixelRect{2100, 0, 100, 80});
     FAIL() << "a crop outside the camera must be refused";
   } catch (const Error& e) {
     EXPECT_EQ(e.kind(), ErrorKind::kUsage);

@@ -301,7 +301,7 @@ struct TwoScans {
   ImageF true_z, calibrated_z;
 };
 TwoScans ScanBoth(const std::string& object, const fs::path& rig_file, const Rig& calibrated,
-                  const std::array<int, 4>& crop, uint64_t seed) {
+                  const PixelRect& crop, uint64_t seed) {
   SimulateOptions so;
   so.object = object;
   so.rig = rig_file.string();
@@ -330,7 +330,7 @@ TEST_F(CalibrateSim, CoinAndMountWithTheCalibratedRig) {
   co.board = Board();
   co.fix_k3 = true;
   const CalibrationResult r = Run(co);
-  const std::array<int, 4> crop = {400, 400, 888, 517};  // the demo window
+  const PixelRect crop = {888, 517, 400, 400};  // the demo window
   {
     const TwoScans t = ScanBoth("coin", *rig_file_, r.rig, crop, 7);
     double s = 0;

@@ -178,9 +178,78 @@ TEST_F(CaptureCommand, RawCameraSessionPassesCheck) {
   const CliResult r = Capture("dng", "--no-white", "screen-dng");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s = ReadSession(dir_ / "dng");
-  EXPECT_EQ(s.frames.front().file, "frames/ps7_0.dng");
+  EXPECT_EQ(s.frames.front().file, "frames/ps07_0.dng");
   const CliResult check = RunMesoscan("check " + (dir_ / "dng").string());
   EXPECT_EQ(check.code, 0) << check.output;
+}
+
+// Issue 11 item 7: `capture --plan calibration` shows sines along both projector axes, white and
+// black (no lens shift, so no shifter needed) on a rig that holds device sizes only; the session
+// is a calibration session, and `simulate --object board:...` of the same rig lists the same
+// frames (one generator, capture/patterns.h).
+TEST_F(CaptureCommand, CalibrationPlanCapturesBothAxesAndMatchesTheBoardSimulation) {
+  Session sized;
+  sized.rig = SmallTestRig(32, 24, 64, 48, false);
+  Json rig = SessionToJson(sized)["rig"];
+  for (const char* device : {"camera", "projector"})
+    for (const char* key : {"K", "distortion", "world_from_device"}) rig[device].erase(key);
+  std::ofstream(dir_ / "sizes.json") << Json{{"rig", rig}}.dump(2);
+  const fs::path out = dir_ / "calib";
+  const CliResult r = RunMesoscan("-q capture --plan calibration --out " + out.string() +
+                                  " --rig " + (dir_ / "sizes.json").string() +
+                                  " --camera screen --display " + display() + " --settle 0");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const Session s = ReadSession(out);
+  EXPECT_TRUE(s.rig.uncalibrated);
+  // Periods: the projector's width and 1/16 of it along x (64, 4), its height and 1/16 along y
+  // (48, 3); 3 phases each, white, black.
+  const FramePlan plan = MakeFramePlan(s.frames);
+  EXPECT_EQ(plan.Periods('x'), (std::vector<double>{4, 64}));
+  EXPECT_EQ(plan.Periods('y'), (std::vector<double>{3, 48}));
+  EXPECT_TRUE(plan.lens_shift.empty());
+  ASSERT_EQ(s.frames.size(), 14u);
+  // A y sine varies along camera rows only; an x sine along columns only.
+  for (const size_t i : {size_t{0}, size_t{6}}) {
+    const ImageF f = ReadImageGrey(s.FramePath(i));
+    double along_x = 0, along_y = 0;
+    for (int y = 0; y + 1 < f.height(); ++y)
+      for (int x = 0; x + 1 < f.width(); ++x) {
+        along_x += std::abs(f(x + 1, y) - f(x, y));
+        along_y += std::abs(f(x, y + 1) - f(x, y));
+      }
+    const bool y_sine = s.frames[i].pattern.axis == 'y';
+    EXPECT_GT(y_sine ? along_y : along_x, 1.0) << s.frames[i].file;
+    EXPECT_EQ(y_sine ? along_x : along_y, 0.0) << s.frames[i].file;
+  }
+  const CliResult check = RunMesoscan("check " + out.string());
+  EXPECT_EQ(check.code, 0) << check.output;
+  EXPECT_NE(check.output.find("calibration session"), std::string::npos) << check.output;
+
+  // The simulator's board session of the calibrated rig: the same frame list.
+  const fs::path board = dir_ / "board";
+  const CliResult sim = RunMesoscan("-q simulate --object board:checker:5x4:10 --rig " +
+                                    (dir_ / "rig.json").string() + " --out " + board.string());
+  ASSERT_EQ(sim.code, 0) << sim.output;
+  const Session b = ReadSession(board);
+  ASSERT_EQ(b.frames.size(), s.frames.size());
+  for (size_t i = 0; i < s.frames.size(); ++i) {
+    EXPECT_EQ(b.frames[i].file, s.frames[i].file);
+    EXPECT_EQ(b.frames[i].pattern.type, s.frames[i].pattern.type) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].pattern.axis, s.frames[i].pattern.axis) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].pattern.period_px, s.frames[i].pattern.period_px) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].pattern.phase, s.frames[i].pattern.phase) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].shift_steps, s.frames[i].shift_steps) << s.frames[i].file;
+  }
+
+  // A calibration plan takes no lens-shift frames; an unknown plan is a usage error.
+  for (const char* extra : {"--plan calibration --ls-frames 8", "--plan turntable",
+                            "--periods-y 30,7"}) {
+    const CliResult bad = RunMesoscan("-q capture --out " + (dir_ / "bad").string() + " --rig " +
+                                      (dir_ / "sizes.json").string() + " --camera screen " +
+                                      "--display " + display() + " " + extra);
+    EXPECT_EQ(bad.code, 2) << extra << ": " << bad.output;
+    EXPECT_EQ(Lines(bad.output), 1) << extra << ": " << bad.output;
+  }
 }
 
 TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {

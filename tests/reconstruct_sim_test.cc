@@ -36,7 +36,7 @@ SimulateOptions PlaneOptions(int w, int h) {
   SimulateOptions o;
   o.object = "plane";
   const int cx = static_cast<int>(std::lround(1087.5 - 17e-3 / 55e-6));
-  o.crop = std::array<int, 4>{w, h, cx - w / 2, 717 - h / 2};
+  o.crop = PixelRect{cx - w / 2, 717 - h / 2, w, h};
   o.seed = 11;
   o.focus_height_m = 0.0;  // focused on the mount (the crop's bar is near it)
   return o;
@@ -110,7 +110,7 @@ struct ObjectFigures {
 // (heightfield/mixed_pixels.h), so coverage is asserted over the single-surface lit pixels
 // (GroundTruthErrors::coverage_single) and reported over all lit pixels too. Gross errors count
 // every reconstructed pixel, mixed ones included.
-ObjectFigures RunObject(const std::string& object, const std::array<int, 4>& crop, int seed) {
+ObjectFigures RunObject(const std::string& object, const PixelRect& crop, int seed) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = object;
@@ -152,7 +152,7 @@ ObjectFigures RunObject(const std::string& object, const std::array<int, 4>& cro
 // Every sheet edge is a depth step; the pixels that straddle one are rejected, not placed
 // between the sheets. Each step is recovered within 1 um (median height over the sheet).
 TEST(ReconstructSim, RampStepsWithinOneMicron) {
-  const ObjectFigures f = RunObject("ramp", {580, 120, 798, 657}, 5);
+  const ObjectFigures f = RunObject("ramp", {798, 657, 580, 120}, 5);
   EXPECT_LT(static_cast<double>(f.gross) / f.scored, 1e-4);
   EXPECT_GE(f.e.coverage_single, 0.99);
   // Median reconstructed height on each sheet (pixels whose ground truth is on sheet k).
@@ -182,7 +182,7 @@ TEST(ReconstructSim, RampStepsWithinOneMicron) {
 
 // The curled leaf (midrib, veins; about 1.0-1.3 mm above the mount), a crop over its middle.
 TEST(ReconstructSim, LeafWithoutGrossErrors) {
-  const ObjectFigures f = RunObject("leaf", {360, 240, 908, 597}, 6);
+  const ObjectFigures f = RunObject("leaf", {908, 597, 360, 240}, 6);
   EXPECT_LT(static_cast<double>(f.gross) / f.scored, 1e-4);
   EXPECT_GE(f.e.coverage_single, 0.99);
   EXPECT_GE(f.e.coverage, 0.99);  // hardly any steps: also over all lit pixels
@@ -193,7 +193,7 @@ TEST(ReconstructSim, LeafWithoutGrossErrors) {
 // mixed (most of them kept where they agree with a face). Those that would land between the
 // faces, tens of microns off, must go: gross errors < 1e-4 of the reconstructed pixels.
 TEST(ReconstructSim, CoinWithoutGrossErrors) {
-  const ObjectFigures f = RunObject("coin", {400, 400, 888, 517}, 7);
+  const ObjectFigures f = RunObject("coin", {888, 517, 400, 400}, 7);
   EXPECT_LT(static_cast<double>(f.gross) / f.scored, 1e-4);
   EXPECT_GE(f.e.coverage_single, 0.99);
 }

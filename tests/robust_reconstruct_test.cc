@@ -57,7 +57,7 @@ void Print(const char* label, const Figures& f) {
 SimulateOptions CoinJitter(double jitter) {
   SimulateOptions so;
   so.object = "coin";
-  so.crop = std::array<int, 4>{400, 300, 1000, 600};
+  so.crop = PixelRect{1000, 600, 400, 300};
   so.ls_frames = 15;
   so.ambient = 0.15;
   so.gain_jitter = jitter;
@@ -118,7 +118,7 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "leaf";
-  so.crop = std::array<int, 4>{384, 288, 900, 600};
+  so.crop = PixelRect{900, 600, 384, 288};
   so.blur_sigma_px = 0.7;
   const fs::path dir = TempDir("leaf");
   Simulate(so, dir);
@@ -154,7 +154,7 @@ TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "plane";
-  so.crop = std::array<int, 4>{256, 192, 960, 620};
+  so.crop = PixelRect{960, 620, 256, 192};
   so.focus_height_m = 0.0;
   const fs::path dir = TempDir("plane_defocus");
   Simulate(so, dir);
@@ -202,7 +202,7 @@ TEST(RobustReconstruct, SimulatorFocusesAtTheObjectsMidHeight) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "plane";
-  so.crop = std::array<int, 4>{16, 12, 960, 620};
+  so.crop = PixelRect{960, 620, 16, 12};
   so.ls_frames = 0;
   const fs::path dir = TempDir("plane_focus");
   Simulate(so, dir);
@@ -289,7 +289,7 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "coin";
-  so.crop = std::array<int, 4>{160, 120, 1100, 650};
+  so.crop = PixelRect{1100, 650, 160, 120};
   so.adc_bits = 8;
   so.ambient = 10.0;
   so.exposure = 0.08;
@@ -362,7 +362,7 @@ TEST(RobustReconstruct, CuePeriodEqualToTheProjectorWidth) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "plane";
-  so.crop = std::array<int, 4>{128, 96, 960, 620};
+  so.crop = PixelRect{960, 620, 128, 96};
   const double width = ResolveRig(so).projector.width;
   so.ps_periods_px = {width / 16, width};
   so.ps_phases = 3;

@@ -1,0 +1,40 @@
+#include "core/rect.h"
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+
+namespace mesoscan {
+namespace {
+
+// Error(kUsage) whose message names the option and the text.
+void ExpectUsage(const std::string& text) {
+  try {
+    ParsePixelRect(text, "--crop");
+    FAIL() << "'" << text << "' must be refused";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kUsage) << text;
+    EXPECT_NE(std::string(e.what()).find("--crop: '" + text + "'"), std::string::npos) << e.what();
+  }
+}
+
+TEST(PixelRect, CommasAndGeometrySpellTheSameRectangle) {
+  const PixelRect r = ParsePixelRect("960,620,256,192", "--roi");
+  EXPECT_EQ(r, (PixelRect{960, 620, 256, 192}));
+  EXPECT_EQ(ParsePixelRect("256x192+960+620", "--crop"), r);
+  EXPECT_EQ(ParsePixelRect(" 1, 2 ,3,4", "--crop"), (PixelRect{1, 2, 3, 4}));
+  EXPECT_EQ(ToString(r), "960,620,256,192");
+  EXPECT_FALSE(r.whole());
+  EXPECT_TRUE(PixelRect{}.whole());
+  // The largest int is a value (the caller checks it against its image), one more is refused.
+  EXPECT_EQ(ParsePixelRect("2147483647,0,1,1", "--crop").x, 2147483647);
+}
+
+TEST(PixelRect, MalformedRectanglesAreUsageErrorsNamingTheOption) {
+  for (const char* text : {"1,2,30", "1,2,0,4", "1,2,3,0", "-1,2,3,4", "1,2,three,4", "10x10",
+                           "1,2,3,4,5", "", "0x4+1+1", "2147483648,0,1,1", "99999999999,0,1,1"})
+    ExpectUsage(text);
+}
+
+}  // namespace
+}  // namespace mesoscan
