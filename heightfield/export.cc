@@ -672,13 +672,46 @@ struct GlbParts {
   std::vector<uint8_t> normal_png, albedo_png;
 };
 
+// The GLB's extras: units, axes, the height maps beside it and the mesh's error.
+Json GlbExtras(const ExportMaps& m, const GridMesh& mesh) {
+  const ExportOptions& o = m.o;
+  const std::string& n = o.name;
+  Json extras = {{"units", "m"},
+                 {"up_axis", "glTF +Y (world z); world (x, y, z) = glTF (x, -z, y)"},
+                 {"height_zero_m", 0.0},
+                 {"height_scale", 1.0},
+                 {"max_height_error_m", mesh.max_height_error_m},
+                 {"pixel_size_m", m.grid.hf.pixel_size}};
+  if (o.exr) extras["height_map"] = n + "_height.exr";
+  if (o.png16) {
+    extras["height_map_png16"] = n + "_height.png";
+    extras["height_png16_midlevel"] = m.heights.midlevel;
+    extras["height_png16_scale"] = m.heights.span;
+  }
+  if (!extras.contains("height_map")) extras["height_map"] = o.png16 ? n + "_height.png" : "";
+  return extras;
+}
+
+// The GLB's manifest entry.
+Json GlbEntry(const ExportMaps& m, const GridMesh& mesh) {
+  return {{"role", "mesh"}, {"format", "glb"}, {"units", "m"},
+          {"axes", "glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world"},
+          {"uv", "sample (i, j) at ((i + 0.5)/W, (j + 0.5)/H), glTF top-left origin"},
+          {"triangles", mesh.triangles()}, {"vertices", mesh.vertices()},
+          {"max_triangles", m.o.max_triangles}, {"lossless_triangles", mesh.lossless_triangles},
+          {"max_height_error_m", mesh.max_height_error_m}, {"rtin_threshold_m", mesh.threshold_m},
+          {"uncovered_samples", mesh.uncovered_samples}, {"budget_met", mesh.budget_met},
+          {"textures", m.grid.albedo.empty()
+                           ? Json{"normal (OpenGL, 8-bit)"}
+                           : Json{"normal (OpenGL, 8-bit)", "baseColor (sRGB, 8-bit)"}}};
+}
+
 // <name>.glb: the mesh (built on this thread while its textures are encoded) with its
 // normal (OpenGL) and base-colour textures.
 void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, ExportWriter* w) {
-  const ExportOptions& o = m.o;
   const ExportGrid& g = m.grid;
-  const HeightField& hf = g.hf;
-  const std::string n = o.name, f = n + ".glb";
+  const std::string n = m.o.name, f = n + ".glb";
+  // Textures encoded in parallel with the mesh.
   const fs::path tex = w->dir() / (n + "_texture.png");  // temporaries are named after it
   tbb::task_group texture_tasks;
   texture_tasks.run([&g, parts, tex] {
@@ -687,12 +720,13 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   });
   if (!g.albedo.empty())
     texture_tasks.run([&g, parts, tex] { parts->albedo_png = EncodePng8(QuantizeU8(g.albedo, true), tex); });
+  // The mesh (RTIN within the triangle budget).
   GridMeshOptions mo;
-  mo.max_triangles = o.max_triangles;
-  mo.tolerance_m = o.mesh_tolerance_m;
+  mo.max_triangles = m.o.max_triangles;
+  mo.tolerance_m = m.o.mesh_tolerance_m;
   const Stopwatch mesh_watch;
   try {
-    parts->mesh = TriangulateHeightField(hf, mo);
+    parts->mesh = TriangulateHeightField(g.hf, mo);
   } catch (...) {
     texture_tasks.wait();
     throw;
@@ -706,31 +740,10 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   summary->triangles = mesh.triangles();
   summary->vertices = mesh.vertices();
   summary->max_height_error_m = mesh.max_height_error_m;
-  Json extras = {{"units", "m"},
-                 {"up_axis", "glTF +Y (world z); world (x, y, z) = glTF (x, -z, y)"},
-                 {"height_zero_m", 0.0},
-                 {"height_scale", 1.0},
-                 {"max_height_error_m", mesh.max_height_error_m},
-                 {"pixel_size_m", hf.pixel_size}};
-  if (o.exr) extras["height_map"] = n + "_height.exr";
-  if (o.png16) {
-    extras["height_map_png16"] = n + "_height.png";
-    extras["height_png16_midlevel"] = m.heights.midlevel;
-    extras["height_png16_scale"] = m.heights.span;
-  }
-  if (!extras.contains("height_map")) extras["height_map"] = o.png16 ? n + "_height.png" : "";
-  w->Add(f, {{"role", "mesh"}, {"format", "glb"}, {"units", "m"},
-             {"axes", "glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world"},
-             {"uv", "sample (i, j) at ((i + 0.5)/W, (j + 0.5)/H), glTF top-left origin"},
-             {"triangles", mesh.triangles()}, {"vertices", mesh.vertices()},
-             {"max_triangles", o.max_triangles}, {"lossless_triangles", mesh.lossless_triangles},
-             {"max_height_error_m", mesh.max_height_error_m}, {"rtin_threshold_m", mesh.threshold_m},
-             {"uncovered_samples", mesh.uncovered_samples}, {"budget_met", mesh.budget_met},
-             {"textures", g.albedo.empty() ? Json{"normal (OpenGL, 8-bit)"}
-                                           : Json{"normal (OpenGL, 8-bit)", "baseColor (sRGB, 8-bit)"}}},
-         "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
+  // The file: listed, then written once its textures are ready.
+  w->Add(f, GlbEntry(m, mesh), "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
   texture_tasks.wait();
-  w->Run(f, [&g, parts, n, f, extras, dir = w->dir()] {
+  w->Run(f, [&g, parts, n, f, extras = GlbExtras(m, mesh), dir = w->dir()] {
     GlbContent c;
     c.name = n;
     c.grid = &g.hf;
