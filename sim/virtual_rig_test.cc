@@ -192,7 +192,7 @@ TEST(VirtualRig, GroundTruthHeightMatchesGenerator) {
                         {"leaf", 40e-6, 0.0, 0.9e-3},
                         {"plane", 100e-6, 10.0, 3e-3}};
   for (const Case& c : cases) {
-    SimulateOptions o = Small(c.object, {32, 32, PaperPixelOfX(c.x_mm * 1e-3) - 16, 700});
+    SimulateOptions o = Small(c.object, {PaperPixelOfX(c.x_mm * 1e-3) - 16, 700, 32, 32});
     o.object_pixel_size_m = c.grid_m;
     o.ps_periods_px = {};
     o.ls_frames = 0;
