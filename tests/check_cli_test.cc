@@ -94,7 +94,7 @@ TEST_F(CheckCliTest, ValidSessionSummary) {
   EXPECT_NE(r.out.find("phase shift (axis x): periods 7,11 x 3 phases; unambiguous over 77 px"),
             std::string::npos)
       << r.out;
-  EXPECT_NE(r.out.find("lens shift: 8 frames at 8 positions over -2048..1536 steps"),
+  EXPECT_NE(r.out.find("lens shift: 8 frames at 8 positions over -2048..2048 steps"),
             std::string::npos)
       << r.out;
   EXPECT_NE(r.out.find("white: yes; black: yes"), std::string::npos) << r.out;
