@@ -22,7 +22,9 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                           "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
 
   const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
-  const FrameStack stack = LoadFrames(session, plan.frames, options.Load());
+  // The frames are the biggest buffer (2 bytes per sample): released as soon as the last stage
+  // that reads them (lens shift) is done, as are the per-period arrays after combining.
+  FrameStack stack = LoadFrames(session, plan.frames, options.Load());
   const RoiGrid grid = RoiGrid::Of(stack);
   timer.Stage("decode");
   PixelClasses classes =
@@ -31,12 +33,21 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   FrameGains gains =  // refined by the lens-shift stage (frame corrections)
       EstimateLuminanceGains(stack, plan, state, session.frames.size(), options.Gains());
   timer.Stage("normalize");
-  const PhaseShiftPixels ps =
+  PhaseShiftPixels ps =
       DecodePhaseShift(stack, plan, gains, classes, options.PhaseShift(rig), &state);
   timer.Stage("phase_shift");
-  const LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
+  LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
+  stack = FrameStack();
   timer.Stage("lens_shift");
-  const CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
+  CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
+  const int64_t pixels_lit = ps.pixels_lit, pixels_fitted = ls.pixels_fitted;
+  const Json frame_corrections = ls.frame_corrections;
+  if (!options.keep_diagnostics) {
+    ps = PhaseShiftPixels();
+    ls = LensShiftPixels();
+    combined.u_coarse = {};
+    combined.unwrap_residual = {};
+  }
   timer.Stage("unwrap_combine");
   TriangulatedPoints tri =
       TriangulatePoints(rig, grid, combined, {options.keep_diagnostics}, &state);
@@ -54,12 +65,12 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   sum.pixels_total = static_cast<int64_t>(rig.camera.width) * rig.camera.height;
   sum.pixels_roi = classes.pixels_roi;
   sum.pixels_saturated = classes.pixels_saturated;
-  sum.pixels_lit = ps.pixels_lit;
-  sum.pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
+  sum.pixels_lit = pixels_lit;
+  sum.pixels_fitted = plan.use_lens_shift() ? pixels_fitted : pixels_lit;
   CountFinalStates(state, &sum);
   sum.predicted_depth_rms_m = PredictedDepthRms(grid, state, tri.sigma_z);
   sum.frame_gains = gains.session_gain;
-  sum.frame_corrections = ls.frame_corrections;
+  sum.frame_corrections = frame_corrections;
   sum.unwrapping = plan.unwrapping;
   sum.used_lens_shift = plan.use_lens_shift();
   sum.lens_shift_frames = static_cast<int>(plan.ls_stack.size());
