@@ -276,7 +276,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
           G.middleRows(3 * (q - q0), 3) =
               std::sqrt(wq) * llt.matrixL().solve(F.transpose());  // 3 x P
         }
-        part.S.noalias() -= G.transpose() * G;
+        // Lower triangle only (S is symmetric; the sparse terms above fill both halves).
+        part.S.selfadjointView<Eigen::Lower>().rankUpdate(G.transpose(), -1.0);
       });
       S.setZero();
       rhs.setZero();
@@ -284,6 +285,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
         S += part.S;
         rhs += part.rhs;
       }
+      S.triangularView<Eigen::StrictlyUpper>() = S.transpose();
       // Gauges (and frozen directions) as penalties.
       const double lam = S.diagonal().cwiseAbs().mean() + 1e-300;
       auto penalise = [&](Eigen::VectorXd u, double scale) {

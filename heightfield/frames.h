@@ -47,6 +47,13 @@ class FrameStack {
   float Value(int k, size_t i) const {
     return is_float_ ? raw_float_[k][i] - float_black_ : lut_[raw_[k][i]];
   }
+  // Frees the samples of frame k (the streaming driver releases each frame after the last stage
+  // that reads it); Gather / Value must not be called for it afterwards.
+  void Release(int k) {
+    if (k < 0 || k >= num_frames()) return;
+    if (is_float_) std::vector<float>().swap(raw_float_[k]);
+    else std::vector<uint16_t>().swap(raw_[k]);
+  }
   // 1 where any frame of the stack is saturated at that pixel.
   const std::vector<uint8_t>& saturated() const { return saturated_; }
   // Number of frames that were stored with 8 bits per sample.

@@ -36,6 +36,12 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   PhaseShiftPixels ps =
       DecodePhaseShift(stack, plan, gains, classes, options.PhaseShift(rig), &state);
   timer.Stage("phase_shift");
+  {  // Only the lens-shift frames are read from here on.
+    std::vector<uint8_t> keep(plan.frames.size(), 0);
+    for (int k : plan.ls_stack) keep[k] = 1;
+    for (int k = 0; k < stack.num_frames(); ++k)
+      if (!keep[k]) stack.Release(k);
+  }
   LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
   stack = FrameStack();
   timer.Stage("lens_shift");
