@@ -1,9 +1,12 @@
 // Reconstruct(): the driver that chains and times the stages (see reconstruct.h).
 #include "heightfield/reconstruct.h"
 
+#include <algorithm>
+
 #include "core/parallel.h"
 #include "heightfield/stage_height_field.h"
 #include "heightfield/stage_mixed_pixels.h"
+#include "heightfield/stage_stream.h"
 
 namespace mesoscan {
 
@@ -22,25 +25,24 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                           "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
 
   const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
-  // The frames are the biggest buffer (2 bytes per sample): released as soon as the last stage
-  // that reads them (lens shift) is done, as are the per-period arrays after combining.
-  FrameStack stack = LoadFrames(session, plan.frames, options.Load());
-  const RoiGrid grid = RoiGrid::Of(stack);
-  timer.Stage("decode");
-  PixelClasses classes =
-      ClassifyPixels(stack, plan, rig.camera.width, rig.camera.height, options.Classify());
+  // Decode, classify, gains and phase shift as one stream (stage_stream.h); each frame is
+  // released after the last stage that reads it, the per-period arrays after combining.
+  StreamedFrames front =
+      DecodeAndPhaseShift(session, plan, {options.Load(), options.Classify(), options.Gains(),
+                                          options.PhaseShift(rig)});
+  FrameStack& stack = front.stack;
+  PixelClasses& classes = front.classes;
   PixelStates& state = classes.state;
-  FrameGains gains =  // refined by the lens-shift stage (frame corrections)
-      EstimateLuminanceGains(stack, plan, state, session.frames.size(), options.Gains());
-  timer.Stage("normalize");
-  PhaseShiftPixels ps =
-      DecodePhaseShift(stack, plan, gains, classes, options.PhaseShift(rig), &state);
-  timer.Stage("phase_shift");
-  {  // Only the lens-shift frames are read from here on.
-    std::vector<uint8_t> keep(plan.frames.size(), 0);
-    for (int k : plan.ls_stack) keep[k] = 1;
-    for (int k = 0; k < stack.num_frames(); ++k)
-      if (!keep[k]) stack.Release(k);
+  FrameGains& gains = front.gains;  // refined by the lens-shift stage (frame corrections)
+  PhaseShiftPixels& ps = front.ps;
+  const RoiGrid grid = RoiGrid::Of(stack);
+  {  // decode (until the last frame), what of the overlapped sine-frame stages ran after it,
+     // then the lens-shift frames' gains
+    const double front_s = timer.Stage("decode");
+    sum.timings_s.back().second = front.decode_s;
+    const double ps_s = std::max(0.0, front.phase_shift_s - front.decode_s);
+    sum.timings_s.emplace_back("phase_shift", ps_s);
+    sum.timings_s.emplace_back("normalize", std::max(0.0, front_s - front.decode_s - ps_s));
   }
   LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
   stack = FrameStack();
@@ -84,6 +86,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   if (options.keep_diagnostics)
     sum.diagnostics = CollectDiagnostics(rig, grid, ps, ls, combined, std::move(tri.dz_du));
   sum.total_s = timer.Total();
+  sum.last_frame_s = front.decode_s;
   scan.report["summary"] = sum.ToJson();
   scan.report["options"] = options.ToJson();
   return scan;
