@@ -7,6 +7,7 @@
 #include <limits>
 #include <numeric>
 
+#include "core/parallel.h"
 #include "heightfield/frames.h"
 
 namespace mesoscan {
@@ -43,17 +44,25 @@ struct Problem {
   std::vector<int> pix;  // pixels in use
 };
 
-// Per-pixel coefficients c = (d, alpha, beta) for frame parameters (g, delta); returns the
-// weighted SSR contribution (unweighted SSR in *ssr_out).
-bool SolvePixel(const Problem& p, int j, const std::vector<double>& g,
-                const std::vector<double>& delta, Eigen::Vector3d* c, double* ssr) {
-  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  const float* I = p.s.data() + static_cast<size_t>(j) * p.nk;
+// cos / sin of theta_k = 2 pi f_j (x_k + delta_k) of pixel j, into ct[0..nk), st[0..nk).
+void PixelTrig(const Problem& p, int j, const std::vector<double>& delta, double* ct, double* st) {
   const double w = 2 * kPi * p.freq[j];
   for (int k = 0; k < p.nk; ++k) {
     const double th = w * (p.x[k] + delta[k]);
-    const Eigen::Vector3d D(g[k], g[k] * std::cos(th), g[k] * std::sin(th));
+    ct[k] = std::cos(th);
+    st[k] = std::sin(th);
+  }
+}
+
+// Per-pixel coefficients c = (d, alpha, beta) for frame parameters (g, delta) with the pixel's
+// cos / sin from PixelTrig; the unweighted SSR in *ssr.
+bool SolvePixel(const Problem& p, int j, const std::vector<double>& g, const double* ct,
+                const double* st, Eigen::Vector3d* c, double* ssr) {
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  const float* I = p.s.data() + static_cast<size_t>(j) * p.nk;
+  for (int k = 0; k < p.nk; ++k) {
+    const Eigen::Vector3d D(g[k], g[k] * ct[k], g[k] * st[k]);
     A += D * D.transpose();
     b += D * static_cast<double>(I[k]);
   }
@@ -62,14 +71,17 @@ bool SolvePixel(const Problem& p, int j, const std::vector<double>& g,
   *c = llt.solve(b);
   double r2 = 0;
   for (int k = 0; k < p.nk; ++k) {
-    const double th = w * (p.x[k] + delta[k]);
-    const double m = (*c)(0) + (*c)(1) * std::cos(th) + (*c)(2) * std::sin(th);
+    const double m = (*c)(0) + (*c)(1) * ct[k] + (*c)(2) * st[k];
     const double r = I[k] - g[k] * m;
     r2 += r * r;
   }
   *ssr = r2;
   return c->allFinite() && std::isfinite(r2);
 }
+
+// The pixels of a problem are processed in fixed blocks (in parallel), whose partial sums are
+// added in block order: the result does not depend on the number of threads.
+constexpr int kBlockPixels = 256;
 
 }  // namespace
 
@@ -137,10 +149,13 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
   {
     std::vector<int> keep;
     std::vector<double> rel, sig2;
+    const std::vector<double> zero(nk, 0.0);
+    std::vector<double> ct(nk), st(nk);
     for (int j : p.pix) {
       Eigen::Vector3d c;
       double ssr;
-      if (!SolvePixel(p, j, g_start, std::vector<double>(nk, 0.0), &c, &ssr)) continue;
+      PixelTrig(p, j, zero, ct.data(), st.data());
+      if (!SolvePixel(p, j, g_start, ct.data(), st.data(), &c, &ssr)) continue;
       const double amp = std::hypot(c(1), c(2));
       const double s2 = ssr / (nk - 3);
       // Only profiles whose sinusoid stands out of the noise carry the frame parameters.
@@ -164,14 +179,28 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     if (p.pix.size() < 16) return out;
   }
 
+  const int n_pix = static_cast<int>(p.pix.size());
+  const int n_blocks = (n_pix + kBlockPixels - 1) / kBlockPixels;
   auto cost = [&](const std::vector<double>& gg, const std::vector<double>& dd) {
+    std::vector<double> partial(n_blocks, 0.0);
+    ParallelFor(n_blocks, [&](int64_t blk) {
+      std::vector<double> ct(nk), st(nk);
+      double total = 0;
+      const int q_end = std::min(n_pix, static_cast<int>(blk + 1) * kBlockPixels);
+      for (int q = static_cast<int>(blk) * kBlockPixels; q < q_end; ++q) {
+        Eigen::Vector3d c;
+        double ssr;
+        PixelTrig(p, p.pix[q], dd, ct.data(), st.data());
+        if (!SolvePixel(p, p.pix[q], gg, ct.data(), st.data(), &c, &ssr)) {
+          total = std::numeric_limits<double>::infinity();
+          break;
+        }
+        total += wts[q] * ssr;
+      }
+      partial[blk] = total;
+    });
     double total = 0;
-    for (size_t q = 0; q < p.pix.size(); ++q) {
-      Eigen::Vector3d c;
-      double ssr;
-      if (!SolvePixel(p, p.pix[q], gg, dd, &c, &ssr)) return std::numeric_limits<double>::infinity();
-      total += wts[q] * ssr;
-    }
+    for (double v : partial) total += v;
     return total;
   };
   std::vector<double> fs;
@@ -190,50 +219,73 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     if (!std::isfinite(current)) return current;
     Eigen::MatrixXd S(P, P);
     Eigen::VectorXd rhs(P);
-    Eigen::MatrixXd F(P, 3);
+    // Per block of pixels: the diagonal-block part of S and rhs, and the pixels' Schur
+    // complement terms sqrt(w) L^-1 F^T stacked (3 rows per pixel) for one product per block.
+    struct Partial {
+      Eigen::MatrixXd S;
+      Eigen::VectorXd rhs;
+    };
+    std::vector<Partial> partials(n_blocks);
     int it = 0;
     bool converged = false;
     for (; it < std::max(1, options.iterations) && !converged; ++it) {
+      ParallelFor(n_blocks, [&](int64_t blk) {
+        Partial& part = partials[blk];
+        part.S.setZero(P, P);
+        part.rhs.setZero(P);
+        const int q0 = static_cast<int>(blk) * kBlockPixels;
+        const int q_end = std::min(n_pix, q0 + kBlockPixels);
+        Eigen::MatrixXd G(3 * (q_end - q0), P);
+        G.setZero();
+        Eigen::MatrixXd F(P, 3);
+        std::vector<double> ct(nk), st(nk);
+        for (int q = q0; q < q_end; ++q) {
+          const int j = p.pix[q];
+          Eigen::Vector3d c;
+          double ssr;
+          PixelTrig(p, j, delta, ct.data(), st.data());
+          if (!SolvePixel(p, j, g, ct.data(), st.data(), &c, &ssr)) continue;
+          const double wq = wts[q], om = 2 * kPi * freq[j];
+          const float* I = samples.data() + static_cast<size_t>(j) * nk;
+          F.setZero();
+          Eigen::Matrix3d Hcc = Eigen::Matrix3d::Zero();
+          for (int k = 0; k < nk; ++k) {
+            const Eigen::Vector3d D(g[k], g[k] * ct[k], g[k] * st[k]);
+            const double m = c(0) + c(1) * ct[k] + c(2) * st[k];
+            const double r = I[k] - g[k] * m;
+            Hcc += D * D.transpose();
+            const double Jd = g[k] * om * (-c(1) * st[k] + c(2) * ct[k]);
+            if (est_gain) {
+              part.S(k, k) += wq * m * m;
+              part.rhs(k) += wq * m * r;
+              F.row(k) = m * D.transpose();
+            }
+            if (est_pos) {
+              part.S(ng + k, ng + k) += wq * Jd * Jd;
+              part.rhs(ng + k) += wq * Jd * r;
+              F.row(ng + k) = Jd * D.transpose();
+            }
+            if (est_gain && est_pos) {
+              part.S(ng + k, k) += wq * m * Jd;
+              part.S(k, ng + k) += wq * m * Jd;
+            }
+          }
+          // Schur complement of the pixel's block: S -= w F Hcc^-1 F^T = (sqrt(w) L^-1 F^T)^T (..).
+          Eigen::LLT<Eigen::Matrix3d> llt(Hcc);
+          if (llt.info() != Eigen::Success) continue;
+          G.middleRows(3 * (q - q0), 3) =
+              std::sqrt(wq) * llt.matrixL().solve(F.transpose());  // 3 x P
+        }
+        // Lower triangle only (S is symmetric; the sparse terms above fill both halves).
+        part.S.selfadjointView<Eigen::Lower>().rankUpdate(G.transpose(), -1.0);
+      });
       S.setZero();
       rhs.setZero();
-      for (size_t q = 0; q < p.pix.size(); ++q) {
-        const int j = p.pix[q];
-        Eigen::Vector3d c;
-        double ssr;
-        if (!SolvePixel(p, j, g, delta, &c, &ssr)) continue;
-        const double wq = wts[q], om = 2 * kPi * freq[j];
-        const float* I = samples.data() + static_cast<size_t>(j) * nk;
-        F.setZero();
-        Eigen::Matrix3d Hcc = Eigen::Matrix3d::Zero();
-        for (int k = 0; k < nk; ++k) {
-          const double th = om * (x[k] + delta[k]);
-          const double ct = std::cos(th), st = std::sin(th);
-          const Eigen::Vector3d D(g[k], g[k] * ct, g[k] * st);
-          const double m = c(0) + c(1) * ct + c(2) * st;
-          const double r = I[k] - g[k] * m;
-          Hcc += D * D.transpose();
-          const double Jd = g[k] * om * (-c(1) * st + c(2) * ct);
-          if (est_gain) {
-            S(k, k) += wq * m * m;
-            rhs(k) += wq * m * r;
-            F.row(k) = m * D.transpose();
-          }
-          if (est_pos) {
-            S(ng + k, ng + k) += wq * Jd * Jd;
-            rhs(ng + k) += wq * Jd * r;
-            F.row(ng + k) = Jd * D.transpose();
-          }
-          if (est_gain && est_pos) {
-            S(ng + k, k) += wq * m * Jd;
-            S(k, ng + k) += wq * m * Jd;
-          }
-        }
-        // Schur complement of the pixel's block: S -= w F Hcc^-1 F^T.
-        Eigen::LLT<Eigen::Matrix3d> llt(Hcc);
-        if (llt.info() != Eigen::Success) continue;
-        const Eigen::MatrixXd G = llt.matrixL().solve(F.transpose());  // 3 x P
-        S.noalias() -= wq * G.transpose() * G;
+      for (const Partial& part : partials) {
+        S += part.S;
+        rhs += part.rhs;
       }
+      S.triangularView<Eigen::StrictlyUpper>() = S.transpose();
       // Gauges (and frozen directions) as penalties.
       const double lam = S.diagonal().cwiseAbs().mean() + 1e-300;
       auto penalise = [&](Eigen::VectorXd u, double scale) {

@@ -101,9 +101,30 @@ void FrameStack::Gather(int k, size_t i0, size_t n, float* out) const {
   }
 }
 
+void FrameStack::Merge(FrameStack&& o) {
+  if (o.width_ != width_ || o.height_ != height_ || o.is_float_ != is_float_ ||
+      o.session_frames_ != session_frames_)
+    MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal, "FrameStack::Merge: stacks of different frames, sizes or storage");
+  for (int k = 0; k < num_frames(); ++k) {
+    if (is_float_) {
+      if (raw_float_[k].empty()) raw_float_[k] = std::move(o.raw_float_[k]);
+    } else if (raw_[k].empty()) {
+      raw_[k] = std::move(o.raw_[k]);
+    }
+  }
+  for (size_t i = 0; i < saturated_.size() && i < o.saturated_.size(); ++i)
+    saturated_[i] |= o.saturated_[i];
+  eight_bit_frames_ += o.eight_bit_frames_;
+  o = FrameStack();
+}
+
 FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indices,
-                      const FrameLoadOptions& options) {
+                      const FrameLoadOptions& options, const std::vector<uint8_t>* decode_only) {
   options.Check();
+  if (decode_only && decode_only->size() != frame_indices.size())
+    MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal, "LoadFrames: decode_only has " << decode_only->size() << " entries for "
+                                                     << frame_indices.size() << " frames");
+  auto decoded = [&](size_t k) { return !decode_only || (*decode_only)[k]; };
   const PinholeCamera& cam = session.rig.camera;
   FrameStack s;
   s.roi_ = ClipRoi(options.roi, cam.width, cam.height);
@@ -120,7 +141,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
   // Which storage: float only if some frame is float (EXR); decided from the headers. PNG holds
   // integers only: those frames are not opened twice (a serial open per frame costs ~1 ms).
   bool any_float = false;
-  for (int f : frame_indices) {
+  for (int f : frame_indices) {  // every frame of the list: merged stacks share the storage
     const auto path = session.FramePath(f);
     std::string ext = path.extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(),
@@ -146,8 +167,11 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
     std::atomic_ref<uint8_t>(saturated[i]).store(1, std::memory_order_relaxed);
   };
   {
-    Progress progress("decode frames", nf);
+    int n_decoded = 0;
+    for (int k = 0; k < nf; ++k) n_decoded += decoded(k);
+    Progress progress("decode frames", n_decoded);
     ParallelFor(nf, [&](int64_t k) {
+      if (!decoded(k)) return;
       const int f = frame_indices[k];
       const auto path = session.FramePath(f);
       const std::string label = path.string() + ": frames[" + std::to_string(f) + "]";

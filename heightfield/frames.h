@@ -42,6 +42,17 @@ class FrameStack {
   float Value(int k, size_t i) const {
     return is_float_ ? raw_float_[k][i] - float_black_ : lut_[raw_[k][i]];
   }
+  // Frees the samples of frame k (the streaming driver releases each frame after the last stage
+  // that reads it); Gather / Value must not be called for it afterwards.
+  void Release(int k) {
+    if (k < 0 || k >= num_frames()) return;
+    if (is_float_) std::vector<float>().swap(raw_float_[k]);
+    else std::vector<uint16_t>().swap(raw_[k]);
+  }
+  // Moves in the frames that `other` (a stack of the same frame list, ROI and storage, loaded
+  // with the complementary decode_only mask) holds and this one does not, and adds its saturated
+  // pixels. Throws Error (internal) if the stacks do not match.
+  void Merge(FrameStack&& other);
   // 1 where any frame of the stack is saturated at that pixel.
   const std::vector<uint8_t>& saturated() const { return saturated_; }
   // Number of frames that were stored with 8 bits per sample.
@@ -55,7 +66,8 @@ class FrameStack {
                                int origin_y = 0);
 
  private:
-  friend FrameStack LoadFrames(const Session&, const std::vector<int>&, const FrameLoadOptions&);
+  friend FrameStack LoadFrames(const Session&, const std::vector<int>&, const FrameLoadOptions&,
+                               const std::vector<uint8_t>*);
   int width_ = 0, height_ = 0;
   PixelRect roi_;
   bool is_float_ = false;  // every frame is float (EXR): raw_float_ is used instead of raw_
@@ -72,8 +84,13 @@ class FrameStack {
 // grey (colour averaged), cropped to the ROI. Throws Error naming the frame on an unreadable file or
 // a size other than camera.width x camera.height. Float (EXR) frames are kept as float; a session
 // mixing float and integer frames is converted to float throughout.
+// decode_only (if given, one entry per frame_indices entry): only frames with a non-zero entry
+// are decoded, the others are left empty (as Release does) and do not count for saturated();
+// Merge then joins two such stacks (the driver decodes the lens-shift frames while it works on
+// the others).
 FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indices,
-                      const FrameLoadOptions& options);
+                      const FrameLoadOptions& options,
+                      const std::vector<uint8_t>* decode_only = nullptr);
 
 // Per-frame luminance gains (Ritz et al. 2012, Sec. 5.1). A group of frames shares a per-pixel
 // linear model I_k(i) = g_k * sum_p M(k, p) c_p(i) (e.g. DC + cos + sin of a sinusoid at known

@@ -1,9 +1,12 @@
 // Reconstruct(): the driver that chains and times the stages (see reconstruct.h).
 #include "heightfield/reconstruct.h"
 
+#include <algorithm>
+
 #include "core/parallel.h"
 #include "heightfield/stage_height_field.h"
 #include "heightfield/stage_mixed_pixels.h"
+#include "heightfield/stage_stream.h"
 
 namespace mesoscan {
 
@@ -22,21 +25,37 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                           "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
 
   const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
-  const FrameStack stack = LoadFrames(session, plan.frames, options.Load());
-  const RoiGrid grid = RoiGrid::Of(stack);
-  timer.Stage("decode");
-  PixelClasses classes =
-      ClassifyPixels(stack, plan, rig.camera.width, rig.camera.height, options.Classify());
+  // Decode, classify, gains and phase shift as one stream (stage_stream.h); each frame is
+  // released after the last stage that reads it, the per-period arrays after combining.
+  StreamedFrames front =
+      DecodeAndPhaseShift(session, plan, {options.Load(), options.Classify(), options.Gains(),
+                                          options.PhaseShift(rig)});
+  FrameStack& stack = front.stack;
+  PixelClasses& classes = front.classes;
   PixelStates& state = classes.state;
-  FrameGains gains =  // refined by the lens-shift stage (frame corrections)
-      EstimateLuminanceGains(stack, plan, state, session.frames.size(), options.Gains());
-  timer.Stage("normalize");
-  const PhaseShiftPixels ps =
-      DecodePhaseShift(stack, plan, gains, classes, options.PhaseShift(rig), &state);
-  timer.Stage("phase_shift");
-  const LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
+  FrameGains& gains = front.gains;  // refined by the lens-shift stage (frame corrections)
+  PhaseShiftPixels& ps = front.ps;
+  const RoiGrid grid = RoiGrid::Of(stack);
+  {  // decode (until the last frame), what of the overlapped sine-frame stages ran after it,
+     // then the lens-shift frames' gains
+    const double front_s = timer.Stage("decode");
+    sum.timings_s.back().second = front.decode_s;
+    const double ps_s = std::max(0.0, front.phase_shift_s - front.decode_s);
+    sum.timings_s.emplace_back("phase_shift", ps_s);
+    sum.timings_s.emplace_back("normalize", std::max(0.0, front_s - front.decode_s - ps_s));
+  }
+  LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
+  stack = FrameStack();
   timer.Stage("lens_shift");
-  const CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
+  CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
+  const int64_t pixels_lit = ps.pixels_lit, pixels_fitted = ls.pixels_fitted;
+  const Json frame_corrections = ls.frame_corrections;
+  if (!options.keep_diagnostics) {
+    ps = PhaseShiftPixels();
+    ls = LensShiftPixels();
+    combined.u_coarse = {};
+    combined.unwrap_residual = {};
+  }
   timer.Stage("unwrap_combine");
   TriangulatedPoints tri =
       TriangulatePoints(rig, grid, combined, {options.keep_diagnostics}, &state);
@@ -54,12 +73,12 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   sum.pixels_total = static_cast<int64_t>(rig.camera.width) * rig.camera.height;
   sum.pixels_roi = classes.pixels_roi;
   sum.pixels_saturated = classes.pixels_saturated;
-  sum.pixels_lit = ps.pixels_lit;
-  sum.pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
+  sum.pixels_lit = pixels_lit;
+  sum.pixels_fitted = plan.use_lens_shift() ? pixels_fitted : pixels_lit;
   CountFinalStates(state, &sum);
   sum.predicted_depth_rms_m = PredictedDepthRms(grid, state, tri.sigma_z);
   sum.frame_gains = gains.session_gain;
-  sum.frame_corrections = ls.frame_corrections;
+  sum.frame_corrections = frame_corrections;
   sum.unwrapping = plan.unwrapping;
   sum.used_lens_shift = plan.use_lens_shift();
   sum.lens_shift_frames = static_cast<int>(plan.ls_stack.size());
@@ -67,6 +86,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   if (options.keep_diagnostics)
     sum.diagnostics = CollectDiagnostics(rig, grid, ps, ls, combined, std::move(tri.dz_du));
   sum.total_s = timer.Total();
+  sum.last_frame_s = front.decode_s;
   scan.report["summary"] = sum.ToJson();
   scan.report["options"] = options.ToJson();
   return scan;

@@ -163,6 +163,8 @@ struct ReconstructSummary {
   std::string unwrapping;           // "temporal", "hierarchical" or "single"
   bool used_lens_shift = false;
   double total_s = 0.0;
+  // When the last frame was decoded, s from the start (the work after it is total_s - this).
+  double last_frame_s = 0.0;
   // Cramer-Rao prediction of the depth RMS (m) with the noise estimated from each pixel's own fit
   // residual: var(u) from var(phi) >= 2 sigma^2 / (N a^2) (lens shift; phase shifting alone: the
   // weighted periods), carried through the triangulation (dZ/du), RMS over a subsample of the

@@ -48,6 +48,24 @@ Frame FlatFrame(PatternType t) {
   return f;
 }
 
+// The streaming front end (stage_stream.h) decodes two complementary halves of the frame list
+// and joins them; released frames are what the other half fills in.
+TEST(StageStream, ReleaseAndMergeJoinComplementaryStacks) {
+  const std::vector<std::vector<float>> frames = {{1, 2}, {3, 4}, {5, 6}};
+  FrameStack a = FrameStack::FromLinear(2, 1, frames, {0, 0});
+  FrameStack b = FrameStack::FromLinear(2, 1, frames, {0, 1});
+  a.Release(1);
+  b.Release(0);
+  b.Release(2);
+  a.Merge(std::move(b));
+  ASSERT_EQ(a.num_frames(), 3);
+  for (int k = 0; k < 3; ++k)
+    for (size_t i = 0; i < 2; ++i) EXPECT_EQ(a.Value(k, i), frames[k][i]);
+  EXPECT_EQ(a.saturated(), (std::vector<uint8_t>{0, 1}));  // saturation of both halves
+  FrameStack c = FrameStack::FromLinear(1, 2, {{1, 2}, {3, 4}, {5, 6}});
+  EXPECT_THROW(a.Merge(std::move(c)), Error);  // another size: refused
+}
+
 TEST(StagePlan, GroupsSineSetsSortsLensShiftAndFindsWhiteBlack) {
   Session s;
   s.rig.projector.width = 800;

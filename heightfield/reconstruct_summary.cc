@@ -28,6 +28,7 @@ Json ReconstructSummary::ToJson() const {
   Json t = Json::object();
   for (const auto& [name, s] : timings_s) t[name] = s;
   t["total"] = total_s;
+  t["last_frame"] = last_frame_s;
   j["timings_s"] = t;
   j["pixels"] = {{"total", pixels_total},
                  {"roi", pixels_roi},

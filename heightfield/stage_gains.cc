@@ -7,13 +7,27 @@
 
 namespace mesoscan {
 
-FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
-                                  const PixelStates& state, size_t session_frames,
-                                  const GainOptions& options) {
+FrameGains UnitGains(const ReconstructPlan& plan, size_t session_frames) {
   FrameGains g;
   g.session_gain.assign(session_frames, 1.0);
   g.inv_gain.assign(plan.frames.size(), 1.0f);
-  if (!options.normalize_luminance) return g;
+  return g;
+}
+
+FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
+                                  const PixelStates& state, size_t session_frames,
+                                  const GainOptions& options) {
+  FrameGains g = UnitGains(plan, session_frames);
+  EstimateLuminanceGains(stack, plan, state, GainGroup::kPhaseShift, options, &g);
+  EstimateLuminanceGains(stack, plan, state, GainGroup::kLensShift, options, &g);
+  return g;
+}
+
+void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
+                            const PixelStates& state, GainGroup group, const GainOptions& options,
+                            FrameGains* gains) {
+  FrameGains& g = *gains;
+  if (!options.normalize_luminance) return;
   const size_t np = state.size();
   std::vector<uint32_t> sample;
   size_t n_active = 0;
@@ -28,21 +42,23 @@ FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan
       g.session_gain[plan.frames[m.frames[k]]] = gains[k];
     }
   };
-  // Sine frames: a DC shared by every period, a cosine and a sine per period.
-  GainModel ps;
-  const auto& periods = plan.periods;
-  const int nper = static_cast<int>(periods.size());
-  for (int p = 0; p < nper; ++p)
-    for (size_t k = 0; k < periods[p].stack_frames.size(); ++k) {
-      std::vector<double> row(1 + 2 * nper, 0.0);
-      row[0] = 1.0;
-      row[1 + 2 * p] = std::cos(periods[p].deltas[k]);
-      row[2 + 2 * p] = -std::sin(periods[p].deltas[k]);
-      ps.frames.push_back(periods[p].stack_frames[k]);
-      ps.design.push_back(row);
-    }
-  apply(ps, EstimateFrameGains(stack, ps, sample));
-  if (plan.use_lens_shift()) {
+  if (group == GainGroup::kPhaseShift) {
+    // Sine frames: a DC shared by every period, a cosine and a sine per period.
+    GainModel ps;
+    const auto& periods = plan.periods;
+    const int nper = static_cast<int>(periods.size());
+    for (int p = 0; p < nper; ++p)
+      for (size_t k = 0; k < periods[p].stack_frames.size(); ++k) {
+        std::vector<double> row(1 + 2 * nper, 0.0);
+        row[0] = 1.0;
+        row[1 + 2 * p] = std::cos(periods[p].deltas[k]);
+        row[2 + 2 * p] = -std::sin(periods[p].deltas[k]);
+        ps.frames.push_back(periods[p].stack_frames[k]);
+        ps.design.push_back(row);
+      }
+    apply(ps, EstimateFrameGains(stack, ps, sample));
+  }
+  if (group == GainGroup::kLensShift && plan.use_lens_shift()) {
     // Lens-shift frames: DC plus the nominal sinusoid and its first two derivatives by
     // frequency (x^m cos, x^m sin; the per-pixel frequency deviates from nominal by several
     // percent, which the gains must not absorb). Note: jitter along the sinusoid itself
@@ -59,7 +75,6 @@ FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan
     }
     apply(ls, EstimateFrameGains(stack, ls, sample));
   }
-  return g;
 }
 
 }  // namespace mesoscan

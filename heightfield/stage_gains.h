@@ -28,4 +28,13 @@ FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan
                                   const PixelStates& state, size_t session_frames,
                                   const GainOptions& options);
 
+// The same for one group (sine frames or lens-shift frames) into *gains (sized by
+// UnitGains): the driver estimates the sine frames' gains while the lens-shift frames decode.
+// The group's frames must be in `stack`; the sample is drawn from `state` as above.
+enum class GainGroup { kPhaseShift, kLensShift };
+FrameGains UnitGains(const ReconstructPlan& plan, size_t session_frames);
+void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
+                            const PixelStates& state, GainGroup group, const GainOptions& options,
+                            FrameGains* gains);
+
 }  // namespace mesoscan

@@ -1,0 +1,72 @@
+#include "heightfield/stage_stream.h"
+
+#include <tbb/parallel_invoke.h>
+
+#include <algorithm>
+#include <chrono>
+#include <limits>
+#include <vector>
+
+namespace mesoscan {
+
+StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan& plan,
+                                   const StreamStageOptions& options) {
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  auto since = [&] { return std::chrono::duration<double>(Clock::now() - t0).count(); };
+  const Rig& rig = session.rig;
+  std::vector<uint8_t> is_ls(plan.frames.size(), 0), not_ls(plan.frames.size(), 1);
+  for (int k : plan.ls_stack) is_ls[k] = 1, not_ls[k] = 0;
+  const bool overlap = plan.use_lens_shift() && plan.ls_stack.size() < plan.frames.size();
+  StreamedFrames out;
+  out.gains = UnitGains(plan, session.frames.size());
+  FrameStack ls_frames;
+  PixelStates classified;  // the classify stage's states: the gains' pixel sample
+  double decoded_s = 0.0, ls_decoded_s = 0.0;
+  auto sine_frames = [&] {
+    out.stack = LoadFrames(session, plan.frames, options.load, overlap ? &not_ls : nullptr);
+    decoded_s = since();
+    out.classes = ClassifyPixels(out.stack, plan, rig.camera.width, rig.camera.height,
+                                 options.classify);
+    classified = out.classes.state;
+    EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kPhaseShift, options.gains,
+                           &out.gains);
+    out.ps = DecodePhaseShift(out.stack, plan, out.gains, out.classes, options.phase_shift,
+                              &out.classes.state);
+    if (overlap)  // only the lens-shift frames are read from here on
+      for (int k = 0; k < out.stack.num_frames(); ++k)
+        if (!is_ls[k]) out.stack.Release(k);
+  };
+  if (overlap) {
+    tbb::parallel_invoke(
+        [&] {
+          ls_frames = LoadFrames(session, plan.frames, options.load, &is_ls);
+          ls_decoded_s = since();
+        },
+        sine_frames);
+  } else {
+    sine_frames();
+  }
+  out.decode_s = std::max(decoded_s, ls_decoded_s);
+  out.phase_shift_s = since();
+  if (overlap) {
+    out.stack.Merge(std::move(ls_frames));
+    PixelStates& state = out.classes.state;
+    PixelClasses& c = out.classes;
+    for (size_t i = 0; i < state.size(); ++i) {
+      if (!out.stack.saturated()[i] || classified[i] == PixelState::kOutside ||
+          classified[i] == PixelState::kSaturated)
+        continue;
+      classified[i] = state[i] = PixelState::kSaturated;  // classify checks saturation first
+      c.white_level[i] = std::numeric_limits<float>::quiet_NaN();
+      c.black_value[i] = 0.0f;
+      ++c.pixels_saturated;
+    }
+    out.ps.pixels_lit = std::count(state.begin(), state.end(), PixelState::kActive);
+  }
+  EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
+                         &out.gains);
+  return out;
+}
+
+}  // namespace mesoscan
