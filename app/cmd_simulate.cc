@@ -65,6 +65,7 @@ void AddSimulateCommand(CLI::App* app) {
     // Calibration boards (--object board:checker:COLSxROWS:SQUARE_MM).
     std::string pose = "0,0,0,0,0,0", periods_y, frame_format = "png16";
     bool low_contrast = false;
+    std::string axis = "x";
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
@@ -77,6 +78,12 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--out", args->out, "Output session folder (written atomically)")->required();
   cmd->add_option("--ps-periods", args->periods,
                   "Sine periods in projector px, comma-separated (> 2), or 'none'")
+      ->capture_default_str();
+  cmd->add_option("--axis", args->axis,
+                  "Fringe axis of the sines and lens-shift stripes: x (vertical fringes) or y "
+                  "(horizontal; the paper rig's projector is then mounted in portrait and its "
+                  "lens shifter moves along y)")
+      ->check(CLI::IsMember({"x", "y"}))
       ->capture_default_str();
   cmd->add_option("--ps-phases", o.ps_phases, "Phases per sine period (>= 3)")->capture_default_str();
   cmd->add_option("--ls-frames", o.ls_frames,
@@ -175,6 +182,7 @@ void AddSimulateCommand(CLI::App* app) {
       return;
     }
     opt.ps_periods_px = ParsePeriods(args->periods);
+    opt.axis = args->axis.front();
     if (!args->crop.empty()) opt.crop = ParseCrop(args->crop);
     opt.white = !args->no_white;
     opt.black = !args->no_black;

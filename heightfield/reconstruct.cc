@@ -39,7 +39,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   const CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
   timer.Stage("unwrap_combine");
   TriangulatedPoints tri =
-      TriangulatePoints(rig, grid, combined, {options.keep_diagnostics}, &state);
+      TriangulatePoints(rig, grid, combined, {options.keep_diagnostics, plan.axis}, &state);
   if (options.reject_mixed_pixels)
     RejectMixedPixels(grid, classes.white_level, tri.sigma_z, options.mixed_pixels, &tri.points,
                       &state);
@@ -61,6 +61,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   sum.frame_gains = gains.session_gain;
   sum.frame_corrections = ls.frame_corrections;
   sum.unwrapping = plan.unwrapping;
+  sum.axis = std::string(1, plan.axis);
   sum.used_lens_shift = plan.use_lens_shift();
   sum.lens_shift_frames = static_cast<int>(plan.ls_stack.size());
   sum.phase_shift_frames = plan.PhaseShiftFrames();

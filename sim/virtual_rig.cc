@@ -221,6 +221,7 @@ void SimulateOptions::Check() const {
   if (ls_frames != 0 && ls_frames < 4) SIM_USAGE("--ls-frames: expected 0 or >= 4, got " << ls_frames);
   if (ps_periods_px.empty() && ls_frames == 0 && !white && !black)
     SIM_USAGE("frame plan: no frames requested");
+  if (axis != 'x' && axis != 'y') SIM_USAGE("--axis: expected x or y, got '" << axis << "'");
   if (supersample < 1 || supersample > 8)
     SIM_USAGE("--supersample: expected 1..8, got " << supersample);
   if (!(fill_factor > 0 && fill_factor <= 1))
@@ -310,8 +311,26 @@ PinholeCamera CropCamera(const PinholeCamera& camera, const std::array<int, 4>& 
   return out;
 }
 
+Rig PortraitProjector(Rig rig) {
+  PinholeCamera& prj = rig.projector;
+  const PinholeCamera old = prj;
+  prj.width = old.height;
+  prj.height = old.width;
+  prj.K(0, 0) = old.K(1, 1);
+  prj.K(1, 1) = old.K(0, 0);
+  prj.K(0, 2) = (old.height - 1) - old.K(1, 2);
+  prj.K(1, 2) = old.K(0, 2);
+  // device_old = M device_new, M = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]].
+  Mat3d m;
+  m << 0, 1, 0, -1, 0, 0, 0, 0, 1;
+  prj.world_from_device.rotation = old.world_from_device.rotation * m;
+  if (rig.lens_shifter) rig.lens_shifter->axis = 'y';
+  return rig;
+}
+
 Rig ResolveRig(const SimulateOptions& o) {
   Rig rig = o.rig == "paper" ? PaperRig() : LoadRigFile(o.rig);
+  if (o.rig == "paper" && o.axis == 'y') rig = PortraitProjector(rig);
   if (o.crop) rig.camera = CropCamera(rig.camera, *o.crop);
   if (o.projector_gamma != 1.0) {
     rig.projector_response.kind = Response::Kind::kGamma;
@@ -335,7 +354,7 @@ std::vector<Frame> MakeSimulationFrames(const SimulateOptions& o, const Rig& rig
       Frame f;
       f.file = "frames/ps" + PeriodName(period) + "_" + std::to_string(k) + ".png";
       f.pattern.type = PatternType::kSine;
-      f.pattern.axis = 'x';
+      f.pattern.axis = o.axis;
       f.pattern.period_px = period;
       f.pattern.phase = 2 * kPi * k / o.ps_phases;
       frames.push_back(f);
@@ -350,7 +369,7 @@ std::vector<Frame> MakeSimulationFrames(const SimulateOptions& o, const Rig& rig
       std::snprintf(name, sizeof(name), "frames/ls_%03d.png", k);
       f.file = name;
       f.pattern.type = PatternType::kStripes;
-      f.pattern.axis = 'x';
+      f.pattern.axis = o.axis;
       f.pattern.period_px = 2;
       f.shift_steps = static_cast<int>(
           std::lround(r[0] + static_cast<double>(k) * (r[1] - r[0]) / (o.ls_frames - 1)));
@@ -386,8 +405,13 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   options.Check();
   SimulateSummary summary;
   const Rig rig = ResolveRig(options);
-  if (rig.lens_shifter && rig.lens_shifter->axis != 'x' && options.ls_frames > 0)
-    SIM_USAGE("--rig: the virtual rig models a lens shifter along axis \"x\" only");
+  if (rig.lens_shifter && rig.lens_shifter->axis != options.axis && options.ls_frames > 0)
+    SIM_USAGE("--rig: the lens shifter moves along axis \"" << rig.lens_shifter->axis
+                                                           << "\", expected \"" << options.axis
+                                                           << "\" as --axis");
+  // Patterns vary along the fringe axis only: the cache holds the coordinate along it in `x`
+  // and the one across it in `sub_v` (for axis 'y' the projector's v and u).
+  const bool along_y = options.axis == 'y';
   const std::vector<Frame> frames = MakeSimulationFrames(options, rig);
 
   // ---- scene: the object on the mount plane z = 0 ----
@@ -479,8 +503,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
               lit_subsamples += s.lit;
               if (s.hit) hits.push_back(s.point);
               if (s.shading > 0) {
-                cache.x[k] = static_cast<float>(s.u);
-                sub_v[k] = static_cast<float>(s.v);
+                cache.x[k] = static_cast<float>(along_y ? s.v : s.u);
+                sub_v[k] = static_cast<float>(along_y ? s.u : s.v);
                 sub_sigma[k] = static_cast<float>(s.sigma);
                 cache.shading[k] = static_cast<float>(s.shading);
               }
@@ -527,7 +551,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   });
   {
     // Along v every pattern is uniform: the light is L(u) * R_v(v), R_v = sum_v w(v' - v).
-    const LightTables rows = BuildTables(std::vector<double>(prj.height, 1.0), levels, kernels);
+    const LightTables rows =
+        BuildTables(std::vector<double>(along_y ? prj.width : prj.height, 1.0), levels, kernels);
     ParallelFor(
         static_cast<int64_t>(n_sub),
         [&](int64_t k) {
@@ -535,7 +560,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
           const float level = levels.Level(sub_sigma[k]);
           cache.level[k] = level;
           cache.shading[k] *= rows.Lookup(sub_v[k], level);
-          cache.gain[k] = static_cast<float>(ShifterGain(options, prj, cache.x[k], sub_v[k]));
+          cache.gain[k] = static_cast<float>(along_y ? ShifterGain(options, prj, sub_v[k], cache.x[k])
+                                                     : ShifterGain(options, prj, cache.x[k], sub_v[k]));
         },
         4096);
   }
@@ -560,9 +586,10 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   }
   std::vector<LightTables> tables(table_patterns.size());
   for (size_t t = 0; t < table_patterns.size(); ++t) {
-    std::vector<double> p(prj.width);
-    for (int u = 0; u < prj.width; ++u)
-      p[u] = rig.projector_response.ToLinear(table_patterns[t]->Value(u, 0.0));
+    std::vector<double> p(along_y ? prj.height : prj.width);
+    for (int u = 0; u < static_cast<int>(p.size()); ++u)
+      p[u] = rig.projector_response.ToLinear(
+          along_y ? table_patterns[t]->Value(0.0, u) : table_patterns[t]->Value(u, 0.0));
     tables[t] = BuildTables(p, levels, kernels);
   }
 
@@ -670,6 +697,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     sim["rig"] = options.rig;
     if (options.crop) sim["crop"] = *options.crop;
     sim["supersample"] = S;
+    sim["axis"] = std::string(1, options.axis);
     sim["shadows"] = options.shadows;
     sim["projector"] = {{"fill_factor", options.fill_factor},
                         {"blur_sigma_px", options.blur_sigma_px},
