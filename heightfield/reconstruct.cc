@@ -60,6 +60,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   sum.predicted_depth_rms_m = PredictedDepthRms(grid, state, tri.sigma_z);
   sum.frame_gains = gains.session_gain;
   sum.frame_corrections = ls.frame_corrections;
+  if (sum.frame_corrections.is_object())  // issue 13: the positions' constant, from phase shifting
+    sum.frame_corrections["phase_shift_offset_px"] = combined.ls_offset_px;
   sum.unwrapping = plan.unwrapping;
   sum.axis = std::string(1, plan.axis);
   sum.used_lens_shift = plan.use_lens_shift();
