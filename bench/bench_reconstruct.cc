@@ -7,7 +7,7 @@
 //     figure) and the ratio of the RMS to the Cramer-Rao floor of the simulator's noise model.
 //     Written to table1.csv and plotted (error against run time) in table1.png.
 //  1b. Table 1 with the disturbances of real rigs (issue 13, Table1Disturbances): LS 50 + PS 9
-//     with gain jitter 0 / 0.02 (joint frame gains, and the older alternating gains) and with
+//     with gain jitter 0 / 0.02 (joint frame gains, the older alternating gains, frame means) and with
 //     lens-shifter position errors 0 / 0.02 px RMS (estimated, and nominal positions), each with
 //     the plain fixed-frequency least-squares decoder (tests/plain_ls_decoder.h) on the same
 //     pixels. Written to table1_disturbances.csv. MESOSCAN_BENCH_TABLE1_DISTURBANCES_ONLY=1 runs
@@ -354,6 +354,7 @@ std::vector<DisturbedRow> Table1Disturbances(const fs::path& work) {
       {"LS 50 + PS 9 jitter 0", 0.0, 0.0},
       {"LS 50 + PS 9 jitter 0.02", 0.02, 0.0},
       {"LS 50 + PS 9 jitter 0.02 (alternating gains)", 0.02, 0.0, FrameGainMethod::kAlternating},
+      {"LS 50 + PS 9 jitter 0.02 (frame means)", 0.02, 0.0, FrameGainMethod::kFrameMeans},
       {"LS 50 + PS 9 jitter 0.005 shifter 0", 0.005, 0.0},
       {"LS 50 + PS 9 jitter 0.005 shifter 0.02px", 0.005, 0.02},
       {"LS 50 + PS 9 jitter 0.005 shifter 0.02px (nominal)", 0.005, 0.02, FrameGainMethod::kJoint,
