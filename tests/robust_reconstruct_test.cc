@@ -325,6 +325,13 @@ TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
     std::printf("positions: truth (affine-free) RMS %.4f px, estimate error RMS %.4f px\n",
                 std::sqrt(t2 / nk), std::sqrt(e2 / nk));
     EXPECT_LT(std::sqrt(e2 / nk), 0.25 * std::sqrt(t2 / nk));
+    // The affine map's constant (the frames' mean position error at the centre of the range)
+    // comes from the phase-shift frames at shift 0.
+    const double mid = 0.5 * (x.front() + x.back());
+    const double offset = fc["phase_shift_offset_px"].get<double>();
+    std::printf("positions: constant at the range centre %.5f px, from phase shifting %.5f px\n",
+                aa + bb * mid, offset);
+    EXPECT_NEAR(offset, aa + bb * mid, 0.0015);
   }
   EXPECT_LE(corrected.e.rms_m, 1.05 * clean.e.rms_m);
   EXPECT_GE(corrected.e.coverage, clean.e.coverage - 0.002);
