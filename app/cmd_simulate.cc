@@ -26,6 +26,7 @@ void AddSimulateCommand(CLI::App* app) {
     // Calibration boards (--object board:checker:COLSxROWS:SQUARE_MM).
     std::string pose = "0,0,0,0,0,0", periods_y, frame_format = "png16";
     bool low_contrast = false;
+    std::string axis = "x";
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
@@ -38,6 +39,12 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--out", args->out, "Output session folder (written atomically)")->required();
   cmd->add_option("--ps-periods", args->periods,
                   "Sine periods in projector px, comma-separated (> 2), or 'none'")
+      ->capture_default_str();
+  cmd->add_option("--axis", args->axis,
+                  "Fringe axis of the sines and lens-shift stripes: x (vertical fringes) or y "
+                  "(horizontal; the paper rig's projector is then mounted in portrait and its "
+                  "lens shifter moves along y)")
+      ->check(CLI::IsMember({"x", "y"}))
       ->capture_default_str();
   cmd->add_option("--ps-phases", o.ps_phases, "Phases per sine period (>= 3)")->capture_default_str();
   cmd->add_option("--ls-frames", o.ls_frames,
@@ -141,6 +148,7 @@ void AddSimulateCommand(CLI::App* app) {
     }
     opt.ps_periods_px = ParsePeriodList(args->periods, "--ps-periods");
     if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "--crop");
+    opt.axis = args->axis.front();
     opt.white = !args->no_white;
     opt.black = !args->no_black;
     opt.shadows = !args->no_shadows;

@@ -335,21 +335,76 @@ ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const Pi
                   ResampledSize(h, hf.pixel_size, pixel_size_m));
 }
 
-ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir) {
+namespace {
+
+// The sine set (at shift 0) whose phases are spread most evenly over the circle: its mean is
+// black + white/2 at every pixel, the texture of a session without a white frame. -1 if none
+// (>= 3 phases whose unit phasors average below 0.05 in length).
+int EvenPhaseSet(const Session& s, const FramePlan& plan) {
+  int best = -1;
+  double best_bias = 0.05;
+  for (size_t k = 0; k < plan.sine.size(); ++k) {
+    double c = 0, sn = 0;
+    int n = 0;
+    for (size_t f : plan.sine[k].frames) {
+      if (s.frames[f].shift_steps != 0) continue;
+      c += std::cos(s.frames[f].pattern.phase);
+      sn += std::sin(s.frames[f].pattern.phase);
+      ++n;
+    }
+    if (n < 3) continue;
+    const double bias = std::hypot(c, sn) / n;
+    if (bias < best_bias) best_bias = bias, best = static_cast<int>(k);
+  }
+  return best;
+}
+
+}  // namespace
+
+ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir,
+                         std::string* source) {
   const Session s = ReadSession(session_dir, /*check_frames=*/false);
   int white = -1, black = -1;
   for (size_t i = 0; i < s.frames.size(); ++i) {
     if (s.frames[i].pattern.type == PatternType::kWhite && white < 0) white = static_cast<int>(i);
     if (s.frames[i].pattern.type == PatternType::kBlack && black < 0) black = static_cast<int>(i);
   }
-  if (white < 0) MESOSCAN_BAD_INPUT((session_dir / "session.json").string() << ": frames: no white frame for the albedo");
   auto linear = [&](int index) {
     ImageF im = ReadImage(s.FramePath(index));
     for (float& v : im.data())
       v = static_cast<float>(s.rig.camera_response.ToLinear(std::max(0.0, v - s.rig.black_level)));
     return im;
   };
-  const ImageF wf = linear(white);
+  ImageF wf;
+  if (white >= 0) {
+    wf = linear(white);
+    if (source) *source = "white frame";
+  } else {
+    // No white frame: twice the mean of an evenly spread phase set (black + white / 2 each).
+    const FramePlan plan = MakeFramePlan(s.frames);
+    const int set = EvenPhaseSet(s, plan);
+    if (set < 0)
+      MESOSCAN_BAD_INPUT((session_dir / "session.json").string()
+                         << ": frames: no white frame and no sine set with >= 3 evenly spread "
+                            "phases for the albedo");
+    int n = 0;
+    for (size_t f : plan.sine[set].frames) {
+      if (s.frames[f].shift_steps != 0) continue;
+      const ImageF im = linear(static_cast<int>(f));
+      if (wf.empty()) wf = ImageF(im.width(), im.height(), im.channels(), 0.0f);
+      if (im.width() != wf.width() || im.height() != wf.height() || im.channels() != wf.channels())
+        MESOSCAN_BAD_INPUT(s.FramePath(f).string() << ": size differs from the other sine frames");
+      for (size_t i = 0; i < im.data().size(); ++i) wf.data()[i] += im.data()[i];
+      ++n;
+    }
+    for (float& v : wf.data()) v *= 2.0f / n;
+    if (source) {
+      std::ostringstream os;
+      os << "mean of the " << n << " sine frames of period " << plan.sine[set].period_px
+         << " px (no white frame)";
+      *source = os.str();
+    }
+  }
   const ImageF bf = black >= 0 ? linear(black) : ImageF();
   if (!bf.empty() && (bf.width() != wf.width() || bf.height() != wf.height()))
     MESOSCAN_BAD_INPUT(s.FramePath(black).string() << ": size differs from the white frame");
@@ -375,7 +430,7 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir) {
                    (1 - a) * b * at(im, u0, v0 + 1) + a * b * at(im, u0 + 1, v0 + 1);
           };
           double v = bil(wf);
-          if (!bf.empty()) v -= bil(bf);
+          if (!bf.empty()) v -= (white >= 0 ? 1.0 : 2.0) * bil(bf);  // 2 mean - 2 black
           out(i, j, k) = static_cast<float>(std::max(0.0, v));
         }
       }
@@ -438,9 +493,10 @@ ExportGrid MakeExportGrid(const Scan& scan, const ExportOptions& o) {
     const std::string session = SessionPathFromReport(scan.report);
     if (!session.empty() && fs::is_directory(session)) {
       try {
-        g.albedo = CropAndResampleImage(AlbedoFromSession(scan.height, session), scan.height,
+        std::string from;
+        g.albedo = CropAndResampleImage(AlbedoFromSession(scan.height, session, &from), scan.height,
                                         o.crop, o.pixel_size_m);
-        g.albedo_source = "white frame of session " + session;
+        g.albedo_source = from + " of session " + session;
       } catch (const Error& e) {
         MESOSCAN_LOG(kWarning) << "export: no albedo (" << e.what() << ")";
       }
@@ -648,7 +704,8 @@ void AddMaskAndAlbedo(const ExportMaps& m, ExportWriter* w) {
   w->Add(fa, {{"role", "albedo"}, {"format", "png"}, {"pixel_type", "uint8"},
               {"channels", g.albedo.channels() == 3 ? Json{"R", "G", "B"} : Json{"Y"}},
               {"colour_space", "sRGB"}, {"source", g.albedo_source},
-              {"meaning", "relative albedo: white-frame radiance (minus black), 99th percentile = 1, "
+              {"meaning", "relative albedo: white-frame radiance (or twice a sine set's "
+                          "mean) minus black, 99th percentile = 1, "
                           "no shading correction"}},
          "Blender: Image Texture '" + fa + "' (Color Space sRGB) -> Principled BSDF Base Color");
   w->Run(fa, [&g, fa, dir = w->dir()] {

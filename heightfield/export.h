@@ -97,9 +97,12 @@ ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const Pi
 
 // Relative albedo on the grid of `hf` from a session's white frame (minus its black frame if
 // present), linearised per the session's camera response, sampled where each height sample
-// projects into the camera. Channels as the frame (1 or 3). Unscaled; NaN in holes or outside
-// the frame. Throws Error if the session has no white frame.
-ImageF AlbedoFromSession(const HeightField& hf, const std::filesystem::path& session_dir);
+// projects into the camera. Without a white frame, twice the mean of the sine set (shift 0) whose
+// phases are spread most evenly (>= 3, mean phasor < 0.05) stands in for it (the spec's texture of
+// a session without white). Channels as the frame (1 or 3). Unscaled; NaN in holes or outside the
+// frame. `source` (optional) receives which frames were used. Throws Error if neither exists.
+ImageF AlbedoFromSession(const HeightField& hf, const std::filesystem::path& session_dir,
+                         std::string* source = nullptr);
 
 // The tangent-space normal map of world normals `n` (3 channels, NaN in holes -> flat), encoded
 // rgb = 0.5 + 0.5 * n, with the convention's sign of green.

@@ -33,26 +33,37 @@ Json GroundTruthErrors::ToJson() const {
           {"coverage_single", coverage_single}};
 }
 
-double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& d,
+ImageF LensShiftDepthCrlbMap(const Session& session, const ReconstructDiagnostics& d,
                              const ImageF& error, const std::function<double(double)>& sigma) {
-  if (d.ls_amplitude.empty() || session.frames.empty()) return 0.0;
+  if (d.ls_amplitude.empty() || session.frames.empty()) return {};
   const double steps_per_px =
       session.rig.lens_shifter ? session.rig.lens_shifter->steps_per_px : 1.0;
   std::vector<double> x;
   for (const Frame& f : session.frames)
     if (f.pattern.type == PatternType::kStripes) x.push_back(f.shift_steps / steps_per_px);
-  if (x.empty()) return 0.0;
+  if (x.empty()) return {};
   const double centre = std::accumulate(x.begin(), x.end(), 0.0) / x.size();
   for (double& v : x) v -= centre;
-  double s2 = 0;
-  int64_t n = 0;
+  ImageF out(d.u.width(), d.u.height(), 1, std::numeric_limits<float>::quiet_NaN());
   for (int y = 0; y < d.u.height(); ++y)
     for (int xx = 0; xx < d.u.width(); ++xx) {
       if (!std::isfinite(error(xx, y)) || !std::isfinite(d.dz_du(xx, y))) continue;
       const double var_phi = LensShiftPhaseCrlb(sigma(d.ls_offset(xx, y)), d.ls_amplitude(xx, y), x,
                                                 d.ls_frequency(xx, y),
                                                 /*fit_frequency=*/false);
-      s2 += var_phi / (kPi * kPi) * std::pow(d.dz_du(xx, y), 2);
+      out(xx, y) = static_cast<float>(std::sqrt(var_phi) / kPi * std::abs(d.dz_du(xx, y)));
+    }
+  return out;
+}
+
+double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& d,
+                             const ImageF& error, const std::function<double(double)>& sigma) {
+  const ImageF floor = LensShiftDepthCrlbMap(session, d, error, sigma);
+  double s2 = 0;
+  int64_t n = 0;
+  for (float v : floor.data())
+    if (std::isfinite(v)) {
+      s2 += static_cast<double>(v) * v;
       ++n;
     }
   return n ? std::sqrt(s2 / n) : 0.0;

@@ -58,5 +58,9 @@ GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanP
 // lens-shift reconstruction; returns 0 where there is none or no pixel qualifies.
 double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostics& diagnostics,
                              const ImageF& error, const std::function<double(double)>& sigma);
+// The same floor per camera pixel (metres; NaN where `error` or dZ/du is not finite); empty
+// without lens-shift diagnostics.
+ImageF LensShiftDepthCrlbMap(const Session& session, const ReconstructDiagnostics& diagnostics,
+                             const ImageF& error, const std::function<double(double)>& sigma);
 
 }  // namespace mesoscan

@@ -89,6 +89,9 @@ struct CombinedPixels {
   // Which cue fixed u (points.exr `source`): 0 lens shift (phase shifting for the period),
   // 1 phase shifting alone.
   std::vector<uint8_t> source;
+  // Offset added to the lens-shift pixels' u against phase shifting (CombineOptions::
+  // reference_positions_to_phase_shift), px; 0 where not applied.
+  double ls_offset_px = 0.0;
 };
 
 }  // namespace mesoscan

@@ -58,7 +58,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   }
   timer.Stage("unwrap_combine");
   TriangulatedPoints tri =
-      TriangulatePoints(rig, grid, combined, {options.keep_diagnostics}, &state);
+      TriangulatePoints(rig, grid, combined, {options.keep_diagnostics, plan.axis}, &state);
   if (options.reject_mixed_pixels)
     RejectMixedPixels(grid, classes.white_level, tri.sigma_z, options.mixed_pixels, &tri.points,
                       &state);
@@ -79,7 +79,10 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   sum.predicted_depth_rms_m = PredictedDepthRms(grid, state, tri.sigma_z);
   sum.frame_gains = gains.session_gain;
   sum.frame_corrections = frame_corrections;
+  if (sum.frame_corrections.is_object())  // issue 13: the positions' constant, from phase shifting
+    sum.frame_corrections["phase_shift_offset_px"] = combined.ls_offset_px;
   sum.unwrapping = plan.unwrapping;
+  sum.axis = std::string(1, plan.axis);
   sum.used_lens_shift = plan.use_lens_shift();
   sum.lens_shift_frames = static_cast<int>(plan.ls_stack.size());
   sum.phase_shift_frames = plan.PhaseShiftFrames();

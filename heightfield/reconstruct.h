@@ -161,6 +161,8 @@ struct ReconstructSummary {
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated
   Json frame_corrections;  // lens-shift frames: FrameCorrections::ToJson() (null if not run)
   std::string unwrapping;           // "temporal", "hierarchical" or "single"
+  // Decoded projector axis: "x" (projector_u holds columns) or "y" (rows; horizontal fringes).
+  std::string axis = "x";
   bool used_lens_shift = false;
   double total_s = 0.0;
   // When the last frame was decoded, s from the start (the work after it is total_s - this).

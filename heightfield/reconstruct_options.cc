@@ -120,6 +120,7 @@ CombineOptions ReconstructOptions::Combine() const {
   o.four_parameter_fit = fit_frequency && !smooth_frequency;
   o.phase_shift_fallback = phase_shift_fallback;
   o.phase_shift_fallback_confidence = phase_shift_fallback_confidence;
+  o.reference_positions_to_phase_shift = correct_positions;
   return o;
 }
 

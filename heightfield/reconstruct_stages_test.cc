@@ -103,6 +103,35 @@ TEST(StagePlan, GroupsSineSetsSortsLensShiftAndFindsWhiteBlack) {
   EXPECT_THROW(MakeReconstructPlan(none, {}), Error);
 }
 
+// Horizontal fringes (issue 13): the decoded axis is the lens shifter's when a sine set lies
+// along it, else x, else y; the unwrapping range is the projector's extent along that axis.
+TEST(StagePlan, DecodesOneAxis) {
+  auto along = [](Frame f, char axis) {
+    f.pattern.axis = axis;
+    return f;
+  };
+  Session s;
+  s.rig.projector.width = 800;
+  s.rig.projector.height = 600;
+  for (char axis : {'x', 'y'})
+    for (double ph : {0.0, 2.0, 4.0}) s.frames.push_back(along(SineFrame(7, ph), axis));
+  EXPECT_EQ(MakeReconstructPlan(s, {}).axis, 'x');  // no shifter, both axes: x
+  s.rig.lens_shifter = LensShifter();
+  s.rig.lens_shifter->axis = 'y';
+  s.rig.lens_shifter->steps_per_px = 100;
+  for (int st : {-20, 0, 10, 20}) s.frames.push_back(along(StripesFrame(st), 'y'));
+  const ReconstructPlan p = MakeReconstructPlan(s, {});
+  EXPECT_EQ(p.axis, 'y');  // the shifter's axis
+  EXPECT_EQ(p.projector_width, 600);
+  EXPECT_EQ(p.frames, (std::vector<int>{3, 4, 5, 6, 7, 8, 9}));
+  EXPECT_EQ(p.ls_stack.size(), 4u);
+  Session y_only;
+  y_only.rig.projector.width = 800;
+  y_only.rig.projector.height = 600;
+  for (double ph : {0.0, 2.0, 4.0}) y_only.frames.push_back(along(SineFrame(7, ph), 'y'));
+  EXPECT_EQ(MakeReconstructPlan(y_only, {}).axis, 'y');  // no shifter, only y
+}
+
 TEST(StageClassify, SaturatedUnlitAndLit) {
   // Stack frames: white, black. Pixels: saturated, unlit, lit, lit.
   std::vector<std::vector<float>> frames = {{0.9f, 0.03f, 0.5f, 0.8f}, {0.1f, 0.02f, 0.1f, 0.0f}};

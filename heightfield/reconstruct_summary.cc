@@ -44,6 +44,7 @@ Json ReconstructSummary::ToJson() const {
   j["frame_gains"] = frame_gains;
   j["frame_corrections"] = frame_corrections;
   j["unwrapping"] = unwrapping;
+  j["axis"] = axis;
   j["used_lens_shift"] = used_lens_shift;
   j["predicted_depth_rms_m"] = predicted_depth_rms_m;
   return j;

@@ -16,6 +16,13 @@ double Wrap2Pi(double a) {
   return a < 0 ? a + 2 * kPi : a;
 }
 
+// Did the lens-shift stage estimate (and apply) per-frame shifter positions?
+bool PositionsEstimated(const Json& fc) {
+  if (!fc.is_object() || !fc.contains("model") || !fc["model"].is_string()) return false;
+  if (fc.contains("valid") && fc["valid"].is_boolean() && !fc["valid"].get<bool>()) return false;
+  return fc["model"].get<std::string>().find("positions") != std::string::npos;
+}
+
 }  // namespace
 
 CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
@@ -136,6 +143,20 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
       out.confidence[i] = static_cast<float>(c);
     }
   });
+  if (use_ls && options.reference_positions_to_phase_shift &&
+      PositionsEstimated(ls.frame_corrections)) {
+    std::vector<float> d;
+    for (size_t i = 0; i < np; ++i)
+      if (out.source[i] == 0 && std::isfinite(out.u[i]) && std::isfinite(out.u_coarse[i]))
+        d.push_back(out.u_coarse[i] - out.u[i]);
+    if (d.size() >= 1000) {
+      std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+      out.ls_offset_px = d[d.size() / 2];
+      for (size_t i = 0; i < np; ++i)
+        if (out.source[i] == 0 && std::isfinite(out.u[i]))
+          out.u[i] = static_cast<float>(out.u[i] + out.ls_offset_px);
+    }
+  }
   return out;
 }
 

@@ -30,6 +30,13 @@ struct CombineOptions {
   // confidence scaled by phase_shift_fallback_confidence, in (0, 1]; source 1 there.
   bool phase_shift_fallback = true;
   double phase_shift_fallback_confidence = 0.5;
+  // Issue 13: where the lens-shift stage estimated the shifter positions (frame_corrections
+  // model with "positions"), they are known only up to an affine map: the per-pixel frequency
+  // absorbs its slope, but its constant (the mean position error of the lens-shift frames against
+  // the calibrated shift 0) moves every lens-shift u alike. The phase-shift frames, taken at
+  // shift 0, fix it: the median of u_coarse - u over the lens-shift pixels (>= 1000) is added to
+  // their u (CombinedPixels::ls_offset_px).
+  bool reference_positions_to_phase_shift = true;
 };
 
 // `ls` may be empty (phase shifting alone).

@@ -26,15 +26,42 @@ double ReconstructPlan::LensShiftCentre() const {
   return std::accumulate(ls_shift_px.begin(), ls_shift_px.end(), 0.0) / ls_shift_px.size();
 }
 
+namespace {
+
+// The axis whose sines (and stripes) decode the projector coordinate: the lens shifter's axis
+// when the rig has one and a sine set (>= 3 phases at shift 0) exists along it, else x when one
+// exists along x, else y. A session with sets along both axes (calibration style) reconstructs
+// from that one axis; the other set is ignored.
+char DecodeAxis(const Session& session, const FramePlan& fp) {
+  auto usable = [&](char axis) {
+    for (const auto& set : fp.sine) {
+      if (set.axis != axis) continue;
+      int at_zero = 0;
+      for (size_t f : set.frames) at_zero += session.frames[f].shift_steps == 0;
+      if (at_zero >= 3) return true;
+    }
+    return false;
+  };
+  if (session.rig.lens_shifter && usable(session.rig.lens_shifter->axis))
+    return session.rig.lens_shifter->axis;
+  if (usable('x')) return 'x';
+  if (usable('y')) return 'y';
+  return session.rig.lens_shifter ? session.rig.lens_shifter->axis : 'x';
+}
+
+}  // namespace
+
 ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& options) {
   const Rig& rig = session.rig;
   const FramePlan fp = MakeFramePlan(session.frames);
   ReconstructPlan plan;
   plan.label = session.root.string();
+  plan.axis = DecodeAxis(session, fp);
   for (const auto& set : fp.sine) {
-    if (set.axis != 'x') {
+    if (set.axis != plan.axis) {
       MESOSCAN_LOG(kInfo) << "reconstruct: ignoring " << set.frames.size()
-                          << " sine frames along the projector's y axis";
+                          << " sine frames along the projector's " << set.axis
+                          << " axis (decoding axis " << plan.axis << ")";
       continue;
     }
     PhasePeriod p;
@@ -49,21 +76,23 @@ ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& o
   }
   if (plan.periods.empty())
     MESOSCAN_BAD_INPUT(session.root.string()
-                       << "/session.json: frames: no sine pattern along x with >= 3 phases at "
-                          "shift_steps 0; nothing gives the absolute projector column");
+                       << "/session.json: frames: no sine pattern along " << plan.axis
+                       << " with >= 3 phases at shift_steps 0; nothing gives the absolute "
+                          "projector "
+                       << (plan.axis == 'x' ? "column" : "row"));
   const std::vector<double> period_list = plan.PeriodList();
-  plan.projector_width = rig.projector.width;
+  plan.projector_width = plan.axis == 'x' ? rig.projector.width : rig.projector.height;
   const double longest = *std::max_element(period_list.begin(), period_list.end());
   plan.unwrapping = period_list.size() == 1           ? "single"
                     : longest >= plan.projector_width ? "hierarchical"
                                                       : "temporal";
 
-  // Lens-shift frames (stripes, period 2, axis x), sorted by shift.
+  // Lens-shift frames (stripes, period 2, along the decoded axis), sorted by shift.
   std::vector<std::pair<int, size_t>> by_shift;
   if (options.use_lens_shift && rig.lens_shifter) {
     for (size_t f : fp.lens_shift) {
       const Pattern& pat = session.frames[f].pattern;
-      if (pat.axis != 'x' || std::abs(pat.period_px - 2.0) > 1e-9) continue;
+      if (pat.axis != plan.axis || std::abs(pat.period_px - 2.0) > 1e-9) continue;
       by_shift.emplace_back(session.frames[f].shift_steps, f);
     }
     std::sort(by_shift.begin(), by_shift.end());

@@ -1,8 +1,10 @@
 #pragma once
-// Reconstruction stage 0, plan: which session frames are decoded and what each encodes. Only
-// axis-x sine frames at shift 0 decode the coarse projector column (the calibrated model holds at
-// shift 0); lens-shift frames are the period-2 axis-x stripes, sorted by shift; plus the first
-// white and black frame. The stack order is the order of `frames` (heightfield/frames.h).
+// Reconstruction stage 0, plan: which session frames are decoded and what each encodes. One axis
+// is decoded (`axis`: the lens shifter's, else x, else y; see MakeReconstructPlan): its sine
+// frames at shift 0 decode the coarse projector coordinate (column for x, row for y; the
+// calibrated model holds at shift 0); lens-shift frames are the period-2 stripes along it, sorted
+// by shift; plus the first white and black frame. The stack order is the order of `frames`
+// (heightfield/frames.h). Below, "column" and "width" mean row and height for axis y.
 
 #include <string>
 #include <vector>
@@ -16,7 +18,7 @@ struct PlanOptions {
   bool use_lens_shift = true;
 };
 
-// One period of the phase-shift patterns (axis x, shift 0), >= 3 phases.
+// One period of the phase-shift patterns (along the plan's axis, shift 0), >= 3 phases.
 struct PhasePeriod {
   double period = 0;              // projector px
   std::vector<int> stack_frames;  // indices into the FrameStack
@@ -32,6 +34,7 @@ struct ReconstructPlan {
   std::string unwrapping;            // "temporal", "hierarchical" or "single"
   double projector_width = 0;        // the unwrapping range, px
   std::string label;                 // the session (for messages)
+  char axis = 'x';                   // decoded projector axis: 'x' (columns) or 'y' (rows)
 
   bool use_lens_shift() const { return !ls_stack.empty(); }
   bool has_white() const { return white >= 0; }
@@ -41,8 +44,11 @@ struct ReconstructPlan {
   double LensShiftCentre() const;
 };
 
-// Throws Error (bad input) if no axis-x sine set with >= 3 phases at shift 0 exists. Lens shift
-// is used with >= 4 stripe frames and a lens shifter in the rig.
+// The decoded axis: the lens shifter's when the rig has one and >= 3 sine phases at shift 0 lie
+// along it, else x if they do along x, else y (a session with sets along both axes, calibration
+// style, reconstructs from that axis alone). Throws Error (bad input) if no sine set with >= 3
+// phases at shift 0 exists along it. Lens shift is used with >= 4 stripe frames along the axis and
+// a lens shifter in the rig.
 ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& options);
 
 }  // namespace mesoscan

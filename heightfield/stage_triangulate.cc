@@ -17,7 +17,7 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
   const int w = grid.width, h = grid.height;
   const PixelRect& roi = grid.roi;
   const std::vector<float>& u = combined.u;
-  const Triangulator tri(rig.camera, rig.projector);
+  const Triangulator tri(rig.camera, rig.projector, options.axis);
   TriangulatedPoints out;
   ScanPoints& points = out.points;
   points.xyz = ImageF(cam_w, cam_h, 3, kNaN);

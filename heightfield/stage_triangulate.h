@@ -16,6 +16,7 @@ namespace mesoscan {
 
 struct TriangulateOptions {
   bool keep_dz_du = false;  // fill TriangulatedPoints::dz_du (diagnostics)
+  char axis = 'x';          // the decoded projector axis (ReconstructPlan::axis): u is a row for 'y'
 };
 
 struct TriangulatedPoints {

@@ -4,11 +4,12 @@
 
 namespace mesoscan {
 
-Triangulator::Triangulator(const PinholeCamera& camera, const PinholeCamera& projector)
-    : camera_(camera), projector_(projector) {
+Triangulator::Triangulator(const PinholeCamera& camera, const PinholeCamera& projector, char axis)
+    : camera_(camera), projector_(projector), axis_(axis == 'y' ? 1 : 0) {
   proj_from_world_ = projector.world_from_device.Inverse();
   projector_distorted_ = projector.HasDistortion();
-  projector_skewed_ = projector.K(0, 1) != 0.0;
+  // The row v = fy y/z + cy holds no skew term; only columns need Newton for a skewed K.
+  projector_skewed_ = axis_ == 0 && projector.K(0, 1) != 0.0;
 }
 
 std::optional<Vec3d> Triangulator::Intersect(const Vec3d& ray_in_world, double u) const {
@@ -16,18 +17,19 @@ std::optional<Vec3d> Triangulator::Intersect(const Vec3d& ray_in_world, double u
   const Vec3d o = proj_from_world_ * camera_.CentreInWorld();
   const Vec3d d = proj_from_world_.rotation * ray_in_world;
   const Mat3d& K = projector_.K;
-  // Pinhole (zero-skew) plane x - xn z = 0 through the projector centre.
-  const double xn = (u - K(0, 2)) / K(0, 0);
-  const double den = d.x() - xn * d.z();
+  // Pinhole (zero-skew) plane x - xn z = 0 (rows: y - yn z = 0) through the projector centre.
+  const int a = axis_;
+  const double xn = (u - K(a, 2)) / K(a, a);
+  const double den = d[a] - xn * d.z();
   if (std::abs(den) < 1e-12) return std::nullopt;
-  double t = (xn * o.z() - o.x()) / den;
+  double t = (xn * o.z() - o[a]) / den;
   if (projector_distorted_ || projector_skewed_) {
     // Newton on g(t) = column(p(t)) - u; the derivative by central differences.
     auto column = [&](double tt, double* col) {
       const Vec3d p = o + tt * d;
       double uv[2];
       if (!projector_.ProjectDevice(p.data(), uv)) return false;
-      *col = uv[0];
+      *col = uv[a];
       return true;
     };
     bool converged = false;

@@ -4,7 +4,9 @@
 // column u. Without projector distortion that surface is the plane through the projector centre
 // containing the undistorted column (closed form); with distortion the column is a curve, so the
 // point on the camera ray whose projection has column u is found by a 1-D Newton iteration
-// started from the pinhole solution.
+// started from the pinhole solution. With axis 'y' (horizontal fringes) the decoded coordinate
+// is the projector row v and the surfaces are those of constant row; "column" and "u" below then
+// mean row and v.
 
 #include <optional>
 
@@ -14,7 +16,8 @@ namespace mesoscan {
 
 class Triangulator {
  public:
-  Triangulator(const PinholeCamera& camera, const PinholeCamera& projector);
+  // axis: 'x' (u is a projector column) or 'y' (u is a projector row).
+  Triangulator(const PinholeCamera& camera, const PinholeCamera& projector, char axis = 'x');
 
   // Unit ray direction in world coordinates of camera pixel (x, y) (full-image pixel
   // coordinates, pixel centres at integers). The ray starts at camera.CentreInWorld().
@@ -38,6 +41,7 @@ class Triangulator {
   Rigid3d proj_from_world_;
   bool projector_distorted_ = false;
   bool projector_skewed_ = false;
+  int axis_ = 0;  // 0: columns (x), 1: rows (y)
 };
 
 }  // namespace mesoscan

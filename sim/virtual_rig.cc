@@ -303,8 +303,11 @@ RayCastResult RayCast(const RigView& view, int S) {
             lit_subsamples += s.lit;
             if (s.hit) hits.push_back(s.point);
             if (s.shading > 0) {
-              rc.cache.x[k] = static_cast<float>(s.u);
-              rc.v[k] = static_cast<float>(s.v);
+              // Patterns vary along the fringe axis only: the cache holds the coordinate along
+              // it in `x` and the one across it in `v` (for axis 'y' the projector's v and u).
+              const bool along_y = view.options.axis == 'y';
+              rc.cache.x[k] = static_cast<float>(along_y ? s.v : s.u);
+              rc.v[k] = static_cast<float>(along_y ? s.u : s.v);
               rc.sigma[k] = static_cast<float>(s.sigma);
               rc.cache.shading[k] = static_cast<float>(s.shading);
             }
@@ -362,7 +365,9 @@ void PrepareSubsamples(const BlurLevels& levels, const std::vector<std::vector<f
                        const PinholeCamera& prj, const SimulateOptions& options,
                        RayCastResult* rc) {
   // Along v every pattern is uniform: the light is L(u) * R_v(v), R_v = sum_v w(v' - v).
-  const LightTables rows = BuildTables(std::vector<double>(prj.height, 1.0), levels, kernels);
+  const bool along_y = options.axis == 'y';
+  const LightTables rows =
+      BuildTables(std::vector<double>(along_y ? prj.width : prj.height, 1.0), levels, kernels);
   SubsampleCache& cache = rc->cache;
   ParallelFor(
       static_cast<int64_t>(cache.shading.size()),
@@ -371,7 +376,8 @@ void PrepareSubsamples(const BlurLevels& levels, const std::vector<std::vector<f
         const float level = levels.Level(rc->sigma[k]);
         cache.level[k] = level;
         cache.shading[k] *= rows.Lookup(rc->v[k], level);
-        cache.gain[k] = static_cast<float>(ShifterGain(options, prj, cache.x[k], rc->v[k]));
+        cache.gain[k] = static_cast<float>(along_y ? ShifterGain(options, prj, rc->v[k], cache.x[k])
+                                                   : ShifterGain(options, prj, cache.x[k], rc->v[k]));
       },
       4096);
   rc->v = {};
@@ -385,7 +391,7 @@ struct PatternTables {
   std::vector<int> frame_table;  // per frame: index into tables
 };
 
-PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& rig,
+PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& rig, char axis,
                                  const BlurLevels& levels,
                                  const std::vector<std::vector<float>>& kernels) {
   PatternTables out;
@@ -405,9 +411,11 @@ PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& ri
   out.tables.resize(table_patterns.size());
   const PinholeCamera& prj = rig.projector;
   for (size_t t = 0; t < table_patterns.size(); ++t) {
-    std::vector<double> p(prj.width);
-    for (int u = 0; u < prj.width; ++u)
-      p[u] = rig.projector_response.ToLinear(table_patterns[t]->Value(u, 0.0));
+    const bool along_y = axis == 'y';  // the cache's coordinate (RayCast)
+    std::vector<double> p(along_y ? prj.height : prj.width);
+    for (int u = 0; u < static_cast<int>(p.size()); ++u)
+      p[u] = rig.projector_response.ToLinear(along_y ? table_patterns[t]->Value(0.0, u)
+                                                     : table_patterns[t]->Value(u, 0.0));
     out.tables[t] = BuildTables(p, levels, kernels);
   }
   return out;
@@ -525,6 +533,7 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
   if (options.crop)  // [W, H, X, Y], as earlier sessions recorded it
     sim["crop"] = {options.crop->w, options.crop->h, options.crop->x, options.crop->y};
   sim["supersample"] = options.supersample;
+  sim["axis"] = std::string(1, options.axis);
   sim["shadows"] = options.shadows;
   sim["projector"] = {{"fill_factor", options.fill_factor},
                       {"blur_sigma_px", options.blur_sigma_px},
@@ -576,6 +585,7 @@ void SimulateOptions::Check() const {
   if (ls_frames != 0 && ls_frames < 4) SIM_USAGE("--ls-frames: expected 0 or >= 4, got " << ls_frames);
   if (ps_periods_px.empty() && ls_frames == 0 && !white && !black)
     SIM_USAGE("frame plan: no frames requested");
+  if (axis != 'x' && axis != 'y') SIM_USAGE("--axis: expected x or y, got '" << axis << "'");
   if (supersample < 1 || supersample > 8)
     SIM_USAGE("--supersample: expected 1..8, got " << supersample);
   if (!(fill_factor > 0 && fill_factor <= 1))
@@ -661,8 +671,26 @@ PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& c) {
   return out;
 }
 
+Rig PortraitProjector(Rig rig) {
+  PinholeCamera& prj = rig.projector;
+  const PinholeCamera old = prj;
+  prj.width = old.height;
+  prj.height = old.width;
+  prj.K(0, 0) = old.K(1, 1);
+  prj.K(1, 1) = old.K(0, 0);
+  prj.K(0, 2) = (old.height - 1) - old.K(1, 2);
+  prj.K(1, 2) = old.K(0, 2);
+  // device_old = M device_new, M = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]].
+  Mat3d m;
+  m << 0, 1, 0, -1, 0, 0, 0, 0, 1;
+  prj.world_from_device.rotation = old.world_from_device.rotation * m;
+  if (rig.lens_shifter) rig.lens_shifter->axis = 'y';
+  return rig;
+}
+
 Rig ResolveRig(const SimulateOptions& o) {
   Rig rig = o.rig == "paper" ? PaperRig() : LoadRigFile(o.rig);
+  if (o.rig == "paper" && o.axis == 'y') rig = PortraitProjector(rig);
   if (o.crop) rig.camera = CropCamera(rig.camera, *o.crop);
   if (o.projector_gamma != 1.0) {
     rig.projector_response.kind = Response::Kind::kGamma;
@@ -683,7 +711,7 @@ FramePlanOptions SimulationFramePlan(const SimulateOptions& o, const Rig& rig) {
   FramePlanOptions plan;
   plan.periods_px = o.ps_periods_px;
   plan.phases = o.ps_phases;
-  plan.axis = 'x';
+  plan.axis = o.axis;
   plan.lens_shift_frames = o.ls_frames;
   if (o.ls_frames > 0) {
     if (!rig.lens_shifter)
@@ -717,8 +745,10 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   options.Check();
   SimulateSummary summary;
   const Rig rig = ResolveRig(options);
-  if (rig.lens_shifter && rig.lens_shifter->axis != 'x' && options.ls_frames > 0)
-    SIM_USAGE("--rig: the virtual rig models a lens shifter along axis \"x\" only");
+  if (rig.lens_shifter && rig.lens_shifter->axis != options.axis && options.ls_frames > 0)
+    SIM_USAGE("--rig: the lens shifter moves along axis \"" << rig.lens_shifter->axis
+                                                           << "\", expected \"" << options.axis
+                                                           << "\" as --axis");
   const std::vector<Frame> frames = MakeSimulationFrames(options, rig);
 
   // The scene: the object on the mount plane z = 0.
@@ -747,7 +777,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
 
   // Stage 3: light tables per distinct pattern, then every frame, ground truth and session.json.
   const Stopwatch t_frames;
-  const PatternTables tables = BuildPatternTables(frames, rig, levels, kernels);
+  const PatternTables tables = BuildPatternTables(frames, rig, options.axis, levels, kernels);
   const FrameDraws draws = DrawFrames(frames, options);
   WriteFolderAtomically(out_dir, [&](const fs::path& dir) {
     fs::create_directories(dir / "frames");

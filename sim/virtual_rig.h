@@ -36,7 +36,11 @@ struct SimulateOptions {
   // The session's "object" text; empty: the object's name.
   std::string object_label;
 
-  // ---- frame plan (patterns vary along projector u, axis "x") ----
+  // ---- frame plan (patterns vary along projector u, axis "x", or v, axis "y") ----
+  // Fringe axis of every sine and stripes frame: 'x' (vertical fringes) or 'y' (horizontal). With
+  // 'y' the rig's lens shifter must move along y; the "paper" rig then has its projector mounted
+  // in portrait (PortraitProjector), so that its rows, not its columns, span the baseline.
+  char axis = 'x';
   std::vector<double> ps_periods_px{7, 11, 13};  // sine periods, each > 2 px
   int ps_phases = 3;                             // phases per period (>= 3), 2*pi*k/phases
   int ls_frames = 50;  // lens-shift (1-px stripes) frames evenly over the shifter range incl.
@@ -109,7 +113,13 @@ NoiseModel MakeNoiseModel(const SimulateOptions& options);
 
 // The built-in "paper" rig (sim/README.md "The paper rig").
 Rig PaperRig();
-// options.rig resolved ("paper" or a file), with options.crop applied.
+// `rig` with its projector turned 90 degrees about its optical axis (portrait mount): device
+// x' = -y, y' = x, width and height swapped, K's focal lengths and centre swapped (the centre
+// mirrored along the new x), distortion kept (the paper rig's is zero), lens shifter along y. The
+// new row v' equals the old column u, so rows span the baseline as the columns did.
+Rig PortraitProjector(Rig rig);
+// options.rig resolved ("paper", turned portrait for axis 'y', or a file), with options.crop
+// applied.
 Rig ResolveRig(const SimulateOptions& options);
 // Applies a camera crop; throws Error(kUsage) naming --crop if it leaves the camera.
 PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& crop);

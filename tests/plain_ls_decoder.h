@@ -7,7 +7,7 @@
 //  - the fine phase phi = atan2(A, B) gives u mod 2 px (the pipeline's convention, reconstruct.cc:
 //    u_fine = 2 * wrap(pi/2 - phi) / (2 pi)); the period is the one nearest to a reference u (the
 //    pipeline's own projector_u, so only the fine phase is compared);
-//  - triangulated like the pipeline.
+//  - triangulated like the pipeline (projector rows where the lens shifter moves along y).
 // No weighting, no frequency map, no gain model, no rejection beyond "no reference u".
 
 #include <algorithm>
@@ -25,11 +25,12 @@ namespace mesoscan::testing {
 inline ScanPoints PlainLsDecode(const Session& s, const ImageF& u_ref) {
   constexpr double kPi = 3.14159265358979323846;
   const FramePlan plan = MakeFramePlan(s.frames);
+  const char axis = s.rig.lens_shifter ? s.rig.lens_shifter->axis : 'x';
   std::vector<int> frames;
   std::vector<double> x;
   for (size_t f : plan.lens_shift) {
     const Pattern& p = s.frames[f].pattern;
-    if (p.axis != 'x' || std::abs(p.period_px - 2.0) > 1e-9) continue;
+    if (p.axis != axis || std::abs(p.period_px - 2.0) > 1e-9) continue;
     frames.push_back(static_cast<int>(f));
     x.push_back(s.frames[f].shift_steps / s.rig.lens_shifter->steps_per_px);
   }
@@ -67,7 +68,7 @@ inline ScanPoints PlainLsDecode(const Session& s, const ImageF& u_ref) {
            M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0]);
   };
   const double d0 = det(A);
-  const Triangulator tri(s.rig.camera, s.rig.projector);
+  const Triangulator tri(s.rig.camera, s.rig.projector, axis);
   const PixelRect roi = st.roi();
   ScanPoints out;
   const int cw = s.rig.camera.width, ch = s.rig.camera.height;
