@@ -382,6 +382,65 @@ TEST_F(CalibrateSim, CoinAndMountWithTheCalibratedRig) {
   }
 }
 
+// The command line with an empty-mount session (part of EmptyMountAndLensShifter: one fixture
+// set-up, 13 simulated board views, per ctest case): `--mount` finds no board in it, fits the plane
+// and calibrates the lens shifter from its lens-shift frames (true 2150 steps per px, the
+// session says 2048); report.json names both, the rig carries the calibrated steps_per_px, the
+// map PNG is written. (Full camera, few frames: the rig is calibrated for the full camera.)
+void CommandLineEmptyMount(const Rig& truth, const std::vector<fs::path>& sessions) {
+  Rig shifted = truth;
+  shifted.lens_shifter = LensShifter{'x', 2150, {-2048, 2048}};
+  const fs::path shifted_file = Dir("cli_shifted_rig.json");
+  WriteRigFile(shifted_file, shifted);
+  SimulateOptions so;
+  so.object = "mount";
+  so.rig = shifted_file.string();
+  so.supersample = 1;
+  so.ps_periods_px = {800, 50};
+  so.ls_frames = 12;
+  so.white = false;
+  so.black = false;
+  so.seed = 31;
+  const fs::path mount = Dir("cli_empty_mount");
+  Simulate(so, mount);
+  {
+    Json j = ReadJsonFile(mount / "session.json");
+    j["rig"]["lens_shifter"]["steps_per_px"] = 2048.0;
+    WriteJsonFile(mount / "session.json", j);
+  }
+  const fs::path rig = Dir("rig_empty_mount.json"), report = Dir("report_empty_mount");
+  std::string args;
+  for (size_t i = 1; i <= 4; ++i) args += sessions[i].string() + " ";
+  const CliResult r = RunMesoscan("calibrate " + args + "--mount " + mount.string() +
+                                  " --board checker:10x7:6 --fix k3 --out " + rig.string() +
+                                  " --report " + report.string());
+  ASSERT_EQ(r.code, 0) << r.output;
+  std::printf("%s\n", r.output.c_str());
+  EXPECT_NE(r.output.find("the empty mount"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("mount plane:"), std::string::npos) << r.output;
+  const Json j = ReadJsonFile(report / "report.json");
+  EXPECT_EQ(j["mount"]["kind"], "empty mount") << j["mount"].dump();
+  EXPECT_EQ(j["world"], "empty mount " + mount.string());
+  // The points' own scatter (12 lens-shift frames, 4-parameter fits, the whole field: measured
+  // 4.2 um) and nearly all of them on the plane.
+  EXPECT_LT(j["mount"]["rms_um"].get<double>(), 10.0) << j["mount"].dump();
+  EXPECT_GT(j["mount"]["inliers"].get<double>(), 0.95 * j["mount"]["points"].get<double>());
+  // 4 views and 12 lens-shift frames here (measured 2151.4 +- 0.11: the 12-frame profiles carry a
+  // small bias; the 24-frame library test above recovers 2150.2 +- 0.12): within 0.1%.
+  const double steps = j["lens_shifter"]["calibrated"]["steps_per_px"].get<double>();
+  EXPECT_NEAR(steps, 2150, 2.15) << j["lens_shifter"].dump();
+  EXPECT_TRUE(fs::exists(report / "lens_shifter_steps.png"));
+  const Rig out = LoadRigFile(rig);
+  ASSERT_TRUE(out.lens_shifter.has_value());
+  EXPECT_DOUBLE_EQ(out.lens_shifter->steps_per_px, steps);
+  // The camera above the mount at the true height (4 views: within 0.1 mm).
+  EXPECT_NEAR(out.camera.CentreInWorld().z(), truth.camera.CentreInWorld().z(), 1e-4);
+  fs::remove_all(mount);
+  fs::remove_all(report);
+  fs::remove(rig);
+  fs::remove(shifted_file);
+}
+
 // Issue 11 items 4 and 5: the empty mount, simulated with the true rig but a lens shifter of
 // 2150 steps per px (the rig file says 2048) and the simulator's optical variation of the shift
 // over the image, scanned with a rig calibrated without a mount (world: the first board, tilted
@@ -520,64 +579,8 @@ TEST_F(CalibrateSim, EmptyMountAndLensShifter) {
     EXPECT_GT(m, 100000);
     EXPECT_LT(rms, 2e-6);
   }
-}
-
-// The command line with an empty-mount session: `--mount` finds no board in it, fits the plane
-// and calibrates the lens shifter from its lens-shift frames (true 2150 steps per px, the
-// session says 2048); report.json names both, the rig carries the calibrated steps_per_px, the
-// map PNG is written. (Full camera, few frames: the rig is calibrated for the full camera.)
-TEST_F(CalibrateSim, CommandLineEmptyMount) {
-  Rig shifted = *truth_;
-  shifted.lens_shifter = LensShifter{'x', 2150, {-2048, 2048}};
-  const fs::path shifted_file = Dir("cli_shifted_rig.json");
-  WriteRigFile(shifted_file, shifted);
-  SimulateOptions so;
-  so.object = "mount";
-  so.rig = shifted_file.string();
-  so.supersample = 1;
-  so.ps_periods_px = {800, 50};
-  so.ls_frames = 12;
-  so.white = false;
-  so.black = false;
-  so.seed = 31;
-  const fs::path mount = Dir("cli_empty_mount");
-  Simulate(so, mount);
-  {
-    Json j = ReadJsonFile(mount / "session.json");
-    j["rig"]["lens_shifter"]["steps_per_px"] = 2048.0;
-    WriteJsonFile(mount / "session.json", j);
-  }
-  const fs::path rig = Dir("rig_empty_mount.json"), report = Dir("report_empty_mount");
-  std::string args;
-  for (size_t i = 1; i <= 4; ++i) args += (*sessions_)[i].string() + " ";
-  const CliResult r = RunMesoscan("calibrate " + args + "--mount " + mount.string() +
-                                  " --board checker:10x7:6 --fix k3 --out " + rig.string() +
-                                  " --report " + report.string());
-  ASSERT_EQ(r.code, 0) << r.output;
-  std::printf("%s\n", r.output.c_str());
-  EXPECT_NE(r.output.find("the empty mount"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("mount plane:"), std::string::npos) << r.output;
-  const Json j = ReadJsonFile(report / "report.json");
-  EXPECT_EQ(j["mount"]["kind"], "empty mount") << j["mount"].dump();
-  EXPECT_EQ(j["world"], "empty mount " + mount.string());
-  // The points' own scatter (12 lens-shift frames, 4-parameter fits, the whole field: measured
-  // 4.2 um) and nearly all of them on the plane.
-  EXPECT_LT(j["mount"]["rms_um"].get<double>(), 10.0) << j["mount"].dump();
-  EXPECT_GT(j["mount"]["inliers"].get<double>(), 0.95 * j["mount"]["points"].get<double>());
-  // 4 views and 12 lens-shift frames here (measured 2151.4 +- 0.11: the 12-frame profiles carry a
-  // small bias; the 24-frame library test above recovers 2150.2 +- 0.12): within 0.1%.
-  const double steps = j["lens_shifter"]["calibrated"]["steps_per_px"].get<double>();
-  EXPECT_NEAR(steps, 2150, 2.15) << j["lens_shifter"].dump();
-  EXPECT_TRUE(fs::exists(report / "lens_shifter_steps.png"));
-  const Rig out = LoadRigFile(rig);
-  ASSERT_TRUE(out.lens_shifter.has_value());
-  EXPECT_DOUBLE_EQ(out.lens_shifter->steps_per_px, steps);
-  // The camera above the mount at the true height (4 views: within 0.1 mm).
-  EXPECT_NEAR(out.camera.CentreInWorld().z(), truth_->camera.CentreInWorld().z(), 1e-4);
-  fs::remove_all(mount);
-  fs::remove_all(report);
-  fs::remove(rig);
-  fs::remove(shifted_file);
+  // The same through the command line.
+  CommandLineEmptyMount(*truth_, *sessions_);
 }
 
 // The held-back real captures' shape: 8-bit BMP frames 1688x1352, projector 1824x1140, 3 phases
