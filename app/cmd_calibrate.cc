@@ -1,8 +1,11 @@
 // mesoscan calibrate SESSION... --board checker:COLSxROWS:SQUARE_MM --out RIG.json: the rig from
 // calibration sessions of a printed board (heightfield/calibrate.h).
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <sstream>
 
 #include "app/commands.h"
 #include "capture/session.h"
@@ -10,6 +13,8 @@
 #include "core/json.h"
 #include "core/log.h"
 #include "heightfield/calibrate.h"
+#include "heightfield/calibrate_mount.h"
+#include "heightfield/calibrate_shifter.h"
 
 namespace fs = std::filesystem;
 
@@ -18,7 +23,7 @@ namespace {
 
 struct CalibrateArgs {
   std::vector<std::string> sessions;
-  std::string board, out, mount, report, fix;
+  std::string board, out, mount, shifter, report, fix;
   int window = 20;
 };
 
@@ -56,17 +61,80 @@ void Run(const CalibrateArgs& a) {
                         << v.decode_seconds << " s)";
     views.push_back(std::move(v));
   }
+  // --mount: a board lying on the mount (its board defines the world, in the adjustment) or the
+  // empty mount (a plane fitted to its points once the rig is calibrated). Which one: a session
+  // with sines along both axes is searched for the board first.
   std::optional<CalibrationView> mount;
+  std::optional<Session> mount_session;
   if (!a.mount.empty()) {
-    const Session s = ReadSession(a.mount);
-    mount = DetectView(s, opt);
+    mount_session = ReadSession(a.mount);
+    if (HasBoardPatterns(*mount_session)) {
+      CalibrationView v = DetectView(*mount_session, opt);
+      if (v.found) {
+        MESOSCAN_LOG(kInfo) << "mount " << a.mount << ": a board on the mount";
+        mount = std::move(v);
+      }
+    }
+    if (!mount)
+      MESOSCAN_LOG(kInfo) << "mount " << a.mount
+                          << ": no board: the empty mount (a plane through its points)";
   }
-  const CalibrationResult result = Calibrate(std::move(views), *size_rig, mount, opt);
+  CalibrationResult result = Calibrate(std::move(views), *size_rig, mount, opt);
+  Json extra{{"board", opt.board.ToString()}, {"rig_file", a.out}};
+  std::vector<std::string> lines;
+  // The empty mount: scanned with the calibrated rig (world: the first board), plane fitted.
+  std::optional<FlatTargetScan> mount_scan;
+  Rig mount_scan_rig;
+  if (mount_session && !mount) {
+    mount_scan_rig = result.rig;
+    mount_scan = ScanFlatTarget(*mount_session, mount_scan_rig);
+    MountPlane plane = FitMountPlane(*mount_scan, mount_scan_rig, MountPlaneOptions());
+    plane.session = a.mount;
+    result.rig = RigOnMount(result.rig, plane);
+    result.world = "empty mount " + a.mount;
+    Json mj = plane.ToJson();
+    mj["kind"] = "empty mount";
+    // The plane in the first board's world: how the mount lies relative to that board.
+    mj["tilt_from_first_board_deg"] =
+        std::acos(std::clamp(plane.normal.z(), -1.0, 1.0)) * 180.0 / 3.14159265358979323846;
+    extra["mount"] = mj;
+    std::ostringstream o;
+    o << "mount plane: " << plane.inliers << " of " << plane.points << " points, RMS "
+      << plane.rms_m * 1e6 << " um, tilt +- " << plane.normal_sigma_rad * 180 / 3.14159265358979323846
+      << " deg, offset +- " << plane.offset_sigma_m * 1e6 << " um (" << mount_scan->seconds + plane.seconds
+      << " s)";
+    lines.push_back(o.str());
+  } else if (mount) {
+    extra["mount"] = {{"kind", "board on the mount"}, {"session", a.mount}};
+  }
+  // The lens shifter: from --shifter, else from the mount session's lens-shift frames.
+  std::string shifter_path = a.shifter;
+  if (shifter_path.empty() && mount_session && mount_session->rig.lens_shifter &&
+      !MakeFramePlan(mount_session->frames).lens_shift.empty())
+    shifter_path = a.mount;
+  if (!shifter_path.empty()) {
+    const Session s = shifter_path == a.mount && mount_session ? *mount_session
+                                                               : ReadSession(shifter_path);
+    const bool reuse = shifter_path == a.mount && mount_scan.has_value();
+    const Rig scan_rig = reuse ? mount_scan_rig : result.rig;
+    const FlatTargetScan scan = reuse ? *mount_scan : ScanFlatTarget(s, scan_rig);
+    const ShifterCalibration cal =
+        CalibrateShifter(s, scan, scan_rig, ShifterCalibrationOptions());
+    result.rig.lens_shifter = cal.calibrated;
+    extra["lens_shifter"] = cal.ToJson();
+    if (!a.report.empty()) {
+      fs::create_directories(a.report);
+      WriteShifterMapPng(cal, fs::path(a.report) / "lens_shifter_steps.png");
+    }
+    lines.push_back(cal.BriefReport());
+  } else {
+    extra["lens_shifter"] = "not calibrated (no --shifter, and no lens-shift frames in --mount)";
+  }
   WriteJsonFile(a.out, Json{{"rig", RigJson(result.rig)}});
-  if (!a.report.empty())
-    WriteCalibrationReport(result, a.report,
-                           Json{{"board", opt.board.ToString()}, {"rig_file", a.out}});
-  std::cout << a.out << ": " << result.BriefReport() << "\n" << std::flush;
+  if (!a.report.empty()) WriteCalibrationReport(result, a.report, extra);
+  std::cout << a.out << ": " << result.BriefReport() << "\n";
+  for (const auto& l : lines) std::cout << "  " << l << "\n";
+  std::cout << std::flush;
 }
 
 }  // namespace
@@ -85,8 +153,12 @@ void AddCalibrateCommand(CLI::App* app) {
   cmd->add_option("--out", args->out, "Output rig file ({\"rig\": ...}, written atomically)")
       ->required();
   cmd->add_option("--mount", args->mount,
-                  "Session of the board lying on the mount: world z = 0 there (default: the "
-                  "first board's plane)");
+                  "Session of the mount, either a board lying on it or the empty mount (sines "
+                  "and/or lens-shift frames; a plane is fitted to its points): world z = 0 "
+                  "there, +z towards the rig (default: the first board's plane)");
+  cmd->add_option("--shifter", args->shifter,
+                  "Session with lens-shift frames of a flat target for the lens shifter's "
+                  "steps_per_px (default: the --mount session if it has lens-shift frames)");
   cmd->add_option("--report", args->report,
                   "Folder for report.json and residual / coverage PNGs");
   cmd->add_option("--fix", args->fix, "Distortion terms held at 0: k2,k3,tangential");

@@ -31,7 +31,7 @@ void AddSimulateCommand(CLI::App* app) {
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
   cmd->add_option("--object", o.object,
-                  "coin | plane | ramp | leaf | fabric | metal | FILE.exr (a height EXR in the "
+                  "coin | plane | ramp | leaf | fabric | metal | mount (empty) | FILE.exr (a height EXR in the "
                   "scan-outputs layout) | board:checker:COLSxROWS:SQUARE_MM (a calibration session)")
       ->capture_default_str();
   cmd->add_option("--rig", o.rig, "paper (built-in rig) | RIG.json (a file with a \"rig\" object)")

@@ -340,6 +340,10 @@ SceneObject MakeObject(const std::string& spec, double h) {
   if (spec == "ramp") return MakePaperRamp(h > 0 ? h : 20e-6);
   if (spec == "plane") return MakeTiltedPlane(h > 0 ? h : 50e-6);
   if (spec == "leaf") return MakeLeaf(h > 0 ? h : 20e-6);
+  if (spec == "mount") {  // the empty mount: a few zero cells (the plane z = 0 extends beyond)
+    const double g = h > 0 ? h : 1e-3;
+    return Generate("mount", MakeGrid(-g, g, -g, g, g, 1), 1, [](double, double, double*, double*) {});
+  }
   if (spec == "fabric") return MakeFabric(h > 0 ? h : 20e-6);
   if (spec == "metal") return MakeHammeredMetal(h > 0 ? h : 20e-6);
   const std::filesystem::path p(spec);
@@ -347,7 +351,7 @@ SceneObject MakeObject(const std::string& spec, double h) {
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   if (ext == ".exr") return LoadHeightExrObject(p);
   MESOSCAN_BAD_INPUT("--object: '" << spec
-                                   << "': expected coin, plane, ramp, leaf, fabric, metal or a height .exr file");
+                                   << "': expected coin, plane, ramp, leaf, fabric, metal, mount or a height .exr file");
 }
 
 }  // namespace mesoscan
