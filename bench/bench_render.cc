@@ -19,6 +19,7 @@
 
 #include <time.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -296,6 +297,45 @@ int CompareExr(const char* ref_path, const char* test_path) {
     return 2;
   }
   std::printf("relRMSE %.5f\n", RelRmse(test, ref));
+  // Where the squared error sits: the share of the worst 0.1% / 1% / 10% of the pixels.
+  std::vector<double> se(ref.pixels());
+  double total = 0, mean_ref = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i) {
+    const double a = Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i]));
+    const double b = Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i]));
+    se[i] = (a - b) * (a - b);
+    total += se[i];
+    mean_ref += b / ref.pixels();
+  }
+  if (std::getenv("MESOSCAN_BENCH_COMPARE_WORST")) {
+    std::vector<size_t> idx(se.size());
+    for (size_t i = 0; i < idx.size(); ++i) idx[i] = i;
+    std::partial_sort(idx.begin(), idx.begin() + 30, idx.end(), [&](size_t a, size_t b) { return se[a] > se[b]; });
+    for (int k = 0; k < 30; ++k) {
+      const size_t i = idx[k];
+      std::printf("  x %zu y %zu: test %.4g ref %.4g (mean ref %.4g)\n", i % ref.width(), i / ref.width(),
+                  Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])),
+                  Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i])), mean_ref);
+    }
+  }
+  std::sort(se.begin(), se.end(), std::greater<double>());
+  for (const double f : {0.001, 0.01, 0.1}) {
+    double part = 0;
+    for (size_t i = 0; i < static_cast<size_t>(f * se.size()); ++i) part += se[i];
+    std::printf("worst %.1f%% of the pixels: %.1f%% of the squared error\n", 100 * f, 100 * part / total);
+  }
+  // Display-space error: both images through the reference's tone curve (what one sees).
+  const ToneMapping tone = MeterExposure(ref);
+  const ImageU8 da = ToneMapForDisplay(test, tone), db = ToneMapForDisplay(ref, tone);
+  double d2 = 0, dm = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i)
+    for (int c = 0; c < 3; ++c) {
+      const double d = double(da.channel(c)[i]) - double(db.channel(c)[i]);
+      d2 += d * d;
+      dm += db.channel(c)[i];
+    }
+  std::printf("display (sRGB 8-bit, reference tone curve): RMSE %.2f of 255, relative to the mean %.4f\n",
+              std::sqrt(d2 / (3.0 * ref.pixels())), std::sqrt(d2 / (3.0 * ref.pixels())) / (dm / (3.0 * ref.pixels())));
   return 0;
 }
 

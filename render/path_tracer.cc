@@ -429,6 +429,21 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   return result;
 }
 
+CameraSpec FramingCamera(const HeightField& hf, const RenderOptions& options) {
+  if (options.camera) return *options.camera;
+  double zmin = 1e30, zmax = -1e30;
+  for (const float z : hf.z.data()) {
+    if (!std::isfinite(z)) continue;
+    // As Render() scales them (in float).
+    const double zs = static_cast<float>(z * options.relief_scale);
+    zmin = std::min(zmin, zs);
+    zmax = std::max(zmax, zs);
+  }
+  if (zmin > zmax) MESOSCAN_BAD_INPUT("render: the height field has no valid sample");
+  const PinholeCamera cam = MakeCamera(hf, zmin, zmax, options);
+  return CameraSpec{cam.eye, cam.eye + cam.fwd};
+}
+
 ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
                          const RenderOptions& options, RenderSummary* summary) {
   RenderResult r = Render(hf, brdf, env, options);

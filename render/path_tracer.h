@@ -82,6 +82,10 @@ using RenderProgressFn = std::function<void(const RenderResult&)>;
 RenderResult Render(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
                     const RenderOptions& options, const RenderProgressFn& on_round = nullptr);
 
+// The camera Render() uses for `options` on `hf`: options.camera if given, else the framing from
+// elevation/azimuth/fov (relief_scale applied). To show several height fields through one camera.
+CameraSpec FramingCamera(const HeightField& hf, const RenderOptions& options);
+
 // Renders linear RGB radiance (3 channels). Progress on stderr.
 ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
                          const RenderOptions& options, RenderSummary* summary = nullptr);
