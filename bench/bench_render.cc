@@ -13,6 +13,10 @@
 // hit with the double refinement, and occlusion) next to the tracer's paths/s, and what the
 // skips save (constant environment, adaptive stopping).
 //
+// Also `make demo`'s preview against its own 1024-spp reference (relRMSE and CPU s per spp; see
+// DemoPreview and bench/demo_preview.sh), and `bench_render --compare REF.exr TEST.exr [MASK]`
+// for images another build rendered.
+//
 // relative RMSE = sqrt(mean over pixels of (Y - Y_ref)^2) / mean(Y_ref), Y = luminance.
 // Environment: MESOSCAN_BENCH_RENDER_SIZE=WxH (default 320x240); Blender from PATH (skipped with
 // a note if missing). Results: bench-results/render.csv and the images.
@@ -191,6 +195,20 @@ double RelRmseMasked(const ImageF& im, const ImageF& ref, const ImageF& mask, in
   return n ? std::sqrt(se / n) / (sr / im.pixels()) : 0.0;
 }
 
+// Display-space error: both images through the reference's tone curve (what one looks at): RMS
+// over pixels and channels of the 8-bit sRGB difference, relative to the reference's mean.
+double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& tone) {
+  const ImageU8 da = ToneMapForDisplay(im, tone), db = ToneMapForDisplay(ref, tone);
+  double d2 = 0, dm = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i)
+    for (int c = 0; c < 3; ++c) {
+      const double d = double(da.channel(c)[i]) - double(db.channel(c)[i]);
+      d2 += d * d;
+      dm += db.channel(c)[i];
+    }
+  return std::sqrt(d2 / (3.0 * ref.pixels())) / (dm / (3.0 * ref.pixels()));
+}
+
 // `make demo`'s preview (step 5 of scripts/demo): the demo coin's scan, filled as `render` fills
 // it, GGX copper tabulated into the MERL layout, the procedural sky (sun at 25 / 200 degrees),
 // 480x360, default framing. Needs the scan folder: MESOSCAN_BENCH_DEMO_SCAN=demo/coin.scan
@@ -246,8 +264,9 @@ void DemoPreview(const fs::path& dir) {
     WriteExr(mask_file, mask, {"Y"});
   }
   std::ofstream csv(dir / "demo_preview.csv");
-  csv << "run,spp,relrmse,relrmse_sample,relrmse_mount,relrmse_corrected,cpu_s,wall_s,"
-         "cpu_s_per_spp,load\n";
+  csv << "run,spp,relrmse,relrmse_sample,relrmse_mount,relrmse_corrected,display_relrmse,cpu_s,"
+         "wall_s,cpu_s_per_spp,load\n";
+  const ToneMapping ref_tone = MeterExposure(ref, &mask);
   double ref_mse = 0;  // estimated from the 64 spp run
   struct Run {
     std::string name;
@@ -278,20 +297,27 @@ void DemoPreview(const fs::path& dir) {
     if (run.spp == 64 && run.time_s == 0) ref_mse = e * e * 64.0 / ref_spp;
     const double corrected = std::sqrt(std::max(0.0, e * e - ref_mse));
     const double spp = r.summary.mean_spp;
+    const double ed = DisplayRelRmse(r.radiance, ref, ref_tone);
     std::printf("demo preview: %-8s %6.1f spp: relRMSE %.4f (sample %.4f, mount %.4f; %.4f without "
-                "the reference's noise) in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), load %s\n",
-                run.name.c_str(), spp, e, es, em, corrected, wall, cpu, cpu / spp, LoadAvg().c_str());
+                "the reference's noise), display %.4f, in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), "
+                "load %s\n",
+                run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
     csv << run.name << "," << spp << "," << e << "," << es << "," << em << "," << corrected << ","
-        << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "\n";
+        << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "\n";
     WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp.png"),
               ToneMapForDisplay(r.radiance, r.tone));
   }
 }
 
-// bench_render --compare REF.exr TEST.exr: the relative RMSE of TEST against REF (luminance,
+// bench_render --compare REF.exr TEST.exr [MASK.exr]: the relative RMSE of TEST against REF (luminance,
 // whole image), for renders made by another build (e.g. main's `mesoscan render`).
-int CompareExr(const char* ref_path, const char* test_path) {
+int CompareExr(const char* ref_path, const char* test_path, const char* mask_path) {
   const ImageF ref = ReadImage(ref_path), test = ReadImage(test_path);
+  if (mask_path) {  // the reference's sample mask (demo_ref_mask.exr): sample / mount split
+    const ImageF mask = ReadImage(mask_path);
+    std::printf("relRMSE sample %.5f mount %.5f\n", RelRmseMasked(test, ref, mask, 1),
+                RelRmseMasked(test, ref, mask, 2));
+  }
   if (ref.width() != test.width() || ref.height() != test.height()) {
     std::cerr << "bench_render --compare: sizes differ\n";
     return 2;
@@ -526,6 +552,31 @@ void Run() {
                 tad, adapt.summary.mean_spp, static_cast<long long>(adapt.summary.pixels_converged),
                 o.width * o.height, RelRmse(adapt.radiance, ref.radiance), tf,
                 RelRmse(fixed.radiance, ref.radiance), LoadAvg().c_str());
+    // The mount the camera cannot see: a close-up inside the hole-free coin (camera rays skip
+    // the plane) against the same render tracing it; the images must be identical. CPU time.
+    RenderOptions oc;
+    oc.width = W / 2;
+    oc.height = H / 2;
+    oc.noise = 0;
+    oc.min_spp = oc.max_spp = 64;
+    const Vec3 centre(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)), 0);
+    oc.camera = CameraSpec{centre + Vec3(0, -4e-3, 8e-3), centre};
+    oc.fov_deg = 20;
+    double c0 = CpuNow();
+    RenderSummary skipped, traced;
+    const ImageF ia = RenderHeightField(hf, lambert, env, oc, &skipped);
+    const double ca = CpuNow() - c0;
+    oc.skip_invisible_mount = false;
+    c0 = CpuNow();
+    const ImageF ib = RenderHeightField(hf, lambert, env, oc, &traced);
+    const double cb = CpuNow() - c0;
+    bool same = true;
+    for (int c = 0; c < 3; ++c)
+      same = same && std::equal(ia.channel(c), ia.channel(c) + ia.pixels(), ib.channel(c));
+    std::printf("invisible mount (close-up inside the coin, 64 spp): %s; %.2f CPU s skipping the plane "
+                "for camera rays vs %.2f CPU s tracing it, images %s (load %s)\n",
+                skipped.mount_visible ? "NOT detected" : "detected", ca, cb,
+                same ? "identical" : "DIFFER", LoadAvg().c_str());
   }
 }
 
@@ -534,7 +585,8 @@ void Run() {
 
 int main(int argc, char** argv) {
   try {
-    if (argc == 4 && std::string(argv[1]) == "--compare") return mesoscan::CompareExr(argv[2], argv[3]);
+    if ((argc == 4 || argc == 5) && std::string(argv[1]) == "--compare")
+      return mesoscan::CompareExr(argv[2], argv[3], argc == 5 ? argv[4] : nullptr);
     mesoscan::Run();
   } catch (const std::exception& e) {
     std::cerr << "bench_render: " << e.what() << "\n";
