@@ -256,7 +256,7 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     const RenderResult rb = Render(other_scan->hf, brdf, env, ob);
     WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
                                                    ToneMapForDisplay(rb.radiance, result.tone)));
-    MESOSCAN_LOG(kInfo) << "render: wrote " << (out / "side_by_side.png").string() << " (left "
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string() << " (left "
                         << a.scan << ", right " << a.compare_scan << ", one camera and exposure)";
   } else if (!a.compare.empty()) {
     // Side by side: the same scan, camera and light with a second BRDF, one exposure.
@@ -264,7 +264,7 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     const RenderResult rb = Render(hf, other, env, o);
     WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
                                                    ToneMapForDisplay(rb.radiance, result.tone)));
-    MESOSCAN_LOG(kInfo) << "render: wrote " << (out / "side_by_side.png").string() << " (left "
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string() << " (left "
                         << a.brdf << ", right " << a.compare << ")";
   }
 
@@ -293,8 +293,10 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
       WritePng8(dir / name, frames.back());
     }
     WriteAnimatedGif(out / "turntable.gif", frames, 12);
-    MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to " << dir.string()
-                        << " and " << (out / "turntable.gif").string();
+    // Named where they end up (`out` is the temporary folder swapped into place).
+    MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to "
+                        << (fs::path(a.out) / "turntable").string() << " and "
+                        << (fs::path(a.out) / "turntable.gif").string();
   }
 }
 
