@@ -36,11 +36,11 @@ namespace {
 
 struct RenderArgs {
   std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480", camera, albedo = "none";
-  std::string compare, turntable_size, fill = "harmonic";
+  std::string compare, compare_scan, turntable_size, fill = "harmonic";
   RenderOptions options;
   double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0, env_rotation_deg = 0;
   int threads = 0, turntable = 0, turntable_spp = 0;
-  bool spp_given = false;
+  bool spp_given = false, min_spp_given = false;
   bool force = false;
 };
 
@@ -211,8 +211,27 @@ void WritePreview(const fs::path& out, const RenderResult& r) {
 
 // Everything the render writes, into `out` (the temporary folder that is swapped into place).
 // Progressive previews land there too while a long render runs.
+// The second scan of a side by side (--compare-scan, or --compare naming a scan folder).
+struct CompareScan {
+  HeightField hf;
+  std::optional<ImageF> albedo;
+};
+
+// Two tone-mapped images next to each other, 4 white pixels apart.
+ImageU8 SideBySide(const ImageU8& left, const ImageU8& right) {
+  const int gap = 4, w = left.width(), h = left.height();
+  ImageU8 both(2 * w + gap, h, 3, 255);
+  for (int c = 0; c < 3; ++c)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        both(x, y, c) = left(x, y, c);
+        both(w + gap + x, y, c) = right(x, y, c);
+      }
+  return both;
+}
+
 void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentMap& env,
-                  const RenderOptions& o, const fs::path& out) {
+                  const RenderOptions& o, const fs::path& out, const CompareScan* other_scan) {
   MESOSCAN_LOG(kInfo) << "render: progressive preview while sampling: "
                       << (out / "preview.png").string();
   const Brdf brdf = MakeBrdf(a.brdf, out);
@@ -229,23 +248,23 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
   WritePreview(out, result);
   MESOSCAN_LOG(kInfo) << "render: " << result.summary.BriefReport();
 
-  if (!a.compare.empty()) {
+  if (other_scan) {
+    // Side by side: a second scan through the same camera (the first scan's framing), light,
+    // BRDF, seed and exposure.
+    RenderOptions ob = o;
+    ob.albedo = other_scan->albedo ? &*other_scan->albedo : nullptr;
+    const RenderResult rb = Render(other_scan->hf, brdf, env, ob);
+    WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
+                                                   ToneMapForDisplay(rb.radiance, result.tone)));
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string() << " (left "
+                        << a.scan << ", right " << a.compare_scan << ", one camera and exposure)";
+  } else if (!a.compare.empty()) {
     // Side by side: the same scan, camera and light with a second BRDF, one exposure.
     const Brdf other = MakeBrdf(a.compare, out);
-    RenderOptions oc = o;
-    const RenderResult rb = Render(hf, other, env, oc);
-    const ImageU8 left = ToneMapForDisplay(result.radiance, result.tone);
-    const ImageU8 right = ToneMapForDisplay(rb.radiance, result.tone);
-    const int gap = 4;
-    ImageU8 both(2 * o.width + gap, o.height, 3, 255);
-    for (int c = 0; c < 3; ++c)
-      for (int y = 0; y < o.height; ++y)
-        for (int x = 0; x < o.width; ++x) {
-          both(x, y, c) = left(x, y, c);
-          both(o.width + gap + x, y, c) = right(x, y, c);
-        }
-    WritePng8(out / "side_by_side.png", both);
-    MESOSCAN_LOG(kInfo) << "render: wrote " << (out / "side_by_side.png").string() << " (left "
+    const RenderResult rb = Render(hf, other, env, o);
+    WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
+                                                   ToneMapForDisplay(rb.radiance, result.tone)));
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string() << " (left "
                         << a.brdf << ", right " << a.compare << ")";
   }
 
@@ -274,12 +293,42 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
       WritePng8(dir / name, frames.back());
     }
     WriteAnimatedGif(out / "turntable.gif", frames, 12);
-    MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to " << dir.string()
-                        << " and " << (out / "turntable.gif").string();
+    // Named where they end up (`out` is the temporary folder swapped into place).
+    MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to "
+                        << (fs::path(a.out) / "turntable").string() << " and "
+                        << (fs::path(a.out) / "turntable.gif").string();
   }
 }
 
-void Run(const RenderArgs& a) {
+// The scan's height field as the preview shows it: height.exr, validated, bounded holes filled
+// unless --fill none.
+HeightField PreviewHeightField(const RenderArgs& a, const fs::path& scan, const RenderOptions& o) {
+  const fs::path height_file = scan / "height.exr";
+  HeightField hf = ReadHeightExr(height_file);
+  ValidateHeightField(hf, o, height_file.string());
+  FillOptions fill;
+  fill.method = ParseFillMethod(a.fill);
+  if (fill.method != FillMethod::kNone) {
+    FillResult filled = FillHoles(hf, fill);
+    MESOSCAN_LOG(kInfo) << "render: " << scan.string() << ": " << filled.BriefReport();
+    hf = std::move(filled.field);
+  }
+  return hf;
+}
+
+void Run(const RenderArgs& args) {
+  RenderArgs a = args;
+  // --compare also takes a scan folder (one with a height.exr): a side by side of two scans.
+  if (!a.compare.empty() && fs::is_directory(a.compare)) {
+    if (!a.compare_scan.empty())
+      MESOSCAN_THROW(ErrorKind::kUsage, "render: --compare " << a.compare << " is a scan folder and "
+                                        "--compare-scan is given too: compare with one of them");
+    a.compare_scan = a.compare;
+    a.compare.clear();
+  }
+  if (!a.compare_scan.empty() && !a.compare.empty())
+    MESOSCAN_THROW(ErrorKind::kUsage, "render: --compare (a second BRDF) and --compare-scan (a second "
+                                      "scan) both make side_by_side.png: give one of them");
   ThreadLimit limit(a.threads);
   RenderOptions o = a.options;
   if (std::sscanf(a.size.c_str(), "%dx%d", &o.width, &o.height) != 2)
@@ -287,6 +336,8 @@ void Run(const RenderArgs& a) {
   if (!a.camera.empty()) ParseCamera(a.camera, &o);
   // A time budget without an explicit sample cap renders until the time is up.
   if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
+  // --spp below the default --min-spp lowers it (an explicit --min-spp above --spp stays an error).
+  if (!a.min_spp_given) o.min_spp = std::min(o.min_spp, o.max_spp);
   if (a.turntable < 0 || a.turntable > 720)
     MESOSCAN_THROW(ErrorKind::kUsage, "--turntable: expected 0..720 frames, got " << a.turntable);
   int tw = 0, th = 0;
@@ -303,28 +354,29 @@ void Run(const RenderArgs& a) {
   const bool env_file = fs::exists(a.env);
   const OutputSpec out_spec{"render", "--out", a.out,
                             {a.scan, brdf_file ? a.brdf : "", compare_file ? a.compare : "",
-                             env_file ? a.env : ""},
+                             env_file ? a.env : "", a.compare_scan},
                             a.force, {"preview.exr", "preview.png"}};
   CheckOutputFolder(out_spec);
   // The height field to preview: the scan's height.exr with its bounded holes filled
   // (heightfield/maps_fill.h, as the artist-ready maps fill them) unless --fill none, so a
   // shadowed rim is not previewed as a trench; large holes and the outside stay open.
-  const fs::path height_file = fs::path(a.scan) / "height.exr";
-  HeightField hf = ReadHeightExr(height_file);
-  ValidateHeightField(hf, o, height_file.string());
-  FillOptions fill;
-  fill.method = ParseFillMethod(a.fill);
-  if (fill.method != FillMethod::kNone) {
-    FillResult filled = FillHoles(hf, fill);
-    MESOSCAN_LOG(kInfo) << "render: " << filled.BriefReport();
-    hf = std::move(filled.field);
+  const HeightField hf = PreviewHeightField(a, a.scan, o);
+  std::optional<CompareScan> other;
+  if (!a.compare_scan.empty()) {
+    other.emplace();
+    other->hf = PreviewHeightField(a, a.compare_scan, o);
+    RenderArgs ab = a;
+    ab.scan = a.compare_scan;
+    other->albedo = MakeAlbedo(ab, other->hf);
+    // One camera for both: the first scan's framing, unless --camera gave one.
+    o.camera = FramingCamera(hf, o);
   }
   EnvironmentMap env = MakeEnvironment(a);
   env.SetRotation(a.env_rotation_deg);
   const std::optional<ImageF> albedo = MakeAlbedo(a, hf);
   if (albedo) o.albedo = &*albedo;
   WriteOutputFolder(out_spec, [&](const fs::path& out) {
-    RenderFolder(a, hf, env, o, out);
+    RenderFolder(a, hf, env, o, out, other ? &*other : nullptr);
   });
   MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "preview.png").string()
                       << " (display) and preview.exr (linear RGB)";
@@ -358,8 +410,10 @@ void AddRenderCommand(CLI::App* app) {
        args->options.max_spp = n;
        args->spp_given = true;
      }, "Maximum samples per pixel (default 256; 65536 with --time)");
-  cmd->add_option("--min-spp", args->options.min_spp, "Samples before a pixel may stop early")
-      ->capture_default_str();
+  cmd->add_option_function<int>("--min-spp", [args](int n) {
+       args->options.min_spp = n;
+       args->min_spp_given = true;
+     }, "Samples before a pixel may stop early (default 16, at most --spp)");
   cmd->add_option("--noise", args->options.noise,
                   "Adaptive sampling: a pixel stops when its standard error is below this fraction "
                   "of the display range (0 = every pixel gets --spp)")
@@ -396,7 +450,12 @@ void AddRenderCommand(CLI::App* app) {
   cmd->add_option("--turntable-size", args->turntable_size,
                   "Turntable frame size WxH (default: as --size)");
   cmd->add_option("--compare", args->compare,
-                  "Also render a second BRDF and write side_by_side.png (left --brdf, right this)");
+                  "Also render a second BRDF, or a second scan (a scan folder), and write "
+                  "side_by_side.png (left this scan / --brdf, right the other) with one camera, "
+                  "light and exposure");
+  cmd->add_option("--compare-scan", args->compare_scan,
+                  "Also render a second scan folder through the same camera, light, BRDF and "
+                  "exposure and write side_by_side.png (left SCAN, right this)");
   cmd->add_option("--fill", args->fill,
                   "Hole filling of the previewed height field: harmonic | biharmonic | none")
       ->capture_default_str();

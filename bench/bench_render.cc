@@ -13,10 +13,17 @@
 // hit with the double refinement, and occlusion) next to the tracer's paths/s, and what the
 // skips save (constant environment, adaptive stopping).
 //
+// Also `make demo`'s preview against its own 1024-spp reference (relRMSE and CPU s per spp; see
+// DemoPreview and bench/demo_preview.sh), and `bench_render --compare REF.exr TEST.exr [MASK]`
+// for images another build rendered.
+//
 // relative RMSE = sqrt(mean over pixels of (Y - Y_ref)^2) / mean(Y_ref), Y = luminance.
 // Environment: MESOSCAN_BENCH_RENDER_SIZE=WxH (default 320x240); Blender from PATH (skipped with
 // a note if missing). Results: bench-results/render.csv and the images.
 
+#include <time.h>
+
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -33,6 +40,8 @@
 #include "core/json.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/scan_folder.h"
+#include "heightfield/maps_fill.h"
 #include "render/embree_scene.h"
 #include "render/env_map.h"
 #include "render/path_tracer.h"
@@ -43,6 +52,14 @@ namespace fs = std::filesystem;
 
 double Now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+// CPU seconds of this process (all threads): on the shared machine, the figure that does not
+// depend on how many other builds run at the same time.
+double CpuNow() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
 
 std::string LoadAvg() {
@@ -161,6 +178,193 @@ double RenderCycles(const fs::path& dir, const std::string& tag, const SceneDef&
   return seconds;
 }
 
+double RelRmseMasked(const ImageF& im, const ImageF& ref, const ImageF& mask, int region) {
+  // region 0: all pixels; 1: the sample (mask > 0.99); 2: the mount (mask < 0.01). Normalised
+  // by the whole reference's mean, so the regions' squared errors add up (weighted by area).
+  double se = 0, sr = 0;
+  int64_t n = 0;
+  for (size_t i = 0; i < im.pixels(); ++i) {
+    const double b = Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i]));
+    sr += b;
+    const float m = mask.channel(0)[i];
+    if ((region == 1 && !(m > 0.99f)) || (region == 2 && !(m < 0.01f))) continue;
+    const double a = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
+    se += (a - b) * (a - b);
+    ++n;
+  }
+  return n ? std::sqrt(se / n) / (sr / im.pixels()) : 0.0;
+}
+
+// Display-space error: both images through the reference's tone curve (what one looks at): RMS
+// over pixels and channels of the 8-bit sRGB difference, relative to the reference's mean.
+double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& tone) {
+  const ImageU8 da = ToneMapForDisplay(im, tone), db = ToneMapForDisplay(ref, tone);
+  double d2 = 0, dm = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i)
+    for (int c = 0; c < 3; ++c) {
+      const double d = double(da.channel(c)[i]) - double(db.channel(c)[i]);
+      d2 += d * d;
+      dm += db.channel(c)[i];
+    }
+  return std::sqrt(d2 / (3.0 * ref.pixels())) / (dm / (3.0 * ref.pixels()));
+}
+
+// `make demo`'s preview (step 5 of scripts/demo): the demo coin's scan, filled as `render` fills
+// it, GGX copper tabulated into the MERL layout, the procedural sky (sun at 25 / 200 degrees),
+// 480x360, default framing. Needs the scan folder: MESOSCAN_BENCH_DEMO_SCAN=demo/coin.scan
+// (bench/demo_preview.sh makes it). Reference: MESOSCAN_BENCH_DEMO_REF_SPP (default 1024) spp
+// with seed 1, cached as render/demo_ref_<spp>spp.exr (delete it after changing what the
+// renderer converges to). Test renders: fixed 8/16/32/64 spp and the demo's own `--time 3`,
+// seeds 2.., each with its relative RMSE (whole image; sample; mount), CPU seconds, wall
+// seconds and the load average. The reference's own noise adds to each figure
+// (relMSE_measured = relMSE_test + relMSE_ref, independent seeds); the "corrected" column
+// subtracts relMSE_ref estimated as relMSE(N spp) * N / N_ref from the 64 spp render (an
+// upper bound for a low-discrepancy sampler, so the corrected figure is conservative).
+void DemoPreview(const fs::path& dir) {
+  const char* scan = std::getenv("MESOSCAN_BENCH_DEMO_SCAN");
+  if (!scan) {
+    std::cout << "demo preview: skipped (set MESOSCAN_BENCH_DEMO_SCAN to the demo's coin.scan; "
+                 "bench/demo_preview.sh does)\n";
+    return;
+  }
+  const int ref_spp = std::getenv("MESOSCAN_BENCH_DEMO_REF_SPP")
+                          ? std::atoi(std::getenv("MESOSCAN_BENCH_DEMO_REF_SPP"))
+                          : 1024;
+  double c0 = CpuNow(), t0 = Now();
+  HeightField hf = ReadHeightExr(fs::path(scan) / "height.exr");
+  hf = FillHoles(hf, FillOptions{}).field;
+  const auto ggx = GgxBrdf<double>::Conductor(0.25, Rgb(0.27, 0.68, 1.22), Rgb(3.61, 2.63, 2.29));
+  const fs::path merl = dir / "demo_ggx_copper_merl.binary";
+  MerlBrdf::Tabulate([&](const Vec3& wo, const Vec3& wi) { return ggx.f(wo, wi); })->Write(merl);
+  const Brdf brdf = LoadBrdf(merl);
+  const EnvironmentMap env = EnvironmentMap::Sky(25, 200);
+  std::printf("demo preview: set-up (read + fill + tabulate/write/load the MERL table + sky) %.2f s "
+              "wall, %.2f CPU s\n", Now() - t0, CpuNow() - c0);
+  RenderOptions o;
+  o.width = 480;
+  o.height = 360;
+  o.noise = 0;
+  o.seed = 1;
+  o.min_spp = o.max_spp = ref_spp;
+  const fs::path ref_file = dir / ("demo_ref_" + std::to_string(ref_spp) + "spp.exr");
+  const fs::path mask_file = dir / "demo_ref_mask.exr";
+  ImageF ref, mask;
+  if (fs::exists(ref_file) && fs::exists(mask_file)) {
+    ref = ReadImage(ref_file);
+    mask = ReadImage(mask_file);
+    std::printf("demo preview: reference %s (cached)\n", ref_file.c_str());
+  } else {
+    c0 = CpuNow(), t0 = Now();
+    RenderResult r = Render(hf, brdf, env, o);
+    std::printf("demo preview: reference %d spp in %.1f s wall, %.1f CPU s (load %s)\n", ref_spp,
+                Now() - t0, CpuNow() - c0, LoadAvg().c_str());
+    ref = std::move(r.radiance);
+    mask = std::move(r.sample_mask);
+    WriteExr(ref_file, ref, {"R", "G", "B"});
+    WriteExr(mask_file, mask, {"Y"});
+  }
+  std::ofstream csv(dir / "demo_preview.csv");
+  csv << "run,spp,relrmse,relrmse_sample,relrmse_mount,relrmse_corrected,display_relrmse,cpu_s,"
+         "wall_s,cpu_s_per_spp,load\n";
+  const ToneMapping ref_tone = MeterExposure(ref, &mask);
+  double ref_mse = 0;  // estimated from the 64 spp run
+  struct Run {
+    std::string name;
+    int spp;
+    double time_s;
+  };
+  const std::vector<Run> runs = {{"fixed", 64, 0}, {"fixed", 8, 0}, {"fixed", 16, 0},
+                                 {"fixed", 32, 0}, {"time 3 s", 0, 3.0}};
+  uint64_t seed = 2;
+  for (const Run& run : runs) {
+    o.seed = seed++;
+    if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap
+      o.time_limit_s = run.time_s;
+      o.noise = 0.01;
+      o.min_spp = 16;
+      o.max_spp = 1 << 16;
+    } else {
+      o.time_limit_s = 0;
+      o.noise = 0;
+      o.min_spp = o.max_spp = run.spp;
+    }
+    c0 = CpuNow(), t0 = Now();
+    const RenderResult r = Render(hf, brdf, env, o);
+    const double wall = Now() - t0, cpu = CpuNow() - c0;
+    const double e = RelRmseMasked(r.radiance, ref, mask, 0);
+    const double es = RelRmseMasked(r.radiance, ref, mask, 1);
+    const double em = RelRmseMasked(r.radiance, ref, mask, 2);
+    if (run.spp == 64 && run.time_s == 0) ref_mse = e * e * 64.0 / ref_spp;
+    const double corrected = std::sqrt(std::max(0.0, e * e - ref_mse));
+    const double spp = r.summary.mean_spp;
+    const double ed = DisplayRelRmse(r.radiance, ref, ref_tone);
+    std::printf("demo preview: %-8s %6.1f spp: relRMSE %.4f (sample %.4f, mount %.4f; %.4f without "
+                "the reference's noise), display %.4f, in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), "
+                "load %s\n",
+                run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
+    csv << run.name << "," << spp << "," << e << "," << es << "," << em << "," << corrected << ","
+        << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "\n";
+    WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp.png"),
+              ToneMapForDisplay(r.radiance, r.tone));
+  }
+}
+
+// bench_render --compare REF.exr TEST.exr [MASK.exr]: the relative RMSE of TEST against REF (luminance,
+// whole image), for renders made by another build (e.g. main's `mesoscan render`).
+int CompareExr(const char* ref_path, const char* test_path, const char* mask_path) {
+  const ImageF ref = ReadImage(ref_path), test = ReadImage(test_path);
+  if (mask_path) {  // the reference's sample mask (demo_ref_mask.exr): sample / mount split
+    const ImageF mask = ReadImage(mask_path);
+    std::printf("relRMSE sample %.5f mount %.5f\n", RelRmseMasked(test, ref, mask, 1),
+                RelRmseMasked(test, ref, mask, 2));
+  }
+  if (ref.width() != test.width() || ref.height() != test.height()) {
+    std::cerr << "bench_render --compare: sizes differ\n";
+    return 2;
+  }
+  std::printf("relRMSE %.5f\n", RelRmse(test, ref));
+  // Where the squared error sits: the share of the worst 0.1% / 1% / 10% of the pixels.
+  std::vector<double> se(ref.pixels());
+  double total = 0, mean_ref = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i) {
+    const double a = Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i]));
+    const double b = Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i]));
+    se[i] = (a - b) * (a - b);
+    total += se[i];
+    mean_ref += b / ref.pixels();
+  }
+  if (std::getenv("MESOSCAN_BENCH_COMPARE_WORST")) {
+    std::vector<size_t> idx(se.size());
+    for (size_t i = 0; i < idx.size(); ++i) idx[i] = i;
+    std::partial_sort(idx.begin(), idx.begin() + 30, idx.end(), [&](size_t a, size_t b) { return se[a] > se[b]; });
+    for (int k = 0; k < 30; ++k) {
+      const size_t i = idx[k];
+      std::printf("  x %zu y %zu: test %.4g ref %.4g (mean ref %.4g)\n", i % ref.width(), i / ref.width(),
+                  Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])),
+                  Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i])), mean_ref);
+    }
+  }
+  std::sort(se.begin(), se.end(), std::greater<double>());
+  for (const double f : {0.001, 0.01, 0.1}) {
+    double part = 0;
+    for (size_t i = 0; i < static_cast<size_t>(f * se.size()); ++i) part += se[i];
+    std::printf("worst %.1f%% of the pixels: %.1f%% of the squared error\n", 100 * f, 100 * part / total);
+  }
+  // Display-space error: both images through the reference's tone curve (what one sees).
+  const ToneMapping tone = MeterExposure(ref);
+  const ImageU8 da = ToneMapForDisplay(test, tone), db = ToneMapForDisplay(ref, tone);
+  double d2 = 0, dm = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i)
+    for (int c = 0; c < 3; ++c) {
+      const double d = double(da.channel(c)[i]) - double(db.channel(c)[i]);
+      d2 += d * d;
+      dm += db.channel(c)[i];
+    }
+  std::printf("display (sRGB 8-bit, reference tone curve): RMSE %.2f of 255, relative to the mean %.4f\n",
+              std::sqrt(d2 / (3.0 * ref.pixels())), std::sqrt(d2 / (3.0 * ref.pixels())) / (dm / (3.0 * ref.pixels())));
+  return 0;
+}
+
 void Run() {
   std::setvbuf(stdout, nullptr, _IOLBF, 0);
   Progress::SetEnabled(false);
@@ -171,7 +375,8 @@ void Run() {
   if (const char* s = std::getenv("MESOSCAN_BENCH_RENDER_SIZE")) std::sscanf(s, "%dx%d", &W, &H);
   const int ref_spp = std::getenv("MESOSCAN_BENCH_REF_SPP") ? std::atoi(std::getenv("MESOSCAN_BENCH_REF_SPP")) : 1024;
   const int test_spp = 128;
-  const char* only = std::getenv("MESOSCAN_BENCH_RENDER_SCENES");  // e.g. "relief,slab-hole"
+  const char* only = std::getenv("MESOSCAN_BENCH_RENDER_SCENES");  // e.g. "relief,slab-hole,demo"
+  if (!only || std::string(only).find("demo") != std::string::npos) DemoPreview(dir);
 
   // Environment.
   fs::path env_path = EnvironmentMap::NamedPath("studio");
@@ -276,7 +481,7 @@ void Run() {
   }
 
   // Raw Embree throughput on the coin next to the tracer's paths/s.
-  {
+  if (!only || std::string(only).find("embree") != std::string::npos) {
     const HeightField hf = MakeScenes()[0].hf;
     EmbreeScene scene;
     scene.AddHeightField(hf);
@@ -311,7 +516,7 @@ void Run() {
 
   // What the skips save: a constant environment (no NEE, no shadow rays) against the same
   // radiance as a 64x32 image (importance-sampled); adaptive stopping against fixed spp.
-  {
+  if (!only || std::string(only).find("skips") != std::string::npos) {
     const HeightField hf = MakeScenes()[0].hf;
     RenderOptions o;
     o.width = W / 2;
@@ -347,14 +552,41 @@ void Run() {
                 tad, adapt.summary.mean_spp, static_cast<long long>(adapt.summary.pixels_converged),
                 o.width * o.height, RelRmse(adapt.radiance, ref.radiance), tf,
                 RelRmse(fixed.radiance, ref.radiance), LoadAvg().c_str());
+    // The mount the camera cannot see: a close-up inside the hole-free coin (camera rays skip
+    // the plane) against the same render tracing it; the images must be identical. CPU time.
+    RenderOptions oc;
+    oc.width = W / 2;
+    oc.height = H / 2;
+    oc.noise = 0;
+    oc.min_spp = oc.max_spp = 64;
+    const Vec3 centre(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)), 0);
+    oc.camera = CameraSpec{centre + Vec3(0, -4e-3, 8e-3), centre};
+    oc.fov_deg = 20;
+    double c0 = CpuNow();
+    RenderSummary skipped, traced;
+    const ImageF ia = RenderHeightField(hf, lambert, env, oc, &skipped);
+    const double ca = CpuNow() - c0;
+    oc.skip_invisible_mount = false;
+    c0 = CpuNow();
+    const ImageF ib = RenderHeightField(hf, lambert, env, oc, &traced);
+    const double cb = CpuNow() - c0;
+    bool same = true;
+    for (int c = 0; c < 3; ++c)
+      same = same && std::equal(ia.channel(c), ia.channel(c) + ia.pixels(), ib.channel(c));
+    std::printf("invisible mount (close-up inside the coin, 64 spp): %s; %.2f CPU s skipping the plane "
+                "for camera rays vs %.2f CPU s tracing it, images %s (load %s)\n",
+                skipped.mount_visible ? "NOT detected" : "detected", ca, cb,
+                same ? "identical" : "DIFFER", LoadAvg().c_str());
   }
 }
 
 }  // namespace
 }  // namespace mesoscan
 
-int main() {
+int main(int argc, char** argv) {
   try {
+    if ((argc == 4 || argc == 5) && std::string(argv[1]) == "--compare")
+      return mesoscan::CompareExr(argv[2], argv[3], argc == 5 ? argv[4] : nullptr);
     mesoscan::Run();
   } catch (const std::exception& e) {
     std::cerr << "bench_render: " << e.what() << "\n";

@@ -255,6 +255,7 @@ int EmbreeScene::AddHeightField(const HeightField& hf) {
   RTCGrid* gb = static_cast<RTCGrid*>(rtcSetNewGeometryBuffer(
       g, RTC_BUFFER_TYPE_GRID, 0, RTC_FORMAT_GRID, sizeof(RTCGrid), grids.size()));
   std::copy(grids.begin(), grids.end(), gb);
+  rtcSetGeometryMask(g, kMaskHeightFields);
   rtcCommitGeometry(g);
   const unsigned id = rtcAttachGeometry(impl_->scene, g);
   rtcReleaseGeometry(g);
@@ -274,6 +275,7 @@ int EmbreeScene::AddPlane(double z_m, double half_size_m) {
   unsigned* idx = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
       g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4, 4 * sizeof(unsigned), 1));
   for (unsigned k = 0; k < 4; ++k) idx[k] = k;
+  rtcSetGeometryMask(g, kMaskPlanes);
   rtcCommitGeometry(g);
   const unsigned id = rtcAttachGeometry(impl_->scene, g);
   rtcReleaseGeometry(g);
@@ -294,7 +296,7 @@ void EmbreeScene::Commit() {
 }
 
 std::optional<RayHit> EmbreeScene::Intersect(const Vec3d& origin, const Vec3d& direction,
-                                             double t_near, double t_far) const {
+                                             double t_near, double t_far, unsigned mask) const {
   MESOSCAN_DCHECK(impl_->committed);
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
@@ -310,7 +312,7 @@ std::optional<RayHit> EmbreeScene::Intersect(const Vec3d& origin, const Vec3d& d
   rh.ray.tnear = static_cast<float>(std::max(0.0, t_near - 1e-6));
   rh.ray.tfar = static_cast<float>(std::min(t_far + 1e-6, 1e30));
   rh.ray.time = 0.0f;
-  rh.ray.mask = 0xFFFFFFFFu;
+  rh.ray.mask = mask;
   rh.ray.id = 0;
   rh.ray.flags = 0;
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;

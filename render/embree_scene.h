@@ -40,6 +40,9 @@ struct RayHit {
 
 class EmbreeScene {
  public:
+  // Embree ray masks: a query sees the geometries whose mask shares a bit with the ray's.
+  static constexpr unsigned kMaskHeightFields = 1u, kMaskPlanes = 2u, kMaskAll = 0xFFFFFFFFu;
+
   EmbreeScene();
   ~EmbreeScene();
   EmbreeScene(const EmbreeScene&) = delete;
@@ -58,8 +61,9 @@ class EmbreeScene {
   void Commit();
 
   // Closest hit along origin + t * direction, t in [t_near, t_far]; `direction` must be unit.
+  // `mask`: which kinds of geometry the ray sees (e.g. kMaskHeightFields: planes are skipped).
   std::optional<RayHit> Intersect(const Vec3d& origin, const Vec3d& direction, double t_near = 0.0,
-                                  double t_far = 1e30) const;
+                                  double t_far = 1e30, unsigned mask = kMaskAll) const;
 
   // True if anything blocks origin + t * direction for t in [t_near, t_far].
   bool Occluded(const Vec3d& origin, const Vec3d& direction, double t_near, double t_far) const;

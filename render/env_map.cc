@@ -177,6 +177,39 @@ std::optional<EnvSample> EnvironmentMap::Sample(const Vec2& u) const {
   return EnvSample{FromMap(UvToDirection(uv)), Rgb(rgb_(x, y, 0), rgb_(x, y, 1), rgb_(x, y, 2)), pdf};
 }
 
+Rgb EnvironmentMap::LeAndPdf(const Vec3& w, double* pdf) const {
+  if (constant_) {
+    *pdf = 0.0;
+    return constant_radiance_;
+  }
+  const Vec2 uv = DirectionToUv(ToMap(w));
+  const int wd = rgb_.width(), ht = rgb_.height();
+  const int x = std::clamp(static_cast<int>(uv.x() * wd), 0, wd - 1);
+  const int y = std::clamp(static_cast<int>(uv.y() * ht), 0, ht - 1);
+  const double sin_theta = std::sin(uv.y() * kPi);
+  const double* cdf = &col_cdf_[static_cast<size_t>(y) * (wd + 1)];
+  *pdf = sin_theta > 0 ? (cdf[x + 1] - cdf[x]) / row_cdf_[ht] * wd * ht / (kTwoPi * kPi * sin_theta)
+                       : 0.0;
+  return Rgb(rgb_(x, y, 0), rgb_(x, y, 1), rgb_(x, y, 2));
+}
+
+Rgb EnvironmentMap::UpperHemisphereIrradiance() const {
+  if (constant_) return kPi * constant_radiance_;
+  const int w = rgb_.width(), h = rgb_.height();
+  Rgb e = Rgb::Zero();
+  for (int y = 0; y < h; ++y) {
+    const double t0 = static_cast<double>(y) / h * kPi;
+    if (t0 >= 0.5 * kPi) break;
+    const double t1 = std::min((y + 1.0) / h * kPi, 0.5 * kPi);
+    const double s0 = std::sin(t0), s1 = std::sin(t1);
+    const double weight = (kTwoPi / w) * 0.5 * (s1 * s1 - s0 * s0);
+    Rgb row = Rgb::Zero();
+    for (int x = 0; x < w; ++x) row += Rgb(rgb_(x, y, 0), rgb_(x, y, 1), rgb_(x, y, 2));
+    e += weight * row;
+  }
+  return e;
+}
+
 double EnvironmentMap::Pdf(const Vec3& w) const {
   if (constant_) return 0.0;
   const Vec2 uv = DirectionToUv(ToMap(w));

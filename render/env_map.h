@@ -58,6 +58,14 @@ class EnvironmentMap {
   std::optional<EnvSample> Sample(const Vec2& u) const;
   // Solid-angle density of Sample() at w; 0 for a constant map.
   double Pdf(const Vec3& w) const;
+  // Le(w) and Pdf(w) from one direction-to-texel conversion (one atan2/acos instead of two).
+  Rgb LeAndPdf(const Vec3& w, double* pdf) const;
+  // Irradiance on an upward-facing horizontal surface from the upper hemisphere,
+  // E = int_{z > 0} Le(w) cos(theta) dw per channel, exact for the nearest-texel radiance Le()
+  // returns (each texel's cos-weighted solid angle is integrated in closed form:
+  // dphi (sin^2 theta1 - sin^2 theta0) / 2, the horizon row clipped at theta = pi/2). Invariant
+  // under SetRotation. pi * L for a constant map. The renderer's control variate on the mount.
+  Rgb UpperHemisphereIrradiance() const;
   const ImageF& image() const { return rgb_; }
 
  private:

@@ -40,6 +40,7 @@ std::string RenderSummary::BriefReport() const {
   std::ostringstream s;
   s << samples << " paths in " << seconds << " s (" << mean_spp << " spp on average, " << rounds
     << " rounds), " << pixels_converged << " pixels converged before the sample limit";
+  if (!mount_visible) s << "; the camera cannot see the mount (camera rays skip it)";
   return s.str();
 }
 
@@ -71,6 +72,9 @@ struct Scene {
   const HeightField* hf = nullptr;
   const ImageF* albedo = nullptr;  // on hf's grid, or null
   int max_depth = 4;
+  Rgb mount_irradiance = Rgb::Zero();  // the environment's, on the mount from above
+  // What camera rays see: kMaskHeightFields when the camera provably cannot see the mount.
+  unsigned camera_mask = EmbreeScene::kMaskAll;
 
   Rgb Tint(const Vec3& p) const {
     if (!albedo) return Rgb::Ones();
@@ -82,22 +86,44 @@ struct Scene {
 };
 
 // Radiance along one camera ray. `hit_sample` reports whether the camera ray hit the height field.
+//
+// Control variate on the mount (a Lambert plane facing +z): its reflected radiance is
+// f E_env - f int (Le - L_traced)(w) cos dw over the directions the sample (or a hole's
+// underside) occludes, with E_env = EnvironmentMap::UpperHemisphereIrradiance() in closed form.
+// So a mount vertex adds f E_env at once and then estimates only the difference: a light
+// sample that is not occluded and a BRDF-sampled ray that escapes to the sky contribute nothing
+// (they would add exactly the environment the closed form already counted); an occluded light
+// sample subtracts its light, and a BRDF-sampled ray that hits the sample subtracts the
+// environment behind it (with its MIS weight) and carries on with the sample's radiance. Same
+// expectation, and zero variance wherever the mount sees the open sky (most of the preview's
+// background, where the grain was).
 Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
               const EnvironmentMap& env, Vec3 origin, Vec3 dir, ZSobolSampler& sampler,
               bool* hit_sample) {
   Rgb L = Rgb::Zero(), beta = Rgb::Ones();
   double prev_brdf_pdf = 0;  // 0: the previous direction was not BRDF-sampled (camera ray)
+  bool prev_cv = false;      // the previous vertex was a mount vertex with the control variate
   const bool env_sampled = !env.is_constant();
   for (int depth = 0;; ++depth) {
-    const auto hit = scene.embree.Intersect(origin, dir, 1e-9);
+    const auto hit =
+        scene.embree.Intersect(origin, dir, 1e-9, 1e30, depth == 0 ? scene.camera_mask : EmbreeScene::kMaskAll);
     if (depth == 0) *hit_sample = hit && hit->geometry == scene.hf_id;
     if (!hit) {
-      const Rgb Le = env.Le(dir);
-      const double w = (prev_brdf_pdf > 0 && env_sampled)
-                           ? PowerHeuristic(prev_brdf_pdf, env.Pdf(dir))
-                           : 1.0;
-      L += beta * Le * w;
+      if (!prev_cv) {
+        double env_pdf = 0;
+        const Rgb Le = env.LeAndPdf(dir, &env_pdf);
+        const double w = (prev_brdf_pdf > 0 && env_sampled) ? PowerHeuristic(prev_brdf_pdf, env_pdf) : 1.0;
+        L += beta * Le * w;
+      }
       break;
+    }
+    if (prev_cv) {
+      // The BRDF-sampled ray from the mount is blocked: take back the environment it would
+      // have seen (the closed form counted it).
+      double env_pdf = 0;
+      const Rgb Le = env.LeAndPdf(dir, &env_pdf);
+      const double w = env_sampled ? PowerHeuristic(prev_brdf_pdf, env_pdf) : 1.0;
+      L -= beta * Le * w;
     }
     if (depth >= scene.max_depth) break;
     Vec3 n = hit->normal;
@@ -105,6 +131,10 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     const Frame frame(n);
     const Vec3 wo = frame.ToLocal(-dir);
     const bool on_mount = hit->geometry == scene.plane_id;
+    // The control variate needs the mount seen from above (the closed form is the upper
+    // hemisphere's irradiance).
+    const bool cv = on_mount && n.z() > 0;
+    if (cv) L += beta * mount.albedo() * (kInvPi)*scene.mount_irradiance;
     const Rgb tint = on_mount ? Rgb::Ones() : scene.Tint(hit->point);
     auto f = [&](const Vec3& wi) -> Rgb { return on_mount ? mount.f(wo, wi) : Rgb(brdf.f(wo, wi) * tint); };
     auto pdf = [&](const Vec3& wi) { return on_mount ? mount.Pdf(wo, wi) : brdf.Pdf(wo, wi); };
@@ -119,9 +149,14 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
         const Vec3 wi = frame.ToLocal(ls->wi);
         if (wi.z() > 0) {
           const Rgb fv = f(wi);
-          if ((fv > 0).any() && !scene.embree.Occluded(next_origin, ls->wi, 0.0, 1e30)) {
-            const double w = PowerHeuristic(ls->pdf, pdf(wi));
-            L += beta * fv * ls->Le * (wi.z() * w / ls->pdf);
+          if ((fv > 0).any()) {
+            const bool occluded = scene.embree.Occluded(next_origin, ls->wi, 0.0, 1e30);
+            // With the control variate only occluded light counts (negatively).
+            if (occluded == cv) {
+              const double w = PowerHeuristic(ls->pdf, pdf(wi));
+              const Rgb c = beta * fv * ls->Le * (wi.z() * w / ls->pdf);
+              L += cv ? Rgb(-c) : c;
+            }
           }
         }
       }
@@ -142,6 +177,7 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
       beta /= 1.0 - q;
     }
     prev_brdf_pdf = bs->pdf;
+    prev_cv = cv;
     origin = next_origin;
     dir = frame.FromLocal(bs->wi).normalized();
   }
@@ -181,6 +217,31 @@ PinholeCamera MakeCamera(const HeightField& hf, double zmin, double zmax, const 
   cam.right.normalize();
   cam.up = cam.right.cross(cam.fwd);
   return cam;
+}
+
+// True if no camera ray can reach the mount plane at z = plane_z: the height field has no hole,
+// the eye is above its highest point, every corner ray descends, and the frustum between
+// z = zmax and z = plane_z lies inside the field's rectangle. (The frustum cut between two
+// horizontal planes is convex with the eight corner points as vertices, so checking them
+// suffices; a ray inside the rectangle's column is above the surface at zmax and below it at the
+// plane, so it crosses the surface first.) Camera rays then skip the plane; secondary rays
+// still see it (it shades the sample's lower hemisphere).
+bool CameraCannotSeeMount(const HeightField& hf, double zmax, double plane_z, const PinholeCamera& cam) {
+  for (const float z : hf.z.data())
+    if (!std::isfinite(z)) return false;
+  if (!(cam.eye.z() > zmax)) return false;
+  const double x_lo = hf.X(0), x_hi = hf.X(hf.width() - 1);
+  const double y_lo = std::min(hf.Y(0), hf.Y(hf.height() - 1)), y_hi = std::max(hf.Y(0), hf.Y(hf.height() - 1));
+  for (const double px : {-1.0, 1.0})
+    for (const double py : {-1.0, 1.0}) {
+      const Vec3 d = cam.Direction(px, py);
+      if (!(d.z() < 0)) return false;
+      for (const double z : {zmax, plane_z}) {
+        const Vec3 p = cam.eye + (z - cam.eye.z()) / d.z() * d;
+        if (!(p.x() >= x_lo && p.x() <= x_hi && p.y() >= y_lo && p.y() <= y_hi)) return false;
+      }
+    }
+  return true;
 }
 
 // Per-pixel accumulators: two interleaved half-buffers (even / odd sample numbers).
@@ -228,9 +289,14 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   scene.hf_id = scene.embree.AddHeightField(hf);
   const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
   scene.plane_id = scene.embree.AddPlane(std::min(0.0, zmin) - 1e-6, 10 * extent + 1.0);
+  bool result_mount_visible = true;
   scene.embree.Commit();
   const PinholeCamera cam = MakeCamera(hf, zmin, zmax, options);
+  result_mount_visible = !(options.skip_invisible_mount &&
+                           CameraCannotSeeMount(hf, zmax, std::min(0.0, zmin) - 1e-6, cam));
+  if (!result_mount_visible) scene.camera_mask = EmbreeScene::kMaskHeightFields;
   const LambertBrdf mount(options.mount_albedo);
+  scene.mount_irradiance = env.UpperHemisphereIrradiance();
 
   const int W = options.width, H = options.height;
   int log2_spp = 0;
@@ -238,6 +304,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   log2_spp += log2_spp & 1;  // even: every prefix of 4^k samples of a pixel is a (0,2k,2)-net
   std::vector<PixelState> px(static_cast<size_t>(W) * H);
   RenderResult result;
+  result.summary.mount_visible = result_mount_visible;
   result.radiance = ImageF(W, H, 3, 0.0f);
   result.sample_mask = ImageF(W, H, 1, 0.0f);
   std::atomic<int64_t> samples{0};
@@ -360,6 +427,21 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   progress.Finish();
   result.summary.seconds = elapsed();
   return result;
+}
+
+CameraSpec FramingCamera(const HeightField& hf, const RenderOptions& options) {
+  if (options.camera) return *options.camera;
+  double zmin = 1e30, zmax = -1e30;
+  for (const float z : hf.z.data()) {
+    if (!std::isfinite(z)) continue;
+    // As Render() scales them (in float).
+    const double zs = static_cast<float>(z * options.relief_scale);
+    zmin = std::min(zmin, zs);
+    zmax = std::max(zmax, zs);
+  }
+  if (zmin > zmax) MESOSCAN_BAD_INPUT("render: the height field has no valid sample");
+  const PinholeCamera cam = MakeCamera(hf, zmin, zmax, options);
+  return CameraSpec{cam.eye, cam.eye + cam.fwd};
 }
 
 ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,

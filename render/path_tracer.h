@@ -48,6 +48,9 @@ struct RenderOptions {
   // surface BRDF (nearest sample). nullptr: the BRDF as given.
   const ImageF* albedo = nullptr;
   uint64_t seed = 1;
+  // Camera rays skip the mount plane when the camera provably cannot see it (hole-free field
+  // filling the view); false traces it anyway (for the bench's before/after).
+  bool skip_invisible_mount = true;
   void Check() const;
 };
 
@@ -57,6 +60,7 @@ struct RenderSummary {
   int rounds = 0;
   double seconds = 0;
   double mean_spp = 0;
+  bool mount_visible = true;     // false: camera rays skipped the mount plane
   std::string BriefReport() const;
 };
 
@@ -77,6 +81,10 @@ using RenderProgressFn = std::function<void(const RenderResult&)>;
 
 RenderResult Render(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,
                     const RenderOptions& options, const RenderProgressFn& on_round = nullptr);
+
+// The camera Render() uses for `options` on `hf`: options.camera if given, else the framing from
+// elevation/azimuth/fov (relief_scale applied). To show several height fields through one camera.
+CameraSpec FramingCamera(const HeightField& hf, const RenderOptions& options);
 
 // Renders linear RGB radiance (3 channels). Progress on stderr.
 ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const EnvironmentMap& env,

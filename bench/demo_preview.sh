@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# The demo preview's error against time (issue 14: "make demo's preview reaches 3% relative RMSE
+# in the time it takes"). Makes the demo's coin scan as scripts/demo does (if DEMO_OUT has none),
+# then runs bench_render's demo section: a 1024-spp reference of the demo's render (cached in
+# build/bench-results/render/demo_ref_1024spp.exr), fixed 8/16/32/64 spp and the demo's own
+# `--time 3`, each with its relative RMSE (linear luminance, whole image / sample / mount, and in
+# display space), CPU seconds per spp, wall seconds and the load average.
+#   bench/demo_preview.sh [BUILD]     (DEMO_OUT=demo by default)
+set -euo pipefail
+BUILD=${1:-build}
+OUT=${DEMO_OUT:-demo}
+M="$BUILD/app/mesoscan"
+if [[ ! -f "$OUT/coin.scan/height.exr" ]]; then
+  mkdir -p "$OUT"
+  "$M" simulate --object coin --rig paper --crop 400x400+888+517 --focus-height 0 --out "$OUT/coin.session"
+  "$M" reconstruct "$OUT/coin.session" --out "$OUT/coin.scan"
+fi
+mkdir -p "$BUILD/bench-results"
+MESOSCAN_BENCH_OUT="$BUILD/bench-results" MESOSCAN_BENCH_RENDER_SCENES=demo \
+  MESOSCAN_BENCH_DEMO_SCAN="$OUT/coin.scan" "$BUILD/bench/bench_render"
