@@ -4,6 +4,8 @@
 #include <ceres/covariance.h>
 #include <ceres/rotation.h>
 
+#include <Eigen/Dense>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -21,6 +23,7 @@
 #include "core/image_io.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/phase_shift.h"
 
@@ -105,15 +108,10 @@ ViewFrames PlanView(const Session& session) {
   return v;
 }
 
-// Decodes (u, v) at the given pixels of a loaded stack.
-// Per-frame luminance gains (Ritz et al. 2012, Sec. 5.1; frames.h EstimateFrameGains) of the sine
-// frames: one per-pixel model over every sine frame of both axes, the offset A shared (the same
-// surface point under the same mean light) and (B cos, B sin) per period set. A set of 3 phases
-// alone cannot tell a gain from its pixel's phase; the shared offset can. Without this, a frame's
-// gain jitter of 0.5% moves a corner's projector position by ~0.15 px (8-bit, 3 phases).
-std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
-                              const std::vector<uint32_t>& pixels) {
-  std::vector<double> gains(stack.num_frames(), 1.0);
+// The sine frames' design for a per-frame gain estimate: one per-pixel model over every sine
+// frame of both axes, the offset A shared (the same surface point under the same mean light) and
+// (B cos, B sin) per period set.
+GainModel SineGainModel(const ViewFrames& vf) {
   GainModel model;
   int sets = 0;
   for (int a = 0; a < 2; ++a) sets += static_cast<int>(vf.axis[a].periods.size());
@@ -130,19 +128,126 @@ std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
       }
       ++s;
     }
-  if (model.frames.size() <= static_cast<size_t>(1 + 2 * sets) || pixels.size() < 100)
+  return model;
+}
+
+// Joint least squares of the frame gains g and every pixel's coefficients c_j of
+//   I_kj = g_k (M c_j)_k + noise
+// (variable projection: Gauss-Newton on g with the c_j eliminated exactly). A gain pattern that
+// lies in the band of one period set (a cosine / sine over its phases) moves each pixel's
+// decoded phase by ~ (A / B) g and is absorbed by that set's (B cos, B sin): it is identifiable
+// only through the shared offset A, whose per-set estimates it shifts by ~ (B / 2) g with the
+// pixel's own phase. Over thousands of pixels at different phases that is plenty, but alternating
+// least squares moves along such weak directions by a factor ~ B^2 / 4 A^2 per step and leaves
+// them at their start (frames.h EstimateFrameGains); Gauss-Newton takes them in one step.
+// Since G and M are shared by all pixels, so is the projection P = I - G M (M' G^2 M)^-1 M' G,
+// and the Gauss-Newton normal matrix is P .* sum_j m_j m_j' (m_j = M c_j). Gauge: the mean gain
+// is 1. Pixels with a saturated sample or a relative residual beyond median + 4 MAD are dropped.
+std::vector<double> JointFrameGains(const FrameStack& stack, const GainModel& model,
+                                    const std::vector<uint32_t>& pixels, int iterations) {
+  const int nk = static_cast<int>(model.frames.size());
+  std::vector<double> gains(nk, 1.0);
+  if (nk == 0 || pixels.size() < 16) return gains;
+  const int np = static_cast<int>(model.design[0].size());
+  if (nk <= np) return gains;
+  Eigen::MatrixXd M(nk, np);
+  for (int k = 0; k < nk; ++k)
+    for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
+  std::vector<uint32_t> px;
+  const auto& sat = stack.saturated();
+  for (uint32_t i : pixels)
+    if (sat.empty() || !sat[i]) px.push_back(i);
+  const size_t n = px.size();
+  if (n < 16) return gains;
+  Eigen::MatrixXd I(nk, n);
+  for (int k = 0; k < nk; ++k)
+    for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], px[j]);
+  Eigen::VectorXd g = Eigen::VectorXd::Ones(nk);
+  std::vector<uint8_t> use(n, 1);
+  for (int it = 0; it < iterations; ++it) {
+    const Eigen::MatrixXd GM = g.asDiagonal() * M;
+    const Eigen::MatrixXd pinv = (GM.transpose() * GM).ldlt().solve(GM.transpose());
+    const Eigen::MatrixXd C = pinv * I;             // np x n
+    const Eigen::MatrixXd Mc = M * C;               // ungained model, nk x n
+    const Eigen::MatrixXd R = I - g.asDiagonal() * Mc;  // residuals
+    const Eigen::MatrixXd P = Eigen::MatrixXd::Identity(nk, nk) - GM * pinv;
+    std::vector<double> rel(n);
+    for (size_t j = 0; j < n; ++j) {
+      const double m2 = Mc.col(j).squaredNorm();
+      rel[j] = m2 > 0 ? std::sqrt(R.col(j).squaredNorm() / m2)
+                      : std::numeric_limits<double>::infinity();
+    }
+    std::vector<double> sorted = rel;
+    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+    const double med = sorted[n / 2];
+    for (double& v : sorted) v = std::abs(v - med);
+    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+    const double mad = sorted[n / 2];
+    Eigen::MatrixXd S = Eigen::MatrixXd::Zero(nk, nk);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(nk);
+    for (size_t j = 0; j < n; ++j) {
+      use[j] = std::isfinite(rel[j]) && rel[j] <= med + 4 * 1.4826 * mad;
+      if (!use[j]) continue;
+      S.noalias() += Mc.col(j) * Mc.col(j).transpose();
+      b += Mc.col(j).cwiseProduct(R.col(j));
+    }
+    // H dg = b (J = -P diag(m_j), J' r = -m .* r since P r = r); the gauge (g itself is a null
+    // direction: scaling g scales every c_j inversely) fixed by a penalty on the mean.
+    Eigen::MatrixXd H = P.cwiseProduct(S);
+    const double scale = H.diagonal().mean();
+    if (!(scale > 0) || !std::isfinite(scale)) break;
+    H += scale * Eigen::MatrixXd::Constant(nk, nk, 1.0 / nk);
+    const Eigen::VectorXd dg = H.ldlt().solve(b);
+    if (!dg.allFinite()) break;
+    g += dg;
+    g /= g.mean();
+    if ((g.array() <= 0.5).any() || (g.array() >= 1.5).any()) {  // not a gain jitter: give up
+      g.setOnes();
+      break;
+    }
+    if (dg.lpNorm<Eigen::Infinity>() < 1e-7) break;
+  }
+  for (int k = 0; k < nk; ++k) gains[k] = g[k];
+  return gains;
+}
+
+// Per-frame gains of the sine frames (stack indices; 1 where not estimated), by `method`.
+std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
+                              const std::vector<uint32_t>& pixels, CalibrationGainMethod method) {
+  std::vector<double> gains(stack.num_frames(), 1.0);
+  if (method == CalibrationGainMethod::kNone) return gains;
+  if (method == CalibrationGainMethod::kFrameMeans) {
+    // Every set's frame means over the whole view (FrameMeanGains), mean 1 per set.
+    std::vector<uint32_t> all;
+    for (size_t i = 0; i < stack.pixels(); i += 3) all.push_back(static_cast<uint32_t>(i));
+    for (int a = 0; a < 2; ++a)
+      for (const auto& p : vf.axis[a].periods) {
+        const std::vector<double> g = FrameMeanGains(stack, p.stack, all);
+        for (size_t k = 0; k < g.size(); ++k) gains[p.stack[k]] = g[k];
+      }
+    return gains;
+  }
+  const GainModel model = SineGainModel(vf);
+  if (model.frames.size() <= model.design[0].size() || pixels.size() < 100)
     return gains;  // no redundancy
-  // Every 4th pixel is plenty for a dozen gains.
-  std::vector<uint32_t> sample;
-  for (size_t i = 0; i < pixels.size(); i += 4) sample.push_back(pixels[i]);
-  const std::vector<double> g = EstimateFrameGains(stack, model, sample);
+  std::vector<double> g;
+  if (method == CalibrationGainMethod::kAlternating) {
+    // Every 4th pixel is plenty for a dozen gains.
+    std::vector<uint32_t> sample;
+    for (size_t i = 0; i < pixels.size(); i += 4) sample.push_back(pixels[i]);
+    g = EstimateFrameGains(stack, model, sample);
+  } else {
+    std::vector<uint32_t> sample;
+    for (size_t i = 0; i < pixels.size(); i += 2) sample.push_back(pixels[i]);
+    g = JointFrameGains(stack, model, sample, 8);
+  }
   for (size_t k = 0; k < model.frames.size(); ++k) gains[model.frames[k]] = g[k];
   return gains;
 }
 
 void DecodeAt(const FrameStack& stack, const ViewFrames& vf, const std::vector<uint32_t>& pixels,
               const CalibrateOptions& options, std::vector<float>* out_u, std::vector<float>* out_v) {
-  const std::vector<double> gains = SineGains(stack, vf, pixels);
+  const std::vector<double> gains = SineGains(stack, vf, pixels, options.gain_method);
   std::vector<float> inv_gain(gains.size());
   for (size_t k = 0; k < gains.size(); ++k) inv_gain[k] = static_cast<float>(1.0 / gains[k]);
   out_u->assign(pixels.size(), std::numeric_limits<float>::quiet_NaN());

@@ -24,6 +24,12 @@
 
 namespace mesoscan {
 
+// How the per-frame gains (lamp, shutter) of the sine frames are estimated before decoding: not
+// at all, alternating least squares with the offset shared by all sets (frames.h), each set's
+// frame means over the view (frame_corrections.h FrameMeanGains), or the joint least squares of
+// gains and per-pixel coefficients with the shared offset (default; see the .cc).
+enum class CalibrationGainMethod { kNone, kAlternating, kFrameMeans, kJoint };
+
 struct CalibrateOptions {
   CalibrationBoard board;
   // Distortion coefficients held at 0: any of "k2", "k3", "tangential" (p1, p2).
@@ -36,6 +42,7 @@ struct CalibrateOptions {
   double min_modulation = 0.01;
   // Noise sigma of one frame sample (frame units) assumed when weighing periods, > 0.
   double frame_sigma = 0.01;
+  CalibrationGainMethod gain_method = CalibrationGainMethod::kJoint;
   // A view whose reprojection RMS exceeds this many times the median view's is named as an
   // outlier in the report (and a warning); it is kept. > 1.
   double outlier_view_factor = 3.0;
