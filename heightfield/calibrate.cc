@@ -12,6 +12,7 @@
 #include <limits>
 #include <map>
 #include <numeric>
+#include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -315,6 +316,51 @@ void NormaliseOrder(const CalibrationBoard& board, const cv::Mat& texture,
   }
 }
 
+// ChArUco: the markers (cv::aruco::detectMarkers, then refineDetectedMarkers against the board)
+// and the chessboard corners between them (interpolateCornersCharuco: local homographies of the
+// neighbouring markers, cornerSubPix). Corners come with their board index; a partial board gives
+// the corners of its visible part.
+bool DetectCharuco(const CalibrationBoard& board, const cv::Mat& grey8,
+                   std::vector<cv::Point2f>* corners, std::vector<int>* ids, std::string* why) {
+  const auto dict = cv::aruco::getPredefinedDictionary(
+      static_cast<cv::aruco::PREDEFINED_DICTIONARY_NAME>(board.dictionary));
+  const auto cb = cv::aruco::CharucoBoard::create(board.squares_x(), board.squares_y(),
+                                                  static_cast<float>(board.square_m),
+                                                  static_cast<float>(board.marker_m), dict);
+  std::vector<std::vector<cv::Point2f>> marker_corners, rejected;
+  std::vector<int> marker_ids;
+  try {
+    auto params = cv::aruco::DetectorParameters::create();
+    params->cornerRefinementMethod = cv::aruco::CORNER_REFINE_SUBPIX;
+    cv::aruco::detectMarkers(grey8, dict, marker_corners, marker_ids, params, rejected);
+    if (!marker_ids.empty())
+      cv::aruco::refineDetectedMarkers(grey8, cb, marker_corners, marker_ids, rejected);
+    if (marker_ids.size() >= 2)
+      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, grey8, cb, *corners, *ids);
+  } catch (const cv::Exception& e) {
+    corners->clear();
+    ids->clear();
+  }
+  // Enough corners for a pose of their own: 6, not all on one row or column.
+  constexpr size_t kMinCorners = 6;
+  bool spread = false;
+  if (ids->size() >= kMinCorners)
+    for (size_t n = 1; n < ids->size() && !spread; ++n)
+      spread = (*ids)[n] / board.cols != (*ids)[0] / board.cols &&
+               (*ids)[n] % board.cols != (*ids)[0] % board.cols;
+  bool valid = spread;
+  for (int id : *ids) valid = valid && id >= 0 && id < board.num_corners();
+  if (!valid) {
+    std::ostringstream o;
+    o << "no " << board.ToString() << " ChArUco board found (" << marker_ids.size()
+      << " markers, " << ids->size() << " corners; expected >= " << kMinCorners
+      << " corners over more than one row; is --board right?)";
+    *why = o.str();
+    return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 void CalibrateOptions::Check() const {
@@ -399,48 +445,72 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
     texture.convertTo(grey8, CV_8U, 255.0 / hi);
   }
 
-  // 2. Corners: findChessboardCornersSB, refined by cornerSubPix on the float texture.
+  // 2. Corners: findChessboardCornersSB (checker) or ArUco markers and the ChArUco corners they
+  //    identify (any subset of the board), refined by cornerSubPix on the float texture.
   const CalibrationBoard& board = options.board;
+  const int nc = board.num_corners();
   std::vector<cv::Point2f> corners;
-  const cv::Size pattern(board.cols, board.rows);
-  bool found = false;
-  try {
-    found = cv::findChessboardCornersSB(grey8, pattern, corners,
-                                        cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE);
-  } catch (const cv::Exception& e) {
-    found = false;
+  std::vector<int> ids;  // board corner index of each entry of `corners`
+  if (board.charuco()) {
+    std::string why;
+    if (!DetectCharuco(board, grey8, &corners, &ids, &why)) {
+      view.problem = why;
+      view.decode_seconds = Seconds(t0);
+      return view;
+    }
+  } else {
+    const cv::Size pattern(board.cols, board.rows);
+    bool found = false;
+    try {
+      found = cv::findChessboardCornersSB(grey8, pattern, corners,
+                                          cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE);
+    } catch (const cv::Exception& e) {
+      found = false;
+    }
+    if (!found || static_cast<int>(corners.size()) != nc) {
+      // A checkerboard partly out of view cannot be labelled (no corner is identified): the
+      // view is skipped; a ChArUco board works there.
+      view.problem = "no " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
+                     " checkerboard found (inner corners; is --board right and the whole board in "
+                     "view? a ChArUco board may be partly out of view)";
+      view.decode_seconds = Seconds(t0);
+      return view;
+    }
+    NormaliseOrder(board, texture, &corners);
+    ids.resize(nc);
+    std::iota(ids.begin(), ids.end(), 0);
   }
-  if (!found || static_cast<int>(corners.size()) != board.num_corners()) {
-    view.problem = "no " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
-                   " checkerboard found (inner corners; is --board right and the whole board in "
-                   "view?)";
-    view.decode_seconds = Seconds(t0);
-    return view;
-  }
-  NormaliseOrder(board, texture, &corners);
   // Half the smallest corner spacing bounds the refinement window.
-  double spacing = 1e30;
-  for (int j = 0; j < board.rows; ++j)
-    for (int i = 0; i + 1 < board.cols; ++i)
-      spacing = std::min<double>(spacing, cv::norm(corners[j * board.cols + i + 1] -
-                                                   corners[j * board.cols + i]));
-  if (options.refine_corners) {
-    const int win = std::clamp(static_cast<int>(spacing / 4), 2, 11);
-    cv::Mat smooth;
-    cv::GaussianBlur(texture, smooth, cv::Size(0, 0), 0.7);
-    cv::cornerSubPix(smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
-                     cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+  {
+    std::vector<Vec2d> at(nc, Vec2d(kNaN, kNaN));
+    for (size_t n = 0; n < ids.size(); ++n) at[ids[n]] = Vec2d(corners[n].x, corners[n].y);
+    double spacing = 1e30;
+    for (int j = 0; j < board.rows; ++j)
+      for (int i = 0; i < board.cols; ++i) {
+        const Vec2d& a = at[j * board.cols + i];
+        if (i + 1 < board.cols && (at[j * board.cols + i + 1] - a).allFinite())
+          spacing = std::min(spacing, (at[j * board.cols + i + 1] - a).norm());
+        if (j + 1 < board.rows && (at[(j + 1) * board.cols + i] - a).allFinite())
+          spacing = std::min(spacing, (at[(j + 1) * board.cols + i] - a).norm());
+      }
+    if (options.refine_corners && spacing < 1e30) {
+      const int win = std::clamp(static_cast<int>(spacing / 4), 2, 11);
+      cv::Mat smooth;
+      cv::GaussianBlur(texture, smooth, cv::Size(0, 0), 0.7);
+      cv::cornerSubPix(smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
+                       cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+    }
   }
   view.found = true;
-  const int nc = board.num_corners();
-  view.camera_px.resize(nc);
-  for (int k = 0; k < nc; ++k) view.camera_px[k] = Vec2d(corners[k].x, corners[k].y);
+  view.camera_px.assign(nc, Vec2d(kNaN, kNaN));
+  for (size_t n = 0; n < ids.size(); ++n) view.camera_px[ids[n]] = Vec2d(corners[n].x, corners[n].y);
 
   // 3. Decode (u, v) in a window around each corner, one homography per corner (Moreno & Taubin
   //    2012), fitted with LMEDS (least median of squares: half the window may be wrong).
   const int hw = options.homography_half_window_px;
   std::vector<uint8_t> mask(static_cast<size_t>(W) * H, 0);
   for (const auto& c : view.camera_px) {
+    if (!c.allFinite()) continue;
     const int cx = static_cast<int>(std::lround(c.x())), cy = static_cast<int>(std::lround(c.y()));
     for (int y = std::max(0, cy - hw); y <= std::min(H - 1, cy + hw); ++y)
       for (int x = std::max(0, cx - hw); x <= std::min(W - 1, cx + hw); ++x)
@@ -459,6 +529,7 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
   view.projector_inliers.assign(nc, 0);
   ParallelFor(nc, [&](int64_t k) {
     const Vec2d c = view.camera_px[k];
+    if (!c.allFinite()) return;
     const int cx = static_cast<int>(std::lround(c.x())), cy = static_cast<int>(std::lround(c.y()));
     std::vector<cv::Point2d> src, dst;
     int area = 0;
@@ -593,11 +664,12 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   std::vector<CalibrationView*> used;
   for (auto& v : views) {
     if (!v.found) continue;
-    int np = 0;
+    int np = 0, ncam = 0;
     for (const auto& p : v.projector_px) np += p.allFinite();
-    if (np < std::max(6, nc / 4)) {
+    for (const auto& p : v.camera_px) ncam += p.allFinite();
+    if (np < std::max(6, ncam / 4)) {
       v.problem = "the projector was decoded at only " + std::to_string(np) + " of " +
-                  std::to_string(nc) + " corners";
+                  std::to_string(ncam) + " corners";
       continue;
     }
     used.push_back(&v);
@@ -625,7 +697,8 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     double spread = 0;
     for (const auto* v : used)
       for (int k = 0; k < nc; ++k)
-        spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
+        if ((v->camera_px[k] - used[0]->camera_px[k]).allFinite())
+          spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
     if (spread < 1.0)
       MESOSCAN_BAD_INPUT("calibrate: all " << used.size()
                                            << " views show the board at one pose (corners move "
@@ -642,6 +715,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     std::vector<cv::Point3f> oc, ob;
     std::vector<cv::Point2f> ic, icb, ip;
     for (int k = 0; k < nc; ++k) {
+      if (!v->camera_px[k].allFinite()) continue;  // a ChArUco corner out of view
       const Vec3d x = board.Corner(k);
       const cv::Point3f xp(static_cast<float>(x.x()), static_cast<float>(x.y()), 0.f);
       oc.push_back(xp);
@@ -727,6 +801,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   for (size_t i = 0; i < used.size(); ++i) {
     const CalibrationView& v = *used[i];
     for (int k = 0; k < nc; ++k) {
+      if (!v.camera_px[k].allFinite()) continue;
       const Vec3d x = board.Corner(k);
       problem.AddResidualBlock(
           new ceres::AutoDiffCostFunction<CameraCost, 2, 4, 5, 6>(new CameraCost(x, v.camera_px[k])),

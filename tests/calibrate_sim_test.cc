@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <numbers>
+#include <sstream>
 
 #include "capture/session.h"
 #include "core/error.h"
@@ -71,12 +72,8 @@ struct Fixture : public ::testing::Test {
     WriteRigFile(*rig_file_, *truth_);
     SimulateOptions so = BoardSimBase(*rig_file_);
     so.ps_periods_px = {800, 50};
-    // Default noise except the per-frame gain jitter (0.5%): with 3 phases per period it
-    // cannot be told from a pixel's phase, and it moves every projector corner of a view
-    // together (0.036 instead of 0.018 px RMS here): with it, 12 views give a relative pose
-    // within 0.043 mm / 0.023 deg and the projector's cx within 0.67 px only (issue 11's
-    // closing note).
-    so.gain_jitter = 0.0;
+    // Default noise, including the per-frame gain jitter (0.5%): the sine frames' gains are
+    // estimated jointly with every pixel's phase (heightfield/calibrate.cc JointFrameGains).
     BoardSimOptions bo;
     bo.board = Board();
     bo.ps_periods_y_px = {600, 37.5};
@@ -267,6 +264,123 @@ TEST_F(CalibrateSim, BadInput) {
   }
 }
 
+// The pose (degrees, mm) that puts the board's centre on the world point under the camera's
+// right image edge (the board lying flat): about half the board is out of view.
+std::array<double, 6> HalfOutOfViewPose(const Rig& rig) {
+  const Vec2d edge(rig.camera.width - 1.0, 0.5 * rig.camera.height);
+  const Vec3d o = rig.camera.CentreInWorld(), d = rig.camera.RayDirectionInWorld(edge);
+  const Vec3d x = o + d * (-o.z() / d.z());
+  return {0, 0, 0, x.x() * 1e3, x.y() * 1e3, 0};
+}
+
+// ChArUco boards (OpenCV's aruco module), rendered by the virtual rig: 8 poses, one of them
+// half out of view (its visible corners are used), and the mount; intrinsics to the issue's
+// targets. A checkerboard at the half-out pose is skipped with a line saying why.
+TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
+  const CalibrationBoard board = CalibrationBoard::Parse("charuco:11x8:6:4.5:DICT_5X5_100", "t");
+  EXPECT_EQ(board.ToString(), "charuco:11x8:6:4.5:DICT_5X5_100");
+  EXPECT_EQ(board.num_corners(), 70);
+  SimulateOptions so = BoardSimBase(*rig_file_);
+  so.ps_periods_px = {800, 50};
+  BoardSimOptions bo;
+  bo.board = board;
+  bo.ps_periods_y_px = {600, 37.5};
+  CalibrateOptions co;
+  co.board = board;
+  co.fix_k3 = true;
+  std::vector<std::array<double, 6>> poses(Poses().begin(), Poses().begin() + 8);
+  poses.push_back(HalfOutOfViewPose(*truth_));
+  std::vector<CalibrationView> views;
+  std::vector<fs::path> dirs;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const fs::path dir = Dir("charuco" + std::to_string(i));
+    dirs.push_back(dir);
+    bo.pose = poses[i];
+    so.seed = 300 + i;
+    if (i == 1) {
+      // The command line renders one as well.
+      std::ostringstream pose;
+      for (int k = 0; k < 6; ++k) pose << (k ? "," : "") << poses[i][k];
+      const CliResult r = RunMesoscan(
+          "simulate --object board:charuco:11x8:6:4.5:DICT_5X5_100 --rig " + rig_file_->string() +
+          " --pose " + pose.str() +
+          " --ps-periods 800,50 --ps-periods-y 600,37.5 --ps-phases 3 --no-white --no-black "
+          "--supersample 1 --seed 301 --out " + dir.string());
+      ASSERT_EQ(r.code, 0) << r.output;
+    } else {
+      SimulateBoard(so, bo, dir);
+    }
+    views.push_back(DetectView(ReadSession(dir), co));
+    ASSERT_TRUE(views.back().found) << dir << ": " << views.back().problem;
+  }
+  // Detected corners against their true images.
+  double sc = 0;
+  int nc = 0, partial = 0;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const Rigid3d world_from_board = BoardPoseToRigid(poses[i]);
+    int n = 0;
+    for (int k = 0; k < board.num_corners(); ++k) {
+      if (!views[i].camera_px[k].allFinite()) continue;
+      Vec2d uc;
+      ASSERT_TRUE(truth_->camera.Project(world_from_board * board.Corner(k), &uc));
+      sc += (views[i].camera_px[k] - uc).squaredNorm();
+      ++nc;
+      ++n;
+    }
+    if (i + 1 == poses.size()) partial = n;
+    else EXPECT_EQ(n, board.num_corners()) << dirs[i];
+  }
+  const double obs_cam = std::sqrt(sc / nc);
+  std::printf("ChArUco: camera corners RMS %.4f px over %d corners; half-out view: %d of %d "
+              "corners\n",
+              obs_cam, nc, partial, board.num_corners());
+  EXPECT_LT(obs_cam, 0.06);  // the checker's: 0.032 px
+  EXPECT_GT(partial, 15);
+  EXPECT_LT(partial, 55);
+  std::vector<CalibrationView> regular(views.begin() + 1, views.end());
+  const CalibrationResult r = Calibrate(regular, SizeRig(), views[0], co);
+  std::printf("ChArUco: %s\n", r.BriefReport().c_str());
+  EXPECT_EQ(r.views_used, 8);
+  const Rig& t = *truth_;
+  for (int d = 0; d < 2; ++d) {
+    const PinholeCamera& e = d ? r.rig.projector : r.rig.camera;
+    const PinholeCamera& g = d ? t.projector : t.camera;
+    std::printf("ChArUco: %s f %+.4f%% %+.4f%%, c %+.3f %+.3f px\n", d ? "projector" : "camera",
+                (e.K(0, 0) / g.K(0, 0) - 1) * 100, (e.K(1, 1) / g.K(1, 1) - 1) * 100,
+                e.K(0, 2) - g.K(0, 2), e.K(1, 2) - g.K(1, 2));
+    EXPECT_NEAR(e.K(0, 0) / g.K(0, 0), 1.0, 1e-3) << d;
+    EXPECT_NEAR(e.K(1, 1) / g.K(1, 1), 1.0, 1e-3) << d;
+    EXPECT_NEAR(e.K(0, 2), g.K(0, 2), 0.5) << d;
+    EXPECT_NEAR(e.K(1, 2), g.K(1, 2), 0.5) << d;
+  }
+  const Rigid3d rel = r.rig.projector.world_from_device.Inverse() * r.rig.camera.world_from_device;
+  const Rigid3d rel_true = t.projector.world_from_device.Inverse() * t.camera.world_from_device;
+  const double dt_mm = (rel.translation - rel_true.translation).norm() * 1e3;
+  const double dr_deg = AngleDeg(rel.rotation * rel_true.rotation.transpose());
+  std::printf("ChArUco: relative pose error %.4f mm, %.5f deg\n", dt_mm, dr_deg);
+  // 8 views of which one is half a board (the checker's 0.02 mm target is met with 12 views,
+  // RecoversTheRigFromTwelvePoses): measured 0.028 mm, 0.0073 deg.
+  EXPECT_LT(dt_mm, 0.04);
+  EXPECT_LT(dr_deg, 0.01);
+  // A checkerboard at the half-out pose: skipped, saying why.
+  {
+    BoardSimOptions cb;
+    cb.board = Board();
+    cb.ps_periods_y_px = {600, 37.5};
+    cb.pose = poses.back();
+    const fs::path dir = Dir("checker_half_out");
+    SimulateBoard(so, cb, dir);
+    CalibrateOptions cco;
+    cco.board = Board();
+    const CalibrationView v = DetectView(ReadSession(dir), cco);
+    EXPECT_FALSE(v.found);
+    EXPECT_NE(v.problem.find("whole board in view"), std::string::npos) << v.problem;
+    EXPECT_NE(v.problem.find("ChArUco"), std::string::npos) << v.problem;
+    fs::remove_all(dir);
+  }
+  for (const auto& d : dirs) fs::remove_all(d);
+}
+
 // `mesoscan calibrate` writes a rig `reconstruct` reads, the report and its PNGs; `check` calls a
 // board session a calibration session and `reconstruct` refuses it (exit 3).
 TEST_F(CalibrateSim, CommandLine) {
@@ -408,11 +522,7 @@ TEST(CalibrateRealShape, EightBitBmpSixteenPeriodsPlusCue) {
   SimulateOptions so = BoardSimBase(rig_file);
   so.ps_periods_px = {1824, 114};
   so.defocus_px_per_m = 50;
-  // Per-frame gain jitter off: with 3 phases per period it cannot be told from each pixel's
-  // phase (frames.h), and 0.5% of it moves the projector corners by ~0.11 px RMS (0.154 px
-  // without the shared-offset gain estimate; 0.026 px without jitter). This test is about the
-  // shape of the data (8-bit BMP, one-period cue, no white frame).
-  so.gain_jitter = 0.0;
+  // Default noise, including the 0.5% per-frame gain jitter (estimated jointly with the phases).
   BoardSimOptions bo;
   bo.board = CalibrationBoard::Parse("checker:13x9:10", "test");
   bo.ps_periods_y_px = {1140, 71.25};
