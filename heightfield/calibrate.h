@@ -1,9 +1,11 @@
 #pragma once
-// Calibration of a projector-camera rig from sessions of a printed checkerboard (spec
-// "Calibration sessions"; `mesoscan calibrate`).
+// Calibration of a projector-camera rig from sessions of a printed checkerboard or ChArUco board
+// (spec "Calibration sessions"; `mesoscan calibrate`).
 //
 // Per view (one session = one board pose): the board's texture is the white frame or the mean of
-// a full phase set; corners by OpenCV's findChessboardCornersSB refined with cornerSubPix; the
+// a full phase set; corners by OpenCV's findChessboardCornersSB (or, for ChArUco, the ArUco
+// markers and interpolateCornersCharuco) refined with cornerSubPix; the sine frames' gains
+// estimated jointly with the pixels' phases; the
 // projector (u, v) of every camera pixel in a window around each corner is decoded from the sine
 // frames of both axes (heightfield/phase_shift.h), and each corner is taken into the projector by
 // a local homography fitted robustly (LMEDS) over that window (Moreno & Taubin, "Simple, accurate,
@@ -27,7 +29,12 @@ namespace mesoscan {
 // How the per-frame gains (lamp, shutter) of the sine frames are estimated before decoding: not
 // at all, alternating least squares with the offset shared by all sets (frames.h), each set's
 // frame means over the view (frame_corrections.h FrameMeanGains), or the joint least squares of
-// gains and per-pixel coefficients with the shared offset (default; see the .cc).
+// gains and per-pixel coefficients with the shared offset (default; see the .cc). Measured on
+// the virtual rig (tests/calibrate_sim_test's 13 views, 3 phases, 0.5% jitter), projector corner
+// error RMS and relative pose error: none 0.047 px, 0.037 mm / 0.039 deg; alternating 0.036 px,
+// 0.043 mm / 0.023 deg; frame means 35 px (the one-period sets' stripes do not average out over
+// a view: their gains are off by percent and the unwrapping fails); joint 0.0180 px, 0.0054 mm /
+// 0.0066 deg (0.0178 px without jitter).
 enum class CalibrationGainMethod { kNone, kAlternating, kFrameMeans, kJoint };
 
 struct CalibrateOptions {
@@ -62,7 +69,9 @@ struct CalibrationView {
   std::string problem;     // why not, or why the view was dropped (one line)
   int width = 0, height = 0;                  // camera image size
   int projector_width = 0, projector_height = 0;
-  std::vector<Vec2d> camera_px;               // every board corner, board order (k = j*cols+i)
+  // Every board corner, board order (k = j*cols+i); NaN where not seen (a ChArUco board partly
+  // out of view).
+  std::vector<Vec2d> camera_px;
   std::vector<Vec2d> projector_px;            // per corner; NaN where not decoded
   std::vector<int> projector_inliers;         // per corner: LMEDS inliers of its homography
   // Filled by Calibrate():

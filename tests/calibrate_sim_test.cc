@@ -253,6 +253,35 @@ TEST_F(CalibrateSim, BadInput) {
   const CalibrationView w = DetectView(ReadSession((*sessions_)[1]), wrong);
   EXPECT_FALSE(w.found);
   EXPECT_NE(w.problem.find("no 9x7 checkerboard found"), std::string::npos) << w.problem;
+  // Board descriptions that cannot be: one line naming --board, usage (exit 2).
+  for (const char* bad : {"checker:1x7:6", "charuco:11x8:6:7:DICT_5X5_100",
+                          "charuco:11x8:6:4.5:DICT_9X9_1", "charuco:30x30:6:4.5:DICT_4X4_50",
+                          "charuco:11x8:6"}) {
+    try {
+      CalibrationBoard::Parse(bad, "--board");
+      ADD_FAILURE() << bad << " accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kUsage) << bad;
+      EXPECT_EQ(std::string(e.what()).rfind("--board: '", 0), 0u) << e.what();
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(CalibrationBoard::Parse("charuco:5x4:10:7:4x4_50", "t").ToString(),
+            "charuco:5x4:10:7:DICT_4X4_50");
+  const CliResult usage = RunMesoscan("calibrate " + (*sessions_)[1].string() + " " +
+                                      (*sessions_)[2].string() + " " + (*sessions_)[3].string() +
+                                      " --board charuco:11x8:6:4.5:DICT_FOO --out " +
+                                      Dir("usage_rig.json").string());
+  EXPECT_EQ(usage.code, 2) << usage.output;
+  EXPECT_NE(usage.output.find("unknown ArUco dictionary"), std::string::npos) << usage.output;
+  // A ChArUco description for a checkerboard session: no board, named.
+  CalibrateOptions ch = co;
+  ch.board = CalibrationBoard::Parse("charuco:11x8:6:4.5:DICT_5X5_100", "test");
+  const CalibrationView nc = DetectView(ReadSession((*sessions_)[1]), ch);
+  EXPECT_FALSE(nc.found);
+  EXPECT_NE(nc.problem.find("no charuco:11x8:6:4.5:DICT_5X5_100 ChArUco board found"),
+            std::string::npos)
+      << nc.problem;
   // Every view at one pose.
   try {
     Calibrate({(*views_)[3], (*views_)[3], (*views_)[3], (*views_)[3]}, SizeRig(), std::nullopt,
@@ -276,11 +305,19 @@ std::array<double, 6> HalfOutOfViewPose(const Rig& rig) {
 // ChArUco boards (OpenCV's aruco module), rendered by the virtual rig: 8 poses, one of them
 // half out of view (its visible corners are used), and the mount; intrinsics to the issue's
 // targets. A checkerboard at the half-out pose is skipped with a line saying why.
-TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
+// Not on the fixture: ctest runs every test in its own process, and this one needs none of the
+// fixture's checkerboard views.
+TEST(CalibrateCharuco, BoardsPartlyOutOfView) {
+  Progress::SetEnabled(false);
+  const Rig truth = DistortedRig();
+  const fs::path rig_file = Dir("charuco_rig.json");
+  WriteRigFile(rig_file, truth);
+  Rig size_rig = truth;
+  size_rig.uncalibrated = true;
   const CalibrationBoard board = CalibrationBoard::Parse("charuco:11x8:6:4.5:DICT_5X5_100", "t");
   EXPECT_EQ(board.ToString(), "charuco:11x8:6:4.5:DICT_5X5_100");
   EXPECT_EQ(board.num_corners(), 70);
-  SimulateOptions so = BoardSimBase(*rig_file_);
+  SimulateOptions so = BoardSimBase(rig_file);
   so.ps_periods_px = {800, 50};
   BoardSimOptions bo;
   bo.board = board;
@@ -289,7 +326,7 @@ TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
   co.board = board;
   co.fix_k3 = true;
   std::vector<std::array<double, 6>> poses(Poses().begin(), Poses().begin() + 8);
-  poses.push_back(HalfOutOfViewPose(*truth_));
+  poses.push_back(HalfOutOfViewPose(truth));
   std::vector<CalibrationView> views;
   std::vector<fs::path> dirs;
   for (size_t i = 0; i < poses.size(); ++i) {
@@ -302,7 +339,7 @@ TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
       std::ostringstream pose;
       for (int k = 0; k < 6; ++k) pose << (k ? "," : "") << poses[i][k];
       const CliResult r = RunMesoscan(
-          "simulate --object board:charuco:11x8:6:4.5:DICT_5X5_100 --rig " + rig_file_->string() +
+          "simulate --object board:charuco:11x8:6:4.5:DICT_5X5_100 --rig " + rig_file.string() +
           " --pose " + pose.str() +
           " --ps-periods 800,50 --ps-periods-y 600,37.5 --ps-phases 3 --no-white --no-black "
           "--supersample 1 --seed 301 --out " + dir.string());
@@ -322,7 +359,7 @@ TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
     for (int k = 0; k < board.num_corners(); ++k) {
       if (!views[i].camera_px[k].allFinite()) continue;
       Vec2d uc;
-      ASSERT_TRUE(truth_->camera.Project(world_from_board * board.Corner(k), &uc));
+      ASSERT_TRUE(truth.camera.Project(world_from_board * board.Corner(k), &uc));
       sc += (views[i].camera_px[k] - uc).squaredNorm();
       ++nc;
       ++n;
@@ -338,10 +375,10 @@ TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
   EXPECT_GT(partial, 15);
   EXPECT_LT(partial, 55);
   std::vector<CalibrationView> regular(views.begin() + 1, views.end());
-  const CalibrationResult r = Calibrate(regular, SizeRig(), views[0], co);
+  const CalibrationResult r = Calibrate(regular, size_rig, views[0], co);
   std::printf("ChArUco: %s\n", r.BriefReport().c_str());
   EXPECT_EQ(r.views_used, 8);
-  const Rig& t = *truth_;
+  const Rig& t = truth;
   for (int d = 0; d < 2; ++d) {
     const PinholeCamera& e = d ? r.rig.projector : r.rig.camera;
     const PinholeCamera& g = d ? t.projector : t.camera;
@@ -379,6 +416,7 @@ TEST_F(CalibrateSim, ChArUcoBoardsPartlyOutOfView) {
     fs::remove_all(dir);
   }
   for (const auto& d : dirs) fs::remove_all(d);
+  fs::remove(rig_file);
 }
 
 // `mesoscan calibrate` writes a rig `reconstruct` reads, the report and its PNGs; `check` calls a
