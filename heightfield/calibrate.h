@@ -34,7 +34,9 @@ namespace mesoscan {
 // error RMS and relative pose error: none 0.047 px, 0.037 mm / 0.039 deg; alternating 0.036 px,
 // 0.043 mm / 0.023 deg; frame means 35 px (the one-period sets' stripes do not average out over
 // a view: their gains are off by percent and the unwrapping fails); joint 0.0180 px, 0.0054 mm /
-// 0.0066 deg (0.0178 px without jitter).
+// 0.0066 deg. Without jitter (same poses, other noise): alternating 0.0178 px, 0.0088 mm /
+// 0.0080 deg; joint 0.0183 px, 0.0202 mm / 0.0067 deg (the estimated gains' own noise moves a
+// view's projector corners together a little; the pose error at 12 views is ~0.01-0.02 mm).
 enum class CalibrationGainMethod { kNone, kAlternating, kFrameMeans, kJoint };
 
 struct CalibrateOptions {
