@@ -1,5 +1,6 @@
-// mesoscan calibrate SESSION... --board checker:COLSxROWS:SQUARE_MM --out RIG.json: the rig from
-// calibration sessions of a printed board (heightfield/calibrate.h).
+// mesoscan calibrate SESSION... --board checker:COLSxROWS:SQUARE_MM | charuco:COLSxROWS:SQUARE_MM:
+// MARKER_MM:DICT --out RIG.json: the rig from calibration sessions of a printed board
+// (heightfield/calibrate.h).
 
 #include <algorithm>
 #include <cmath>
@@ -142,13 +143,15 @@ void Run(const CalibrateArgs& a) {
 void AddCalibrateCommand(CLI::App* app) {
   auto* cmd = app->add_subcommand(
       "calibrate",
-      "Calibrate camera, projector and their pose from sessions of a printed checkerboard at "
-      "different poses (calibration sessions), write RIG.json");
+      "Calibrate camera, projector and their pose from sessions of a printed checkerboard or "
+      "ChArUco board at different poses (calibration sessions), write RIG.json");
   auto args = std::make_shared<CalibrateArgs>();
   cmd->add_option("sessions", args->sessions, "Calibration sessions, one board pose each (>= 3)")
       ->required();
   cmd->add_option("--board", args->board,
-                  "checker:COLSxROWS:SQUARE_MM (inner corners, e.g. checker:13x9:10)")
+                  "checker:COLSxROWS:SQUARE_MM (inner corners, e.g. checker:13x9:10) or "
+                  "charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT (squares, e.g. "
+                  "charuco:11x8:12:9:DICT_5X5_100; may be partly out of view)")
       ->required();
   cmd->add_option("--out", args->out, "Output rig file ({\"rig\": ...}, written atomically)")
       ->required();

@@ -4,12 +4,15 @@
 #include <ceres/covariance.h>
 #include <ceres/rotation.h>
 
+#include <Eigen/Dense>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
 #include <map>
 #include <numeric>
+#include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -21,6 +24,7 @@
 #include "core/image_io.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/phase_shift.h"
 
@@ -105,15 +109,10 @@ ViewFrames PlanView(const Session& session) {
   return v;
 }
 
-// Decodes (u, v) at the given pixels of a loaded stack.
-// Per-frame luminance gains (Ritz et al. 2012, Sec. 5.1; frames.h EstimateFrameGains) of the sine
-// frames: one per-pixel model over every sine frame of both axes, the offset A shared (the same
-// surface point under the same mean light) and (B cos, B sin) per period set. A set of 3 phases
-// alone cannot tell a gain from its pixel's phase; the shared offset can. Without this, a frame's
-// gain jitter of 0.5% moves a corner's projector position by ~0.15 px (8-bit, 3 phases).
-std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
-                              const std::vector<uint32_t>& pixels) {
-  std::vector<double> gains(stack.num_frames(), 1.0);
+// The sine frames' design for a per-frame gain estimate: one per-pixel model over every sine
+// frame of both axes, the offset A shared (the same surface point under the same mean light) and
+// (B cos, B sin) per period set.
+GainModel SineGainModel(const ViewFrames& vf) {
   GainModel model;
   int sets = 0;
   for (int a = 0; a < 2; ++a) sets += static_cast<int>(vf.axis[a].periods.size());
@@ -130,19 +129,126 @@ std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
       }
       ++s;
     }
-  if (model.frames.size() <= static_cast<size_t>(1 + 2 * sets) || pixels.size() < 100)
+  return model;
+}
+
+// Joint least squares of the frame gains g and every pixel's coefficients c_j of
+//   I_kj = g_k (M c_j)_k + noise
+// (variable projection: Gauss-Newton on g with the c_j eliminated exactly). A gain pattern that
+// lies in the band of one period set (a cosine / sine over its phases) moves each pixel's
+// decoded phase by ~ (A / B) g and is absorbed by that set's (B cos, B sin): it is identifiable
+// only through the shared offset A, whose per-set estimates it shifts by ~ (B / 2) g with the
+// pixel's own phase. Over thousands of pixels at different phases that is plenty, but alternating
+// least squares moves along such weak directions by a factor ~ B^2 / 4 A^2 per step and leaves
+// them at their start (frames.h EstimateFrameGains); Gauss-Newton takes them in one step.
+// Since G and M are shared by all pixels, so is the projection P = I - G M (M' G^2 M)^-1 M' G,
+// and the Gauss-Newton normal matrix is P .* sum_j m_j m_j' (m_j = M c_j). Gauge: the mean gain
+// is 1. Pixels with a saturated sample or a relative residual beyond median + 4 MAD are dropped.
+std::vector<double> JointFrameGains(const FrameStack& stack, const GainModel& model,
+                                    const std::vector<uint32_t>& pixels, int iterations) {
+  const int nk = static_cast<int>(model.frames.size());
+  std::vector<double> gains(nk, 1.0);
+  if (nk == 0 || pixels.size() < 16) return gains;
+  const int np = static_cast<int>(model.design[0].size());
+  if (nk <= np) return gains;
+  Eigen::MatrixXd M(nk, np);
+  for (int k = 0; k < nk; ++k)
+    for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
+  std::vector<uint32_t> px;
+  const auto& sat = stack.saturated();
+  for (uint32_t i : pixels)
+    if (sat.empty() || !sat[i]) px.push_back(i);
+  const size_t n = px.size();
+  if (n < 16) return gains;
+  Eigen::MatrixXd I(nk, n);
+  for (int k = 0; k < nk; ++k)
+    for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], px[j]);
+  Eigen::VectorXd g = Eigen::VectorXd::Ones(nk);
+  std::vector<uint8_t> use(n, 1);
+  for (int it = 0; it < iterations; ++it) {
+    const Eigen::MatrixXd GM = g.asDiagonal() * M;
+    const Eigen::MatrixXd pinv = (GM.transpose() * GM).ldlt().solve(GM.transpose());
+    const Eigen::MatrixXd C = pinv * I;             // np x n
+    const Eigen::MatrixXd Mc = M * C;               // ungained model, nk x n
+    const Eigen::MatrixXd R = I - g.asDiagonal() * Mc;  // residuals
+    const Eigen::MatrixXd P = Eigen::MatrixXd::Identity(nk, nk) - GM * pinv;
+    std::vector<double> rel(n);
+    for (size_t j = 0; j < n; ++j) {
+      const double m2 = Mc.col(j).squaredNorm();
+      rel[j] = m2 > 0 ? std::sqrt(R.col(j).squaredNorm() / m2)
+                      : std::numeric_limits<double>::infinity();
+    }
+    std::vector<double> sorted = rel;
+    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+    const double med = sorted[n / 2];
+    for (double& v : sorted) v = std::abs(v - med);
+    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+    const double mad = sorted[n / 2];
+    Eigen::MatrixXd S = Eigen::MatrixXd::Zero(nk, nk);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(nk);
+    for (size_t j = 0; j < n; ++j) {
+      use[j] = std::isfinite(rel[j]) && rel[j] <= med + 4 * 1.4826 * mad;
+      if (!use[j]) continue;
+      S.noalias() += Mc.col(j) * Mc.col(j).transpose();
+      b += Mc.col(j).cwiseProduct(R.col(j));
+    }
+    // H dg = b (J = -P diag(m_j), J' r = -m .* r since P r = r); the gauge (g itself is a null
+    // direction: scaling g scales every c_j inversely) fixed by a penalty on the mean.
+    Eigen::MatrixXd H = P.cwiseProduct(S);
+    const double scale = H.diagonal().mean();
+    if (!(scale > 0) || !std::isfinite(scale)) break;
+    H += scale * Eigen::MatrixXd::Constant(nk, nk, 1.0 / nk);
+    const Eigen::VectorXd dg = H.ldlt().solve(b);
+    if (!dg.allFinite()) break;
+    g += dg;
+    g /= g.mean();
+    if ((g.array() <= 0.5).any() || (g.array() >= 1.5).any()) {  // not a gain jitter: give up
+      g.setOnes();
+      break;
+    }
+    if (dg.lpNorm<Eigen::Infinity>() < 1e-7) break;
+  }
+  for (int k = 0; k < nk; ++k) gains[k] = g[k];
+  return gains;
+}
+
+// Per-frame gains of the sine frames (stack indices; 1 where not estimated), by `method`.
+std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
+                              const std::vector<uint32_t>& pixels, CalibrationGainMethod method) {
+  std::vector<double> gains(stack.num_frames(), 1.0);
+  if (method == CalibrationGainMethod::kNone) return gains;
+  if (method == CalibrationGainMethod::kFrameMeans) {
+    // Every set's frame means over the whole view (FrameMeanGains), mean 1 per set.
+    std::vector<uint32_t> all;
+    for (size_t i = 0; i < stack.pixels(); i += 3) all.push_back(static_cast<uint32_t>(i));
+    for (int a = 0; a < 2; ++a)
+      for (const auto& p : vf.axis[a].periods) {
+        const std::vector<double> g = FrameMeanGains(stack, p.stack, all);
+        for (size_t k = 0; k < g.size(); ++k) gains[p.stack[k]] = g[k];
+      }
+    return gains;
+  }
+  const GainModel model = SineGainModel(vf);
+  if (model.frames.size() <= model.design[0].size() || pixels.size() < 100)
     return gains;  // no redundancy
-  // Every 4th pixel is plenty for a dozen gains.
-  std::vector<uint32_t> sample;
-  for (size_t i = 0; i < pixels.size(); i += 4) sample.push_back(pixels[i]);
-  const std::vector<double> g = EstimateFrameGains(stack, model, sample);
+  std::vector<double> g;
+  if (method == CalibrationGainMethod::kAlternating) {
+    // Every 4th pixel is plenty for a dozen gains.
+    std::vector<uint32_t> sample;
+    for (size_t i = 0; i < pixels.size(); i += 4) sample.push_back(pixels[i]);
+    g = EstimateFrameGains(stack, model, sample);
+  } else {
+    std::vector<uint32_t> sample;
+    for (size_t i = 0; i < pixels.size(); i += 2) sample.push_back(pixels[i]);
+    g = JointFrameGains(stack, model, sample, 8);
+  }
   for (size_t k = 0; k < model.frames.size(); ++k) gains[model.frames[k]] = g[k];
   return gains;
 }
 
 void DecodeAt(const FrameStack& stack, const ViewFrames& vf, const std::vector<uint32_t>& pixels,
               const CalibrateOptions& options, std::vector<float>* out_u, std::vector<float>* out_v) {
-  const std::vector<double> gains = SineGains(stack, vf, pixels);
+  const std::vector<double> gains = SineGains(stack, vf, pixels, options.gain_method);
   std::vector<float> inv_gain(gains.size());
   for (size_t k = 0; k < gains.size(); ++k) inv_gain[k] = static_cast<float>(1.0 / gains[k]);
   out_u->assign(pixels.size(), std::numeric_limits<float>::quiet_NaN());
@@ -208,6 +314,51 @@ void NormaliseOrder(const CalibrationBoard& board, const cv::Mat& texture,
     const float light = sample(c0 + 0.5f * dx - 0.5f * dy);  // its neighbour along x
     if (dark > light) std::reverse(corners->begin(), corners->end());  // a half turn
   }
+}
+
+// ChArUco: the markers (cv::aruco::detectMarkers, then refineDetectedMarkers against the board)
+// and the chessboard corners between them (interpolateCornersCharuco: local homographies of the
+// neighbouring markers, cornerSubPix). Corners come with their board index; a partial board gives
+// the corners of its visible part.
+bool DetectCharuco(const CalibrationBoard& board, const cv::Mat& grey8,
+                   std::vector<cv::Point2f>* corners, std::vector<int>* ids, std::string* why) {
+  const auto dict = cv::aruco::getPredefinedDictionary(
+      static_cast<cv::aruco::PREDEFINED_DICTIONARY_NAME>(board.dictionary));
+  const auto cb = cv::aruco::CharucoBoard::create(board.squares_x(), board.squares_y(),
+                                                  static_cast<float>(board.square_m),
+                                                  static_cast<float>(board.marker_m), dict);
+  std::vector<std::vector<cv::Point2f>> marker_corners, rejected;
+  std::vector<int> marker_ids;
+  try {
+    auto params = cv::aruco::DetectorParameters::create();
+    params->cornerRefinementMethod = cv::aruco::CORNER_REFINE_SUBPIX;
+    cv::aruco::detectMarkers(grey8, dict, marker_corners, marker_ids, params, rejected);
+    if (!marker_ids.empty())
+      cv::aruco::refineDetectedMarkers(grey8, cb, marker_corners, marker_ids, rejected);
+    if (marker_ids.size() >= 2)
+      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, grey8, cb, *corners, *ids);
+  } catch (const cv::Exception& e) {
+    corners->clear();
+    ids->clear();
+  }
+  // Enough corners for a pose of their own: 6, not all on one row or column.
+  constexpr size_t kMinCorners = 6;
+  bool spread = false;
+  if (ids->size() >= kMinCorners)
+    for (size_t n = 1; n < ids->size() && !spread; ++n)
+      spread = (*ids)[n] / board.cols != (*ids)[0] / board.cols &&
+               (*ids)[n] % board.cols != (*ids)[0] % board.cols;
+  bool valid = spread;
+  for (int id : *ids) valid = valid && id >= 0 && id < board.num_corners();
+  if (!valid) {
+    std::ostringstream o;
+    o << "no " << board.ToString() << " ChArUco board found (" << marker_ids.size()
+      << " markers, " << ids->size() << " corners; expected >= " << kMinCorners
+      << " corners over more than one row; is --board right?)";
+    *why = o.str();
+    return false;
+  }
+  return true;
 }
 
 }  // namespace
@@ -294,48 +445,72 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
     texture.convertTo(grey8, CV_8U, 255.0 / hi);
   }
 
-  // 2. Corners: findChessboardCornersSB, refined by cornerSubPix on the float texture.
+  // 2. Corners: findChessboardCornersSB (checker) or ArUco markers and the ChArUco corners they
+  //    identify (any subset of the board), refined by cornerSubPix on the float texture.
   const CalibrationBoard& board = options.board;
+  const int nc = board.num_corners();
   std::vector<cv::Point2f> corners;
-  const cv::Size pattern(board.cols, board.rows);
-  bool found = false;
-  try {
-    found = cv::findChessboardCornersSB(grey8, pattern, corners,
-                                        cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE);
-  } catch (const cv::Exception& e) {
-    found = false;
+  std::vector<int> ids;  // board corner index of each entry of `corners`
+  if (board.charuco()) {
+    std::string why;
+    if (!DetectCharuco(board, grey8, &corners, &ids, &why)) {
+      view.problem = why;
+      view.decode_seconds = Seconds(t0);
+      return view;
+    }
+  } else {
+    const cv::Size pattern(board.cols, board.rows);
+    bool found = false;
+    try {
+      found = cv::findChessboardCornersSB(grey8, pattern, corners,
+                                          cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE);
+    } catch (const cv::Exception& e) {
+      found = false;
+    }
+    if (!found || static_cast<int>(corners.size()) != nc) {
+      // A checkerboard partly out of view cannot be labelled (no corner is identified): the
+      // view is skipped; a ChArUco board works there.
+      view.problem = "no " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
+                     " checkerboard found (inner corners; is --board right and the whole board in "
+                     "view? a ChArUco board may be partly out of view)";
+      view.decode_seconds = Seconds(t0);
+      return view;
+    }
+    NormaliseOrder(board, texture, &corners);
+    ids.resize(nc);
+    std::iota(ids.begin(), ids.end(), 0);
   }
-  if (!found || static_cast<int>(corners.size()) != board.num_corners()) {
-    view.problem = "no " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
-                   " checkerboard found (inner corners; is --board right and the whole board in "
-                   "view?)";
-    view.decode_seconds = Seconds(t0);
-    return view;
-  }
-  NormaliseOrder(board, texture, &corners);
   // Half the smallest corner spacing bounds the refinement window.
-  double spacing = 1e30;
-  for (int j = 0; j < board.rows; ++j)
-    for (int i = 0; i + 1 < board.cols; ++i)
-      spacing = std::min<double>(spacing, cv::norm(corners[j * board.cols + i + 1] -
-                                                   corners[j * board.cols + i]));
-  if (options.refine_corners) {
-    const int win = std::clamp(static_cast<int>(spacing / 4), 2, 11);
-    cv::Mat smooth;
-    cv::GaussianBlur(texture, smooth, cv::Size(0, 0), 0.7);
-    cv::cornerSubPix(smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
-                     cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+  {
+    std::vector<Vec2d> at(nc, Vec2d(kNaN, kNaN));
+    for (size_t n = 0; n < ids.size(); ++n) at[ids[n]] = Vec2d(corners[n].x, corners[n].y);
+    double spacing = 1e30;
+    for (int j = 0; j < board.rows; ++j)
+      for (int i = 0; i < board.cols; ++i) {
+        const Vec2d& a = at[j * board.cols + i];
+        if (i + 1 < board.cols && (at[j * board.cols + i + 1] - a).allFinite())
+          spacing = std::min(spacing, (at[j * board.cols + i + 1] - a).norm());
+        if (j + 1 < board.rows && (at[(j + 1) * board.cols + i] - a).allFinite())
+          spacing = std::min(spacing, (at[(j + 1) * board.cols + i] - a).norm());
+      }
+    if (options.refine_corners && spacing < 1e30) {
+      const int win = std::clamp(static_cast<int>(spacing / 4), 2, 11);
+      cv::Mat smooth;
+      cv::GaussianBlur(texture, smooth, cv::Size(0, 0), 0.7);
+      cv::cornerSubPix(smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
+                       cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+    }
   }
   view.found = true;
-  const int nc = board.num_corners();
-  view.camera_px.resize(nc);
-  for (int k = 0; k < nc; ++k) view.camera_px[k] = Vec2d(corners[k].x, corners[k].y);
+  view.camera_px.assign(nc, Vec2d(kNaN, kNaN));
+  for (size_t n = 0; n < ids.size(); ++n) view.camera_px[ids[n]] = Vec2d(corners[n].x, corners[n].y);
 
   // 3. Decode (u, v) in a window around each corner, one homography per corner (Moreno & Taubin
   //    2012), fitted with LMEDS (least median of squares: half the window may be wrong).
   const int hw = options.homography_half_window_px;
   std::vector<uint8_t> mask(static_cast<size_t>(W) * H, 0);
   for (const auto& c : view.camera_px) {
+    if (!c.allFinite()) continue;
     const int cx = static_cast<int>(std::lround(c.x())), cy = static_cast<int>(std::lround(c.y()));
     for (int y = std::max(0, cy - hw); y <= std::min(H - 1, cy + hw); ++y)
       for (int x = std::max(0, cx - hw); x <= std::min(W - 1, cx + hw); ++x)
@@ -354,6 +529,7 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
   view.projector_inliers.assign(nc, 0);
   ParallelFor(nc, [&](int64_t k) {
     const Vec2d c = view.camera_px[k];
+    if (!c.allFinite()) return;
     const int cx = static_cast<int>(std::lround(c.x())), cy = static_cast<int>(std::lround(c.y()));
     std::vector<cv::Point2d> src, dst;
     int area = 0;
@@ -488,11 +664,12 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   std::vector<CalibrationView*> used;
   for (auto& v : views) {
     if (!v.found) continue;
-    int np = 0;
+    int np = 0, ncam = 0;
     for (const auto& p : v.projector_px) np += p.allFinite();
-    if (np < std::max(6, nc / 4)) {
+    for (const auto& p : v.camera_px) ncam += p.allFinite();
+    if (np < std::max(6, ncam / 4)) {
       v.problem = "the projector was decoded at only " + std::to_string(np) + " of " +
-                  std::to_string(nc) + " corners";
+                  std::to_string(ncam) + " corners";
       continue;
     }
     used.push_back(&v);
@@ -520,7 +697,8 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     double spread = 0;
     for (const auto* v : used)
       for (int k = 0; k < nc; ++k)
-        spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
+        if ((v->camera_px[k] - used[0]->camera_px[k]).allFinite())
+          spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
     if (spread < 1.0)
       MESOSCAN_BAD_INPUT("calibrate: all " << used.size()
                                            << " views show the board at one pose (corners move "
@@ -537,6 +715,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     std::vector<cv::Point3f> oc, ob;
     std::vector<cv::Point2f> ic, icb, ip;
     for (int k = 0; k < nc; ++k) {
+      if (!v->camera_px[k].allFinite()) continue;  // a ChArUco corner out of view
       const Vec3d x = board.Corner(k);
       const cv::Point3f xp(static_cast<float>(x.x()), static_cast<float>(x.y()), 0.f);
       oc.push_back(xp);
@@ -622,6 +801,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   for (size_t i = 0; i < used.size(); ++i) {
     const CalibrationView& v = *used[i];
     for (int k = 0; k < nc; ++k) {
+      if (!v.camera_px[k].allFinite()) continue;
       const Vec3d x = board.Corner(k);
       problem.AddResidualBlock(
           new ceres::AutoDiffCostFunction<CameraCost, 2, 4, 5, 6>(new CameraCost(x, v.camera_px[k])),

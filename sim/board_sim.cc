@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <numbers>
+#include <optional>
 #include <sstream>
 
 #include "capture/patterns.h"
@@ -52,6 +53,47 @@ inline double BoxedSquareWave(double f, double h) {
   return (SquareWaveIntegral(f + h) - SquareWaveIntegral(f - h)) / (2.0 * h);
 }
 
+// A ChArUco board's printed image as a summed-area table: the box average of the image over any
+// axis-aligned rectangle, exact for the piecewise-constant pixels (the table is bilinear within a
+// pixel), the same box filter BoxedSquareWave applies to the plain checker.
+class BoardTexture {
+ public:
+  BoardTexture(const CalibrationBoard& board, int px_per_square) : ppm_(px_per_square) {
+    const std::vector<uint8_t> img = board.CharucoImage(px_per_square, &w_, &h_);
+    sat_.assign(static_cast<size_t>(w_ + 1) * (h_ + 1), 0.0);
+    for (int y = 0; y < h_; ++y) {
+      double row = 0;
+      for (int x = 0; x < w_; ++x) {
+        row += img[static_cast<size_t>(y) * w_ + x] / 255.0;
+        sat_[static_cast<size_t>(y + 1) * (w_ + 1) + x + 1] =
+            sat_[static_cast<size_t>(y) * (w_ + 1) + x + 1] + row;
+      }
+    }
+  }
+  // Mean paper fraction (1 white, 0 ink) over [fx - hx, fx + hx] x [fy - hy, fy + hy], in
+  // squares from the board's corner at (-half width, -half height); fy up the print.
+  double Mean(double fx, double fy, double hx, double hy) const {
+    const double u = fx * ppm_, v = h_ - fy * ppm_;
+    const double hu = std::max(0.5, hx * ppm_), hv = std::max(0.5, hy * ppm_);
+    const double area = 4 * hu * hv;
+    return (At(u + hu, v + hv) - At(u - hu, v + hv) - At(u + hu, v - hv) + At(u - hu, v - hv)) /
+           area;
+  }
+
+ private:
+  double At(double x, double y) const {
+    x = std::clamp(x, 0.0, static_cast<double>(w_));
+    y = std::clamp(y, 0.0, static_cast<double>(h_));
+    const int ix = std::min(static_cast<int>(x), w_ - 1), iy = std::min(static_cast<int>(y), h_ - 1);
+    const double ax = x - ix, ay = y - iy;
+    auto s = [&](int xx, int yy) { return sat_[static_cast<size_t>(yy) * (w_ + 1) + xx]; };
+    return (1 - ay) * ((1 - ax) * s(ix, iy) + ax * s(ix + 1, iy)) +
+           ay * ((1 - ax) * s(ix, iy + 1) + ax * s(ix + 1, iy + 1));
+  }
+  int ppm_, w_ = 0, h_ = 0;
+  std::vector<double> sat_;
+};
+
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -60,7 +102,8 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
 
 void BoardSimOptions::Check() const {
   if (board.cols < 2 || board.rows < 2 || !(board.square_m > 0))
-    BOARD_USAGE("--object: expected board:checker:COLSxROWS:SQUARE_MM");
+    BOARD_USAGE("--object: expected board:checker:COLSxROWS:SQUARE_MM or "
+                "board:charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
   for (double v : pose)
     if (!std::isfinite(v)) BOARD_USAGE("--pose: expected six finite numbers");
   if (!(dark_albedo >= 0 && dark_albedo <= 1 && light_albedo >= 0 && light_albedo <= 1))
@@ -206,6 +249,8 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   std::vector<double> gains(nf, 1.0);
   for (int f = 0; f < nf; ++f)
     gains[f] = 1.0 + noise.GainJitterSigma() * NormalOf(SplitMix(o.seed * 7919 + f));
+  std::optional<BoardTexture> texture;
+  if (board.charuco()) texture.emplace(board, 64);
   const double half_w = board.HalfWidth() + bo.margin_squares * board.square_m;
   const double half_h = board.HalfHeight() + bo.margin_squares * board.square_m;
   const double inv_ss = 1.0 / (S * S);
@@ -267,7 +312,8 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
                       const double fx = pb.x() / board.square_m + 0.5 * (board.cols - 1) + 1.0;
                       const double fy = pb.y() / board.square_m + 0.5 * (board.rows - 1) + 1.0;
                       const double dark =
-                          0.5 * (1.0 + BoxedSquareWave(fx, hx) * BoxedSquareWave(fy, hy));
+                          texture ? 1.0 - texture->Mean(fx, fy, hx, hy)
+                                  : 0.5 * (1.0 + BoxedSquareWave(fx, hx) * BoxedSquareWave(fy, hy));
                       albedo = bo.light_albedo + (bo.dark_albedo - bo.light_albedo) * dark;
                     }
                   }

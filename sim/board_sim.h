@@ -1,5 +1,5 @@
 #pragma once
-// The virtual rig looking at a calibration board: a printed checkerboard (heightfield/
+// The virtual rig looking at a calibration board: a printed checkerboard or ChArUco board (heightfield/
 // calibrate_board.h) at any pose in front of the rig, rendered analytically (ray-plane
 // intersection, no Embree: the board is one plane), with sine patterns along both projector
 // axes, distortion on both devices (the rig's), sensor noise as sim/README.md, frames as 16-bit

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <numbers>
+#include <sstream>
 
 #include "capture/session.h"
 #include "core/error.h"
@@ -73,12 +74,8 @@ struct Fixture : public ::testing::Test {
     WriteRigFile(*rig_file_, *truth_);
     SimulateOptions so = BoardSimBase(*rig_file_);
     so.ps_periods_px = {800, 50};
-    // Default noise except the per-frame gain jitter (0.5%): with 3 phases per period it
-    // cannot be told from a pixel's phase, and it moves every projector corner of a view
-    // together (0.036 instead of 0.018 px RMS here): with it, 12 views give a relative pose
-    // within 0.043 mm / 0.023 deg and the projector's cx within 0.67 px only (issue 11's
-    // closing note).
-    so.gain_jitter = 0.0;
+    // Default noise, including the per-frame gain jitter (0.5%): the sine frames' gains are
+    // estimated jointly with every pixel's phase (heightfield/calibrate.cc JointFrameGains).
     BoardSimOptions bo;
     bo.board = Board();
     bo.ps_periods_y_px = {600, 37.5};
@@ -258,6 +255,35 @@ TEST_F(CalibrateSim, BadInput) {
   const CalibrationView w = DetectView(ReadSession((*sessions_)[1]), wrong);
   EXPECT_FALSE(w.found);
   EXPECT_NE(w.problem.find("no 9x7 checkerboard found"), std::string::npos) << w.problem;
+  // Board descriptions that cannot be: one line naming --board, usage (exit 2).
+  for (const char* bad : {"checker:1x7:6", "charuco:11x8:6:7:DICT_5X5_100",
+                          "charuco:11x8:6:4.5:DICT_9X9_1", "charuco:30x30:6:4.5:DICT_4X4_50",
+                          "charuco:11x8:6"}) {
+    try {
+      CalibrationBoard::Parse(bad, "--board");
+      ADD_FAILURE() << bad << " accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::kUsage) << bad;
+      EXPECT_EQ(std::string(e.what()).rfind("--board: '", 0), 0u) << e.what();
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(CalibrationBoard::Parse("charuco:5x4:10:7:4x4_50", "t").ToString(),
+            "charuco:5x4:10:7:DICT_4X4_50");
+  const CliResult usage = RunMesoscan("calibrate " + (*sessions_)[1].string() + " " +
+                                      (*sessions_)[2].string() + " " + (*sessions_)[3].string() +
+                                      " --board charuco:11x8:6:4.5:DICT_FOO --out " +
+                                      Dir("usage_rig.json").string());
+  EXPECT_EQ(usage.code, 2) << usage.output;
+  EXPECT_NE(usage.output.find("unknown ArUco dictionary"), std::string::npos) << usage.output;
+  // A ChArUco description for a checkerboard session: no board, named.
+  CalibrateOptions ch = co;
+  ch.board = CalibrationBoard::Parse("charuco:11x8:6:4.5:DICT_5X5_100", "test");
+  const CalibrationView nc = DetectView(ReadSession((*sessions_)[1]), ch);
+  EXPECT_FALSE(nc.found);
+  EXPECT_NE(nc.problem.find("no charuco:11x8:6:4.5:DICT_5X5_100 ChArUco board found"),
+            std::string::npos)
+      << nc.problem;
   // Every view at one pose.
   try {
     Calibrate({(*views_)[3], (*views_)[3], (*views_)[3], (*views_)[3]}, SizeRig(), std::nullopt,
@@ -267,6 +293,132 @@ TEST_F(CalibrateSim, BadInput) {
     EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
     EXPECT_NE(std::string(e.what()).find("one pose"), std::string::npos) << e.what();
   }
+}
+
+// The pose (degrees, mm) that puts the board's centre on the world point under the camera's
+// right image edge (the board lying flat): about half the board is out of view.
+std::array<double, 6> HalfOutOfViewPose(const Rig& rig) {
+  const Vec2d edge(rig.camera.width - 1.0, 0.5 * rig.camera.height);
+  const Vec3d o = rig.camera.CentreInWorld(), d = rig.camera.RayDirectionInWorld(edge);
+  const Vec3d x = o + d * (-o.z() / d.z());
+  return {0, 0, 0, x.x() * 1e3, x.y() * 1e3, 0};
+}
+
+// ChArUco boards (OpenCV's aruco module), rendered by the virtual rig: 8 poses, one of them
+// half out of view (its visible corners are used), and the mount; intrinsics to the issue's
+// targets. A checkerboard at the half-out pose is skipped with a line saying why.
+// Not on the fixture: ctest runs every test in its own process, and this one needs none of the
+// fixture's checkerboard views.
+TEST(CalibrateCharuco, BoardsPartlyOutOfView) {
+  Progress::SetEnabled(false);
+  const Rig truth = DistortedRig();
+  const fs::path rig_file = Dir("charuco_rig.json");
+  WriteRigFile(rig_file, truth);
+  Rig size_rig = truth;
+  size_rig.uncalibrated = true;
+  const CalibrationBoard board = CalibrationBoard::Parse("charuco:11x8:6:4.5:DICT_5X5_100", "t");
+  EXPECT_EQ(board.ToString(), "charuco:11x8:6:4.5:DICT_5X5_100");
+  EXPECT_EQ(board.num_corners(), 70);
+  SimulateOptions so = BoardSimBase(rig_file);
+  so.ps_periods_px = {800, 50};
+  BoardSimOptions bo;
+  bo.board = board;
+  bo.ps_periods_y_px = {600, 37.5};
+  CalibrateOptions co;
+  co.board = board;
+  co.fix_k3 = true;
+  std::vector<std::array<double, 6>> poses(Poses().begin(), Poses().begin() + 8);
+  poses.push_back(HalfOutOfViewPose(truth));
+  std::vector<CalibrationView> views;
+  std::vector<fs::path> dirs;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const fs::path dir = Dir("charuco" + std::to_string(i));
+    dirs.push_back(dir);
+    bo.pose = poses[i];
+    so.seed = 300 + i;
+    if (i == 1) {
+      // The command line renders one as well.
+      std::ostringstream pose;
+      for (int k = 0; k < 6; ++k) pose << (k ? "," : "") << poses[i][k];
+      const CliResult r = RunMesoscan(
+          "simulate --object board:charuco:11x8:6:4.5:DICT_5X5_100 --rig " + rig_file.string() +
+          " --pose " + pose.str() +
+          " --ps-periods 800,50 --ps-periods-y 600,37.5 --ps-phases 3 --no-white --no-black "
+          "--supersample 1 --seed 301 --out " + dir.string());
+      ASSERT_EQ(r.code, 0) << r.output;
+    } else {
+      SimulateBoard(so, bo, dir);
+    }
+    views.push_back(DetectView(ReadSession(dir), co));
+    ASSERT_TRUE(views.back().found) << dir << ": " << views.back().problem;
+  }
+  // Detected corners against their true images.
+  double sc = 0;
+  int nc = 0, partial = 0;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const Rigid3d world_from_board = BoardPoseToRigid(poses[i]);
+    int n = 0;
+    for (int k = 0; k < board.num_corners(); ++k) {
+      if (!views[i].camera_px[k].allFinite()) continue;
+      Vec2d uc;
+      ASSERT_TRUE(truth.camera.Project(world_from_board * board.Corner(k), &uc));
+      sc += (views[i].camera_px[k] - uc).squaredNorm();
+      ++nc;
+      ++n;
+    }
+    if (i + 1 == poses.size()) partial = n;
+    else EXPECT_EQ(n, board.num_corners()) << dirs[i];
+  }
+  const double obs_cam = std::sqrt(sc / nc);
+  std::printf("ChArUco: camera corners RMS %.4f px over %d corners; half-out view: %d of %d "
+              "corners\n",
+              obs_cam, nc, partial, board.num_corners());
+  EXPECT_LT(obs_cam, 0.06);  // the checker's: 0.032 px
+  EXPECT_GT(partial, 15);
+  EXPECT_LT(partial, 55);
+  std::vector<CalibrationView> regular(views.begin() + 1, views.end());
+  const CalibrationResult r = Calibrate(regular, size_rig, views[0], co);
+  std::printf("ChArUco: %s\n", r.BriefReport().c_str());
+  EXPECT_EQ(r.views_used, 8);
+  const Rig& t = truth;
+  for (int d = 0; d < 2; ++d) {
+    const PinholeCamera& e = d ? r.rig.projector : r.rig.camera;
+    const PinholeCamera& g = d ? t.projector : t.camera;
+    std::printf("ChArUco: %s f %+.4f%% %+.4f%%, c %+.3f %+.3f px\n", d ? "projector" : "camera",
+                (e.K(0, 0) / g.K(0, 0) - 1) * 100, (e.K(1, 1) / g.K(1, 1) - 1) * 100,
+                e.K(0, 2) - g.K(0, 2), e.K(1, 2) - g.K(1, 2));
+    EXPECT_NEAR(e.K(0, 0) / g.K(0, 0), 1.0, 1e-3) << d;
+    EXPECT_NEAR(e.K(1, 1) / g.K(1, 1), 1.0, 1e-3) << d;
+    EXPECT_NEAR(e.K(0, 2), g.K(0, 2), 0.5) << d;
+    EXPECT_NEAR(e.K(1, 2), g.K(1, 2), 0.5) << d;
+  }
+  const Rigid3d rel = r.rig.projector.world_from_device.Inverse() * r.rig.camera.world_from_device;
+  const Rigid3d rel_true = t.projector.world_from_device.Inverse() * t.camera.world_from_device;
+  const double dt_mm = (rel.translation - rel_true.translation).norm() * 1e3;
+  const double dr_deg = AngleDeg(rel.rotation * rel_true.rotation.transpose());
+  std::printf("ChArUco: relative pose error %.4f mm, %.5f deg\n", dt_mm, dr_deg);
+  // 8 views of which one is half a board (the checker's 0.02 mm target is met with 12 views,
+  // RecoversTheRigFromTwelvePoses): measured 0.028 mm, 0.0073 deg.
+  EXPECT_LT(dt_mm, 0.04);
+  EXPECT_LT(dr_deg, 0.01);
+  // A checkerboard at the half-out pose: skipped, saying why.
+  {
+    BoardSimOptions cb;
+    cb.board = Board();
+    cb.ps_periods_y_px = {600, 37.5};
+    cb.pose = poses.back();
+    const fs::path dir = Dir("checker_half_out");
+    SimulateBoard(so, cb, dir);
+    CalibrateOptions cco;
+    cco.board = Board();
+    const CalibrationView v = DetectView(ReadSession(dir), cco);
+    EXPECT_FALSE(v.found);
+    EXPECT_NE(v.problem.find("whole board in view"), std::string::npos) << v.problem;
+    EXPECT_NE(v.problem.find("ChArUco"), std::string::npos) << v.problem;
+    fs::remove_all(dir);
+  }
+  for (const auto& d : dirs) fs::remove_all(d);
+  fs::remove(rig_file);
 }
 
 // `mesoscan calibrate` writes a rig `reconstruct` reads, the report and its PNGs; `check` calls a
@@ -612,11 +764,7 @@ TEST(CalibrateRealShape, EightBitBmpSixteenPeriodsPlusCue) {
   SimulateOptions so = BoardSimBase(rig_file);
   so.ps_periods_px = {1824, 114};
   so.defocus_px_per_m = 50;
-  // Per-frame gain jitter off: with 3 phases per period it cannot be told from each pixel's
-  // phase (frames.h), and 0.5% of it moves the projector corners by ~0.11 px RMS (0.154 px
-  // without the shared-offset gain estimate; 0.026 px without jitter). This test is about the
-  // shape of the data (8-bit BMP, one-period cue, no white frame).
-  so.gain_jitter = 0.0;
+  // Default noise, including the 0.5% per-frame gain jitter (estimated jointly with the phases).
   BoardSimOptions bo;
   bo.board = CalibrationBoard::Parse("checker:13x9:10", "test");
   bo.ps_periods_y_px = {1140, 71.25};
