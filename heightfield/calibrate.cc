@@ -178,16 +178,11 @@ std::vector<double> JointFrameGains(const FrameStack& stack, const GainModel& mo
       rel[j] = m2 > 0 ? std::sqrt(R.col(j).squaredNorm() / m2)
                       : std::numeric_limits<double>::infinity();
     }
-    std::vector<double> sorted = rel;
-    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
-    const double med = sorted[n / 2];
-    for (double& v : sorted) v = std::abs(v - med);
-    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
-    const double mad = sorted[n / 2];
+    const double limit = OutlierLimit(rel);
     Eigen::MatrixXd S = Eigen::MatrixXd::Zero(nk, nk);
     Eigen::VectorXd b = Eigen::VectorXd::Zero(nk);
     for (size_t j = 0; j < n; ++j) {
-      use[j] = std::isfinite(rel[j]) && rel[j] <= med + 4 * 1.4826 * mad;
+      use[j] = std::isfinite(rel[j]) && rel[j] <= limit;
       if (!use[j]) continue;
       S.noalias() += Mc.col(j) * Mc.col(j).transpose();
       b += Mc.col(j).cwiseProduct(R.col(j));

@@ -255,6 +255,15 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
   return s;
 }
 
+double OutlierLimit(std::vector<double> values) {
+  const size_t mid = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + mid, values.end());
+  const double med = values[mid];
+  for (double& v : values) v = std::abs(v - med);
+  std::nth_element(values.begin(), values.begin() + mid, values.end());
+  return med + 4 * 1.4826 * values[mid];
+}
+
 std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,
                                        const std::vector<uint32_t>& pixels, int iterations) {
   // Alternating least squares from g = 1: per-pixel coefficients with the current gains (one
@@ -292,13 +301,8 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
       }
       rel[j] = m2 > 0 ? std::sqrt(r2 / m2) : std::numeric_limits<double>::infinity();
     }
-    std::vector<double> sorted = rel;
-    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
-    const double med = sorted[n / 2];
-    for (double& v : sorted) v = std::abs(v - med);
-    std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
-    const double mad = sorted[n / 2];
-    for (size_t j = 0; j < n; ++j) use[j] = std::isfinite(rel[j]) && rel[j] <= med + 4 * 1.4826 * mad;
+    const double limit = OutlierLimit(rel);
+    for (size_t j = 0; j < n; ++j) use[j] = std::isfinite(rel[j]) && rel[j] <= limit;
     for (int k = 0; k < nk; ++k) {
       double num = 0.0, den = 0.0;
       for (size_t j = 0; j < n; ++j) {

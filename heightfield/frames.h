@@ -105,4 +105,8 @@ struct GainModel {
 std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,
                                        const std::vector<uint32_t>& pixels, int iterations = 3);
 
+// The outlier limit of the gain fits' relative residuals: median + 4 robust sigmas (1.4826 MAD).
+// `values` must not be empty.
+double OutlierLimit(std::vector<double> values);
+
 }  // namespace mesoscan
