@@ -439,4 +439,25 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   return summary;
 }
 
+Rig RealShapeRig() {
+  Rig rig;
+  rig.camera.width = 1688;
+  rig.camera.height = 1352;
+  rig.camera.K << 3400, 0, 843.5, 0, 3400, 675.5, 0, 0, 1;
+  rig.camera.distortion = {-0.05, 0.08, 0, 0, 0};
+  Mat4d m;
+  m << 1, 0, 0, 0, 0, -1, 0, 0, 0, 0, -1, 0.4, 0, 0, 0, 1;
+  rig.camera.world_from_device = Rigid3d::FromMatrix(m);
+  rig.projector.width = 1824;
+  rig.projector.height = 1140;
+  rig.projector.K << 3000, 0, 911.5, 0, 3000, 569.5, 0, 0, 1;
+  rig.projector.distortion = {0.03, 0, 0, 0, 0};
+  const double a = 15.0 * std::numbers::pi / 180.0, dist = 0.42;
+  rig.projector.world_from_device.rotation.col(0) = Vec3d(std::cos(a), 0, -std::sin(a));
+  rig.projector.world_from_device.rotation.col(1) = Vec3d(0, -1, 0);
+  rig.projector.world_from_device.rotation.col(2) = Vec3d(-std::sin(a), 0, -std::cos(a));
+  rig.projector.world_from_device.translation = Vec3d(dist * std::sin(a), 0, dist * std::cos(a));
+  return rig;
+}
+
 }  // namespace mesoscan

@@ -52,4 +52,8 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
 // Writes {"rig": ...} in the session format (the file `simulate --rig` and sessions use).
 void WriteRigFile(const std::filesystem::path& path, const Rig& rig);
 
+// A rig of the held-back real captures' shape (another scanner): camera 1688 x 1352 with radial
+// distortion, projector 1824 x 1140 at 15 degrees, 0.42 m away. For tests and bench_calibrate.
+Rig RealShapeRig();
+
 }  // namespace mesoscan
