@@ -3,7 +3,6 @@
 #include <OpenImageIO/imageio.h>
 
 #include <atomic>
-#include <chrono>
 #include <cmath>
 #include <numbers>
 #include <optional>
@@ -16,6 +15,7 @@
 #include "core/json.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/stage_timer.h"
 
 namespace fs = std::filesystem;
 
@@ -94,10 +94,6 @@ class BoardTexture {
   std::vector<double> sat_;
 };
 
-double Seconds(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
 }  // namespace
 
 void BoardSimOptions::Check() const {
@@ -159,7 +155,7 @@ void WriteRigFile(const fs::path& path, const Rig& rig) {
 
 SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOptions& bo,
                               const fs::path& out_dir) {
-  const auto t_start = std::chrono::steady_clock::now();
+  const Stopwatch t_start;
   bo.Check();
   SimulateOptions o = options;
   o.ls_frames = 0;
@@ -263,7 +259,7 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   summary.width = W;
   summary.height = H;
   summary.frames = nf;
-  const auto t_ray = std::chrono::steady_clock::now();
+  const Stopwatch t_ray;
   {
     Progress progress("simulate board", H);
     ParallelForRows(
@@ -379,11 +375,11 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
         8);
     progress.Finish();
   }
-  summary.seconds_raycast = Seconds(t_ray);
+  summary.seconds_raycast = t_ray.Seconds();
   summary.lit_pixels = lit_pixels.load();
   summary.rays = static_cast<int64_t>(W) * H * S * S;
 
-  const auto t_frames = std::chrono::steady_clock::now();
+  const Stopwatch t_frames;
   auto fill = [&](const fs::path& dir) {
     fs::create_directories(dir / "frames");
     ParallelFor(nf, [&](int64_t f) {
@@ -434,8 +430,8 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
     WriteSessionJson(s);
   };
   WriteFolderAtomically(out_dir, fill);
-  summary.seconds_frames = Seconds(t_frames);
-  summary.seconds_total = Seconds(t_start);
+  summary.seconds_frames = t_frames.Seconds();
+  summary.seconds_total = t_start.Seconds();
   return summary;
 }
 
