@@ -2,16 +2,21 @@
 // boards at known poses in front of a rig with distortion on both devices, calibrated, compared
 // with the truth; then the coin and the empty mount reconstructed with the calibrated rig.
 
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <numbers>
 #include <sstream>
+#include <stdexcept>
 
 #include "capture/session.h"
 #include "core/error.h"
+#include "core/fs.h"
 #include "core/image_io.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
@@ -66,6 +71,34 @@ SimulateOptions BoardSimBase(const fs::path& rig_file) {
   return so;
 }
 
+// The twelve poses and the mount view are simulated once per build of this test binary and kept in
+// the build tree: ctest runs every test in its own process, and simulating the 13 views took 80-100
+// s a test. The cache is keyed on the binary's size and time (the simulator is linked in
+// statically, so any change to it makes a new key); a lock file serialises parallel test processes,
+// and the first one to build a new key removes the older caches.
+fs::path ViewCache() {
+  const fs::path exe = fs::read_symlink("/proc/self/exe");
+  const std::string key = std::to_string(fs::file_size(exe)) + "_" +
+                          std::to_string(fs::last_write_time(exe).time_since_epoch().count());
+  return fs::path(MESOSCAN_BINARY_DIR) / "test-cache" / ("calibrate_sim_views_" + key);
+}
+
+class FileLock {
+ public:
+  explicit FileLock(const fs::path& path) : fd_(open(path.c_str(), O_CREAT | O_RDWR, 0644)) {
+    if (fd_ < 0 || flock(fd_, LOCK_EX) != 0) throw std::runtime_error("cannot lock " + path.string());
+  }
+  ~FileLock() {
+    flock(fd_, LOCK_UN);
+    close(fd_);
+  }
+  FileLock(const FileLock&) = delete;
+  FileLock& operator=(const FileLock&) = delete;
+
+ private:
+  int fd_;
+};
+
 struct Fixture : public ::testing::Test {
   static void SetUpTestSuite() {
     Progress::SetEnabled(false);
@@ -83,17 +116,26 @@ struct Fixture : public ::testing::Test {
     views_ = new std::vector<CalibrationView>;
     CalibrateOptions co;
     co.board = Board();
+    const fs::path cache = ViewCache();
+    fs::create_directories(cache.parent_path());
+    const FileLock lock(cache.parent_path() / "calibrate_sim.lock");
+    if (!fs::exists(cache / "complete")) {
+      for (const auto& e : fs::directory_iterator(cache.parent_path()))
+        if (e.path().filename().string().rfind("calibrate_sim_views_", 0) == 0) fs::remove_all(e.path());
+      for (size_t i = 0; i < Poses().size(); ++i) {
+        bo.pose = Poses()[i];
+        so.seed = 100 + i;
+        SimulateBoard(so, bo, cache / ("view" + std::to_string(i)));
+      }
+      WriteTextFile(cache / "complete", "13 views\n");
+    }
     for (size_t i = 0; i < Poses().size(); ++i) {
-      bo.pose = Poses()[i];
-      so.seed = 100 + i;
-      const fs::path dir = Dir("view" + std::to_string(i));
-      SimulateBoard(so, bo, dir);
+      const fs::path dir = cache / ("view" + std::to_string(i));
       sessions_->push_back(dir);
       views_->push_back(DetectView(ReadSession(dir), co));
     }
   }
   static void TearDownTestSuite() {
-    for (const auto& d : *sessions_) fs::remove_all(d);
     fs::remove(*rig_file_);
     delete sessions_;
     delete views_;
