@@ -2,9 +2,12 @@
 
 #include <unistd.h>
 
+#include <cstring>
+
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "core/fs.h"
 #include "core/scan_folder.h"
 
 namespace mesoscan {
@@ -60,6 +63,46 @@ TEST(ImageIo, MissingFileNamesIt) {
     EXPECT_EQ(std::string(e.what()), "/nonexistent/frame.png: file not found");
     EXPECT_EQ(e.exit_code(), 3);
   }
+}
+
+// EXR headers whose sizes cannot be true are refused from the header, with a message that says so
+// (OpenEXR's C++ reader would first allocate what they claim: a 651-byte file with a 1.9 GB string
+// attribute, found by fuzz_frame, took seconds and gigabytes).
+void ExpectRefused(const fs::path& path, const std::string& why) {
+  try {
+    ReadImage(path);
+    FAIL() << path;
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_EQ(what.rfind(path.string() + ": cannot read image (", 0), 0u) << what;
+    EXPECT_NE(what.find(why), std::string::npos) << what;
+    EXPECT_EQ(e.exit_code(), 3);
+  }
+}
+
+TEST(ImageIo, ExrHeaderSizesThatCannotBeTrue) {
+  const fs::path dir = TempDir("exr_sizes");
+  HeightField hf;
+  hf.z = ImageF(4, 3, 1, 0.001f);
+  hf.pixel_size = 55e-6;
+  WriteHeightExr(dir / "height.exr", hf);
+  EXPECT_EQ(ReadImage(dir / "height.exr").width(), 4);  // the untouched file reads
+  const std::string bytes = ReadTextFile(dir / "height.exr");
+  auto patched = [&](const std::string& key, size_t offset, int32_t value, const std::string& name) {
+    std::string b = bytes;
+    const size_t at = b.find(key);
+    EXPECT_NE(at, std::string::npos) << key;
+    if (at != std::string::npos) std::memcpy(&b[at + key.size() + offset], &value, 4);
+    WriteTextFile(dir / name, b);
+    return dir / name;
+  };
+  // A string attribute claiming 1.9 GB (its size is the int32 after the type name).
+  ExpectRefused(patched(std::string("string") + '\0', 0, 1884225645, "long_string.exr"),
+                "not a valid EXR header");
+  // Twenty million scan lines (the data window's fourth int32, after the attribute's size): the
+  // chunk offset table alone would be megabytes in a file of a few hundred bytes.
+  ExpectRefused(patched(std::string("dataWindow") + '\0' + "box2i" + '\0', 4 + 12, 20000000, "tall.exr"),
+                "offset table");
 }
 
 }  // namespace
