@@ -9,6 +9,7 @@
 #include <array>
 #include <cmath>
 #include <complex>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <numbers>
@@ -846,6 +847,285 @@ int LensShiftBatchFitter::num_samples() const { return static_cast<int>(x_.size(
 const std::vector<double>& LensShiftBatchFitter::positions() const { return x_; }
 double LensShiftBatchFitter::nominal_frequency() const { return f0_; }
 const LensShiftFitOptions& LensShiftBatchFitter::options() const { return options_; }
+
+// ---------------------------------------------------------------------------------------------
+// LensShiftRowFitter: the fixed-frequency fit of 4 pixels at once.
+
+namespace {
+
+// Runtime dispatch: an AVX2 clone (4 double lanes in one register) and the baseline x86-64 one
+// (two SSE2 halves), chosen once by the loader; the binary still runs on any x86-64. No FMA in
+// either clone, so both round every operation the same way: the results do not depend on the
+// machine.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
+#define MESOSCAN_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MESOSCAN_SIMD_CLONES
+#endif
+
+constexpr int kLanes = 4;
+typedef double V4d __attribute__((vector_size(32)));
+typedef float V4f __attribute__((vector_size(16)));
+typedef int64_t V4l __attribute__((vector_size(32)));
+
+// atan(t) = t + t^3 P(t^2) for |t| <= tan(pi / 8): P interpolates (atan(s) - s) / s^3 at the 10
+// Chebyshev nodes in t^2 (computed at 50 digits); the largest error of the double evaluation
+// over the interval is 1.1e-16 (one rounding of atan).
+constexpr double kAtanP[10] = {-0.3333333333333325,  0.19999999999898407, -0.1428571426609662,
+                               0.11111109636534361,  -0.09090852557176049, 0.0769105515839315,
+                               -0.06649613695291669, 0.05736332165907643,  -0.04483334622272886,
+                               0.02275052699336167};
+constexpr double kTanPi8 = 0.41421356237309503;
+
+// The lanes' results (see FitBlock).
+struct BlockResult {
+  double phase[kLanes];      // phi at x = 0, (-pi, pi]
+  double cc[kLanes], cs[kLanes];  // a sin phi, a cos phi
+  double offset[kLanes];     // d (the constant, the centring reference added back)
+  double ssr[kLanes];        // sum of squared residuals
+  double y0[kLanes];         // sum of the samples about the first (not finite: a sample was not)
+  int64_t ok[kLanes];        // != 0: the 3x3 system was regular
+};
+
+// Four pixels (samples b[k * stride + l], l < 4, times gain[k]) at grid point with transposed
+// basis rows basis_km (nk x kFineMoments) and Gram Horner coefficients e1c, e2c (order top_g),
+// each lane at its own eps' (eps[l]): FastFit<double> + Evaluate(derivatives = false) of
+// LensShiftBatchFitter, lane by lane, and phi = atan2(cc, cs) to 1e-16 rad. Straight-line vector
+// code: no vector-typed argument or return value (their ABI differs between the clones).
+MESOSCAN_SIMD_CLONES
+void FitBlock(const double* basis_km, const double* basis_sum, int nk, const float* b,
+              size_t stride, const float* gain, const double* eps_in, const Cd* e1c,
+              const Cd* e2c, int top_g, BlockResult* r) {
+  // Accumulated about the first sample, then moved to the mean (the moments are linear in the
+  // samples: W_m(y - mu) = W_m(y) - mu sum_k B_mk), so that, as in FastFit, the moments scale
+  // with the amplitude, not the offset, and the Taylor truncation stays relative to the
+  // amplitude; one pass over the samples.
+  V4f v0;
+  std::memcpy(&v0, b, sizeof v0);
+  v0 *= gain[0];
+  V4d ref = __builtin_convertvector(v0, V4d);
+  const V4d zero = {0, 0, 0, 0};
+  V4d w0 = zero, w1 = zero, w2 = zero, w3 = zero, w4 = zero, w5 = zero, w6 = zero, w7 = zero,
+      y0 = zero, y2 = zero;
+  for (int k = 0; k < nk; ++k) {
+    V4f v;
+    std::memcpy(&v, b + k * stride, sizeof v);
+    v *= gain[k];
+    const V4d y = __builtin_convertvector(v, V4d) - ref;
+    const double* bk = basis_km + static_cast<size_t>(k) * kFineMoments;
+    w0 += bk[0] * y;
+    w1 += bk[1] * y;
+    w2 += bk[2] * y;
+    w3 += bk[3] * y;
+    w4 += bk[4] * y;
+    w5 += bk[5] * y;
+    w6 += bk[6] * y;
+    w7 += bk[7] * y;
+    y0 += y;
+    y2 += y * y;
+  }
+  const V4d sum_about_first = y0;
+  {
+    const double nd = nk;
+    const V4d mu = y0 / nd;
+    w0 -= mu * basis_sum[0];
+    w1 -= mu * basis_sum[1];
+    w2 -= mu * basis_sum[2];
+    w3 -= mu * basis_sum[3];
+    w4 -= mu * basis_sum[4];
+    w5 -= mu * basis_sum[5];
+    w6 -= mu * basis_sum[6];
+    w7 -= mu * basis_sum[7];
+    y2 -= mu * y0;
+    ref += mu;
+    y0 = zero;
+  }
+  // Horner coefficients i^m W_m / m! (Moments) and their value at eps' (order 3: the rows).
+  V4d eps;
+  std::memcpy(&eps, eps_in, sizeof eps);
+  const double inv2 = 0.5, inv6 = 0.5 / 3.0;
+  V4d zr = w7 * inv6, zi = -(w6 * inv6);  // m = 3: (im, -re)
+  zr = zr * eps + (-(w4 * inv2));         // m = 2: (-re, -im)
+  zi = zi * eps + (-(w5 * inv2));
+  zr = zr * eps + (-w3);                  // m = 1: (-im, re)
+  zi = zi * eps + w2;
+  zr = zr * eps + w0;                     // m = 0
+  zi = zi * eps + w1;
+  // Gram sums sum e^{i (w + eps) x} and sum e^{2 i (w + eps) x}.
+  V4d g1r = zero + e1c[top_g].real(), g1i = zero + e1c[top_g].imag();
+  V4d g2r = zero + e2c[top_g].real(), g2i = zero + e2c[top_g].imag();
+  for (int m = top_g - 1; m >= 0; --m) {
+    g1r = g1r * eps + e1c[m].real();
+    g1i = g1i * eps + e1c[m].imag();
+    g2r = g2r * eps + e2c[m].real();
+    g2i = g2i * eps + e2c[m].imag();
+  }
+  // Reduced 2x2 system after eliminating the constant (Evaluate).
+  const double nd = nk, inv_n = 1.0 / nd;
+  const V4d C = g1r, E = g1i;
+  const V4d a = 0.5 * (nd + g2r) - C * C * inv_n;
+  const V4d bb = 0.5 * g2i - C * E * inv_n;
+  const V4d d = 0.5 * (nd - g2r) - E * E * inv_n;
+  const V4d wu = zr - C * y0 * inv_n;
+  const V4d wv = zi - E * y0 * inv_n;
+  const V4d det = a * d - bb * bb;
+  const V4l ok = det > 1e-12 * nd * nd;
+  const V4d inv_det = 1.0 / det;
+  const V4d cc = (d * wu - bb * wv) * inv_det;  // a sin phi
+  const V4d cs = (a * wv - bb * wu) * inv_det;  // a cos phi
+  const V4d c2 = (y0 - C * cc - E * cs) * inv_n;
+  const V4d j = wu * cc + wv * cs + y0 * y0 * inv_n;
+  const V4d offset = c2 + ref, ssr = y2 - j;
+  // phi = atan2(cc, cs): atan of t = min / max in [0, 1], reduced to |u| <= tan(pi / 8).
+  const V4d ay = cc < 0 ? -cc : cc, ax = cs < 0 ? -cs : cs;
+  const V4d hi = ay > ax ? ay : ax, lo = ay > ax ? ax : ay;
+  const V4d t = hi > 0 ? lo / hi : zero;
+  const V4l big = t > kTanPi8;
+  const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
+  const V4d z = u * u;
+  V4d p = zero + kAtanP[9];
+  for (int m = 8; m >= 0; --m) p = p * z + kAtanP[m];
+  V4d at = u + u * z * p;
+  at = big ? at + 0.25 * kPi : at;
+  at = ay > ax ? 0.5 * kPi - at : at;
+  at = cs < 0 ? kPi - at : at;
+  at = cc < 0 ? -at : at;  // cc == -0.0 with cs < 0 gives pi, not -pi: (-pi, pi] as WrapPhase
+  std::memcpy(r->phase, &at, sizeof at);
+  std::memcpy(r->cc, &cc, sizeof cc);
+  std::memcpy(r->cs, &cs, sizeof cs);
+  std::memcpy(r->offset, &offset, sizeof offset);
+  std::memcpy(r->ssr, &ssr, sizeof ssr);
+  std::memcpy(r->y0, &sum_about_first, sizeof sum_about_first);
+  std::memcpy(r->ok, &ok, sizeof ok);
+}
+
+}  // namespace
+
+LensShiftRowFitter::LensShiftRowFitter(std::vector<double> x, double f0,
+                                       const LensShiftFitOptions& options)
+    : batch_(std::move(x), f0, options) {
+  if (options.fitter != LensShiftFitter::kFast || options.fit_frequency)
+    MESOSCAN_BAD_INPUT("lens-shift row fit: needs the fast fitter with a fixed frequency");
+  const LensShiftBatchFitter::Tables& t = *batch_.tables_;
+  const size_t nk = static_cast<size_t>(t.n);
+  basis_km_.resize(t.fine_d.size() * nk * kFineMoments);
+  basis_sum_.assign(t.fine_d.size() * kFineMoments, 0.0);
+  for (size_t g = 0; g < t.fine_d.size(); ++g)
+    for (size_t k = 0; k < nk; ++k)
+      for (int m = 0; m < kFineMoments; ++m) {
+        const double v = t.fine_d[g](m, static_cast<Eigen::Index>(k));
+        basis_km_[(g * nk + k) * kFineMoments + m] = v;
+        basis_sum_[g * kFineMoments + m] += v;
+      }
+}
+
+void LensShiftRowFitter::FitRow(const float* b, size_t stride, int n, const float* gain,
+                                const float* f, const uint8_t* use, LensShiftFit* out) const {
+  const LensShiftBatchFitter::Tables& t = *batch_.tables_;
+  const int nk = t.n;
+  const double f0 = batch_.f0_;
+  const LensShiftFitOptions& options = batch_.options_;
+  const double two_pi_x = kTwoPi * t.x_scale;
+  // The per-pixel path: the gain-normalised profile, contiguous.
+  auto fallback = [&](int j) {
+    std::array<float, kStackSamples> stack_b;
+    std::vector<float> heap_b;
+    float* p = stack_b.data();
+    if (nk > kStackSamples) {
+      heap_b.resize(nk);
+      p = heap_b.data();
+    }
+    for (int k = 0; k < nk; ++k) p[k] = b[static_cast<size_t>(k) * stride + j] * gain[k];
+    out[j] = batch_.Fit(p, 1, f[j]);
+  };
+  // Grid point of pixel j's frequency (FastFit's nearest), or false: off the tables.
+  auto grid_of = [&](int j, int* g) {
+    const double fj = f[j];
+    if (!std::isfinite(fj)) return false;
+    const double q = std::nearbyint((fj - f0) / t.h);
+    if (!(std::abs(q) <= t.grid_half)) return false;
+    *g = static_cast<int>(q);
+    return true;
+  };
+  const bool lanes_ok = nk >= 3;  // FastFit's n >= p
+  const double sqrt_2_over_n = std::sqrt(2.0 / nk);
+  for (int j0 = 0; j0 < n; j0 += kLanes) {
+    const int cnt = std::min(kLanes, n - j0);
+    bool lane[kLanes] = {false, false, false, false};
+    int g_block = 0;
+    bool have = false;
+    for (int l = 0; l < cnt; ++l) {
+      const int j = j0 + l;
+      if (!use[j]) continue;
+      int g = 0;
+      if (!lanes_ok || cnt < kLanes || !grid_of(j, &g) || (have && g != g_block)) {
+        fallback(j);
+        continue;
+      }
+      g_block = g;
+      have = true;
+      lane[l] = true;
+    }
+    if (!have) continue;
+    const double f_grid = f0 + g_block * t.h;
+    double eps[kLanes];
+    double max_eps = 0.0;
+    for (int l = 0; l < kLanes; ++l) {
+      eps[l] = lane[l] ? two_pi_x * (static_cast<double>(f[j0 + l]) - f_grid) : 0.0;
+      max_eps = std::max(max_eps, std::abs(eps[l]));
+    }
+    const int gi = g_block + t.grid_half;
+    const int top_g = NeededOrder(2.0 * max_eps, kGramOrder);
+    BlockResult r;
+    FitBlock(basis_km_.data() + static_cast<size_t>(gi) * nk * kFineMoments,
+             basis_sum_.data() + static_cast<size_t>(gi) * kFineMoments, nk, b + j0, stride, gain,
+             eps, t.e1[gi].data(), t.e2[gi].data(), top_g, &r);
+    for (int l = 0; l < kLanes; ++l) {
+      if (!lane[l]) continue;
+      const int j = j0 + l;
+      if (!std::isfinite(r.y0[l])) {  // a sample is NaN or Inf: the finite ones alone
+        fallback(j);
+        continue;
+      }
+      if (!r.ok[l] || !std::isfinite(r.ssr[l])) {
+        out[j] = InvalidFit(nk, f0);
+        continue;
+      }
+      // Finalize (fixed frequency, converged, phase already in (-pi, pi]) without its
+      // remainder() and atan2.
+      LensShiftFit& fit = out[j];
+      const double a = std::sqrt(r.cc[l] * r.cc[l] + r.cs[l] * r.cs[l]);
+      const double d = r.offset[l], ssr = std::max(r.ssr[l], 0.0);
+      fit.phase = r.phase[l];
+      fit.amplitude = a;
+      fit.frequency = f_grid + eps[l] / two_pi_x;
+      fit.offset = d;
+      fit.samples_used = nk;
+      fit.iterations = 0;
+      fit.converged = true;
+      fit.residual_rms = std::sqrt(ssr / nk);
+      double snr = 0.0;
+      fit.phase_sigma = 0.0;
+      if (nk > 3) {
+        const double sigma_a = std::sqrt(ssr / (nk - 3)) * sqrt_2_over_n;
+        fit.phase_sigma = a > 0.0 ? sigma_a / a : std::numeric_limits<double>::infinity();
+        snr = sigma_a > 0.0 ? a / sigma_a : std::numeric_limits<double>::infinity();
+      }
+      const bool finite = std::isfinite(fit.phase) && std::isfinite(a) &&
+                          std::isfinite(fit.frequency) && std::isfinite(d) &&
+                          std::isfinite(fit.residual_rms) && std::isfinite(fit.phase_sigma);
+      fit.valid = finite && nk > 3 && a > options.min_amplitude &&
+                  a > kMinRelativeAmplitude * std::abs(d) && snr >= options.min_amplitude_snr &&
+                  std::abs(fit.frequency - f0) <= options.max_frequency_deviation * std::abs(f0);
+      if (!fit.valid) {
+        for (double* v : {&fit.phase, &fit.amplitude, &fit.frequency, &fit.offset,
+                          &fit.residual_rms, &fit.phase_sigma})
+          if (!std::isfinite(*v)) *v = 0.0;
+      }
+    }
+  }
+}
 
 double LensShiftPhaseCrlbAt(double sigma, double amplitude, const std::vector<double>& x, double f,
                             double phase, bool fit_frequency) {
