@@ -150,10 +150,8 @@ class LensShiftRowFitter {
 
  private:
   LensShiftBatchFitter batch_;
-  // The fixed-frequency tables' basis rows transposed: per grid point, num_samples() x 8
-  // (frame-major, so that one frame's 8 basis values are one cache line).
-  std::vector<double> basis_km_;
-  std::vector<double> basis_sum_;  // per grid point, the 8 rows' sums over the samples
+  // Per grid point of the fixed-frequency tables, the 8 basis rows' sums over the samples.
+  std::vector<double> basis_sum_;
 };
 
 // Cramer-Rao lower bound on var(phi) (rad^2) for the model above with white Gaussian noise of
