@@ -107,9 +107,11 @@ double Atan2(double y, double x) {
   const double t = hi > 0.0 ? lo / hi : 0.0;
   const bool big = t > kTanPi8;
   const double u = big ? (t - 1.0) / (t + 1.0) : t;
-  const double z = u * u;
-  double p = kAtanP[9];
-  for (int m = 8; m >= 0; --m) p = p * z + kAtanP[m];
+  const double z = u * u, z2 = z * z, z4 = z2 * z2;
+  // Estrin's scheme (short dependency chains; the same 1.1e-16 over the interval).
+  const double p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
+                   z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
+                         z4 * (kAtanP[8] + kAtanP[9] * z));
   double at = u + u * z * p;
   if (big) at += 0.25 * kPi;
   if (ay > ax) at = 0.5 * kPi - at;
@@ -732,12 +734,22 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   // last one needed.
   constexpr double kQuadratic = 4.0;
   const double final_step = std::sqrt(eps_tol / kQuadratic);
+  // The statistical criterion (frequency_tolerance_sigma): the remaining error against the
+  // standard error of eps', sqrt(2 sigma^2 / -J'') with sigma^2 = (sum y^2 - J) / (n - 4).
+  const double sigma_factor =
+      options.frequency_tolerance_sigma > 0.0 && n > 4 ? 2.0 / (n - 4) : 0.0;
   while (!converged && iterations < options.max_iterations) {
     ++iterations;
     // Newton step on J'(eps') = 0 towards a maximum; uphill gradient step where J is not concave.
     double step = o.j2 < 0.0 ? -o.j1 / o.j2 : (o.j1 > 0.0 ? kMaxStep : -kMaxStep);
     step = std::clamp(step, -kMaxStep, kMaxStep);
-    if (o.j2 < 0.0 && std::abs(step) < final_step && std::abs(eps + step) <= kEvalRadius) {
+    double last_step = final_step;
+    if (sigma_factor > 0.0 && o.j2 < 0.0) {
+      const double var_eps = sigma_factor * std::max(y2 - o.j, 0.0) / -o.j2;
+      const double tol = options.frequency_tolerance_sigma * std::sqrt(var_eps);
+      if (tol > eps_tol) last_step = std::sqrt(tol / kQuadratic);
+    }
+    if (o.j2 < 0.0 && std::abs(step) < last_step && std::abs(eps + step) <= kEvalRadius) {
       // Converged: the remaining error after this Newton step is below the tolerance; take it
       // without a line search, extrapolating the coefficients to first order (their error is
       // O(step^2), below 1e-7 relative) and J to second order.
@@ -906,6 +918,9 @@ void LensShiftFitOptions::Check() const {
   if (!(frequency_tolerance > 0.0))
     MESOSCAN_BAD_INPUT("lens-shift fit: frequency_tolerance " << frequency_tolerance
                                                               << " must be > 0");
+  if (!(frequency_tolerance_sigma >= 0.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: frequency_tolerance_sigma " << frequency_tolerance_sigma
+                                                                    << " must be >= 0");
   if (!(max_frequency_deviation > 0.0 && max_frequency_deviation < 1.0))
     MESOSCAN_BAD_INPUT("lens-shift fit: max_frequency_deviation " << max_frequency_deviation
                                                                   << " must be in (0, 1)");
@@ -1141,9 +1156,10 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, const flo
   const V4d t = hi > 0 ? lo / hi : zero;
   const V4l big = t > kTanPi8;
   const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
-  const V4d z = u * u;
-  V4d p = zero + kAtanP[9];
-  for (int m = 8; m >= 0; --m) p = p * z + kAtanP[m];
+  const V4d z = u * u, z2 = z * z, z4 = z2 * z2;
+  const V4d p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
+                z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
+                      z4 * (kAtanP[8] + kAtanP[9] * z));
   V4d at = u + u * z * p;
   at = big ? at + 0.25 * kPi : at;
   at = ay > ax ? 0.5 * kPi - at : at;

@@ -45,6 +45,12 @@ struct LensShiftFitOptions {
   int max_iterations = 20;
   // Convergence: stop when a step changes f by less than this (cycles per projector px), > 0.
   double frequency_tolerance = 1e-7;
+  // kFast also stops once the error left after its last Newton step (~4 step^2) is below this
+  // fraction of the frequency's standard error (estimated from the residual and the curvature
+  // of the objective), >= 0; 0: frequency_tolerance alone. A frequency error of 1e-3 of its
+  // noise moves phi by far less: phi at the centred x = 0 is decoupled from f to first order.
+  // Noise-free profiles have a zero standard error, so frequency_tolerance still holds there.
+  double frequency_tolerance_sigma = 1e-2;
   // Fit the per-pixel frequency (4 parameters). false: f stays at the starting frequency and
   // only (phi, a, d) are fitted (3 parameters, a linear problem).
   bool fit_frequency = true;
