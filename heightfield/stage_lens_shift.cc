@@ -88,13 +88,15 @@ std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h)
     for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
   }
   std::vector<float> out(f.size());
-  for (size_t i = 0; i < f.size(); ++i) {
-    double t[6];
-    terms(i, t);
-    double v = 0;
-    for (int q = 0; q < 6; ++q) v += t[q] * c(q);
-    out[i] = static_cast<float>(v);
-  }
+  ParallelForRows(h, [&](int y0, int y1) {
+    for (size_t i = static_cast<size_t>(y0) * w; i < static_cast<size_t>(y1) * w; ++i) {
+      double t[6];
+      terms(i, t);
+      double v = 0;
+      for (int q = 0; q < 6; ++q) v += t[q] * c(q);
+      out[i] = static_cast<float>(v);
+    }
+  });
   return out;
 }
 
@@ -170,10 +172,19 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
       for (int y = y0; y < y1; ++y) {
         if (!subset.Row(y)) continue;
         const size_t i0 = static_cast<size_t>(y) * w;
-        for (int k = 0; k < nls; ++k) {
-          stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
-          const float g = inv_gain[ls_stack[k]];
-          for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+        if (subset.stride > 1 && !subset.complement) {
+          // A sparse subset (the frequency pass: 1 pixel in stride^2): only its samples.
+          for (int k = 0; k < nls; ++k) {
+            const float g = inv_gain[ls_stack[k]];
+            for (size_t j = 0; j < n; j += subset.stride)
+              buf[k * n + j] = stack.Value(ls_stack[k], i0 + j) * g;
+          }
+        } else {
+          for (int k = 0; k < nls; ++k) {
+            stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+            const float g = inv_gain[ls_stack[k]];
+            for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+          }
         }
         for (size_t j = 0; j < n; ++j) {
           const size_t i = i0 + j;
