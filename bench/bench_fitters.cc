@@ -217,10 +217,123 @@ void PipelineMix(std::FILE* out, int subsample) {
   }
 }
 
+
+// The fast fitter's statistical stopping rule (frequency_tolerance_sigma, default 1e-3) against
+// frequency_tolerance alone (sigma 0): on the bench's profiles (a / sigma = 20) and on clean
+// ones (a / sigma = 1000), the largest phase and frequency differences against their noise, and
+// the mean Newton iterations of both.
+void ToleranceCheck(std::FILE* out) {
+  for (double snr : {20.0, 1000.0}) {
+    for (int n : {15, 50, 200}) {
+      ProfileSet set = MakeProfiles(n, 2000, 0.5, 900 + n);
+      if (snr != 20.0) {
+        std::mt19937_64 rng(11);
+        std::normal_distribution<double> noise(0.0, 1.0);
+        set.sigma = set.amplitude / snr;
+        for (int p = 0; p < set.count; ++p)
+          for (int k = 0; k < n; ++k)
+            set.b[static_cast<size_t>(p) * n + k] = static_cast<float>(
+                set.amplitude * std::sin(set.phase[p] + 2 * kPi * set.frequency[p] * set.x[k]) +
+                0.5 + set.sigma * noise(rng));
+      }
+      LensShiftFitOptions loose, strict;
+      strict.frequency_tolerance_sigma = 0.0;
+      const LensShiftBatchFitter fl(set.x, kF0, loose), fs(set.x, kF0, strict);
+      double worst_phi = 0, worst_f = 0, it_l = 0, it_s = 0;
+      for (int p = 0; p < set.count; ++p) {
+        const float* b = set.b.data() + static_cast<size_t>(p) * n;
+        const LensShiftFit a = fl.Fit(b), c = fs.Fit(b);
+        worst_phi = std::max(worst_phi, std::abs(std::remainder(a.phase - c.phase, 2 * kPi)));
+        worst_f = std::max(worst_f, std::abs(a.frequency - c.frequency));
+        it_l += a.iterations;
+        it_s += c.iterations;
+      }
+      // Frequency sigma of the 4-parameter fit: the CRLB of f (Fisher information at phase 0).
+      const double sigma_phi = std::sqrt(LensShiftPhaseCrlb(set.sigma, set.amplitude, set.x, kF0));
+      std::fprintf(out,
+                   "stopping_rule,N=%d,a/sigma=%.0f,max_dphi=%.2e,sigma_phi=%.2e,max_df=%.2e,"
+                   "iterations=%.2f,strict_iterations=%.2f\n",
+                   n, snr, worst_phi, sigma_phi, worst_f, it_l / set.count, it_s / set.count);
+    }
+  }
+}
+
+// The pipeline's fixed-frequency pass as it runs now: LensShiftRowFitter::FitRow on rows of
+// 2176 pixels (samples frame-major, per-frame gains, per-pixel frequency varying smoothly along
+// the row) against LensShiftBatchFitter::Fit of each pixel's strided profile (the per-pixel path
+// it replaced). Thread CPU ns per pixel (fastest of 5 interleaved rounds) and the largest phase
+// difference of the two, against sigma_phi.
+void RowKernel(std::FILE* out) {
+  constexpr int kWidth = 2176, kRows = 16;
+  for (int n : {25, 50, 100}) {
+    const ProfileSet set = MakeProfiles(n, kWidth * kRows, 0.5, 300 + n);
+    std::mt19937_64 rng(5);
+    std::normal_distribution<double> jitter(0.0, 0.005);
+    std::vector<float> gain(n);
+    for (float& g : gain) g = static_cast<float>(1.0 + jitter(rng));
+    // Frame-major rows: rows[(r * n + k) * kWidth + j] = pixel (r, j), frame k, divided by the
+    // gain (the fit multiplies it back); frequency map: +-1 % along the row.
+    std::vector<float> rows(static_cast<size_t>(kRows) * n * kWidth), freq(kWidth * kRows);
+    for (int r = 0; r < kRows; ++r)
+      for (int j = 0; j < kWidth; ++j) {
+        const int p = r * kWidth + j;
+        freq[p] = static_cast<float>(kF0 * (0.99 + 0.02 * j / kWidth));
+        for (int k = 0; k < n; ++k)
+          rows[(static_cast<size_t>(r) * n + k) * kWidth + j] =
+              set.b[static_cast<size_t>(p) * n + k] / gain[k];
+      }
+    LensShiftFitOptions o;
+    o.fit_frequency = false;
+    const LensShiftRowFitter row_fitter(set.x, kF0, o);
+    const LensShiftBatchFitter batch(set.x, kF0, o);
+    std::vector<uint8_t> use(kWidth, 1);
+    std::vector<LensShiftFit> fits_row(kWidth * kRows), fits_px(kWidth * kRows);
+    std::vector<float> buf(n);
+    double ns_row = 1e300, ns_px = 1e300;
+    for (int round = 0; round < 5; ++round) {
+      double t0 = ThreadCpuSeconds();
+      for (int r = 0; r < kRows; ++r)
+        row_fitter.FitRow(rows.data() + static_cast<size_t>(r) * n * kWidth, kWidth, kWidth,
+                          gain.data(), freq.data() + r * kWidth, use.data(),
+                          fits_row.data() + r * kWidth);
+      ns_row = std::min(ns_row, 1e9 * (ThreadCpuSeconds() - t0) / (kWidth * kRows));
+      t0 = ThreadCpuSeconds();
+      for (int r = 0; r < kRows; ++r) {
+        const float* row = rows.data() + static_cast<size_t>(r) * n * kWidth;
+        for (int j = 0; j < kWidth; ++j) {
+          for (int k = 0; k < n; ++k) buf[k] = row[static_cast<size_t>(k) * kWidth + j] * gain[k];
+          fits_px[r * kWidth + j] = batch.Fit(buf.data(), 1, freq[r * kWidth + j]);
+        }
+      }
+      ns_px = std::min(ns_px, 1e9 * (ThreadCpuSeconds() - t0) / (kWidth * kRows));
+    }
+    double worst = 0;
+    int valid_diff = 0;
+    for (size_t p = 0; p < fits_row.size(); ++p) {
+      valid_diff += fits_row[p].valid != fits_px[p].valid;
+      worst = std::max(worst,
+                       std::abs(std::remainder(fits_row[p].phase - fits_px[p].phase, 2 * kPi)));
+    }
+    const double sigma_phi =
+        std::sqrt(LensShiftPhaseCrlb(set.sigma, set.amplitude, set.x, kF0, false));
+    std::fprintf(out,
+                 "row_kernel,N=%d,row_ns_per_pixel=%.1f,per_pixel_ns=%.1f,speedup=%.2f,"
+                 "max_dphi=%.2e,sigma_phi=%.2e,validity_differs=%d\n",
+                 n, ns_row, ns_px, ns_px / ns_row, worst, sigma_phi, valid_diff);
+  }
+}
+
 }  // namespace
 }  // namespace mesoscan
 
 int main(int argc, char** argv) {
+  // MESOSCAN_BENCH_ROW_ONLY=1: only the row-kernel figures (stdout).
+  const char* row_only = std::getenv("MESOSCAN_BENCH_ROW_ONLY");
+  if (row_only && std::string(row_only) == "1") {
+    mesoscan::RowKernel(stdout);
+    mesoscan::ToleranceCheck(stdout);
+    return 0;
+  }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();
@@ -290,6 +403,10 @@ int main(int argc, char** argv) {
   // Full resolution: 3.1 Mpx, stride 5 in x and y (reconstruct.cc kFrequencySamples).
   mesoscan::PipelineMix(csv, 25);
   mesoscan::PipelineMix(stdout, 25);
+  mesoscan::RowKernel(csv);
+  mesoscan::RowKernel(stdout);
+  mesoscan::ToleranceCheck(csv);
+  mesoscan::ToleranceCheck(stdout);
   std::fclose(csv);
   std::printf("wrote %s\n", path.c_str());
   return 0;

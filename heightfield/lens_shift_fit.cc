@@ -9,6 +9,7 @@
 #include <array>
 #include <cmath>
 #include <complex>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <numbers>
@@ -64,11 +65,58 @@ constexpr double kMinRelativeAmplitude = 1e-5;
 
 using Cd = std::complex<double>;
 
+// Runtime dispatch: an AVX2 clone (4 double lanes in one register) and the baseline x86-64 one
+// (two SSE2 halves), chosen once by the loader; the binary still runs on any x86-64. No FMA in
+// either clone, so both round every operation the same way: the results do not depend on the
+// machine.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
+#define MESOSCAN_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MESOSCAN_SIMD_CLONES
+#endif
+
+typedef double V4d __attribute__((vector_size(32)));
+typedef float V4f __attribute__((vector_size(16)));
+typedef double V2d __attribute__((vector_size(16)));
+typedef int64_t V4l __attribute__((vector_size(32)));
+
 double WrapPhase(double phi) {
-  // To (-pi, pi].
+  // To (-pi, pi] (already there: atan2's range, but for -pi).
+  if (phi > -kPi && phi <= kPi) return phi;
   phi = std::remainder(phi, kTwoPi);
   if (phi <= -kPi) phi += kTwoPi;
   return phi;
+}
+
+// atan(t) = t + t^3 P(t^2) for |t| <= tan(pi / 8): P interpolates (atan(s) - s) / s^3 at the 10
+// Chebyshev nodes in t^2 (computed at 50 digits); the largest error of the double evaluation
+// over the interval is 1.1e-16 (one rounding of atan).
+constexpr double kAtanP[10] = {-0.3333333333333325,  0.19999999999898407, -0.1428571426609662,
+                               0.11111109636534361,  -0.09090852557176049, 0.0769105515839315,
+                               -0.06649613695291669, 0.05736332165907643,  -0.04483334622272886,
+                               0.02275052699336167};
+constexpr double kTanPi8 = 0.41421356237309503;
+
+// atan2(y, x) in [-pi, pi] to ~2 ulp (the same steps as FitBlock's lanes; glibc's atan2 is
+// correctly rounded and several times slower). atan2(0, 0) = 0; NaN in, NaN out.
+double Atan2(double y, double x) {
+  if (std::isnan(x) || std::isnan(y)) return x + y;
+  const double ay = std::abs(y), ax = std::abs(x);
+  const double hi = std::max(ay, ax), lo = std::min(ay, ax);
+  const double t = hi > 0.0 ? lo / hi : 0.0;
+  const bool big = t > kTanPi8;
+  const double u = big ? (t - 1.0) / (t + 1.0) : t;
+  const double z = u * u, z2 = z * z, z4 = z2 * z2;
+  // Estrin's scheme (short dependency chains; the same 1.1e-16 over the interval).
+  const double p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
+                   z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
+                         z4 * (kAtanP[8] + kAtanP[9] * z));
+  double at = u + u * z * p;
+  if (big) at += 0.25 * kPi;
+  if (ay > ax) at = 0.5 * kPi - at;
+  if (x < 0) at = kPi - at;
+  return y < 0 ? -at : at;
 }
 
 // Order needed for a Taylor series in r = |argument| whose m-th coefficient is bounded by
@@ -372,6 +420,11 @@ struct LensShiftBatchFitter::Tables {
   // Per grid point: Horner coefficients in eps' of sum e^{i (w_j + eps) x} and of
   // sum e^{2 i (w_j + eps) x}.
   std::vector<std::array<Cd, kGramOrder + 1>> e1, e2;
+  // The same interleaved per order m: e1 re, e1 im, e2 re, e2 im (one vector per order).
+  std::vector<std::array<double, 4 * (kGramOrder + 1)>> e12;
+  // Per grid point: the double basis rows transposed, n x rows (frame-major: one sample's
+  // rows are contiguous), for AccumulateMoments.
+  std::vector<std::vector<double>> km;
 };
 
 namespace {
@@ -383,13 +436,49 @@ struct Objective {
   bool ok = false;
 };
 
+// The Taylor polynomials of Evaluate with two derivatives at eps (Horner): z_coef to order
+// top_z into z[0..2] (value, first, second derivative), and the interleaved Gram coefficients
+// e12 (e1 re, e1 im, e2 re, e2 im per order) to order top_g into e[0..2] (4 values each). Each
+// lane rounds as the complex scalar recurrences would.
+MESOSCAN_SIMD_CLONES
+void HornerWithDerivatives(const Cd* z_coef, int top_z, const double* e12, int top_g, double eps,
+                           double* z_out, double* e_out) {
+  const V4d zero4 = {0, 0, 0, 0};
+  V4d v, d1 = zero4, d2 = zero4;
+  std::memcpy(&v, e12 + 4 * top_g, sizeof v);
+  for (int m = top_g - 1; m >= 0; --m) {
+    V4d c;
+    std::memcpy(&c, e12 + 4 * m, sizeof c);
+    d2 = d2 * eps + (d1 + d1);
+    d1 = d1 * eps + v;
+    v = v * eps + c;
+  }
+  std::memcpy(e_out, &v, sizeof v);
+  std::memcpy(e_out + 4, &d1, sizeof d1);
+  std::memcpy(e_out + 8, &d2, sizeof d2);
+  const V2d zero2 = {0, 0};
+  V2d zv, z1 = zero2, z2 = zero2;
+  std::memcpy(&zv, z_coef + top_z, sizeof zv);
+  for (int m = top_z - 1; m >= 0; --m) {
+    V2d c;
+    std::memcpy(&c, z_coef + m, sizeof c);
+    z2 = z2 * eps + (z1 + z1);
+    z1 = z1 * eps + zv;
+    zv = zv * eps + c;
+  }
+  std::memcpy(z_out, &zv, sizeof zv);
+  std::memcpy(z_out + 2, &z1, sizeof z1);
+  std::memcpy(z_out + 4, &z2, sizeof z2);
+}
+
 // J(eps') = q^T G^-1 q (variable projection: sum y^2 - J is the residual of the best linear fit
 // at that frequency), with derivatives for Newton. G = [[A, B, C], [B, D, E], [C, E, n]] over
 // the basis (cos, sin, 1) and q = (u, v, y0); the constant column is eliminated by its Schur
 // complement, leaving a 2x2 system (scalar code: this runs a few times per pixel).
 Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
                    const std::array<Cd, kGramOrder + 1>& e1c,
-                   const std::array<Cd, kGramOrder + 1>& e2c, double n, double eps,
+                   const std::array<Cd, kGramOrder + 1>& e2c,
+                   const std::array<double, 4 * (kGramOrder + 1)>& e12c, double n, double eps,
                    bool derivatives) {
   Objective o;
   Cd z, z1 = 0.0, z2 = 0.0, e1, e11 = 0.0, e12 = 0.0, e2, e21 = 0.0, e22 = 0.0;
@@ -404,19 +493,12 @@ Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
     const int top_z = std::min(NeededOrder(std::abs(eps), kOrder) + extra, kOrder);
     const int top_g = std::min(NeededOrder(2.0 * std::abs(eps), kGramOrder) + extra, kGramOrder);
     if (derivatives) {
-      Horner<kOrder + 1>(z_coef, eps, top_z, &z, &z1, &z2);
-      // E1 and E2 in one loop: two independent dependency chains.
-      Cd v1 = e1c[top_g], v2 = e2c[top_g];
-      for (int m = top_g - 1; m >= 0; --m) {
-        e12 = e12 * eps + 2.0 * e11;
-        e22 = e22 * eps + 2.0 * e21;
-        e11 = e11 * eps + v1;
-        e21 = e21 * eps + v2;
-        v1 = v1 * eps + e1c[m];
-        v2 = v2 * eps + e2c[m];
-      }
-      e1 = v1;
-      e2 = v2;
+      double zd[6], ed[12];
+      HornerWithDerivatives(z_coef.data(), top_z, e12c.data(), top_g, eps, zd, ed);
+      z = Cd(zd[0], zd[1]), z1 = Cd(zd[2], zd[3]), z2 = Cd(zd[4], zd[5]);
+      e1 = Cd(ed[0], ed[1]), e2 = Cd(ed[2], ed[3]);
+      e11 = Cd(ed[4], ed[5]), e21 = Cd(ed[6], ed[7]);
+      e12 = Cd(ed[8], ed[9]), e22 = Cd(ed[10], ed[11]);
     } else {
       z = HornerValue<kOrder + 1>(z_coef, eps, top_z);
       Cd v1 = e1c[top_g], v2 = e2c[top_g];
@@ -506,6 +588,93 @@ void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder +
 
 namespace {
 
+
+// w[r] = sum_k basis_km[k * 4 kVec + r] y_k, y0 = sum_k y_k, y2 = sum_k y_k^2 with
+// y_k = b[k] - mean in double: the moments of the centred profile (two sets of accumulators
+// for even and odd k, added at the end; y0 and y2 in a second, 4-wide loop, which keeps the
+// first one within the 16 vector registers).
+template <int kVec>
+inline __attribute__((always_inline)) void AccumulateMomentsT(const double* basis_km,
+                                                               const float* b, int n,
+                                                               double mean, double* w,
+                                                               double* y0_out, double* y2_out) {
+  constexpr int kRows = 4 * kVec;
+  const V4d zero = {0, 0, 0, 0};
+  V4d acc0[kVec], acc1[kVec];
+  for (int v = 0; v < kVec; ++v) acc0[v] = acc1[v] = zero;
+  int k = 0;
+  for (; k + 1 < n; k += 2) {
+    const V4d va = zero + (static_cast<double>(b[k]) - mean);
+    const V4d vb = zero + (static_cast<double>(b[k + 1]) - mean);
+    const double* ra = basis_km + static_cast<size_t>(k) * kRows;
+    for (int v = 0; v < kVec; ++v) {
+      V4d ba, bb;
+      std::memcpy(&ba, ra + 4 * v, sizeof ba);
+      std::memcpy(&bb, ra + kRows + 4 * v, sizeof bb);
+      acc0[v] += ba * va;
+      acc1[v] += bb * vb;
+    }
+  }
+  if (k < n) {
+    const V4d va = zero + (static_cast<double>(b[k]) - mean);
+    const double* ra = basis_km + static_cast<size_t>(k) * kRows;
+    for (int v = 0; v < kVec; ++v) {
+      V4d ba;
+      std::memcpy(&ba, ra + 4 * v, sizeof ba);
+      acc0[v] += ba * va;
+    }
+  }
+  for (int v = 0; v < kVec; ++v) {
+    const V4d s = acc0[v] + acc1[v];
+    std::memcpy(w + 4 * v, &s, sizeof s);
+  }
+  V4d s0 = zero, s2 = zero;
+  for (k = 0; k + 3 < n; k += 4) {
+    V4f f;
+    std::memcpy(&f, b + k, sizeof f);
+    const V4d y = __builtin_convertvector(f, V4d) - mean;
+    s0 += y;
+    s2 += y * y;
+  }
+  double y0 = (s0[0] + s0[1]) + (s0[2] + s0[3]), y2 = (s2[0] + s2[1]) + (s2[2] + s2[3]);
+  for (; k < n; ++k) {
+    const double y = static_cast<double>(b[k]) - mean;
+    y0 += y;
+    y2 += y * y;
+  }
+  *y0_out = y0;
+  *y2_out = y2;
+}
+
+MESOSCAN_SIMD_CLONES
+void AccumulateMoments(int rows, const double* basis_km, const float* b, int n, double mean,
+                       double* w, double* y0, double* y2) {
+  if (rows == kMoments)
+    AccumulateMomentsT<kMoments / 4>(basis_km, b, n, mean, w, y0, y2);
+  else
+    AccumulateMomentsT<kFineMoments / 4>(basis_km, b, n, mean, w, y0, y2);
+}
+
+// z_coef[m] = i^m w_m / m! from the moments w (2 rows per order m: cos, sin; kRows rows).
+void ZCoefficients(const double* w, int rows, std::array<Cd, kOrder + 1>* z_coef) {
+  static_assert(kMoments % 4 == 0 && kFineMoments % 4 == 0);
+  double inv_fact = 1.0;
+  for (int m = 0; m <= kOrder; ++m) {
+    if (m > 0) inv_fact /= m;
+    if (2 * m >= rows) {
+      (*z_coef)[m] = 0.0;
+      continue;
+    }
+    const double re = inv_fact * w[2 * m], im = inv_fact * w[2 * m + 1];
+    switch (m & 3) {
+      case 0: (*z_coef)[m] = Cd(re, im); break;
+      case 1: (*z_coef)[m] = Cd(-im, re); break;
+      case 2: (*z_coef)[m] = Cd(-re, -im); break;
+      default: (*z_coef)[m] = Cd(im, -re); break;
+    }
+  }
+}
+
 // The kFast fit of one all-finite profile b (n samples, gathered contiguously).
 template <typename Scalar>
 LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, float mean,
@@ -517,11 +686,14 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   // then scale with the amplitude, not with the offset: float accumulation and Taylor
   // truncation errors stay relative to a. Subtracted in the accumulation type: exact in double,
   // so the fit does not depend on the float rounding of the mean.
-  const Eigen::Map<const Eigen::ArrayXf> bv(b, n);
-  Eigen::Map<Eigen::Array<Scalar, Eigen::Dynamic, 1>> yv(y, n);
-  yv = bv.template cast<Scalar>() - static_cast<Scalar>(mean);
-  const double y0 = static_cast<double>(yv.sum());
-  const double y2 = static_cast<double>(yv.square().sum());
+  double y0 = 0.0, y2 = 0.0;
+  if constexpr (std::is_same_v<Scalar, float>) {
+    const Eigen::Map<const Eigen::ArrayXf> bv(b, n);
+    Eigen::Map<Eigen::Array<Scalar, Eigen::Dynamic, 1>> yv(y, n);
+    yv = bv.template cast<Scalar>() - static_cast<Scalar>(mean);
+    y0 = static_cast<double>(yv.sum());
+    y2 = static_cast<double>(yv.square().sum());
+  }
   const double two_pi_x = kTwoPi * t.x_scale;
   // Grid point nearest to the starting frequency.
   auto nearest = [&](double f) {
@@ -539,16 +711,18 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
       else
         Moments<float, kMoments>(t.basis_f[g], y, n, &z_coef);
     } else {
-      if (t.fine)
-        Moments<double, kFineMoments>(t.fine_d[g], y, n, &z_coef);
-      else
-        Moments<double, kMoments>(t.basis_d[g], y, n, &z_coef);
+      // Centring, y0, y2 and the moments in one pass (the same y0 and y2 every time).
+      const int rows = t.fine ? kFineMoments : kMoments;
+      double w[kMoments];
+      AccumulateMoments(rows, t.km[g].data(), b, n, static_cast<double>(mean), w, &y0, &y2);
+      ZCoefficients(w, rows, &z_coef);
     }
   };
   moments(j);
   const double nd = n;
   auto eval = [&](double e, bool derivs) {
-    return Evaluate(z_coef, y0, t.e1[j + t.grid_half], t.e2[j + t.grid_half], nd, e, derivs);
+    return Evaluate(z_coef, y0, t.e1[j + t.grid_half], t.e2[j + t.grid_half],
+                    t.e12[j + t.grid_half], nd, e, derivs);
   };
   Objective o = eval(eps, options.fit_frequency);
   if (!o.ok) return InvalidFit(n, f0);
@@ -560,12 +734,22 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   // last one needed.
   constexpr double kQuadratic = 4.0;
   const double final_step = std::sqrt(eps_tol / kQuadratic);
+  // The statistical criterion (frequency_tolerance_sigma): the remaining error against the
+  // standard error of eps', sqrt(2 sigma^2 / -J'') with sigma^2 = (sum y^2 - J) / (n - 4).
+  const double sigma_factor =
+      options.frequency_tolerance_sigma > 0.0 && n > 4 ? 2.0 / (n - 4) : 0.0;
   while (!converged && iterations < options.max_iterations) {
     ++iterations;
     // Newton step on J'(eps') = 0 towards a maximum; uphill gradient step where J is not concave.
     double step = o.j2 < 0.0 ? -o.j1 / o.j2 : (o.j1 > 0.0 ? kMaxStep : -kMaxStep);
     step = std::clamp(step, -kMaxStep, kMaxStep);
-    if (o.j2 < 0.0 && std::abs(step) < final_step && std::abs(eps + step) <= kEvalRadius) {
+    double last_step = final_step;
+    if (sigma_factor > 0.0 && o.j2 < 0.0) {
+      const double var_eps = sigma_factor * std::max(y2 - o.j, 0.0) / -o.j2;
+      const double tol = options.frequency_tolerance_sigma * std::sqrt(var_eps);
+      if (tol > eps_tol) last_step = std::sqrt(tol / kQuadratic);
+    }
+    if (o.j2 < 0.0 && std::abs(step) < last_step && std::abs(eps + step) <= kEvalRadius) {
       // Converged: the remaining error after this Newton step is below the tolerance; take it
       // without a line search, extrapolating the coefficients to first order (their error is
       // O(step^2), below 1e-7 relative) and J to second order.
@@ -610,7 +794,7 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   }
   const double f = f0 + j * t.h + eps / two_pi_x;
   // Model y = c0 cos + c1 sin + c2 = a sin(phi + theta) + c2: c0 = a sin phi, c1 = a cos phi.
-  const double phi = std::atan2(o.c[0], o.c[1]);
+  const double phi = Atan2(o.c[0], o.c[1]);
   const double a = std::sqrt(o.c[0] * o.c[0] + o.c[1] * o.c[1]);  // data units: no overflow
   const double ssr = y2 - o.j;
   return Finalize(phi, a, f, o.c[2] + mean, ssr, n, iterations, converged, f0, options);
@@ -654,6 +838,8 @@ std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vecto
   t->fine_d.resize(fine ? grid : 0);
   t->e1.resize(grid);
   t->e2.resize(grid);
+  t->e12.resize(grid);
+  t->km.resize(grid);
   Eigen::Matrix<double, kMoments, Eigen::Dynamic, Eigen::RowMajor> bd(kMoments, n);
   for (int g = 0; g < grid; ++g) {
     const double fj = f0 + (g - t->grid_half) * t->h;
@@ -674,6 +860,10 @@ std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vecto
         tm *= tk;
       }
     }
+    const int rows = fine ? kFineMoments : kMoments;
+    t->km[g].resize(static_cast<size_t>(n) * rows);
+    for (int k = 0; k < n; ++k)
+      for (int r = 0; r < rows; ++r) t->km[g][static_cast<size_t>(k) * rows + r] = bd(r, k);
     if (fine) {
       t->fine_d[g] = bd.topRows<kFineMoments>();
       t->fine_f[g] = t->fine_d[g].cast<float>();
@@ -689,6 +879,10 @@ std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vecto
       if (m > 0) inv_fact /= m, i1 *= Cd(0.0, 1.0), i2 *= Cd(0.0, 2.0);
       t->e1[g][m] = i1 * inv_fact * p1[m];
       t->e2[g][m] = i2 * inv_fact * p2[m];
+      t->e12[g][4 * m] = t->e1[g][m].real();
+      t->e12[g][4 * m + 1] = t->e1[g][m].imag();
+      t->e12[g][4 * m + 2] = t->e2[g][m].real();
+      t->e12[g][4 * m + 3] = t->e2[g][m].imag();
     }
   }
   return t;
@@ -724,6 +918,9 @@ void LensShiftFitOptions::Check() const {
   if (!(frequency_tolerance > 0.0))
     MESOSCAN_BAD_INPUT("lens-shift fit: frequency_tolerance " << frequency_tolerance
                                                               << " must be > 0");
+  if (!(frequency_tolerance_sigma >= 0.0))
+    MESOSCAN_BAD_INPUT("lens-shift fit: frequency_tolerance_sigma " << frequency_tolerance_sigma
+                                                                    << " must be >= 0");
   if (!(max_frequency_deviation > 0.0 && max_frequency_deviation < 1.0))
     MESOSCAN_BAD_INPUT("lens-shift fit: max_frequency_deviation " << max_frequency_deviation
                                                                   << " must be in (0, 1)");
@@ -846,6 +1043,259 @@ int LensShiftBatchFitter::num_samples() const { return static_cast<int>(x_.size(
 const std::vector<double>& LensShiftBatchFitter::positions() const { return x_; }
 double LensShiftBatchFitter::nominal_frequency() const { return f0_; }
 const LensShiftFitOptions& LensShiftBatchFitter::options() const { return options_; }
+
+// ---------------------------------------------------------------------------------------------
+// LensShiftRowFitter: the fixed-frequency fit of 4 pixels at once.
+
+namespace {
+
+constexpr int kLanes = 4;
+
+// The lanes' results (see FitBlock).
+struct BlockResult {
+  double phase[kLanes];      // phi at x = 0, (-pi, pi]
+  double cc[kLanes], cs[kLanes];  // a sin phi, a cos phi
+  double offset[kLanes];     // d (the constant, the centring reference added back)
+  double ssr[kLanes];        // sum of squared residuals
+  double y0[kLanes];         // sum of the samples about the first (not finite: a sample was not)
+  int64_t ok[kLanes];        // != 0: the 3x3 system was regular
+};
+
+// Four pixels (samples b[k * stride + l], l < 4, times gain[k]) at grid point with transposed
+// basis rows basis_km (nk x kFineMoments) and Gram Horner coefficients e1c, e2c (order top_g),
+// each lane at its own eps' (eps[l]): FastFit<double> + Evaluate(derivatives = false) of
+// LensShiftBatchFitter, lane by lane, and phi = atan2(cc, cs) to 1e-16 rad. Straight-line vector
+// code: no vector-typed argument or return value (their ABI differs between the clones).
+MESOSCAN_SIMD_CLONES
+void FitBlock(const double* basis_km, const double* basis_sum, int nk, const float* b,
+              size_t stride, const float* gain, const double* eps_in, const Cd* e1c,
+              const Cd* e2c, int top_g, BlockResult* r) {
+  // Accumulated about the first sample, then moved to the mean (the moments are linear in the
+  // samples: W_m(y - mu) = W_m(y) - mu sum_k B_mk), so that, as in FastFit, the moments scale
+  // with the amplitude, not the offset, and the Taylor truncation stays relative to the
+  // amplitude; one pass over the samples.
+  V4f v0;
+  std::memcpy(&v0, b, sizeof v0);
+  v0 *= gain[0];
+  V4d ref = __builtin_convertvector(v0, V4d);
+  const V4d zero = {0, 0, 0, 0};
+  V4d w0 = zero, w1 = zero, w2 = zero, w3 = zero, w4 = zero, w5 = zero, w6 = zero, w7 = zero,
+      y0 = zero, y2 = zero;
+  for (int k = 0; k < nk; ++k) {
+    V4f v;
+    std::memcpy(&v, b + k * stride, sizeof v);
+    v *= gain[k];
+    const V4d y = __builtin_convertvector(v, V4d) - ref;
+    const double* bk = basis_km + static_cast<size_t>(k) * kFineMoments;
+    w0 += bk[0] * y;
+    w1 += bk[1] * y;
+    w2 += bk[2] * y;
+    w3 += bk[3] * y;
+    w4 += bk[4] * y;
+    w5 += bk[5] * y;
+    w6 += bk[6] * y;
+    w7 += bk[7] * y;
+    y0 += y;
+    y2 += y * y;
+  }
+  const V4d sum_about_first = y0;
+  {
+    const double nd = nk;
+    const V4d mu = y0 / nd;
+    w0 -= mu * basis_sum[0];
+    w1 -= mu * basis_sum[1];
+    w2 -= mu * basis_sum[2];
+    w3 -= mu * basis_sum[3];
+    w4 -= mu * basis_sum[4];
+    w5 -= mu * basis_sum[5];
+    w6 -= mu * basis_sum[6];
+    w7 -= mu * basis_sum[7];
+    y2 -= mu * y0;
+    ref += mu;
+    y0 = zero;
+  }
+  // Horner coefficients i^m W_m / m! (Moments) and their value at eps' (order 3: the rows).
+  V4d eps;
+  std::memcpy(&eps, eps_in, sizeof eps);
+  const double inv2 = 0.5, inv6 = 0.5 / 3.0;
+  V4d zr = w7 * inv6, zi = -(w6 * inv6);  // m = 3: (im, -re)
+  zr = zr * eps + (-(w4 * inv2));         // m = 2: (-re, -im)
+  zi = zi * eps + (-(w5 * inv2));
+  zr = zr * eps + (-w3);                  // m = 1: (-im, re)
+  zi = zi * eps + w2;
+  zr = zr * eps + w0;                     // m = 0
+  zi = zi * eps + w1;
+  // Gram sums sum e^{i (w + eps) x} and sum e^{2 i (w + eps) x}.
+  V4d g1r = zero + e1c[top_g].real(), g1i = zero + e1c[top_g].imag();
+  V4d g2r = zero + e2c[top_g].real(), g2i = zero + e2c[top_g].imag();
+  for (int m = top_g - 1; m >= 0; --m) {
+    g1r = g1r * eps + e1c[m].real();
+    g1i = g1i * eps + e1c[m].imag();
+    g2r = g2r * eps + e2c[m].real();
+    g2i = g2i * eps + e2c[m].imag();
+  }
+  // Reduced 2x2 system after eliminating the constant (Evaluate).
+  const double nd = nk, inv_n = 1.0 / nd;
+  const V4d C = g1r, E = g1i;
+  const V4d a = 0.5 * (nd + g2r) - C * C * inv_n;
+  const V4d bb = 0.5 * g2i - C * E * inv_n;
+  const V4d d = 0.5 * (nd - g2r) - E * E * inv_n;
+  const V4d wu = zr - C * y0 * inv_n;
+  const V4d wv = zi - E * y0 * inv_n;
+  const V4d det = a * d - bb * bb;
+  const V4l ok = det > 1e-12 * nd * nd;
+  const V4d inv_det = 1.0 / det;
+  const V4d cc = (d * wu - bb * wv) * inv_det;  // a sin phi
+  const V4d cs = (a * wv - bb * wu) * inv_det;  // a cos phi
+  const V4d c2 = (y0 - C * cc - E * cs) * inv_n;
+  const V4d j = wu * cc + wv * cs + y0 * y0 * inv_n;
+  const V4d offset = c2 + ref, ssr = y2 - j;
+  // phi = atan2(cc, cs): atan of t = min / max in [0, 1], reduced to |u| <= tan(pi / 8).
+  const V4d ay = cc < 0 ? -cc : cc, ax = cs < 0 ? -cs : cs;
+  const V4d hi = ay > ax ? ay : ax, lo = ay > ax ? ax : ay;
+  const V4d t = hi > 0 ? lo / hi : zero;
+  const V4l big = t > kTanPi8;
+  const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
+  const V4d z = u * u, z2 = z * z, z4 = z2 * z2;
+  const V4d p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
+                z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
+                      z4 * (kAtanP[8] + kAtanP[9] * z));
+  V4d at = u + u * z * p;
+  at = big ? at + 0.25 * kPi : at;
+  at = ay > ax ? 0.5 * kPi - at : at;
+  at = cs < 0 ? kPi - at : at;
+  at = cc < 0 ? -at : at;  // cc == -0.0 with cs < 0 gives pi, not -pi: (-pi, pi] as WrapPhase
+  std::memcpy(r->phase, &at, sizeof at);
+  std::memcpy(r->cc, &cc, sizeof cc);
+  std::memcpy(r->cs, &cs, sizeof cs);
+  std::memcpy(r->offset, &offset, sizeof offset);
+  std::memcpy(r->ssr, &ssr, sizeof ssr);
+  std::memcpy(r->y0, &sum_about_first, sizeof sum_about_first);
+  std::memcpy(r->ok, &ok, sizeof ok);
+}
+
+}  // namespace
+
+LensShiftRowFitter::LensShiftRowFitter(std::vector<double> x, double f0,
+                                       const LensShiftFitOptions& options)
+    : batch_(std::move(x), f0, options) {
+  if (options.fitter != LensShiftFitter::kFast || options.fit_frequency)
+    MESOSCAN_BAD_INPUT("lens-shift row fit: needs the fast fitter with a fixed frequency");
+  const LensShiftBatchFitter::Tables& t = *batch_.tables_;
+  const size_t nk = static_cast<size_t>(t.n);
+  basis_sum_.assign(t.km.size() * kFineMoments, 0.0);
+  for (size_t g = 0; g < t.km.size(); ++g)
+    for (size_t k = 0; k < nk; ++k)
+      for (int m = 0; m < kFineMoments; ++m)
+        basis_sum_[g * kFineMoments + m] += t.km[g][k * kFineMoments + m];
+}
+
+void LensShiftRowFitter::FitRow(const float* b, size_t stride, int n, const float* gain,
+                                const float* f, const uint8_t* use, LensShiftFit* out) const {
+  const LensShiftBatchFitter::Tables& t = *batch_.tables_;
+  const int nk = t.n;
+  const double f0 = batch_.f0_;
+  const LensShiftFitOptions& options = batch_.options_;
+  const double two_pi_x = kTwoPi * t.x_scale;
+  // The per-pixel path: the gain-normalised profile, contiguous.
+  auto fallback = [&](int j) {
+    std::array<float, kStackSamples> stack_b;
+    std::vector<float> heap_b;
+    float* p = stack_b.data();
+    if (nk > kStackSamples) {
+      heap_b.resize(nk);
+      p = heap_b.data();
+    }
+    for (int k = 0; k < nk; ++k) p[k] = b[static_cast<size_t>(k) * stride + j] * gain[k];
+    out[j] = batch_.Fit(p, 1, f[j]);
+  };
+  // Grid point of pixel j's frequency (FastFit's nearest), or false: off the tables.
+  auto grid_of = [&](int j, int* g) {
+    const double fj = f[j];
+    if (!std::isfinite(fj)) return false;
+    const double q = std::nearbyint((fj - f0) / t.h);
+    if (!(std::abs(q) <= t.grid_half)) return false;
+    *g = static_cast<int>(q);
+    return true;
+  };
+  const bool lanes_ok = nk >= 3;  // FastFit's n >= p
+  const double sqrt_2_over_n = std::sqrt(2.0 / nk);
+  for (int j0 = 0; j0 < n; j0 += kLanes) {
+    const int cnt = std::min(kLanes, n - j0);
+    bool lane[kLanes] = {false, false, false, false};
+    int g_block = 0;
+    bool have = false;
+    for (int l = 0; l < cnt; ++l) {
+      const int j = j0 + l;
+      if (!use[j]) continue;
+      int g = 0;
+      if (!lanes_ok || cnt < kLanes || !grid_of(j, &g) || (have && g != g_block)) {
+        fallback(j);
+        continue;
+      }
+      g_block = g;
+      have = true;
+      lane[l] = true;
+    }
+    if (!have) continue;
+    const double f_grid = f0 + g_block * t.h;
+    double eps[kLanes];
+    double max_eps = 0.0;
+    for (int l = 0; l < kLanes; ++l) {
+      eps[l] = lane[l] ? two_pi_x * (static_cast<double>(f[j0 + l]) - f_grid) : 0.0;
+      max_eps = std::max(max_eps, std::abs(eps[l]));
+    }
+    const int gi = g_block + t.grid_half;
+    const int top_g = NeededOrder(2.0 * max_eps, kGramOrder);
+    BlockResult r;
+    FitBlock(t.km[gi].data(),
+             basis_sum_.data() + static_cast<size_t>(gi) * kFineMoments, nk, b + j0, stride, gain,
+             eps, t.e1[gi].data(), t.e2[gi].data(), top_g, &r);
+    for (int l = 0; l < kLanes; ++l) {
+      if (!lane[l]) continue;
+      const int j = j0 + l;
+      if (!std::isfinite(r.y0[l])) {  // a sample is NaN or Inf: the finite ones alone
+        fallback(j);
+        continue;
+      }
+      if (!r.ok[l] || !std::isfinite(r.ssr[l])) {
+        out[j] = InvalidFit(nk, f0);
+        continue;
+      }
+      // Finalize (fixed frequency, converged, phase already in (-pi, pi]) without its
+      // remainder() and atan2.
+      LensShiftFit& fit = out[j];
+      const double a = std::sqrt(r.cc[l] * r.cc[l] + r.cs[l] * r.cs[l]);
+      const double d = r.offset[l], ssr = std::max(r.ssr[l], 0.0);
+      fit.phase = r.phase[l];
+      fit.amplitude = a;
+      fit.frequency = f_grid + eps[l] / two_pi_x;
+      fit.offset = d;
+      fit.samples_used = nk;
+      fit.iterations = 0;
+      fit.converged = true;
+      fit.residual_rms = std::sqrt(ssr / nk);
+      double snr = 0.0;
+      fit.phase_sigma = 0.0;
+      if (nk > 3) {
+        const double sigma_a = std::sqrt(ssr / (nk - 3)) * sqrt_2_over_n;
+        fit.phase_sigma = a > 0.0 ? sigma_a / a : std::numeric_limits<double>::infinity();
+        snr = sigma_a > 0.0 ? a / sigma_a : std::numeric_limits<double>::infinity();
+      }
+      const bool finite = std::isfinite(fit.phase) && std::isfinite(a) &&
+                          std::isfinite(fit.frequency) && std::isfinite(d) &&
+                          std::isfinite(fit.residual_rms) && std::isfinite(fit.phase_sigma);
+      fit.valid = finite && nk > 3 && a > options.min_amplitude &&
+                  a > kMinRelativeAmplitude * std::abs(d) && snr >= options.min_amplitude_snr &&
+                  std::abs(fit.frequency - f0) <= options.max_frequency_deviation * std::abs(f0);
+      if (!fit.valid) {
+        for (double* v : {&fit.phase, &fit.amplitude, &fit.frequency, &fit.offset,
+                          &fit.residual_rms, &fit.phase_sigma})
+          if (!std::isfinite(*v)) *v = 0.0;
+      }
+    }
+  }
+}
 
 double LensShiftPhaseCrlbAt(double sigma, double amplitude, const std::vector<double>& x, double f,
                             double phase, bool fit_frequency) {

@@ -22,6 +22,8 @@
 // Failures are values: no fitter throws on data (NaN/Inf samples, constant or clipped profiles,
 // pure noise). A result with valid == false has no meaning; the pipeline gives it confidence 0.
 
+#include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -43,6 +45,12 @@ struct LensShiftFitOptions {
   int max_iterations = 20;
   // Convergence: stop when a step changes f by less than this (cycles per projector px), > 0.
   double frequency_tolerance = 1e-7;
+  // kFast also stops once the error left after its last Newton step (~4 step^2) is below this
+  // fraction of the frequency's standard error (estimated from the residual and the curvature
+  // of the objective), >= 0; 0: frequency_tolerance alone. A frequency error of 1e-3 of its
+  // noise moves phi by far less: phi at the centred x = 0 is decoupled from f to first order.
+  // Noise-free profiles have a zero standard error, so frequency_tolerance still holds there.
+  double frequency_tolerance_sigma = 1e-2;
   // Fit the per-pixel frequency (4 parameters). false: f stays at the starting frequency and
   // only (phi, a, d) are fitted (3 parameters, a linear problem).
   bool fit_frequency = true;
@@ -113,10 +121,43 @@ class LensShiftBatchFitter {
   struct Tables;  // implementation detail (lens_shift_fit.cc)
 
  private:
+  friend class LensShiftRowFitter;
   std::vector<double> x_;
   double f0_;
   LensShiftFitOptions options_;
   std::shared_ptr<const Tables> tables_;  // immutable, shared by copies
+};
+
+// The fixed-frequency fit (3 parameters: phi, a, d at a given f) of many pixels at once: the
+// pipeline's main pass, every pixel of an image row with its frequency held at a smooth map.
+// Same least-squares problem and the same method as LensShiftBatchFitter (fit_frequency false,
+// kFast): the moments of the mean-centred profile against the basis rows of the grid frequency
+// nearest to f, then the closed-form solve at f. Here four pixels that share a grid frequency
+// are accumulated together in SIMD lanes (the samples of a row are frame-major, so a lane load
+// is one contiguous load) and solved together; results equal LensShiftBatchFitter::Fit's to
+// rounding (summation order). Pixels with non-finite samples, a non-finite frequency or one
+// off the tables, and the pixels of a 4-pixel block whose grid frequency differs from the
+// block's, go through LensShiftBatchFitter::Fit.
+class LensShiftRowFitter {
+ public:
+  // As LensShiftBatchFitter; options.fitter must be kFast and options.fit_frequency false
+  // (throws mesoscan::Error, bad input, otherwise).
+  LensShiftRowFitter(std::vector<double> x, double f0, const LensShiftFitOptions& options);
+
+  // Pixels j in [0, n) with use[j] != 0: samples b[k * stride + j] (frame k) times gain[k]
+  // (rounded to float, as a gain-normalised frame would be), starting frequency f[j]; the fit
+  // into out[j] (untouched where use[j] == 0). Thread-safe, allocation-free unless a pixel
+  // falls back to LensShiftBatchFitter::Fit with more than 512 samples.
+  void FitRow(const float* b, size_t stride, int n, const float* gain, const float* f,
+              const uint8_t* use, LensShiftFit* out) const;
+
+  int num_samples() const { return batch_.num_samples(); }
+  const LensShiftBatchFitter& batch_fitter() const { return batch_; }
+
+ private:
+  LensShiftBatchFitter batch_;
+  // Per grid point of the fixed-frequency tables, the 8 basis rows' sums over the samples.
+  std::vector<double> basis_sum_;
 };
 
 // Cramer-Rao lower bound on var(phi) (rad^2) for the model above with white Gaussian noise of

@@ -462,6 +462,103 @@ TEST(LensShiftFit, FloatAccumulationErrorIsFarBelowTheNoise) {
   }
 }
 
+// The row kernel solves the same problem as the per-pixel fixed-frequency fit: every pixel of a
+// row (frame-major samples, per-frame gains, per-pixel frequency) agrees with
+// LensShiftBatchFitter::Fit on its gain-normalised profile to rounding, including the pixels it
+// hands to that path (NaN samples, a frequency off the tables or not finite, a 4-pixel block
+// that straddles two grid frequencies, the tail of a row whose width is not a multiple of 4),
+// and leaves unused pixels untouched.
+TEST(LensShiftRowFit, MatchesThePerPixelFit) {
+  std::mt19937_64 rng(51);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (int nk : {3, 15, 50}) {
+    const auto x = CentredPositions(nk);
+    LensShiftFitOptions o;
+    o.fit_frequency = false;
+    const LensShiftRowFitter row(x, kF0, o);
+    const LensShiftBatchFitter batch(x, kF0, o);
+    const int w = 103;  // not a multiple of 4
+    std::vector<float> gain(nk), f(w), b(static_cast<size_t>(nk) * w);
+    for (float& g : gain) g = static_cast<float>(1.0 + 0.02 * (uni(rng) - 0.5));
+    std::vector<uint8_t> use(w, 1);
+    for (int j = 0; j < w; ++j) {
+      // Frequencies drift along the row (crossing grid points), a few far ones.
+      f[j] = static_cast<float>(kF0 * (0.97 + 0.06 * j / w));
+      const Truth t{-kPi + 2 * kPi * uni(rng), 0.2, f[j], 0.5 + uni(rng)};
+      const auto p = Profile(t, x, j % 7 == 0 ? 0.0 : 0.01, &rng);
+      for (int k = 0; k < nk; ++k) b[static_cast<size_t>(k) * w + j] = p[k] / gain[k];
+    }
+    f[5] = static_cast<float>(kF0 * 3);                                // off the tables
+    f[9] = std::numeric_limits<float>::quiet_NaN();                    // not finite
+    b[static_cast<size_t>(nk / 2) * w + 13] = std::numeric_limits<float>::quiet_NaN();
+    for (int k = 0; k < nk; ++k) b[static_cast<size_t>(k) * w + 17] = 0.75f;  // constant
+    use[21] = 0;
+    std::vector<LensShiftFit> out(w);
+    out[21].phase = 123.0;
+    row.FitRow(b.data(), w, w, gain.data(), f.data(), use.data(), out.data());
+    EXPECT_EQ(out[21].phase, 123.0);
+    for (int j = 0; j < w; ++j) {
+      if (!use[j]) continue;
+      std::vector<float> p(nk);
+      for (int k = 0; k < nk; ++k) p[k] = b[static_cast<size_t>(k) * w + j] * gain[k];
+      const LensShiftFit ref = batch.Fit(p.data(), 1, f[j]);
+      const LensShiftFit& got = out[j];
+      ASSERT_EQ(got.valid, ref.valid) << "nk " << nk << " pixel " << j;
+      EXPECT_EQ(got.samples_used, ref.samples_used) << "pixel " << j;
+      if (!ref.valid) continue;
+      const double tol = 1e-10 * (1.0 + std::abs(ref.offset) / ref.amplitude);
+      EXPECT_NEAR(PhaseDiff(got.phase, ref.phase), 0.0, tol) << "nk " << nk << " pixel " << j;
+      EXPECT_NEAR(got.amplitude, ref.amplitude, tol * ref.amplitude) << "pixel " << j;
+      EXPECT_NEAR(got.offset, ref.offset, tol * ref.amplitude) << "pixel " << j;
+      EXPECT_NEAR(got.frequency, ref.frequency, 1e-15) << "pixel " << j;
+      EXPECT_NEAR(got.residual_rms, ref.residual_rms, 1e-6 * ref.amplitude) << "pixel " << j;
+      // Noise-free pixels: the residual is the float rounding of the samples (phase_sigma
+      // 4e-8-1e-6 rad), and sum y^2 - J takes the double rounding of sum y^2 (~1e-16 of it),
+      // which moves it by up to ~30 %: 1e-7 rad absolute.
+      EXPECT_NEAR(got.phase_sigma, ref.phase_sigma, 1e-6 * ref.phase_sigma + 1e-7)
+          << "pixel " << j;
+    }
+    EXPECT_FALSE(out[5].valid);
+    EXPECT_FALSE(out[9].valid);
+    EXPECT_FALSE(out[17].valid);
+    if (nk > 3) {
+      EXPECT_TRUE(out[13].valid);  // the finite samples alone
+    }
+  }
+  LensShiftFitOptions four;  // fit_frequency: the row kernel is for the fixed-frequency pass
+  EXPECT_THROW(LensShiftRowFitter(CentredPositions(10), kF0, four), Error);
+}
+
+// The fast fitter's statistical stopping rule (frequency_tolerance_sigma) against the absolute
+// tolerance alone: the phase moves by a small fraction of its noise, on noisy and on clean
+// profiles (bench_fitters stopping_rule: <= 2.4e-3 sigma_phi measured).
+TEST(LensShiftFit, StoppingRuleMovesThePhaseFarBelowTheNoise) {
+  std::mt19937_64 rng(61);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (int n : {15, 100}) {
+    const auto x = CentredPositions(n);
+    LensShiftFitOptions loose, strict;
+    strict.frequency_tolerance_sigma = 0.0;
+    const LensShiftBatchFitter fl(x, kF0, loose), fs(x, kF0, strict);
+    for (double snr : {20.0, 1000.0}) {
+      const double a = 0.2, sigma = a / snr;
+      const double sigma_phi = std::sqrt(LensShiftPhaseCrlb(sigma, a, x, kF0));
+      double worst = 0.0;
+      for (int i = 0; i < 300; ++i) {
+        const Truth t{-kPi + 2 * kPi * uni(rng), a, kF0 * (0.95 + 0.1 * uni(rng)), 0.5};
+        const auto b = Profile(t, x, sigma, &rng);
+        const LensShiftFit rl = fl.Fit(b.data()), rs = fs.Fit(b.data());
+        ASSERT_EQ(rl.valid, rs.valid);
+        if (rl.valid) worst = std::max(worst, std::abs(PhaseDiff(rl.phase, rs.phase)));
+      }
+      EXPECT_LT(worst, 0.01 * sigma_phi) << "n " << n << " a/sigma " << snr;
+    }
+  }
+  LensShiftFitOptions bad;
+  bad.frequency_tolerance_sigma = -1.0;
+  EXPECT_THROW(bad.Check(), Error);
+}
+
 TEST(LensShiftFit, BatchFitIsThreadSafe) {
   const auto x = CentredPositions(50);
   const LensShiftBatchFitter batch(x, kF0, {});

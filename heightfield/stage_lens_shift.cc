@@ -4,12 +4,44 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
+
+#include <sys/resource.h>
 
 #include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/progress.h"
 
 namespace mesoscan {
+namespace {
+
+double ProcessCpuSeconds() {
+  rusage ru{};
+  getrusage(RUSAGE_SELF, &ru);
+  return static_cast<double>(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
+         1e-6 * static_cast<double>(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
+}
+
+// The steps' wall times under their names and the process CPU times (all threads) under
+// name + "_cpu", if `out` is set (LensShiftStageOptions::step_timings).
+class StepClock {
+ public:
+  explicit StepClock(StageTimings* out) : out_(out), cpu_(out ? ProcessCpuSeconds() : 0.0) {}
+  void Stage(const char* name) {
+    if (!out_) return;
+    const double cpu = ProcessCpuSeconds();
+    out_->emplace_back(name, wall_.Restart());
+    out_->emplace_back(std::string(name) + "_cpu", cpu - cpu_);
+    cpu_ = cpu;
+  }
+
+ private:
+  StageTimings* out_;
+  Stopwatch wall_;
+  double cpu_;
+};
+
+}  // namespace
 
 std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h) {
   std::vector<size_t> idx;
@@ -56,13 +88,15 @@ std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h)
     for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
   }
   std::vector<float> out(f.size());
-  for (size_t i = 0; i < f.size(); ++i) {
-    double t[6];
-    terms(i, t);
-    double v = 0;
-    for (int q = 0; q < 6; ++q) v += t[q] * c(q);
-    out[i] = static_cast<float>(v);
-  }
+  ParallelForRows(h, [&](int y0, int y1) {
+    for (size_t i = static_cast<size_t>(y0) * w; i < static_cast<size_t>(y1) * w; ++i) {
+      double t[6];
+      terms(i, t);
+      double v = 0;
+      for (int q = 0; q < 6; ++q) v += t[q] * c(q);
+      out[i] = static_cast<float>(v);
+    }
+  });
   return out;
 }
 
@@ -71,6 +105,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
                              PixelStates* state_out) {
   LensShiftPixels out;
   if (!plan.use_lens_shift()) return out;
+  StepClock step(options.step_timings);
   constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
   PixelStates& state = *state_out;
   const RoiGrid grid = RoiGrid::Of(stack);
@@ -108,6 +143,24 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     bool Row(int y) const { return complement || y % stride == 0; }
     bool Has(int x, int y) const { return (x % stride == 0 && y % stride == 0) != complement; }
   };
+  // The outputs of pixel i from its fit.
+  auto store = [&](size_t i, const LensShiftFit& fit) {
+    if (!fit.valid) {
+      state[i] = PixelState::kFitFailed;
+      if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
+        out.residual_rms[i] = static_cast<float>(fit.residual_rms);
+        out.samples[i] = static_cast<float>(fit.samples_used);
+      }
+      return;
+    }
+    // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
+    out.phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
+    out.amplitude[i] = static_cast<float>(fit.amplitude);
+    out.frequency[i] = static_cast<float>(fit.frequency);
+    out.offset[i] = static_cast<float>(fit.offset);
+    out.residual_rms[i] = static_cast<float>(fit.residual_rms);
+    out.samples[i] = static_cast<float>(fit.samples_used);
+  };
   // One pass over the active pixels of `subset`; f_map (if given) is the per-pixel frequency
   // held fixed. Rows without a pixel of the subset are not even gathered.
   auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
@@ -119,10 +172,19 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
       for (int y = y0; y < y1; ++y) {
         if (!subset.Row(y)) continue;
         const size_t i0 = static_cast<size_t>(y) * w;
-        for (int k = 0; k < nls; ++k) {
-          stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
-          const float g = inv_gain[ls_stack[k]];
-          for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+        if (subset.stride > 1 && !subset.complement) {
+          // A sparse subset (the frequency pass: 1 pixel in stride^2): only its samples.
+          for (int k = 0; k < nls; ++k) {
+            const float g = inv_gain[ls_stack[k]];
+            for (size_t j = 0; j < n; j += subset.stride)
+              buf[k * n + j] = stack.Value(ls_stack[k], i0 + j) * g;
+          }
+        } else {
+          for (int k = 0; k < nls; ++k) {
+            stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+            const float g = inv_gain[ls_stack[k]];
+            for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+          }
         }
         for (size_t j = 0; j < n; ++j) {
           const size_t i = i0 + j;
@@ -138,23 +200,39 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
             b = prof.data();
             stride = 1;
           }
-          const LensShiftFit fit =
-              f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride);
-          if (!fit.valid) {
-            state[i] = PixelState::kFitFailed;
-            if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
-              out.residual_rms[i] = static_cast<float>(fit.residual_rms);
-              out.samples[i] = static_cast<float>(fit.samples_used);
-            }
-            continue;
+          store(i, f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride));
+        }
+      }
+      progress.Advance(y1 - y0);
+    });
+  };
+  // The fixed-frequency pass of every active pixel with the row kernel (LensShiftRowFitter):
+  // tiles of a row gathered frame-major, the gains applied inside the kernel.
+  auto fit_pass_rows = [&](const LensShiftRowFitter& fitter, const std::vector<float>& f_map) {
+    std::vector<float> gain(static_cast<size_t>(nls));
+    for (int k = 0; k < nls; ++k) gain[k] = inv_gain[ls_stack[k]];
+    Progress progress("fit lens shift", h);
+    ParallelForRows(h, [&](int y0, int y1) {
+      constexpr int kTile = 512;
+      std::vector<float> buf(static_cast<size_t>(nls) * kTile);
+      std::vector<uint8_t> use(kTile);
+      std::vector<LensShiftFit> fits(kTile);
+      for (int y = y0; y < y1; ++y) {
+        for (int x0 = 0; x0 < w; x0 += kTile) {
+          const int cnt = std::min(kTile, w - x0);
+          const size_t i0 = static_cast<size_t>(y) * w + x0;
+          bool any = false;
+          for (int j = 0; j < cnt; ++j) {
+            use[j] = state[i0 + j] == PixelState::kActive;
+            any = any || use[j];
           }
-          // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
-          out.phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
-          out.amplitude[i] = static_cast<float>(fit.amplitude);
-          out.frequency[i] = static_cast<float>(fit.frequency);
-          out.offset[i] = static_cast<float>(fit.offset);
-          out.residual_rms[i] = static_cast<float>(fit.residual_rms);
-          out.samples[i] = static_cast<float>(fit.samples_used);
+          if (!any) continue;
+          const size_t stride = static_cast<size_t>(cnt);
+          for (int k = 0; k < nls; ++k) stack.Gather(ls_stack[k], i0, stride, buf.data() + k * stride);
+          fitter.FitRow(buf.data(), stride, cnt, gain.data(), f_map.data() + i0, use.data(),
+                        fits.data());
+          for (int j = 0; j < cnt; ++j)
+            if (use[j]) store(i0 + j, fits[j]);
         }
       }
       progress.Advance(y1 - y0);
@@ -173,7 +251,9 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     PixelSubset subset;
     subset.stride = std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
     fit_pass(fitter, nullptr, subset, "fit lens shift frequency");
+    step.Stage("frequency_fit");
     std::vector<float> f_map = SmoothFrequencyMap(out.frequency, w, h);
+    step.Stage("frequency_map");
     if (!f_map.empty()) {
       LensShiftFitOptions fo2 = fo;
       fo2.fit_frequency = false;
@@ -189,8 +269,13 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
           if (f < gains->session_gain.size()) gains->session_gain[f] = 1.0 / inv_gain[ls_stack[k]];
         }
         out.frame_corrections = fc.ToJson();
+        step.Stage("frame_corrections");
       }
-      fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
+      if (options.row_kernel && !box && fo2.fitter == LensShiftFitter::kFast)
+        fit_pass_rows(LensShiftRowFitter(x, 0.5, fo2), f_map);
+      else
+        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
+      step.Stage("fixed_frequency_fit");
     } else if (subset.stride > 1) {
       // No frequency map: the 4-parameter fit everywhere else too.
       subset.complement = true;

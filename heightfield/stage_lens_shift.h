@@ -9,6 +9,7 @@
 
 #include <vector>
 
+#include "core/stage_timer.h"
 #include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/lens_shift_fit.h"
@@ -31,6 +32,11 @@ struct LensShiftStageOptions {
   // (heightfield/frame_corrections.h, issue 13).
   FrameGainMethod frame_gain_method = FrameGainMethod::kJoint;
   bool correct_positions = true;
+  // The fixed-frequency pass with the row kernel (FixedFrequencyRowFitter: pixels of a row in
+  // SIMD lanes); false: every pixel through LensShiftBatchFitter::Fit (the reference, slower).
+  bool row_kernel = true;
+  // If set, receives the wall time of each step of the stage (bench_lens_shift_stage).
+  StageTimings* step_timings = nullptr;
 };
 
 LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
