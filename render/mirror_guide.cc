@@ -64,6 +64,16 @@ MirrorGuide::MirrorGuide(const EnvironmentMap& env, const Brdf& brdf, const Opti
   const double total = cdf_[cells];
   pdf_.resize(cells);
   for (int c = 0; c < cells; ++c) pdf_[c] = (cdf_[c + 1] - cdf_[c]) / total / cell_solid_angle_;
+  // Blocks for the product with the vertex's BRDF.
+  MESOSCAN_CHECK(nphi_ % kCoarsePhi == 0 && nz_ % kCoarseZ == 0);
+  block_mass_.assign(kCoarse, 0.0);
+  for (int c = 0; c < cells; ++c) block_mass_[Block(c)] += (cdf_[c + 1] - cdf_[c]) / total;
+  block_centre_.resize(kCoarse);
+  for (int b = 0; b < kCoarse; ++b) {
+    const double z = -((b / kCoarsePhi) + 0.5) / kCoarseZ, r = std::sqrt(std::max(0.0, 1 - z * z));
+    const double phi = ((b % kCoarsePhi) + 0.5) / kCoarsePhi * kTwoPi;
+    block_centre_[b] = Vec3(r * std::cos(phi), r * std::sin(phi), z);
+  }
   // Selection: max_select x the guide's probability mass in the hemisphere above each normal.
   select_.assign(kSelTheta * kSelPhi, 0.0f);
   std::vector<Vec3> centre(cells);
@@ -122,6 +132,71 @@ double MirrorGuide::SelectProbability(const Vec3& n) const {
   const int t = std::clamp(static_cast<int>(th / kPi * kSelTheta), 0, kSelTheta - 1);
   const int p = std::clamp(static_cast<int>(ph / kTwoPi * kSelPhi), 0, kSelPhi - 1);
   return select_[t * kSelPhi + p];
+}
+
+int MirrorGuide::Block(int cell) const {
+  const int iz = cell / nphi_, ip = cell % nphi_;
+  return (iz / (nz_ / kCoarseZ)) * kCoarsePhi + ip / (nphi_ / kCoarsePhi);
+}
+
+bool MirrorGuide::Prepare(const Brdf& brdf, const Vec3& s, const Vec3& t, const Vec3& n,
+                          const Vec3& wo, Local* local) const {
+  local->cdf[0] = 0;
+  for (int b = 0; b < kCoarse; ++b) {
+    const Vec3& w = block_centre_[b];
+    const Vec3 wi(w.dot(s), w.dot(t), w.dot(n));
+    double q = 0;
+    // Blocks holding little of the table (under an even share) are left to BRDF
+    // sampling: fewer BRDF evaluations per vertex.
+    if (wi.z() > 0 && block_mass_[b] > 1.0 / kCoarse) {
+      const double y = Luminance(brdf.f(wo, wi)) * wi.z();
+      if (y > 0 && std::isfinite(y)) q = block_mass_[b] * y;
+    }
+    local->cdf[b + 1] = local->cdf[b] + q;
+  }
+  return local->cdf[kCoarse] > 0;
+}
+
+Vec3 MirrorGuide::Sample(const Local& local, const Vec2& u, double* pdf) const {
+  // Block by the product weights, then a cell within the block by the table, then uniform.
+  const double tb = u.x() * local.cdf[kCoarse];
+  int b = static_cast<int>(std::upper_bound(local.cdf, local.cdf + kCoarse + 1, tb) - local.cdf) - 1;
+  b = std::clamp(b, 0, kCoarse - 1);
+  while (b > 0 && !(local.cdf[b + 1] > local.cdf[b])) --b;
+  const double fb = std::clamp((tb - local.cdf[b]) / (local.cdf[b + 1] - local.cdf[b]), 0.0, 1.0);
+  const int bz = nz_ / kCoarseZ, bp = nphi_ / kCoarsePhi;
+  const int z0 = (b / kCoarsePhi) * bz, p0 = (b % kCoarsePhi) * bp;
+  const double target = fb * block_mass_[b] * cdf_[nphi_ * nz_];
+  double acc = 0;
+  int cell = z0 * nphi_ + p0;
+  double frac = 0.5;
+  for (int iz = z0; iz < z0 + bz; ++iz)
+    for (int ip = p0; ip < p0 + bp; ++ip) {
+      const int c = iz * nphi_ + ip;
+      const double m = cdf_[c + 1] - cdf_[c];
+      cell = c;
+      if (acc + m >= target) {
+        frac = std::clamp((target - acc) / m, 0.0, 1.0);
+        iz = z0 + bz;  // done
+        break;
+      }
+      acc += m;
+    }
+  const int iz = cell / nphi_, ip = cell % nphi_;
+  const double z = std::min(-(iz + u.y()) / nz_, -1e-9);
+  const double phi = (ip + frac) / nphi_ * kTwoPi;
+  const double r = std::sqrt(std::max(0.0, 1 - z * z));
+  const Vec3 w(r * std::cos(phi), r * std::sin(phi), z);
+  *pdf = Pdf(local, w);
+  return w;
+}
+
+double MirrorGuide::Pdf(const Local& local, const Vec3& w) const {
+  if (!(w.z() < 0)) return 0.0;
+  const int c = Cell(w), b = Block(c);
+  const double qb = local.cdf[b + 1] - local.cdf[b];
+  if (!(qb > 0)) return 0.0;
+  return qb / local.cdf[kCoarse] * pdf_[c] / block_mass_[b];
 }
 
 }  // namespace mesoscan

@@ -55,8 +55,27 @@ class MirrorGuide {
   // Probability of choosing this strategy at a vertex with unit normal n.
   double SelectProbability(const Vec3& n) const;
 
+  // Product with the vertex's BRDF (coarsely): the density above, re-weighted per block of
+  // kBlockPhi x kBlockZ cells by the BRDF's luminance x cosine at the block's centre for this
+  // vertex's outgoing direction. Within a block the density stays proportional to the table.
+  // Exact Pdf() for Sample(), so the mixture stays unbiased; a block whose centre lies below
+  // the tangent plane gets no density (BRDF sampling covers it).
+  static constexpr int kCoarsePhi = 16, kCoarseZ = 4, kCoarse = kCoarsePhi * kCoarseZ;
+  struct Local {
+    double cdf[kCoarse + 1];
+  };
+  // The vertex: world-to-local rows (s, t, n) and wo in local coordinates. False when no block
+  // has density (then do not use the strategy at this vertex).
+  bool Prepare(const Brdf& brdf, const Vec3& s, const Vec3& t, const Vec3& n, const Vec3& wo,
+               Local* local) const;
+  Vec3 Sample(const Local& local, const Vec2& u, double* pdf) const;
+  double Pdf(const Local& local, const Vec3& w) const;
+
  private:
   int Cell(const Vec3& w) const;
+  int Block(int cell) const;
+  std::vector<double> block_mass_;   // kCoarse: the table's probability per block
+  std::vector<Vec3> block_centre_;   // kCoarse: world direction at each block's centre
   int nphi_, nz_;
   std::vector<double> cdf_;   // nphi_ * nz_ + 1, over cells (z-major)
   std::vector<double> pdf_;   // per cell, per unit solid angle

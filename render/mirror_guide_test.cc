@@ -97,3 +97,43 @@ TEST(MirrorGuide, AimsAtTheMirroredSun) {
 
 }  // namespace
 }  // namespace mesoscan
+
+namespace mesoscan {
+namespace {
+
+// The product with a vertex's BRDF (a bevel facing the mirrored sun, the camera above): its
+// density integrates to 1, Sample() reports Pdf() and lands where Pdf() > 0, and blocks below
+// the tangent plane get nothing.
+TEST(MirrorGuide, LocalProductIsANormalisedDensity) {
+  const EnvironmentMap sky = EnvironmentMap::Sky(25, 200, 128);
+  const Brdf copper = Copper();
+  const MirrorGuide g(sky, copper);
+  const Vec3 n = Vec3(-0.8, -0.42, 0.42).normalized();
+  const Vec3 s = Vec3(0, 0, 1).cross(n).normalized(), t = n.cross(s);
+  const Vec3 to_camera = Vec3(0, -0.64, 0.77).normalized();
+  const Vec3 wo(to_camera.dot(s), to_camera.dot(t), to_camera.dot(n));
+  MirrorGuide::Local local;
+  ASSERT_TRUE(g.Prepare(copper, s, t, n, wo, &local));
+  const int nphi = 640, nz = 320;
+  double sum = 0;
+  for (int iz = 0; iz < nz; ++iz)
+    for (int ip = 0; ip < nphi; ++ip) {
+      const double z = -1 + 2 * (iz + 0.5) / nz, r = std::sqrt(1 - z * z);
+      const double phi = 2 * kPi * (ip + 0.5) / nphi;
+      sum += g.Pdf(local, Vec3(r * std::cos(phi), r * std::sin(phi), z)) * (4 * kPi / (double(nphi) * nz));
+    }
+  EXPECT_NEAR(sum, 1.0, 1e-9);
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> U(0, 1);
+  for (int k = 0; k < 20000; ++k) {
+    double pdf = 0;
+    const Vec3 w = g.Sample(local, Vec2(U(rng), U(rng)), &pdf);
+    ASSERT_GT(pdf, 0);
+    ASSERT_NEAR(pdf, g.Pdf(local, w), 1e-9 * pdf);
+  }
+  // Straight down lies below this bevel's tangent plane (-z . n < 0): no density there.
+  EXPECT_EQ(g.Pdf(local, Vec3(0, 0, -1)), 0.0);
+}
+
+}  // namespace
+}  // namespace mesoscan

@@ -62,6 +62,10 @@ struct Frame {
   Vec3 FromLocal(const Vec3& v) const { return v.x() * s + v.y() * t + v.z() * n; }
 };
 
+// Below this selection probability a vertex does not use the mirrored-environment sampler
+// (preparing it costs 64 BRDF evaluations; it would hardly ever be chosen).
+constexpr double kMinGuideSelect = 0.05;
+
 double PowerHeuristic(double a, double b) {
   const double a2 = a * a, b2 = b * b;
   return a2 + b2 > 0 ? a2 / (a2 + b2) : 0.0;
@@ -144,11 +148,15 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     // Continuation density: BRDF sampling, mixed with the mirrored-environment sampler with
     // probability cg at surface vertices whose tangent plane lets it aim somewhere (one-sample
     // mixture: the same mixture density in both MIS weights against the light sample).
-    const double cg = (scene.guide && !on_mount) ? scene.guide->SelectProbability(n) : 0.0;
+    // The guide's density is re-weighted by this vertex's BRDF per block of directions
+    // (MirrorGuide::Prepare), so it aims where the field's reflection and this lobe overlap.
+    double cg = (scene.guide && !on_mount) ? scene.guide->SelectProbability(n) : 0.0;
+    MirrorGuide::Local gl;
+    if (cg < kMinGuideSelect || !scene.guide->Prepare(brdf, frame.s, frame.t, frame.n, wo, &gl)) cg = 0;
     auto pdf = [&](const Vec3& wi) {
       if (on_mount) return mount.Pdf(wo, wi);
       const double pb = brdf.Pdf(wo, wi);
-      return cg > 0 ? (1 - cg) * pb + cg * scene.guide->Pdf(frame.FromLocal(wi)) : pb;
+      return cg > 0 ? (1 - cg) * pb + cg * scene.guide->Pdf(gl, frame.FromLocal(wi)) : pb;
     };
     // Continue (and test shadows) from the side the ray arrived on.
     const Vec3 next_origin = EmbreeScene::ShadowRayOrigin(*hit, dir);
@@ -182,13 +190,13 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
       // One of the two strategies by u.x (rescaled, so each keeps a stratified uniform).
       if (u.x() < cg) {
         double pg = 0;
-        const Vec3 d = scene.guide->Sample(Vec2(u.x() / cg, u.y()), &pg);
+        const Vec3 d = scene.guide->Sample(gl, Vec2(u.x() / cg, u.y()), &pg);
         const Vec3 wi = frame.ToLocal(d);
         if (wi.z() <= 0) break;  // below the tangent plane: f = 0
         bs = BrdfSample{wi, brdf.f(wo, wi), (1 - cg) * brdf.Pdf(wo, wi) + cg * pg};
       } else {
         bs = brdf.Sample(wo, Vec2((u.x() - cg) / (1 - cg), u.y()));
-        if (bs) bs->pdf = (1 - cg) * bs->pdf + cg * scene.guide->Pdf(frame.FromLocal(bs->wi));
+        if (bs) bs->pdf = (1 - cg) * bs->pdf + cg * scene.guide->Pdf(gl, frame.FromLocal(bs->wi));
       }
     } else {
       bs = on_mount ? mount.Sample(wo, u) : brdf.Sample(wo, u);
