@@ -321,6 +321,9 @@ int CompareExr(const char* ref_path, const char* test_path, const char* mask_pat
     const ImageF mask = ReadImage(mask_path);
     std::printf("relRMSE sample %.5f mount %.5f\n", RelRmseMasked(test, ref, mask, 1),
                 RelRmseMasked(test, ref, mask, 2));
+    const Stats a = RegionMeans(test, mask), b = RegionMeans(ref, mask);
+    std::printf("mean luminance test / reference - 1: sample %+.3f%%, mount %+.3f%%\n",
+                100 * (a.mean_sample / b.mean_sample - 1), 100 * (a.mean_mount / b.mean_mount - 1));
   }
   if (ref.width() != test.width() || ref.height() != test.height()) {
     std::cerr << "bench_render --compare: sizes differ\n";
