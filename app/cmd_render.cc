@@ -459,6 +459,10 @@ void AddRenderCommand(CLI::App* app) {
   cmd->add_option("--fill", args->fill,
                   "Hole filling of the previewed height field: harmonic | biharmonic | none")
       ->capture_default_str();
+  cmd->add_flag("!--no-mirror-guide", args->options.mirror_guide,
+                "Sample continuation rays by BRDF alone (default: glossy BRDFs under an environment "
+                "map also aim at the environment mirrored in the field's plane; same image, less "
+                "noise on reliefs lit by the field's reflection)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out that is not an earlier output of `mesoscan render`");

@@ -273,11 +273,14 @@ void DemoPreview(const fs::path& dir) {
     int spp;
     double time_s;
   };
-  const std::vector<Run> runs = {{"fixed", 64, 0}, {"fixed", 8, 0}, {"fixed", 16, 0},
-                                 {"fixed", 32, 0}, {"time 3 s", 0, 3.0}};
+  // "no-guide": the same spp with BRDF sampling alone (without the mirrored-environment
+  // sampler, render/mirror_guide.h), same seed as the run before it: the before/after.
+  const std::vector<Run> runs = {{"fixed", 64, 0}, {"fixed", 8, 0},    {"fixed", 16, 0},
+                                 {"fixed", 32, 0}, {"no-guide", 32, 0}, {"time 3 s", 0, 3.0}};
   uint64_t seed = 2;
   for (const Run& run : runs) {
-    o.seed = seed++;
+    o.mirror_guide = run.name != "no-guide";
+    if (o.mirror_guide) o.seed = seed++;
     if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap
       o.time_limit_s = run.time_s;
       o.noise = 0.01;
@@ -304,7 +307,8 @@ void DemoPreview(const fs::path& dir) {
                 run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
     csv << run.name << "," << spp << "," << e << "," << es << "," << em << "," << corrected << ","
         << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "\n";
-    WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp.png"),
+    WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp" +
+                     (o.mirror_guide ? "" : "_noguide") + ".png"),
               ToneMapForDisplay(r.radiance, r.tone));
   }
 }
@@ -317,12 +321,31 @@ int CompareExr(const char* ref_path, const char* test_path, const char* mask_pat
     const ImageF mask = ReadImage(mask_path);
     std::printf("relRMSE sample %.5f mount %.5f\n", RelRmseMasked(test, ref, mask, 1),
                 RelRmseMasked(test, ref, mask, 2));
+    const Stats a = RegionMeans(test, mask), b = RegionMeans(ref, mask);
+    std::printf("mean luminance test / reference - 1: sample %+.3f%%, mount %+.3f%%\n",
+                100 * (a.mean_sample / b.mean_sample - 1), 100 * (a.mean_mount / b.mean_mount - 1));
   }
   if (ref.width() != test.width() || ref.height() != test.height()) {
     std::cerr << "bench_render --compare: sizes differ\n";
     return 2;
   }
   std::printf("relRMSE %.5f\n", RelRmse(test, ref));
+  // Where the error is: MESOSCAN_BENCH_COMPARE_MAP=FILE.png writes |Y - Y_ref| per pixel,
+  // log-scaled from 1e-3 (black) to 10 (white) times the reference's mean luminance.
+  if (const char* map = std::getenv("MESOSCAN_BENCH_COMPARE_MAP")) {
+    double m = 0;
+    for (size_t i = 0; i < ref.pixels(); ++i)
+      m += Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i])) / ref.pixels();
+    ImageF e(ref.width(), ref.height(), 1);
+    for (size_t i = 0; i < ref.pixels(); ++i) {
+      const double a = Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i]));
+      const double b = Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i]));
+      const double r = std::abs(a - b) / std::max(m, 1e-30);
+      e.channel(0)[i] = static_cast<float>(std::clamp((std::log10(std::max(r, 1e-3)) + 3) / 4, 0.0, 1.0));
+    }
+    WritePng8(map, QuantizeU8(e));
+    std::printf("error map (|dY| / mean Y_ref, log 1e-3..10): %s\n", map);
+  }
   // Where the squared error sits: the share of the worst 0.1% / 1% / 10% of the pixels.
   std::vector<double> se(ref.pixels());
   double total = 0, mean_ref = 0;
@@ -333,6 +356,10 @@ int CompareExr(const char* ref_path, const char* test_path, const char* mask_pat
     total += se[i];
     mean_ref += b / ref.pixels();
   }
+  double mean_test = 0;
+  for (size_t i = 0; i < ref.pixels(); ++i)
+    mean_test += Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])) / ref.pixels();
+  std::printf("mean luminance: reference %.6g, test %.6g\n", mean_ref, mean_test);
   if (std::getenv("MESOSCAN_BENCH_COMPARE_WORST")) {
     std::vector<size_t> idx(se.size());
     for (size_t i = 0; i < idx.size(); ++i) idx[i] = i;

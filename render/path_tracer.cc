@@ -11,6 +11,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "render/embree_scene.h"
+#include "render/mirror_guide.h"
 #include "render/sampler.h"
 
 namespace mesoscan {
@@ -41,6 +42,7 @@ std::string RenderSummary::BriefReport() const {
   s << samples << " paths in " << seconds << " s (" << mean_spp << " spp on average, " << rounds
     << " rounds), " << pixels_converged << " pixels converged before the sample limit";
   if (!mount_visible) s << "; the camera cannot see the mount (camera rays skip it)";
+  if (mirror_guide) s << "; mirrored-environment sampling on";
   return s.str();
 }
 
@@ -60,6 +62,10 @@ struct Frame {
   Vec3 FromLocal(const Vec3& v) const { return v.x() * s + v.y() * t + v.z() * n; }
 };
 
+// Below this selection probability a vertex does not use the mirrored-environment sampler
+// (preparing it costs 64 BRDF evaluations; it would hardly ever be chosen).
+constexpr double kMinGuideSelect = 0.05;
+
 double PowerHeuristic(double a, double b) {
   const double a2 = a * a, b2 = b * b;
   return a2 + b2 > 0 ? a2 / (a2 + b2) : 0.0;
@@ -75,6 +81,8 @@ struct Scene {
   Rgb mount_irradiance = Rgb::Zero();  // the environment's, on the mount from above
   // What camera rays see: kMaskHeightFields when the camera provably cannot see the mount.
   unsigned camera_mask = EmbreeScene::kMaskAll;
+  // The mirrored-environment sampler for continuation rays (render/mirror_guide.h), or null.
+  const MirrorGuide* guide = nullptr;
 
   Rgb Tint(const Vec3& p) const {
     if (!albedo) return Rgb::Ones();
@@ -137,7 +145,19 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     if (cv) L += beta * mount.albedo() * (kInvPi)*scene.mount_irradiance;
     const Rgb tint = on_mount ? Rgb::Ones() : scene.Tint(hit->point);
     auto f = [&](const Vec3& wi) -> Rgb { return on_mount ? mount.f(wo, wi) : Rgb(brdf.f(wo, wi) * tint); };
-    auto pdf = [&](const Vec3& wi) { return on_mount ? mount.Pdf(wo, wi) : brdf.Pdf(wo, wi); };
+    // Continuation density: BRDF sampling, mixed with the mirrored-environment sampler with
+    // probability cg at surface vertices whose tangent plane lets it aim somewhere (one-sample
+    // mixture: the same mixture density in both MIS weights against the light sample).
+    // The guide's density is re-weighted by this vertex's BRDF per block of directions
+    // (MirrorGuide::Prepare), so it aims where the field's reflection and this lobe overlap.
+    double cg = (scene.guide && !on_mount) ? scene.guide->SelectProbability(n) : 0.0;
+    MirrorGuide::Local gl;
+    if (cg < kMinGuideSelect || !scene.guide->Prepare(brdf, frame.s, frame.t, frame.n, wo, &gl)) cg = 0;
+    auto pdf = [&](const Vec3& wi) {
+      if (on_mount) return mount.Pdf(wo, wi);
+      const double pb = brdf.Pdf(wo, wi);
+      return cg > 0 ? (1 - cg) * pb + cg * scene.guide->Pdf(gl, frame.FromLocal(wi)) : pb;
+    };
     // Continue (and test shadows) from the side the ray arrived on.
     const Vec3 next_origin = EmbreeScene::ShadowRayOrigin(*hit, dir);
     // Next-event estimation towards the environment (a constant one is not importance-sampled:
@@ -165,7 +185,22 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     Vec2 u;
     sampler.Get2D(&u.x(), &u.y());
     const double u_rr = sampler.Get1D();
-    const auto bs = on_mount ? mount.Sample(wo, u) : brdf.Sample(wo, u);
+    std::optional<BrdfSample> bs;
+    if (cg > 0) {
+      // One of the two strategies by u.x (rescaled, so each keeps a stratified uniform).
+      if (u.x() < cg) {
+        double pg = 0;
+        const Vec3 d = scene.guide->Sample(gl, Vec2(u.x() / cg, u.y()), &pg);
+        const Vec3 wi = frame.ToLocal(d);
+        if (wi.z() <= 0) break;  // below the tangent plane: f = 0
+        bs = BrdfSample{wi, brdf.f(wo, wi), (1 - cg) * brdf.Pdf(wo, wi) + cg * pg};
+      } else {
+        bs = brdf.Sample(wo, Vec2((u.x() - cg) / (1 - cg), u.y()));
+        if (bs) bs->pdf = (1 - cg) * bs->pdf + cg * scene.guide->Pdf(gl, frame.FromLocal(bs->wi));
+      }
+    } else {
+      bs = on_mount ? mount.Sample(wo, u) : brdf.Sample(wo, u);
+    }
     if (!bs || !(bs->pdf > 0) || bs->wi.z() <= 0) break;
     beta *= bs->f * (on_mount ? Rgb::Ones() : tint) * (bs->wi.z() / bs->pdf);
     if (!beta.allFinite() || !(beta > 0).any()) break;
@@ -297,6 +332,11 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   if (!result_mount_visible) scene.camera_mask = EmbreeScene::kMaskHeightFields;
   const LambertBrdf mount(options.mount_albedo);
   scene.mount_irradiance = env.UpperHemisphereIrradiance();
+  std::optional<MirrorGuide> guide;
+  if (options.mirror_guide && MirrorGuide::Useful(env, brdf)) {
+    guide.emplace(env, brdf);
+    scene.guide = &*guide;
+  }
 
   const int W = options.width, H = options.height;
   int log2_spp = 0;
@@ -305,6 +345,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   std::vector<PixelState> px(static_cast<size_t>(W) * H);
   RenderResult result;
   result.summary.mount_visible = result_mount_visible;
+  result.summary.mirror_guide = scene.guide != nullptr;
   result.radiance = ImageF(W, H, 3, 0.0f);
   result.sample_mask = ImageF(W, H, 1, 0.0f);
   std::atomic<int64_t> samples{0};

@@ -51,6 +51,10 @@ struct RenderOptions {
   // Camera rays skip the mount plane when the camera provably cannot see it (hole-free field
   // filling the view); false traces it anyway (for the bench's before/after).
   bool skip_invisible_mount = true;
+  // Continuation rays also sample the environment mirrored in the field's plane, blurred by the
+  // BRDF (render/mirror_guide.h), where the scene needs it (a non-Lambert BRDF under a
+  // non-constant environment). false: BRDF sampling alone (the bench's before/after).
+  bool mirror_guide = true;
   void Check() const;
 };
 
@@ -61,6 +65,7 @@ struct RenderSummary {
   double seconds = 0;
   double mean_spp = 0;
   bool mount_visible = true;     // false: camera rays skipped the mount plane
+  bool mirror_guide = false;     // the mirrored-environment sampler was used
   std::string BriefReport() const;
 };
 
