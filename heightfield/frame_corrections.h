@@ -72,6 +72,35 @@ struct FrameCorrectionOptions {
   double max_gain_deviation = 0.3;
 };
 
+// The projector coordinate that phase shifting alone decoded at a sample of pixels: it predicts
+// each pixel's lens-shift phase (phi = pi/2 - pi u at shift 0, stage_combine.cc) independently of
+// the lens-shift frames' gains, which is what makes the in-band part of the gain jitter
+// identifiable (see EstimateFrameCorrections). Built by stage_gains.h MakePhaseReference.
+struct PhaseReference {
+  std::vector<uint32_t> pixels;  // stack pixels
+  std::vector<float> u_px;       // projector coordinate along the decoded axis, px
+  std::vector<float> sigma_u_px;  // its predicted standard deviation, px
+  // The phase-shift frames' own gain errors move u by a sinusoid of each period's phase (first
+  // harmonic, scaled by offset / modulation, and second harmonic): per pixel, nuisance[q *
+  // nuisance_per_pixel + m] are those shapes' derivatives of the predicted lens-shift phase
+  // (radians per unit coefficient), fitted along with the in-band gains so that they do not
+  // bias them.
+  int nuisance_per_pixel = 0;
+  std::vector<float> nuisance;
+  double ls_centre_px = 0.0;     // the lens-shift positions' centre (the fit's x = 0), px
+  bool empty() const { return pixels.empty(); }
+};
+
+// Per sample pixel of EstimateFrameCorrections: the predicted phase of the lens-shift profile at
+// x = 0 in the fitter's convention (I = d + a sin(phi + 2 pi f x), heightfield/lens_shift_fit.h),
+// up to one constant shared by all pixels (estimated), and its standard deviation; NaN: none.
+struct PhaseConstraint {
+  std::vector<double> phase;
+  std::vector<double> sigma;
+  int nuisance_per_pixel = 0;   // PhaseReference::nuisance, per pixel of phase
+  std::vector<float> nuisance;
+};
+
 struct FrameCorrections {
   std::vector<double> gains;         // per frame, mean 1 (the starting gains if not estimated)
   std::vector<double> positions_px;  // per-frame position error delta_k, orthogonal to {1, x}
@@ -84,6 +113,12 @@ struct FrameCorrections {
   double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe  // drop of the weighted objective when positions are added
   bool valid = false;  // false: the starting gains and zero positions are returned
   double position_rms_px = 0.0;
+  // The in-band gain components set from the phase-shift reference (PhaseConstraint): the
+  // pixels used, the correction applied in the last round (relative gain along cos / sin of
+  // 2 pi f x) and its standard error; in_band_pixels = 0: in-band gains kept at their start.
+  int in_band_pixels = 0;
+  double in_band_correction[2] = {0.0, 0.0};
+  double in_band_sigma = 0.0;
   Json ToJson() const;
 };
 
@@ -96,7 +131,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
                                           const std::vector<double>& freq,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
-                                          const FrameCorrectionOptions& options);
+                                          const FrameCorrectionOptions& options,
+                                          const PhaseConstraint* reference = nullptr);
 
 // The same on frames `frames` (stack indices) of `stack` at stack pixels `pixels`, with the
 // per-pixel frequency f_map[pixel].
@@ -105,7 +141,8 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
                                           const std::vector<float>& f_map,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
-                                          const FrameCorrectionOptions& options);
+                                          const FrameCorrectionOptions& options,
+                                          const PhaseConstraint* reference = nullptr);
 
 }  // namespace mesoscan
 
@@ -127,6 +164,7 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
                                         const FrameCorrectionOptions& options,
                                         const std::vector<float>* amp = nullptr,
                                         const std::vector<float>* phase = nullptr,
-                                        const std::vector<float>* offset = nullptr);
+                                        const std::vector<float>* offset = nullptr,
+                                        const PhaseReference* reference = nullptr);
 
 }  // namespace mesoscan
