@@ -19,6 +19,17 @@
 // parameters with the per-pixel coefficients eliminated exactly (Schur complement, variable
 // projection), a handful of iterations from the given starting gains.
 //
+// Which information fixes the in-band gains (cos / sin of 2 pi f x over the frames): the
+// profiles' 2 f signature is biased by the stripes' own harmonic (hence freeze_in_band_gains),
+// frame means by the stripes left in the view's average (a 128x96 view of the tilted bar:
+// 2.6e-3 of the level), alternating least squares cannot see them at all. What is unbiased is
+// the phase: phase shifting predicts every pixel's lens-shift phase (PhaseConstraint), and an
+// in-band gain error moves the fitted phases by (d / a) times a sinusoid of the phase, which no
+// constant absorbs. With a reference the in-band gains are set from it (a weighted least-squares
+// fit of the phase disagreement, with the constant between the cues and the phase-shift
+// frames' own gain-error shapes as nuisance parameters) and everything else as before, the
+// in-band directions held.
+//
 // Gauges: the gains are normalised to mean 1 (a common scale is absorbed by every pixel's
 // coefficients); the positions are identifiable up to an affine map x -> s0 + s1 x (the phase
 // and the frequency map absorb it), so delta is returned orthogonal to {1, x}.
@@ -157,6 +168,10 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
 // estimates the corrections of frames `frames` on the pixels whose first-pass frequency
 // `fitted_freq` is finite (f held at `f_map`), starting from gains 1 / inv_gain[frames[k]].
 // If valid, writes the new gains into inv_gain (as 1 / g) and adds the positions to *x.
+// With a non-empty `reference` (kJoint): on the reference's pixels instead, starting from the
+// given gains, in-band gains from the reference (no frame means, no gate); without one, or with
+// too few usable reference pixels (200 + 10 per nuisance parameter), as before: frame means
+// where the view's residual stripe allows, else the given gains kept.
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
                                         const std::vector<float>& fitted_freq,
                                         const std::vector<float>& f_map, std::vector<double>* x,

@@ -54,10 +54,13 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
   size_t n_usable = 0;
   for (size_t i = 0; i < np; ++i) n_usable += usable(i);
   if (n_usable == 0) return ref;
-  const size_t stride = std::max<size_t>(1, n_usable / std::max(1, max_pixels));
+  // About 1 in `stride` of the usable pixels, scattered by a multiplicative hash of the index (a
+  // regular stride could fall on the same few columns of every row, i.e. the same few stripe
+  // phases).
+  const uint64_t stride = std::max<uint64_t>(1, (n_usable + max_pixels - 1) / std::max(1, max_pixels));
   std::vector<double> th(nper), wt(nper);
-  for (size_t i = 0, c = 0; i < np; ++i) {
-    if (!usable(i) || (c++ % stride) != 0) continue;
+  for (size_t i = 0; i < np; ++i) {
+    if ((static_cast<uint64_t>(i) * 2654435761ull >> 7) % stride != 0 || !usable(i)) continue;
     const double sigma = 0.01 * ps.level[i];
     double info = 0;
     for (int p = 0; p < nper; ++p) {

@@ -44,12 +44,12 @@ void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan
                             FrameGains* gains, const PhaseShiftPixels* ps = nullptr);
 
 // The projector coordinate decoded by phase shifting alone (temporal unwrapping as in the
-// combine stage, per-sample noise 1% of the pixel's level) at a regular sample of at most
+// combine stage, per-sample noise 1% of the pixel's level) at a scattered sample of about
 // max_pixels of the pixels that are kActive in `state` with every period decoded and modulated
 // (modulation >= 5% of the level); pixels whose unwrapping is inconsistent are left out.
 // Empty without lens shift or when the periods cannot be unwrapped (the combine stage reports
 // that).
 PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
-                                  const PixelStates& state, int max_pixels = 20000);
+                                  const PixelStates& state, int max_pixels = 12000);
 
 }  // namespace mesoscan
