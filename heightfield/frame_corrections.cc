@@ -42,10 +42,27 @@ struct Problem {
   const std::vector<double>& freq;
   const std::vector<double>& x;
   std::vector<int> pix;  // pixels in use
+  // cos / sin at delta = 0 (the positions of every gains-only pass), pixel j's at
+  // trig0[2 nk j ..]: cos then sin; empty until filled.
+  std::vector<float> trig0;
 };
 
-// cos / sin of theta_k = 2 pi f_j (x_k + delta_k) of pixel j, into ct[0..nk), st[0..nk).
-void PixelTrig(const Problem& p, int j, const std::vector<double>& delta, double* ct, double* st) {
+bool AllZero(const std::vector<double>& v) {
+  return std::all_of(v.begin(), v.end(), [](double e) { return e == 0.0; });
+}
+
+// cos / sin of theta_k = 2 pi f_j (x_k + delta_k) of pixel j, into ct[0..nk), st[0..nk);
+// delta_zero: delta is all 0 (the table is used if filled).
+void PixelTrig(const Problem& p, int j, const std::vector<double>& delta, double* ct, double* st,
+               bool delta_zero = false) {
+  if (delta_zero && !p.trig0.empty()) {
+    const float* t = p.trig0.data() + static_cast<size_t>(j) * 2 * p.nk;
+    for (int k = 0; k < p.nk; ++k) {
+      ct[k] = t[k];
+      st[k] = t[p.nk + k];
+    }
+    return;
+  }
   const double w = 2 * kPi * p.freq[j];
   for (int k = 0; k < p.nk; ++k) {
     const double th = w * (p.x[k] + delta[k]);
@@ -67,7 +84,10 @@ bool SolvePixel(const Problem& p, int j, const std::vector<double>& g, const dou
     b += D * static_cast<double>(I[k]);
   }
   Eigen::LLT<Eigen::Matrix3d> llt(A);
-  if (llt.info() != Eigen::Success || !(llt.rcond() > 1e-10)) return false;
+  if (llt.info() != Eigen::Success) return false;
+  // Conditioning (cheaper than an rcond estimate): the Cholesky pivots' spread, squared.
+  const Eigen::Vector3d piv = llt.matrixLLT().diagonal();
+  if (!(piv.minCoeff() * piv.minCoeff() > 1e-10 * piv.maxCoeff() * piv.maxCoeff())) return false;
   *c = llt.solve(b);
   double r2 = 0;
   for (int k = 0; k < p.nk; ++k) {
@@ -104,6 +124,9 @@ Json FrameCorrections::ToJson() const {
           {"model", model},
           {"view_residual_stripe", view_residual_stripe},
           {"position_chi2_gain", position_chi2_gain},
+          {"in_band_pixels", in_band_pixels},
+          {"in_band_correction", {in_band_correction[0], in_band_correction[1]}},
+          {"in_band_sigma", in_band_sigma},
           {"valid", valid}};
 }
 
@@ -111,7 +134,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
                                           const std::vector<double>& freq,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
-                                          const FrameCorrectionOptions& options) {
+                                          const FrameCorrectionOptions& options,
+                                          const PhaseConstraint* reference) {
   FrameCorrections out;
   out.gains = initial_gains;
   out.positions_px.assign(std::max(nk, 0), 0.0);
@@ -125,7 +149,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     if (!(gk > 0) || !std::isfinite(gk)) return out;
   const int n_all = static_cast<int>(freq.size());
 
-  Problem p{samples, nk, freq, x, {}};
+  Problem p{samples, nk, freq, x, {}, {}};
   {
     const int stride = std::max(1, n_all / std::max(16, options.max_pixels));
     for (int j = 0; j < n_all; j += stride) {
@@ -137,6 +161,20 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
   }
   if (p.pix.size() < 16) return out;
 
+  {  // the delta = 0 table (floats: 4.8 MB for 12000 pixels of 50 frames)
+    p.trig0.assign(static_cast<size_t>(n_all) * 2 * nk, 0.0f);
+    const std::vector<double> zero(nk, 0.0);
+    ParallelFor(static_cast<int64_t>(p.pix.size()), [&](int64_t q) {
+      const int j = p.pix[q];
+      std::vector<double> ct(nk), st(nk);
+      PixelTrig(p, j, zero, ct.data(), st.data());
+      float* t = p.trig0.data() + static_cast<size_t>(j) * 2 * nk;
+      for (int k = 0; k < nk; ++k) {
+        t[k] = static_cast<float>(ct[k]);
+        t[nk + k] = static_cast<float>(st[k]);
+      }
+    });
+  }
   std::vector<double> g_start = initial_gains;
   {
     const double mean = std::accumulate(g_start.begin(), g_start.end(), 0.0) / nk;
@@ -154,7 +192,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     for (int j : p.pix) {
       Eigen::Vector3d c;
       double ssr;
-      PixelTrig(p, j, zero, ct.data(), st.data());
+      PixelTrig(p, j, zero, ct.data(), st.data(), true);
       if (!SolvePixel(p, j, g_start, ct.data(), st.data(), &c, &ssr)) continue;
       const double amp = std::hypot(c(1), c(2));
       const double s2 = ssr / (nk - 3);
@@ -182,6 +220,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
   const int n_pix = static_cast<int>(p.pix.size());
   const int n_blocks = (n_pix + kBlockPixels - 1) / kBlockPixels;
   auto cost = [&](const std::vector<double>& gg, const std::vector<double>& dd) {
+    const bool dz = AllZero(dd);
     std::vector<double> partial(n_blocks, 0.0);
     ParallelFor(n_blocks, [&](int64_t blk) {
       std::vector<double> ct(nk), st(nk);
@@ -190,7 +229,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
       for (int q = static_cast<int>(blk) * kBlockPixels; q < q_end; ++q) {
         Eigen::Vector3d c;
         double ssr;
-        PixelTrig(p, p.pix[q], dd, ct.data(), st.data());
+        PixelTrig(p, p.pix[q], dd, ct.data(), st.data(), dz);
         if (!SolvePixel(p, p.pix[q], gg, ct.data(), st.data(), &c, &ssr)) {
           total = std::numeric_limits<double>::infinity();
           break;
@@ -229,6 +268,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     int it = 0;
     bool converged = false;
     for (; it < std::max(1, options.iterations) && !converged; ++it) {
+      const bool dz = AllZero(delta);
       ParallelFor(n_blocks, [&](int64_t blk) {
         Partial& part = partials[blk];
         part.S.setZero(P, P);
@@ -243,7 +283,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
           const int j = p.pix[q];
           Eigen::Vector3d c;
           double ssr;
-          PixelTrig(p, j, delta, ct.data(), st.data());
+          PixelTrig(p, j, delta, ct.data(), st.data(), dz);
           if (!SolvePixel(p, j, g, ct.data(), st.data(), &c, &ssr)) continue;
           const double wq = wts[q], om = 2 * kPi * freq[j];
           const float* I = samples.data() + static_cast<size_t>(j) * nk;
@@ -335,10 +375,13 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
         if (c2 <= current) {
           accepted = true;
           const double rel_change = (current - c2) / std::max(current, 1e-300);
+          // The objective is a chi^2 (weights 1 / sigma_j^2): a drop below 0.5 is no
+          // information, and Gauss-Newton crawls from there (measured: 0.4-0.6 per iteration
+          // after the first on the coin and the tilted bar).
+          converged = rel_change < 1e-9 || current - c2 < 0.5;
           g = std::move(g2);
           delta = std::move(d2);
           current = c2;
-          converged = rel_change < 1e-9;
         }
       }
       if (!accepted) break;
@@ -353,14 +396,146 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
   // (all components; unbiased when the shifter is exact). Model B: positions, with the in-band
   // gains kept at their start. B is chosen when it explains significantly more than A (the
   // out-of-band position errors, which nothing else mimics, make the difference).
+  // The in-band gain components from the phase-shift reference: with the per-pixel fits at the
+  // current (g, delta), the lens-shift phase of pixel j is phi_j = ref_j + c + noise where the
+  // gains are right (c: the constant between the two cues, e.g. the shifter's zero). An in-band
+  // gain error moves phi_j by (d_j / a_j) times a sinusoid of phi_j, which no constant
+  // absorbs: weighted least squares for (c, eps_c, eps_s) with the gains multiplied by
+  // 1 + eps_c cos(2 pi f_mid x) + eps_s sin(2 pi f_mid x), the phases' derivatives taken per
+  // pixel by refitting (exact for any frequency and sampling). Frame means are biased by the
+  // stripes left in the view's average, this is not. Returns false where it cannot run.
+  std::vector<double> ref_phase, ref_var;  // per p.pix entry (NaN: none)
+  int n_ref = 0;
+  if (reference && est_g && reference->phase.size() == freq.size() &&
+      reference->sigma.size() == freq.size()) {
+    for (size_t q = 0; q < p.pix.size(); ++q) {
+      const double ph = reference->phase[p.pix[q]], sg = reference->sigma[p.pix[q]];
+      const bool ok = std::isfinite(ph) && std::isfinite(sg) && sg > 0;
+      ref_phase.push_back(ok ? ph : std::numeric_limits<double>::quiet_NaN());
+      ref_var.push_back(ok ? sg * sg : 0.0);
+      n_ref += ok;
+    }
+  }
+  const int n_nuis =
+      (reference && reference->nuisance_per_pixel > 0 &&
+       reference->nuisance.size() == freq.size() * reference->nuisance_per_pixel)
+          ? reference->nuisance_per_pixel
+          : 0;
+  constexpr int kMinReferencePixels = 200;
+  const bool use_reference = n_ref >= kMinReferencePixels + 10 * n_nuis;
+  auto in_band_from_reference = [&](std::vector<double>* g_io, const std::vector<double>& dd) {
+    std::vector<double>& gg = *g_io;
+    constexpr double h = 1e-3;
+    std::vector<double> b1(nk), b2(nk);
+    for (int k = 0; k < nk; ++k) {
+      b1[k] = std::cos(2 * kPi * f_mid * x[k]);
+      b2[k] = std::sin(2 * kPi * f_mid * x[k]);
+    }
+    std::vector<double> g1(nk), g2(nk);
+    for (int k = 0; k < nk; ++k) {
+      g1[k] = gg[k] * (1 + h * b1[k]);
+      g2[k] = gg[k] * (1 + h * b2[k]);
+    }
+    // Per pixel: r = phi - ref (wrapped), J = d phi / d eps, weight 1 / (var_ls + var_ref).
+    struct Row {
+      double r, j1, j2, w;
+    };
+    std::vector<Row> rows(n_pix, Row{std::numeric_limits<double>::quiet_NaN(), 0, 0, 0});
+    const bool dz = AllZero(dd);
+    ParallelFor(n_blocks, [&](int64_t blk) {
+      std::vector<double> ct(nk), st(nk);
+      const int q_end = std::min(n_pix, static_cast<int>(blk + 1) * kBlockPixels);
+      for (int q = static_cast<int>(blk) * kBlockPixels; q < q_end; ++q) {
+        if (!std::isfinite(ref_phase[q])) continue;
+        const int j = p.pix[q];
+        PixelTrig(p, j, dd, ct.data(), st.data(), dz);
+        Eigen::Vector3d c0, c1, c2;
+        double ssr, ssr1, ssr2;
+        if (!SolvePixel(p, j, gg, ct.data(), st.data(), &c0, &ssr) ||
+            !SolvePixel(p, j, g1, ct.data(), st.data(), &c1, &ssr1) ||
+            !SolvePixel(p, j, g2, ct.data(), st.data(), &c2, &ssr2))
+          continue;
+        const double a = std::hypot(c0(1), c0(2));
+        if (!(a > 0)) continue;
+        // I = d + alpha cos + beta sin = d + a sin(phi + theta): phi = atan2(alpha, beta).
+        const double ph0 = std::atan2(c0(1), c0(2));
+        const double var_ls = 2.0 * ssr / (nk - 3) / (nk * a * a);
+        rows[q] = {std::remainder(ph0 - ref_phase[q], 2 * kPi),
+                   std::remainder(std::atan2(c1(1), c1(2)) - ph0, 2 * kPi) / h,
+                   std::remainder(std::atan2(c2(1), c2(2)) - ph0, 2 * kPi) / h,
+                   1.0 / (var_ls + ref_var[q])};
+      }
+    });
+    // The constant: circular mean of the residuals, then a robust cut around it.
+    double sr = 0, si = 0;
+    for (const Row& row : rows)
+      if (std::isfinite(row.r)) {
+        sr += row.w * std::cos(row.r);
+        si += row.w * std::sin(row.r);
+      }
+    if (!(std::hypot(sr, si) > 0)) return false;
+    const double c0 = std::atan2(si, sr);
+    std::vector<double> z;  // standardised residuals
+    for (Row& row : rows)
+      if (std::isfinite(row.r)) {
+        row.r = std::remainder(row.r - c0, 2 * kPi);
+        z.push_back(std::abs(row.r) * std::sqrt(row.w));
+      }
+    if (static_cast<int>(z.size()) < kMinReferencePixels) return false;
+    const double limit = 4.0 * 1.4826 * Median(z);
+    // Normal equations of (c, eps_c, eps_s) and the phase-shift gain nuisance.
+    const int nv = 3 + n_nuis;
+    Eigen::MatrixXd A = Eigen::MatrixXd::Zero(nv, nv);
+    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(nv);
+    Eigen::VectorXd J(nv);
+    int used = 0;
+    double r2 = 0;  // weighted sum of squares before the fit
+    for (int q = 0; q < n_pix; ++q) {
+      const Row& row = rows[q];
+      if (!std::isfinite(row.r) || std::abs(row.r) * std::sqrt(row.w) > limit) continue;
+      J(0) = 1.0;
+      J(1) = row.j1;
+      J(2) = row.j2;
+      const float* nu = reference->nuisance.data() + static_cast<size_t>(p.pix[q]) * n_nuis;
+      for (int m = 0; m < n_nuis; ++m) J(3 + m) = nu[m];
+      A.selfadjointView<Eigen::Lower>().rankUpdate(J, row.w);
+      rhs -= row.w * row.r * J;
+      r2 += row.w * row.r * row.r;
+      ++used;
+    }
+    if (used < kMinReferencePixels + 10 * n_nuis) return false;
+    A.triangularView<Eigen::StrictlyUpper>() = A.transpose();
+    A.diagonal() *= 1.0 + 1e-12;
+    const Eigen::LDLT<Eigen::MatrixXd> ldlt(A);
+    const Eigen::VectorXd sol = ldlt.solve(rhs);
+    if (ldlt.info() != Eigen::Success || !sol.allFinite()) return false;
+    // Standard error of the gain components, with the residuals' own scale (chi^2 after the
+    // fit = before - sol . rhs).
+    const double chi2 = std::max(0.0, r2 - sol.dot(rhs));
+    const Eigen::MatrixXd cov = ldlt.solve(Eigen::MatrixXd::Identity(nv, nv)) *
+                                std::max(1.0, chi2 / std::max(1, used - nv));
+    for (int k = 0; k < nk; ++k) gg[k] *= 1 + sol(1) * b1[k] + sol(2) * b2[k];
+    const double mean = std::accumulate(gg.begin(), gg.end(), 0.0) / nk;
+    for (double& v : gg) v /= mean;
+    out.in_band_pixels = used;
+    out.in_band_correction[0] = sol(1);
+    out.in_band_correction[1] = sol(2);
+    out.in_band_sigma = std::sqrt(0.5 * (cov(1, 1) + cov(2, 2)));
+    return true;
+  };
   int it = 0;
   std::vector<double> g = g_start, delta(nk, 0.0);
   double c_a = cost(g, delta);
-  if (est_g) c_a = solve(true, false, options.freeze_in_band_gains, &g, &delta, &it);
+  if (est_g) {
+    // With the reference: its in-band gains, then the rest with those held.
+    if (use_reference && !in_band_from_reference(&g, delta)) return out;
+    c_a = solve(true, false, use_reference || options.freeze_in_band_gains, &g, &delta, &it);
+  }
   if (!std::isfinite(c_a)) return out;
-  out.model = "gains";
+  out.model = use_reference ? "gains+reference" : "gains";
   if (est_d) {
-    std::vector<double> gb = g_start, db(nk, 0.0);
+    const FrameCorrections after_a = out;  // the in-band figures of model A
+    std::vector<double> gb = use_reference ? g : g_start, db(nk, 0.0);
     const double c_b = solve(est_g, true, est_g, &gb, &db, &it);
     const double dof = std::max(1, nk - 4);
     out.position_chi2_gain = std::isfinite(c_b) ? c_a - c_b : 0.0;
@@ -370,7 +545,13 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     if (std::isfinite(c_b) && relevant && (!est_g || c_a - c_b > dof + 6 * std::sqrt(2 * dof))) {
       g = std::move(gb);
       delta = std::move(db);
-      out.model = est_g ? "gains+positions" : "positions";
+      out.model = est_g ? (use_reference ? "gains+reference+positions" : "gains+positions")
+                        : "positions";
+    } else {
+      out.in_band_pixels = after_a.in_band_pixels;
+      out.in_band_correction[0] = after_a.in_band_correction[0];
+      out.in_band_correction[1] = after_a.in_band_correction[1];
+      out.in_band_sigma = after_a.in_band_sigma;
     }
   }
   for (int k = 0; k < nk; ++k) {
@@ -394,17 +575,33 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
                                           const std::vector<float>& f_map,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
-                                          const FrameCorrectionOptions& options) {
+                                          const FrameCorrectionOptions& options,
+                                          const PhaseConstraint* reference) {
   const int nk = static_cast<int>(frames.size());
   const size_t stride = std::max<size_t>(1, pixels.size() / std::max(16, options.max_pixels));
+  PhaseConstraint sub;
+  const bool with_ref =
+      reference && reference->phase.size() == pixels.size() &&
+      reference->sigma.size() == pixels.size() &&
+      reference->nuisance.size() == pixels.size() * std::max(0, reference->nuisance_per_pixel);
+  if (with_ref) sub.nuisance_per_pixel = reference->nuisance_per_pixel;
   std::vector<float> samples;
   std::vector<double> freq;
   for (size_t q = 0; q < pixels.size(); q += stride) {
     const uint32_t i = pixels[q];
     freq.push_back(f_map[i]);
     for (int k = 0; k < nk; ++k) samples.push_back(stack.Value(frames[k], i));
+    if (with_ref) {
+      sub.phase.push_back(reference->phase[q]);
+      sub.sigma.push_back(reference->sigma[q]);
+      const int m = reference->nuisance_per_pixel;
+      if (m > 0)
+        sub.nuisance.insert(sub.nuisance.end(), reference->nuisance.begin() + q * m,
+                            reference->nuisance.begin() + (q + 1) * m);
+    }
   }
-  return EstimateFrameCorrections(samples, nk, freq, x, initial_gains, options);
+  return EstimateFrameCorrections(samples, nk, freq, x, initial_gains, options,
+                                  with_ref ? &sub : nullptr);
 }
 
 }  // namespace mesoscan
@@ -437,7 +634,45 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
                                         const FrameCorrectionOptions& options,
                                         const std::vector<float>* amp,
                                         const std::vector<float>* phase,
-                                        const std::vector<float>* offset) {
+                                        const std::vector<float>* offset,
+                                        const PhaseReference* reference) {
+  if (reference && !reference->empty() && options.method == FrameGainMethod::kJoint &&
+      options.estimate_gains) {
+    // The phase-shift reference makes every gain component identifiable: no frame means (and
+    // their gate) needed. Its pixels, where the frequency map is defined.
+    std::vector<uint32_t> pixels;
+    PhaseConstraint pc;
+    const double centre = reference->ls_centre_px;
+    for (size_t q = 0; q < reference->pixels.size(); ++q) {
+      const uint32_t i = reference->pixels[q];
+      if (i >= f_map.size() || !std::isfinite(f_map[i])) continue;
+      pixels.push_back(i);
+      // Shift 0: pi/2 - pi u (stage_combine.cc); the fit's x = 0 is the range's centre.
+      pc.phase.push_back(kPi / 2 - kPi * reference->u_px[q] + 2 * kPi * f_map[i] * centre);
+      pc.sigma.push_back(kPi * reference->sigma_u_px[q]);
+      const int m = reference->nuisance_per_pixel;
+      if (m > 0 && reference->nuisance.size() == reference->pixels.size() * m)
+        pc.nuisance.insert(pc.nuisance.end(), reference->nuisance.begin() + q * m,
+                           reference->nuisance.begin() + (q + 1) * m);
+    }
+    pc.nuisance_per_pixel =
+        pc.nuisance.size() == pc.phase.size() * reference->nuisance_per_pixel && !pc.phase.empty()
+            ? reference->nuisance_per_pixel
+            : 0;
+    if (pc.nuisance_per_pixel == 0) pc.nuisance.clear();
+    std::vector<double> g0;
+    for (int k : frames) g0.push_back(1.0 / (*inv_gain)[k]);
+    FrameCorrections fc = EstimateFrameCorrections(stack, frames, pixels, f_map, *x, g0, options, &pc);
+    if (fc.in_band_pixels > 0) {  // else (too few reference pixels): as without a reference
+      if (fc.valid) {
+        for (size_t k = 0; k < frames.size(); ++k) {
+          (*inv_gain)[frames[k]] = static_cast<float>(1.0 / fc.gains[k]);
+          (*x)[k] += fc.positions_px[k];
+        }
+      }
+      return fc;
+    }
+  }
   std::vector<uint32_t> pixels;
   for (size_t i = 0; i < fitted_freq.size(); ++i)
     if (std::isfinite(fitted_freq[i]) && std::isfinite(f_map[i]))

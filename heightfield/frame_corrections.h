@@ -19,6 +19,17 @@
 // parameters with the per-pixel coefficients eliminated exactly (Schur complement, variable
 // projection), a handful of iterations from the given starting gains.
 //
+// Which information fixes the in-band gains (cos / sin of 2 pi f x over the frames): the
+// profiles' 2 f signature is biased by the stripes' own harmonic (hence freeze_in_band_gains),
+// frame means by the stripes left in the view's average (a 128x96 view of the tilted bar:
+// 2.6e-3 of the level), alternating least squares cannot see them at all. What is unbiased is
+// the phase: phase shifting predicts every pixel's lens-shift phase (PhaseConstraint), and an
+// in-band gain error moves the fitted phases by (d / a) times a sinusoid of the phase, which no
+// constant absorbs. With a reference the in-band gains are set from it (a weighted least-squares
+// fit of the phase disagreement, with the constant between the cues and the phase-shift
+// frames' own gain-error shapes as nuisance parameters) and everything else as before, the
+// in-band directions held.
+//
 // Gauges: the gains are normalised to mean 1 (a common scale is absorbed by every pixel's
 // coefficients); the positions are identifiable up to an affine map x -> s0 + s1 x (the phase
 // and the frequency map absorb it), so delta is returned orthogonal to {1, x}.
@@ -72,6 +83,35 @@ struct FrameCorrectionOptions {
   double max_gain_deviation = 0.3;
 };
 
+// The projector coordinate that phase shifting alone decoded at a sample of pixels: it predicts
+// each pixel's lens-shift phase (phi = pi/2 - pi u at shift 0, stage_combine.cc) independently of
+// the lens-shift frames' gains, which is what makes the in-band part of the gain jitter
+// identifiable (see EstimateFrameCorrections). Built by stage_gains.h MakePhaseReference.
+struct PhaseReference {
+  std::vector<uint32_t> pixels;  // stack pixels
+  std::vector<float> u_px;       // projector coordinate along the decoded axis, px
+  std::vector<float> sigma_u_px;  // its predicted standard deviation, px
+  // The phase-shift frames' own gain errors move u by a sinusoid of each period's phase (first
+  // harmonic, scaled by offset / modulation, and second harmonic): per pixel, nuisance[q *
+  // nuisance_per_pixel + m] are those shapes' derivatives of the predicted lens-shift phase
+  // (radians per unit coefficient), fitted along with the in-band gains so that they do not
+  // bias them.
+  int nuisance_per_pixel = 0;
+  std::vector<float> nuisance;
+  double ls_centre_px = 0.0;     // the lens-shift positions' centre (the fit's x = 0), px
+  bool empty() const { return pixels.empty(); }
+};
+
+// Per sample pixel of EstimateFrameCorrections: the predicted phase of the lens-shift profile at
+// x = 0 in the fitter's convention (I = d + a sin(phi + 2 pi f x), heightfield/lens_shift_fit.h),
+// up to one constant shared by all pixels (estimated), and its standard deviation; NaN: none.
+struct PhaseConstraint {
+  std::vector<double> phase;
+  std::vector<double> sigma;
+  int nuisance_per_pixel = 0;   // PhaseReference::nuisance, per pixel of phase
+  std::vector<float> nuisance;
+};
+
 struct FrameCorrections {
   std::vector<double> gains;         // per frame, mean 1 (the starting gains if not estimated)
   std::vector<double> positions_px;  // per-frame position error delta_k, orthogonal to {1, x}
@@ -84,6 +124,12 @@ struct FrameCorrections {
   double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe  // drop of the weighted objective when positions are added
   bool valid = false;  // false: the starting gains and zero positions are returned
   double position_rms_px = 0.0;
+  // The in-band gain components set from the phase-shift reference (PhaseConstraint): the
+  // pixels used, the correction applied in the last round (relative gain along cos / sin of
+  // 2 pi f x) and its standard error; in_band_pixels = 0: in-band gains kept at their start.
+  int in_band_pixels = 0;
+  double in_band_correction[2] = {0.0, 0.0};
+  double in_band_sigma = 0.0;
   Json ToJson() const;
 };
 
@@ -96,7 +142,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
                                           const std::vector<double>& freq,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
-                                          const FrameCorrectionOptions& options);
+                                          const FrameCorrectionOptions& options,
+                                          const PhaseConstraint* reference = nullptr);
 
 // The same on frames `frames` (stack indices) of `stack` at stack pixels `pixels`, with the
 // per-pixel frequency f_map[pixel].
@@ -105,7 +152,8 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
                                           const std::vector<float>& f_map,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
-                                          const FrameCorrectionOptions& options);
+                                          const FrameCorrectionOptions& options,
+                                          const PhaseConstraint* reference = nullptr);
 
 }  // namespace mesoscan
 
@@ -120,6 +168,10 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
 // estimates the corrections of frames `frames` on the pixels whose first-pass frequency
 // `fitted_freq` is finite (f held at `f_map`), starting from gains 1 / inv_gain[frames[k]].
 // If valid, writes the new gains into inv_gain (as 1 / g) and adds the positions to *x.
+// With a non-empty `reference` (kJoint): on the reference's pixels instead, starting from the
+// given gains, in-band gains from the reference (no frame means, no gate); without one, or with
+// too few usable reference pixels (200 + 10 per nuisance parameter), as before: frame means
+// where the view's residual stripe allows, else the given gains kept.
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
                                         const std::vector<float>& fitted_freq,
                                         const std::vector<float>& f_map, std::vector<double>* x,
@@ -127,6 +179,7 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
                                         const FrameCorrectionOptions& options,
                                         const std::vector<float>* amp = nullptr,
                                         const std::vector<float>* phase = nullptr,
-                                        const std::vector<float>* offset = nullptr);
+                                        const std::vector<float>* offset = nullptr,
+                                        const PhaseReference* reference = nullptr);
 
 }  // namespace mesoscan

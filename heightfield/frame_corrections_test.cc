@@ -181,6 +181,50 @@ TEST(FrameCorrections, NoPositionModelWithoutPositionErrors) {
   for (double d : fc.positions_px) EXPECT_EQ(d, 0.0);
 }
 
+// The in-band gains from a phase reference (what phase shifting gives the pipeline): the true
+// phases plus a constant the estimate must absorb and noise 25x the lens-shift phases' own, from
+// gains 1 (which leave all of the jitter in place), the in-band part held otherwise.
+TEST(FrameCorrections, InBandGainsFromAPhaseReference) {
+  const Synthetic s = Make(0.02, 0.0, 0.002, 4, 4000);
+  std::vector<double> ones(s.nk, 1.0), zero(s.nk, 0.0);
+  PhaseConstraint pc;
+  std::mt19937 rng(5);
+  std::normal_distribution<double> nd;
+  for (int j = 0; j < s.n; ++j) {
+    pc.phase.push_back(s.phase[j] + 0.7 + 0.1 * nd(rng));
+    pc.sigma.push_back(0.1);
+  }
+  FrameCorrectionOptions o;
+  o.estimate_positions = false;
+  const FrameCorrections with_ref =
+      EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o, &pc);
+  const FrameCorrections frozen = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o);
+  ASSERT_TRUE(with_ref.valid);
+  ASSERT_TRUE(frozen.valid);
+  EXPECT_EQ(with_ref.model, "gains+reference");
+  EXPECT_GT(with_ref.in_band_pixels, 3500);
+  const double e_ref = PhaseRms(s, with_ref.gains, zero), e_frozen = PhaseRms(s, frozen.gains, zero),
+               e_true = PhaseRms(s, s.g, zero);
+  std::printf("phase RMS (rad): reference %.5f, in-band held at 1 %.5f, true gains %.5f; in-band "
+              "sigma %.1e\n",
+              e_ref, e_frozen, e_true, with_ref.in_band_sigma);
+  // Tolerance from the estimate's own noise: an in-band gain error eps adds (d / a) eps / sqrt 2
+  // RMS to a pixel's phase; allowed: 2 in_band_sigma (the ideal would be unbiased and at sigma).
+  double da2 = 0;
+  for (int j = 0; j < s.n; ++j) da2 += std::pow(s.offset[j] / s.amp[j], 2) / s.n;
+  const double excess = 2 * with_ref.in_band_sigma * std::sqrt(da2 / 2);
+  std::printf("allowed: %.5f rad (2 sigma of the in-band estimate)\n",
+              std::sqrt(e_true * e_true + excess * excess));
+  EXPECT_LE(e_ref, std::sqrt(e_true * e_true + excess * excess));
+  EXPECT_GT(e_frozen, 2 * e_ref);  // the held in-band jitter is measurably worse
+  // Too few reference pixels: nothing from the reference (the caller falls back).
+  PhaseConstraint few = pc;
+  for (size_t j = 100; j < few.phase.size(); ++j) few.phase[j] = std::nan("");
+  const FrameCorrections none = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o, &few);
+  EXPECT_EQ(none.in_band_pixels, 0);
+  EXPECT_EQ(none.model, "gains");
+}
+
 TEST(FrameCorrections, DegenerateInputKeepsTheStart) {
   std::vector<double> x(10), g(10, 1.0);
   for (int k = 0; k < 10; ++k) x[k] = 0.2 * (k - 4.5);

@@ -2,8 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
+#include "core/error.h"
 #include "core/numbers.h"
+#include "heightfield/phase_shift.h"
 
 namespace mesoscan {
 
@@ -23,10 +26,76 @@ FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan
   return g;
 }
 
+PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                                  const PixelStates& state, int max_pixels) {
+  PhaseReference ref;
+  const int nper = static_cast<int>(plan.periods.size());
+  const size_t np = state.size();
+  if (!plan.use_lens_shift() || nper == 0 || static_cast<int>(ps.theta.size()) != nper ||
+      ps.level.size() != np)
+    return ref;
+  for (int p = 0; p < nper; ++p)
+    if (ps.theta[p].size() != np || ps.modulation[p].size() != np) return ref;
+  std::optional<TemporalUnwrapper> unwrapper;
+  std::vector<WrappedPhaseSolver> solvers;
+  try {
+    unwrapper.emplace(plan.PeriodList(), plan.projector_width);
+    for (const auto& p : plan.periods) solvers.emplace_back(p.deltas);
+  } catch (const Error&) {
+    return ref;  // the combine stage names the problem
+  }
+  auto usable = [&](size_t i) {
+    if (state[i] != PixelState::kActive || !(ps.level[i] > 0)) return false;
+    for (int p = 0; p < nper; ++p)
+      if (!std::isfinite(ps.theta[p][i]) || !(ps.modulation[p][i] >= 0.05 * ps.level[i]))
+        return false;
+    return true;
+  };
+  size_t n_usable = 0;
+  for (size_t i = 0; i < np; ++i) n_usable += usable(i);
+  if (n_usable == 0) return ref;
+  // About 1 in `stride` of the usable pixels, scattered by a multiplicative hash of the index (a
+  // regular stride could fall on the same few columns of every row, i.e. the same few stripe
+  // phases).
+  const uint64_t stride = std::max<uint64_t>(1, (n_usable + max_pixels - 1) / std::max(1, max_pixels));
+  std::vector<double> th(nper), wt(nper);
+  for (size_t i = 0; i < np; ++i) {
+    if ((static_cast<uint64_t>(i) * 2654435761ull >> 7) % stride != 0 || !usable(i)) continue;
+    const double sigma = 0.01 * ps.level[i];
+    double info = 0;
+    for (int p = 0; p < nper; ++p) {
+      th[p] = ps.theta[p][i];
+      const double var = solvers[p].ThetaVariance(sigma, ps.modulation[p][i]) + 0.02 * 0.02;
+      wt[p] = 1.0 / var;
+      info += std::pow(2 * kPi / plan.periods[p].period, 2) * wt[p];
+    }
+    const UnwrapResult ur = unwrapper->Unwrap(th.data(), wt.data());
+    if (!ur.valid || !(info > 0)) continue;
+    for (int p = 0; p < nper; ++p) {
+      // d phi_ls / d theta_p = -pi du/dtheta_p, du/dtheta_p = omega_p P / (2 pi).
+      const double P = plan.periods[p].period, rate = 2 * kPi / P;
+      const double omega = wt[p] * rate * rate / info;
+      const double s = -kPi * omega * P / (2 * kPi);
+      const double r = ps.level[i] / ps.modulation[p][i];
+      ref.nuisance.push_back(static_cast<float>(s * r * std::cos(th[p])));
+      ref.nuisance.push_back(static_cast<float>(s * r * std::sin(th[p])));
+      ref.nuisance.push_back(static_cast<float>(s * std::cos(2 * th[p])));
+      ref.nuisance.push_back(static_cast<float>(s * std::sin(2 * th[p])));
+    }
+    ref.pixels.push_back(static_cast<uint32_t>(i));
+    ref.u_px.push_back(static_cast<float>(ur.u));
+    ref.sigma_u_px.push_back(static_cast<float>(1.0 / std::sqrt(info)));
+  }
+  ref.ls_centre_px = plan.LensShiftCentre();
+  ref.nuisance_per_pixel = 4 * nper;
+  return ref;
+}
+
 void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
                             const PixelStates& state, GainGroup group, const GainOptions& options,
-                            FrameGains* gains) {
+                            FrameGains* gains, const PhaseShiftPixels* ps) {
   FrameGains& g = *gains;
+  if (group == GainGroup::kLensShift && ps) g.phase_reference = MakePhaseReference(plan, *ps, state);
   if (!options.normalize_luminance) return;
   const size_t np = state.size();
   std::vector<uint32_t> sample;

@@ -8,6 +8,7 @@
 
 #include <vector>
 
+#include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_plan.h"
@@ -22,6 +23,9 @@ struct GainOptions {
 struct FrameGains {
   std::vector<float> inv_gain;       // per stack frame: 1 / gain
   std::vector<double> session_gain;  // per session frame (1 where not estimated)
+  // For the lens-shift stage's frame corrections (issue 13): the projector coordinate from
+  // phase shifting alone at a sample of pixels (MakePhaseReference); empty if not made.
+  PhaseReference phase_reference;
 };
 
 FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
@@ -33,8 +37,19 @@ FrameGains EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan
 // The group's frames must be in `stack`; the sample is drawn from `state` as above.
 enum class GainGroup { kPhaseShift, kLensShift };
 FrameGains UnitGains(const ReconstructPlan& plan, size_t session_frames);
+// With `ps` (the phase-shift stage's output) the lens-shift group also makes
+// gains->phase_reference from it.
 void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
                             const PixelStates& state, GainGroup group, const GainOptions& options,
-                            FrameGains* gains);
+                            FrameGains* gains, const PhaseShiftPixels* ps = nullptr);
+
+// The projector coordinate decoded by phase shifting alone (temporal unwrapping as in the
+// combine stage, per-sample noise 1% of the pixel's level) at a scattered sample of about
+// max_pixels of the pixels that are kActive in `state` with every period decoded and modulated
+// (modulation >= 5% of the level); pixels whose unwrapping is inconsistent are left out.
+// Empty without lens shift or when the periods cannot be unwrapped (the combine stage reports
+// that).
+PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                                  const PixelStates& state, int max_pixels = 12000);
 
 }  // namespace mesoscan

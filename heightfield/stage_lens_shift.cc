@@ -263,7 +263,8 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
         fco.estimate_positions = options.correct_positions;
         const FrameCorrections fc =
             CorrectLensShiftFrames(stack, ls_stack, out.frequency, f_map, &x, &inv_gain, fco,
-                                   &out.amplitude, &out.phase0, &out.offset);
+                                   &out.amplitude, &out.phase0, &out.offset,
+                                   &gains->phase_reference);
         for (int k = 0; k < nls; ++k) {
           const size_t f = static_cast<size_t>(plan.frames[ls_stack[k]]);
           if (f < gains->session_gain.size()) gains->session_gain[f] = 1.0 / inv_gain[ls_stack[k]];

@@ -65,7 +65,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     out.ps.pixels_lit = std::count(state.begin(), state.end(), PixelState::kActive);
   }
   EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
-                         &out.gains);
+                         &out.gains, &out.ps);
   return out;
 }
 
