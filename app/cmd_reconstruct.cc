@@ -17,6 +17,7 @@
 #include "core/log.h"
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
+#include "core/stage_timer.h"
 #include "heightfield/export.h"
 #include "heightfield/error_map_png.h"
 #include "heightfield/ground_truth.h"
@@ -36,6 +37,7 @@ struct ReconstructArgs {
 
 void Run(const ReconstructArgs& a) {
   const auto t0 = std::chrono::steady_clock::now();
+  const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;
   if (!a.roi.empty()) opt.roi = ParsePixelRect(a.roi, "--roi");
   opt.mask_path = a.mask;
@@ -102,6 +104,11 @@ void Run(const ReconstructArgs& a) {
     const double total =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     scan.report["wall_time_s"] = total;
+    // The process's own figures (comparable with bench_reconstruct's full-resolution row): CPU
+    // time of every thread since the start (session reading and loading the libraries excluded)
+    // and peak RSS so far (the report is written last but for --export inside the scan).
+    scan.report["cpu_time_s"] = ProcessCpuSeconds() - cpu0;
+    scan.report["peak_rss_mb"] = PeakRssMegabytes();
     WriteJsonFile(tmp / "report.json", scan.report);
     // Default --export-dir (SCAN/export) is written with the scan, inside the same swap.
     if (export_inside) export_summary = write_exports(tmp / "export");
@@ -118,7 +125,9 @@ void Run(const ReconstructArgs& a) {
                         << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross "
                         << gt->gross_fraction << mixed.str();
   }
-  MESOSCAN_LOG(kInfo) << "scan written to " << a.out;
+  MESOSCAN_LOG(kInfo) << "scan written to " << a.out << " (" << scan.report["wall_time_s"].get<double>()
+                      << " s wall, " << scan.report["cpu_time_s"].get<double>() << " CPU-s, peak RSS "
+                      << scan.report["peak_rss_mb"].get<double>() << " MB)";
   if (!a.export_formats.empty()) {
     // The same exports as `mesoscan export SCAN --format ...`, from the scan in memory.
     const std::filesystem::path dir =
