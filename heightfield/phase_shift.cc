@@ -391,6 +391,16 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   //    Keep the candidate with the smaller chi^2.
   double best_score_refined = std::numeric_limits<double>::infinity();
   double best_chi2 = 0.0, best_u = 0.0;
+  // 1 / (the running sums of the weights, coarse to fine): shared by the two candidates (the
+  // divisions were the refinement's critical path).
+  std::array<double, kMaxPeriods> inv_sw{};
+  {
+    double sw = 0.0;
+    for (int o = 0; o < m; ++o) {
+      sw += w_px[order_[o]];
+      inv_sw[o] = 1.0 / sw;
+    }
+  }
   for (int c = 0; c < 2; ++c) {
     if (!std::isfinite(best_score[c])) continue;
     double u = pa * (ta + best_k[c]);
@@ -400,15 +410,14 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
       const double n_i = RoundNearestSmall(u * inv_periods_[i] - t[i]);
       sw += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
-      u = swu / sw;
+      u = swu * inv_sw[o];
     }
-    sw = swu = 0.0;
+    swu = 0.0;  // sw: the sum of every weight already
     for (int i = 0; i < m; ++i) {
       const double n_i = RoundNearestSmall(u * inv_periods_[i] - t[i]);
-      sw += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
     }
-    u = swu / sw;
+    u = swu * inv_sw[m - 1];
     double chi2 = 0.0;
     for (int i = 0; i < m; ++i) {
       const double r_px = WrapCyclesSmall(u * inv_periods_[i] - t[i]) * periods_[i];
