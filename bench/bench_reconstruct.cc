@@ -36,6 +36,7 @@
 
 #include "capture/session.h"
 #include "core/fs.h"
+#include "core/image_input.h"
 #include "core/image_io.h"
 #include "core/parallel.h"
 #include "core/progress.h"
@@ -330,8 +331,15 @@ int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs:
     const Session s = ReadSession(dir);
     const auto t = Clock::now();
     const double c = ProcessCpuSeconds();
-    ParallelFor(static_cast<int64_t>(s.frames.size()),
-                [&](int64_t i) { (void)ReadImage(s.FramePath(i)); });
+    // The bare decode: each PNG into its own 16-bit samples (no conversion to float; the
+    // pipeline keeps the frames as 16-bit integers too), two at a time.
+    ParallelFor(static_cast<int64_t>(s.frames.size()), [&](int64_t i) {
+      auto in = OpenImageInput(s.FramePath(i), s.FramePath(i).string());
+      const OIIO::ImageSpec& spec = in->spec();
+      std::vector<uint16_t> samples(static_cast<size_t>(spec.width) * spec.height * spec.nchannels);
+      if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT16, samples.data()))
+        std::printf("full resolution: cannot decode %s\n", s.FramePath(i).c_str());
+    });
     decode = Since(t);
     cpu_decode = ProcessCpuSeconds() - c;
   }
