@@ -1,11 +1,11 @@
 // mesoscan reconstruct SESSION --out SCAN: a capture session to a scan folder
 // (shared/spec/scan-outputs.md) through heightfield/reconstruct.h.
 
+#include <tbb/parallel_invoke.h>
+
 #include <chrono>
 #include <filesystem>
 #include <sstream>
-
-#include <tbb/parallel_invoke.h>
 
 #include "app/commands.h"
 #include "app/map_options.h"
@@ -18,8 +18,8 @@
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
-#include "heightfield/export.h"
 #include "heightfield/error_map_png.h"
+#include "heightfield/export.h"
 #include "heightfield/ground_truth.h"
 #include "heightfield/reconstruct.h"
 
@@ -119,10 +119,9 @@ void Run(const ReconstructArgs& a) {
           WriteErrorMapPng(tmp / "error_map.png", gt->error);
           error_map_s = c.Seconds();
         });
-    scan.report["write_timings_s"] = {{"points_exr", points_s},   {"height_exr", height_s},
-                                      {"normal_exr", normal_s},   {"ground_truth", gt_s},
-                                      {"error_map_png", error_map_s},
-                                      {"all", write_clock.Seconds()}};
+    scan.report["write_timings_s"] = {
+        {"points_exr", points_s}, {"height_exr", height_s},       {"normal_exr", normal_s},
+        {"ground_truth", gt_s},   {"error_map_png", error_map_s}, {"all", write_clock.Seconds()}};
     if (gt) scan.report["ground_truth"] = gt->ToJson();
     const double total =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -148,8 +147,9 @@ void Run(const ReconstructArgs& a) {
                         << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross "
                         << gt->gross_fraction << mixed.str();
   }
-  MESOSCAN_LOG(kInfo) << "scan written to " << a.out << " (" << scan.report["wall_time_s"].get<double>()
-                      << " s wall, " << scan.report["cpu_time_s"].get<double>() << " CPU-s, peak RSS "
+  MESOSCAN_LOG(kInfo) << "scan written to " << a.out << " ("
+                      << scan.report["wall_time_s"].get<double>() << " s wall, "
+                      << scan.report["cpu_time_s"].get<double>() << " CPU-s, peak RSS "
                       << scan.report["peak_rss_mb"].get<double>() << " MB)";
   if (!a.export_formats.empty()) {
     // The same exports as `mesoscan export SCAN --format ...`, from the scan in memory.

@@ -41,8 +41,8 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
-#include "heightfield/lens_shift_fit.h"
 #include "heightfield/ground_truth.h"
+#include "heightfield/lens_shift_fit.h"
 #include "heightfield/reconstruct.h"
 #include "sim/virtual_rig.h"
 #include "tests/plain_ls_decoder.h"
@@ -234,7 +234,8 @@ void PlotTable1(const std::vector<Row>& rows, const fs::path& png) {
 void ChildrenUsage(double* cpu_s, double* max_rss_mb) {
   rusage ru{};
   getrusage(RUSAGE_CHILDREN, &ru);
-  *cpu_s = ru.ru_utime.tv_sec + ru.ru_stime.tv_sec + 1e-6 * (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
+  *cpu_s =
+      ru.ru_utime.tv_sec + ru.ru_stime.tv_sec + 1e-6 * (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
   *max_rss_mb = ru.ru_maxrss / 1024.0;
 }
 
@@ -256,15 +257,16 @@ void FullResolution(const fs::path& work, const fs::path& out) {
   double cpu0 = 0, rss_before = 0;
   ChildrenUsage(&cpu0, &rss_before);
   const std::string cli = std::string("'") + MESOSCAN_EXE + "' reconstruct '" + dir.string() +
-                          "' --out '" + (work / "fullres_cli.scan").string() +
-                          "' --force > '" + (work / "fullres_cli.log").string() + "' 2>&1";
+                          "' --out '" + (work / "fullres_cli.scan").string() + "' --force > '" +
+                          (work / "fullres_cli.log").string() + "' 2>&1";
   const auto t_cli = Clock::now();
   const int cli_status = std::system(cli.c_str());
   const double cli_wall = Since(t_cli);
   double cpu1 = 0, cli_rss = 0;
   ChildrenUsage(&cpu1, &cli_rss);
   const double cli_cpu = cpu1 - cpu0;
-  if (cli_status != 0) std::printf("full resolution: mesoscan reconstruct failed (status %d)\n", cli_status);
+  if (cli_status != 0)
+    std::printf("full resolution: mesoscan reconstruct failed (status %d)\n", cli_status);
 
   // The measurement runs in a fresh process (this binary with --fullres-child): TBB's worker
   // pool does not survive fork(), and a fresh process gives an honest peak RSS.
@@ -282,32 +284,35 @@ void FullResolution(const fs::path& work, const fs::path& out) {
     return;
   }
   const std::string buf = ReadTextFile(result);
-  double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0, cpu_decode = 0,
-         cpu_reconstruct = 0, cpu_e2e = 0, child_rss = 0;
+  double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0, cpu_decode = 0, cpu_reconstruct = 0,
+         cpu_e2e = 0, child_rss = 0;
   int stages_at = 0;
-  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf %lf %lf %lf %lf%n", &decode, &compute, &e2e,
-              &total, &rms, &cpu_decode, &cpu_reconstruct, &cpu_e2e, &child_rss, &stages_at);
+  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf %lf %lf %lf %lf%n", &decode, &compute, &e2e, &total,
+              &rms, &cpu_decode, &cpu_reconstruct, &cpu_e2e, &child_rss, &stages_at);
   const double rss_mb = child_rss;
   double load[3] = {0, 0, 0};
   getloadavg(load, 3);
-  std::printf("full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute after the "
-              "last frame %.2f s; end-to-end (read session, reconstruct, write) %.2f s = %.2fx "
-              "decode; peak RSS %.0f MB; depth RMS %.2f um\n",
-              decode, compute, e2e, e2e / decode, rss_mb, rms * 1e6);
+  std::printf(
+      "full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute after the "
+      "last frame %.2f s; end-to-end (read session, reconstruct, write) %.2f s = %.2fx "
+      "decode; peak RSS %.0f MB; depth RMS %.2f um\n",
+      decode, compute, e2e, e2e / decode, rss_mb, rms * 1e6);
   std::printf("full resolution CPU (s, all threads): bare decode %.2f, reconstruct incl. its "
               "decode %.2f, end to end %.2f = %.2fx the bare decode; load average %.2f\n",
               cpu_decode, cpu_reconstruct, cpu_e2e, cpu_e2e / cpu_decode, load[0]);
   std::printf("full resolution stages, wall | CPU (s):%s", buf.c_str() + stages_at);
-  std::printf("full resolution, the mesoscan reconstruct process (libraries, session, reconstruct, "
-              "ground truth, writing): %.2f s wall = %.2fx the bare decode, %.2f CPU-s = %.2fx, "
-              "peak RSS %.0f MB\n",
-              cli_wall, cli_wall / decode, cli_cpu, cli_cpu / cpu_decode, cli_rss);
+  std::printf(
+      "full resolution, the mesoscan reconstruct process (libraries, session, reconstruct, "
+      "ground truth, writing): %.2f s wall = %.2fx the bare decode, %.2f CPU-s = %.2fx, "
+      "peak RSS %.0f MB\n",
+      cli_wall, cli_wall / decode, cli_cpu, cli_cpu / cpu_decode, cli_rss);
   // Issue 12's goals, each next to its figure (the load average says how far to trust them).
-  std::printf("full resolution goals: end-to-end / bare decode %.2f wall, %.2f CPU (goal <= 1.25; "
-              "the CLI process %.2f wall, %.2f CPU); compute after the last frame %.2f s (goal <= "
-              "0.5); peak RSS %.0f MB (goal <= 600; the CLI %.0f MB); load average %.2f %.2f %.2f\n",
-              e2e / decode, cpu_e2e / cpu_decode, cli_wall / decode, cli_cpu / cpu_decode, compute,
-              rss_mb, cli_rss, load[0], load[1], load[2]);
+  std::printf(
+      "full resolution goals: end-to-end / bare decode %.2f wall, %.2f CPU (goal <= 1.25; "
+      "the CLI process %.2f wall, %.2f CPU); compute after the last frame %.2f s (goal <= "
+      "0.5); peak RSS %.0f MB (goal <= 600; the CLI %.0f MB); load average %.2f %.2f %.2f\n",
+      e2e / decode, cpu_e2e / cpu_decode, cli_wall / decode, cli_cpu / cpu_decode, compute, rss_mb,
+      cli_rss, load[0], load[1], load[2]);
   WriteTextFile(out / "fullres.csv",
                 "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um,"
                 "cpu_decode_s,cpu_reconstruct_s,cpu_end_to_end_s,cpu_over_decode,cli_wall_s,"

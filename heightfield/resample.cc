@@ -1,15 +1,13 @@
 #include "heightfield/resample.h"
 
-#include <sstream>
-
-#include "core/budget.h"
-
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
+#include <sstream>
 #include <vector>
 
+#include "core/budget.h"
 #include "core/error.h"
 #include "core/parallel.h"
 
@@ -60,8 +58,9 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   std::vector<std::array<double, 4>> row_bounds(std::max(h, 0));
   ParallelForRows(h, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
-      double b[4] = {std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
-                     std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
+      double b[4] = {
+          std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+          std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
       for (int x = 0; x < w; ++x) {
         if (!std::isfinite(xyz(x, y, 2))) continue;
         b[0] = std::min<double>(b[0], xyz(x, y, 0));
