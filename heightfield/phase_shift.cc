@@ -29,12 +29,6 @@ inline double RoundNearest(double t) {
 
 inline double WrapCycles(double t) { return t - RoundNearest(t); }
 
-// RoundNearest for |t| < 2^51 (branch-free).
-inline double RoundNearestSmall(double t) {
-  constexpr double kMagic = 6755399441055744.0;  // 1.5 * 2^52
-  return (t + kMagic) - kMagic;
-}
-
 // WrapCycles for |t| < 2^51 (branch-free, vectorisable).
 inline double WrapCyclesSmall(double t) {
   constexpr double kMagic = 6755399441055744.0;  // 1.5 * 2^52
@@ -260,7 +254,7 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   std::array<double, kMaxPeriods> w_px{};  // weight of the per-period estimate of u (px^-2)
   for (int i = 0; i < m; ++i) {
     if (!std::isfinite(theta[i]) || !(weight[i] > 0.0) || !std::isfinite(weight[i])) return result;
-    const double c = theta[i] * (1.0 / kTwoPi);  // a multiply: this is the pipeline's hot loop
+    const double c = theta[i] / kTwoPi;
     t[i] = c - std::floor(c);
     const double g = phase_rate_[i];  // d theta / d u
     w_px[i] = weight[i] * g * g;
@@ -274,8 +268,8 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   const double var_a_px = 1.0 / w_px[a];
   for (int i = 0; i < m; ++i) {
     if (i == a) continue;
-    // p_i^2 / (1 / w_i + 1 / w_a), with one division
-    inv_var[i] = periods_[i] * periods_[i] * (w_px[i] * w_px[a] / (w_px[i] + w_px[a]));
+    const double var_i_px = 1.0 / w_px[i];
+    inv_var[i] = periods_[i] * periods_[i] / (var_i_px + var_a_px);
   }
   // Candidates may leave the domain [-0.5, R - 0.5) by the anchor's own noise (a long cue
   // period turns a small phase error into pixels). u grows with k: trim both ends.
@@ -391,36 +385,27 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   //    Keep the candidate with the smaller chi^2.
   double best_score_refined = std::numeric_limits<double>::infinity();
   double best_chi2 = 0.0, best_u = 0.0;
-  // 1 / (the running sums of the weights, coarse to fine): shared by the two candidates (the
-  // divisions were the refinement's critical path).
-  std::array<double, kMaxPeriods> inv_sw{};
-  {
-    double sw = 0.0;
-    for (int o = 0; o < m; ++o) {
-      sw += w_px[order_[o]];
-      inv_sw[o] = 1.0 / sw;
-    }
-  }
   for (int c = 0; c < 2; ++c) {
     if (!std::isfinite(best_score[c])) continue;
     double u = pa * (ta + best_k[c]);
     double sw = 0.0, swu = 0.0;
     for (int o = 0; o < m; ++o) {
       const int i = order_[o];
-      const double n_i = RoundNearestSmall(u * inv_periods_[i] - t[i]);
+      const double n_i = RoundNearest(u / periods_[i] - t[i]);
       sw += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
-      u = swu * inv_sw[o];
+      u = swu / sw;
     }
-    swu = 0.0;  // sw: the sum of every weight already
+    sw = swu = 0.0;
     for (int i = 0; i < m; ++i) {
-      const double n_i = RoundNearestSmall(u * inv_periods_[i] - t[i]);
+      const double n_i = RoundNearest(u / periods_[i] - t[i]);
+      sw += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
     }
-    u = swu * inv_sw[m - 1];
+    u = swu / sw;
     double chi2 = 0.0;
     for (int i = 0; i < m; ++i) {
-      const double r_px = WrapCyclesSmall(u * inv_periods_[i] - t[i]) * periods_[i];
+      const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
       chi2 += w_px[i] * r_px * r_px;
     }
     // Where the code repeats exactly at the projector width (e.g. 7/11/13 on 1001 px) the two

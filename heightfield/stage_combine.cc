@@ -11,10 +11,9 @@
 namespace mesoscan {
 namespace {
 
-// a / (2 pi) modulo 1, in cycles (floor, not the fmod library call: this runs per pixel).
-double WrapCycles01(double a) {
-  const double c = a * (1.0 / (2 * kPi));
-  return c - std::floor(c);
+double Wrap2Pi(double a) {
+  a = std::fmod(a, 2 * kPi);
+  return a < 0 ? a + 2 * kPi : a;
 }
 
 // Did the lens-shift stage estimate (and apply) per-frame shifter positions?
@@ -103,7 +102,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
             kPi);
         // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
         // fine phase in cycles. u_fine = 1/2 - phase0 / pi (mod 2), see reconstruct.h.
-        const double phi = WrapCycles01(kPi / 2 - ls.phase0[i]);  // cycles in [0, 1]
+        const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
         u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
         const double comb = ur.u - u;
         const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
