@@ -1,11 +1,11 @@
 // mesoscan reconstruct SESSION --out SCAN: a capture session to a scan folder
 // (shared/spec/scan-outputs.md) through heightfield/reconstruct.h.
 
+#include <tbb/parallel_invoke.h>
+
 #include <chrono>
 #include <filesystem>
 #include <sstream>
-
-#include <tbb/parallel_invoke.h>
 
 #include "app/commands.h"
 #include "app/map_options.h"
@@ -17,8 +17,9 @@
 #include "core/log.h"
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
-#include "heightfield/export.h"
+#include "core/stage_timer.h"
 #include "heightfield/error_map_png.h"
+#include "heightfield/export.h"
 #include "heightfield/ground_truth.h"
 #include "heightfield/reconstruct.h"
 
@@ -36,6 +37,7 @@ struct ReconstructArgs {
 
 void Run(const ReconstructArgs& a) {
   const auto t0 = std::chrono::steady_clock::now();
+  const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;
   if (!a.roi.empty()) opt.roi = ParsePixelRect(a.roi, "--roi");
   opt.mask_path = a.mask;
@@ -90,18 +92,45 @@ void Run(const ReconstructArgs& a) {
     return es;
   };
   WriteOutputFolder(out_spec, [&](const std::filesystem::path& tmp) {
-    tbb::parallel_invoke([&] { WritePointsExr(tmp / "points.exr", scan.points); },
-                         [&] { WriteHeightExr(tmp / "height.exr", scan.height); },
-                         [&] { WriteNormalExr(tmp / "normal.exr", scan.height, scan.normals); },
-                         [&] {
-                           if (!session.ground_truth) return;
-                           gt = EvaluateAgainstGroundTruth(session, scan.points, opt.roi);
-                           WriteErrorMapPng(tmp / "error_map.png", gt->error);
-                         });
+    // Wall time of each task (they run at once), for the report.
+    double points_s = 0, height_s = 0, normal_s = 0, gt_s = 0, error_map_s = 0;
+    const Stopwatch write_clock;
+    tbb::parallel_invoke(
+        [&] {
+          const Stopwatch c;
+          WritePointsExr(tmp / "points.exr", scan.points);
+          points_s = c.Seconds();
+        },
+        [&] {
+          const Stopwatch c;
+          WriteHeightExr(tmp / "height.exr", scan.height);
+          height_s = c.Seconds();
+        },
+        [&] {
+          const Stopwatch c;
+          WriteNormalExr(tmp / "normal.exr", scan.height, scan.normals);
+          normal_s = c.Seconds();
+        },
+        [&] {
+          if (!session.ground_truth) return;
+          Stopwatch c;
+          gt = EvaluateAgainstGroundTruth(session, scan.points, opt.roi);
+          gt_s = c.Restart();
+          WriteErrorMapPng(tmp / "error_map.png", gt->error);
+          error_map_s = c.Seconds();
+        });
+    scan.report["write_timings_s"] = {
+        {"points_exr", points_s}, {"height_exr", height_s},       {"normal_exr", normal_s},
+        {"ground_truth", gt_s},   {"error_map_png", error_map_s}, {"all", write_clock.Seconds()}};
     if (gt) scan.report["ground_truth"] = gt->ToJson();
     const double total =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     scan.report["wall_time_s"] = total;
+    // The process's own figures (comparable with bench_reconstruct's full-resolution row): CPU
+    // time of every thread since the start (session reading and loading the libraries excluded)
+    // and peak RSS so far (the report is written last but for --export inside the scan).
+    scan.report["cpu_time_s"] = ProcessCpuSeconds() - cpu0;
+    scan.report["peak_rss_mb"] = PeakRssMegabytes();
     WriteJsonFile(tmp / "report.json", scan.report);
     // Default --export-dir (SCAN/export) is written with the scan, inside the same swap.
     if (export_inside) export_summary = write_exports(tmp / "export");
@@ -118,7 +147,10 @@ void Run(const ReconstructArgs& a) {
                         << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross "
                         << gt->gross_fraction << mixed.str();
   }
-  MESOSCAN_LOG(kInfo) << "scan written to " << a.out;
+  MESOSCAN_LOG(kInfo) << "scan written to " << a.out << " ("
+                      << scan.report["wall_time_s"].get<double>() << " s wall, "
+                      << scan.report["cpu_time_s"].get<double>() << " CPU-s, peak RSS "
+                      << scan.report["peak_rss_mb"].get<double>() << " MB)";
   if (!a.export_formats.empty()) {
     // The same exports as `mesoscan export SCAN --format ...`, from the scan in memory.
     const std::filesystem::path dir =

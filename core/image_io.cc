@@ -256,8 +256,10 @@ void WritePng16(const fs::path& path, const ImageU16& image, int compression_lev
   WriteWithOiio(path, spec, oiio::TypeUInt16, inter.data());
 }
 
-void WritePng8(const fs::path& path, const ImageU8& image) {
+void WritePng8(const fs::path& path, const ImageU8& image, int compression_level) {
   oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt8);
+  if (compression_level >= 0)
+    spec.attribute("png:compressionLevel", std::min(compression_level, 9));
   const std::vector<uint8_t> inter = Interleave(image);
   WriteWithOiio(path, spec, oiio::TypeUInt8, inter.data());
 }

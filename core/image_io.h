@@ -47,8 +47,8 @@ void WriteExr(const std::filesystem::path& path, const ImageF& image,
 // the default for ~2% larger files.
 void WritePng16(const std::filesystem::path& path, const ImageU16& image,
                 int compression_level = -1);
-// 8-bit PNG (1, 3 or 4 channels).
-void WritePng8(const std::filesystem::path& path, const ImageU8& image);
+// 8-bit PNG (1, 3 or 4 channels); compression_level as for WritePng16.
+void WritePng8(const std::filesystem::path& path, const ImageU8& image, int compression_level = -1);
 
 // Float [0, 1] -> 16-bit / 8-bit with clamping and rounding; NaN maps to 0.
 ImageU16 QuantizeU16(const ImageF& image);

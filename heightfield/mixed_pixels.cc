@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <limits>
 
 #include "core/error.h"
@@ -25,9 +26,11 @@ void MixedPixelOptions::Check() const {
 
 namespace {
 
-// One pass of the four tests over the points of `in`.
+// One pass of the four tests over the points of `in`; only the pixels with todo[i] != 0 if
+// `todo` is given (the others are left 0).
 std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
-                                         const MixedPixelOptions& options) {
+                                         const MixedPixelOptions& options,
+                                         const std::vector<uint8_t>* todo = nullptr) {
   const int w = in.width, h = in.height;
   std::vector<uint8_t> reject(static_cast<size_t>(w) * h, 0);
   if (w <= 0 || h <= 0) return reject;
@@ -48,6 +51,7 @@ std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < w; ++x) {
         const size_t i = index(x, y);
+        if (todo && !(*todo)[i]) continue;
         const double z = in.z[i];
         if (!std::isfinite(z)) continue;
         const double s2p = s2_at(x, y);
@@ -130,13 +134,36 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
   std::vector<float> z(in.z, in.z + static_cast<size_t>(in.width) * in.height);
   MixedPixelInput cleaned = in;
   cleaned.z = z.data();
+  // A pixel's tests read z within 2 pixels along its row and column only: a later pass needs to
+  // judge again only the pixels that close to a point rejected by the pass before (the others
+  // would repeat their verdict, already in `reject`).
+  const int w = in.width, h = in.height;
+  std::vector<uint8_t> fresh = reject, todo(z.size());
   for (int pass = 1; pass < options.passes; ++pass) {
-    for (size_t i = 0; i < z.size(); ++i)
-      if (reject[i]) z[i] = std::numeric_limits<float>::quiet_NaN();
-    const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options);
+    std::fill(todo.begin(), todo.end(), 0);
+    ParallelForRows(h, [&](int y0, int y1) {
+      for (int y = y0; y < y1; ++y)
+        for (int x = 0; x < w; ++x) {
+          const size_t i = static_cast<size_t>(y) * w + x;
+          if (!fresh[i]) continue;
+          z[i] = std::numeric_limits<float>::quiet_NaN();
+          for (int d = -2; d <= 2; ++d) {
+            if (x + d >= 0 && x + d < w) todo[i + d] = 1;  // same row: this task's rows only
+          }
+        }
+    });
+    for (int y = 0; y < h; ++y)  // the column neighbours may be in another task's rows
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (!fresh[i]) continue;
+        for (int d = -2; d <= 2; ++d)
+          if (y + d >= 0 && y + d < h) todo[i + static_cast<ptrdiff_t>(d) * w] = 1;
+      }
+    const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options, &todo);
     bool changed = false;
     for (size_t i = 0; i < z.size(); ++i) {
-      changed |= more[i] && !reject[i];
+      fresh[i] = more[i] && !reject[i];
+      changed |= fresh[i];
       reject[i] |= more[i];
     }
     if (!changed) break;

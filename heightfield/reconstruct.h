@@ -147,6 +147,10 @@ struct ReconstructSummary {
   // Wall time (s) per stage, in pipeline order: decode, normalize, phase_shift, lens_shift,
   // triangulate, height_field, ...
   StageTimings timings_s;
+  // CPU time (s, all threads) per stage; "decode" holds the whole overlapped front (decode,
+  // classify, gains, phase shift), whose parts run at once.
+  StageTimings cpu_s;
+  double cpu_total_s = 0.0;
   int64_t pixels_total = 0;    // camera pixels
   int64_t pixels_roi = 0;      // inside ROI and mask
   int64_t pixels_lit = 0;      // lit, unsaturated, modulated

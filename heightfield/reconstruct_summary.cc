@@ -30,6 +30,10 @@ Json ReconstructSummary::ToJson() const {
   t["total"] = total_s;
   t["last_frame"] = last_frame_s;
   j["timings_s"] = t;
+  Json c = Json::object();
+  for (const auto& [name, s] : cpu_s) c[name] = s;
+  c["total"] = cpu_total_s;
+  j["cpu_s"] = c;
   j["pixels"] = {{"total", pixels_total},
                  {"roi", pixels_roi},
                  {"lit", pixels_lit},

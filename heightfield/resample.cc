@@ -1,14 +1,13 @@
 #include "heightfield/resample.h"
 
-#include <sstream>
-
-#include "core/budget.h"
-
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
+#include <sstream>
 #include <vector>
 
+#include "core/budget.h"
 #include "core/error.h"
 #include "core/parallel.h"
 
@@ -55,15 +54,30 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   MESOSCAN_CHECK_EQ(xyz.channels(), 3);
   const int w = xyz.width(), h = xyz.height();
   HeightField hf;
-  double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin, ymax = -xmin;
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      if (!std::isfinite(xyz(x, y, 2))) continue;
-      xmin = std::min<double>(xmin, xyz(x, y, 0));
-      xmax = std::max<double>(xmax, xyz(x, y, 0));
-      ymin = std::min<double>(ymin, xyz(x, y, 1));
-      ymax = std::max<double>(ymax, xyz(x, y, 1));
+  // The points' bounds, per row in parallel (min and max do not depend on the order).
+  std::vector<std::array<double, 4>> row_bounds(std::max(h, 0));
+  ParallelForRows(h, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      double b[4] = {
+          std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+          std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
+      for (int x = 0; x < w; ++x) {
+        if (!std::isfinite(xyz(x, y, 2))) continue;
+        b[0] = std::min<double>(b[0], xyz(x, y, 0));
+        b[1] = std::max<double>(b[1], xyz(x, y, 0));
+        b[2] = std::min<double>(b[2], xyz(x, y, 1));
+        b[3] = std::max<double>(b[3], xyz(x, y, 1));
+      }
+      row_bounds[y] = {b[0], b[1], b[2], b[3]};
     }
+  });
+  double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin, ymin = xmin, ymax = -xmin;
+  for (const auto& b : row_bounds) {
+    xmin = std::min(xmin, b[0]);
+    xmax = std::max(xmax, b[1]);
+    ymin = std::min(ymin, b[2]);
+    ymax = std::max(ymax, b[3]);
+  }
   const double footprint = CameraFootprint(xyz);
   if (!std::isfinite(xmin) || !(footprint > 0)) {
     hf.z = ImageF(0, 0);

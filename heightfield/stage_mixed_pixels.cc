@@ -1,7 +1,9 @@
 #include "heightfield/stage_mixed_pixels.h"
 
+#include <atomic>
 #include <limits>
 
+#include "core/parallel.h"
 #include "heightfield/resample.h"
 
 namespace mesoscan {
@@ -16,11 +18,14 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
   const PixelRect& roi = grid.roi;
   std::vector<float> z(np, kNaN);
   std::vector<uint8_t> unlit(np, 0);
-  for (size_t i = 0; i < np; ++i) {
-    const int cx = static_cast<int>(i % w) + roi.x, cy = static_cast<int>(i / w) + roi.y;
-    if (state[i] == PixelState::kOk) z[i] = points->xyz(cx, cy, 2);
-    unlit[i] = state[i] == PixelState::kUnlit || state[i] == PixelState::kUnmodulated;
-  }
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (state[i] == PixelState::kOk) z[i] = points->xyz(x + roi.x, y + roi.y, 2);
+        unlit[i] = state[i] == PixelState::kUnlit || state[i] == PixelState::kUnmodulated;
+      }
+  });
   MixedPixelInput in;
   in.width = w;
   in.height = grid.height;
@@ -30,17 +35,23 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
   in.unlit = unlit.data();
   in.footprint_m = CameraFootprint(points->xyz);
   const std::vector<uint8_t> reject = FindMixedPixels(in, options);
-  int64_t n = 0;
-  for (size_t i = 0; i < np; ++i) {
-    if (!reject[i]) continue;
-    ++n;
-    state[i] = PixelState::kDiscontinuity;
-    const int cx = static_cast<int>(i % w) + roi.x, cy = static_cast<int>(i / w) + roi.y;
-    for (int c = 0; c < 3; ++c) points->xyz(cx, cy, c) = kNaN;
-    points->confidence(cx, cy) = 0.0f;
-    if (!points->source.empty()) points->source(cx, cy) = std::numeric_limits<float>::quiet_NaN();
-  }
-  return n;
+  std::atomic<int64_t> n{0};
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    int64_t rows_n = 0;
+    for (int y = y0; y < y1; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (!reject[i]) continue;
+        ++rows_n;
+        state[i] = PixelState::kDiscontinuity;
+        const int cx = x + roi.x, cy = y + roi.y;
+        for (int c = 0; c < 3; ++c) points->xyz(cx, cy, c) = kNaN;
+        points->confidence(cx, cy) = 0.0f;
+        if (!points->source.empty()) points->source(cx, cy) = kNaN;
+      }
+    n += rows_n;
+  });
+  return n.load();
 }
 
 }  // namespace mesoscan
