@@ -37,13 +37,6 @@ using namespace mesoscan;
 
 namespace {
 
-double ProcessCpuSeconds() {
-  rusage ru{};
-  getrusage(RUSAGE_SELF, &ru);
-  return ru.ru_utime.tv_sec + ru.ru_stime.tv_sec +
-         1e-6 * (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
-}
-
 double Load1() {
   double load[3] = {0, 0, 0};
   getloadavg(load, 3);

@@ -11,16 +11,10 @@
 #include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/stage_timer.h"
 
 namespace mesoscan {
 namespace {
-
-double ProcessCpuSeconds() {
-  rusage ru{};
-  getrusage(RUSAGE_SELF, &ru);
-  return static_cast<double>(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
-         1e-6 * static_cast<double>(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
-}
 
 // The steps' wall times under their names and the process CPU times (all threads) under
 // name + "_cpu", if `out` is set (LensShiftStageOptions::step_timings).
