@@ -196,8 +196,12 @@ double RelRmseMasked(const ImageF& im, const ImageF& ref, const ImageF& mask, in
 }
 
 // Display-space error: both images through the reference's tone curve (what one looks at): RMS
-// over pixels and channels of the 8-bit sRGB difference, relative to the reference's mean.
-double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& tone) {
+// over pixels and channels of the 8-bit sRGB difference (of 255), and the reference's mean.
+struct DisplayError {
+  double rmse = 0, mean = 0;
+  double relative() const { return rmse / mean; }
+};
+DisplayError DisplayRmse(const ImageF& im, const ImageF& ref, const ToneMapping& tone) {
   const ImageU8 da = ToneMapForDisplay(im, tone), db = ToneMapForDisplay(ref, tone);
   double d2 = 0, dm = 0;
   for (size_t i = 0; i < ref.pixels(); ++i)
@@ -206,7 +210,12 @@ double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& to
       d2 += d * d;
       dm += db.channel(c)[i];
     }
-  return std::sqrt(d2 / (3.0 * ref.pixels())) / (dm / (3.0 * ref.pixels()));
+  return {std::sqrt(d2 / (3.0 * ref.pixels())), dm / (3.0 * ref.pixels())};
+}
+
+// The same, relative to the reference's mean.
+double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& tone) {
+  return DisplayRmse(im, ref, tone).relative();
 }
 
 // `make demo`'s preview (step 5 of scripts/demo): the demo coin's scan, filled as `render` fills
@@ -378,17 +387,9 @@ int CompareExr(const char* ref_path, const char* test_path, const char* mask_pat
     std::printf("worst %.1f%% of the pixels: %.1f%% of the squared error\n", 100 * f, 100 * part / total);
   }
   // Display-space error: both images through the reference's tone curve (what one sees).
-  const ToneMapping tone = MeterExposure(ref);
-  const ImageU8 da = ToneMapForDisplay(test, tone), db = ToneMapForDisplay(ref, tone);
-  double d2 = 0, dm = 0;
-  for (size_t i = 0; i < ref.pixels(); ++i)
-    for (int c = 0; c < 3; ++c) {
-      const double d = double(da.channel(c)[i]) - double(db.channel(c)[i]);
-      d2 += d * d;
-      dm += db.channel(c)[i];
-    }
+  const DisplayError display = DisplayRmse(test, ref, MeterExposure(ref));
   std::printf("display (sRGB 8-bit, reference tone curve): RMSE %.2f of 255, relative to the mean %.4f\n",
-              std::sqrt(d2 / (3.0 * ref.pixels())), std::sqrt(d2 / (3.0 * ref.pixels())) / (dm / (3.0 * ref.pixels())));
+              display.rmse, display.relative());
   return 0;
 }
 
