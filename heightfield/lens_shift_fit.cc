@@ -98,6 +98,19 @@ constexpr double kAtanP[10] = {-0.3333333333333325,  0.19999999999898407, -0.142
                                0.02275052699336167};
 constexpr double kTanPi8 = 0.41421356237309503;
 
+// atan(u) for |u| <= tan(pi / 8) with the polynomial above in Estrin's scheme (short dependency
+// chains; the same 1.1e-16 over the interval). T is double (Atan2) or a vector of doubles
+// (FitBlock's lanes): one sequence of operations, so both round the same way. By reference: a
+// vector passed or returned by value would change the ABI between the AVX2 clone and the default.
+template <class T>
+inline __attribute__((always_inline)) void AtanReduced(const T& u, T* at) {
+  const T z = u * u, z2 = z * z, z4 = z2 * z2;
+  const T p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
+              z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
+                    z4 * (kAtanP[8] + kAtanP[9] * z));
+  *at = u + u * z * p;
+}
+
 // atan2(y, x) in [-pi, pi] to ~2 ulp (the same steps as FitBlock's lanes; glibc's atan2 is
 // correctly rounded and several times slower). atan2(0, 0) = 0; NaN in, NaN out.
 double Atan2(double y, double x) {
@@ -107,12 +120,8 @@ double Atan2(double y, double x) {
   const double t = hi > 0.0 ? lo / hi : 0.0;
   const bool big = t > kTanPi8;
   const double u = big ? (t - 1.0) / (t + 1.0) : t;
-  const double z = u * u, z2 = z * z, z4 = z2 * z2;
-  // Estrin's scheme (short dependency chains; the same 1.1e-16 over the interval).
-  const double p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
-                   z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
-                         z4 * (kAtanP[8] + kAtanP[9] * z));
-  double at = u + u * z * p;
+  double at;
+  AtanReduced(u, &at);
   if (big) at += 0.25 * kPi;
   if (ay > ax) at = 0.5 * kPi - at;
   if (x < 0) at = kPi - at;
@@ -1156,11 +1165,8 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, const flo
   const V4d t = hi > 0 ? lo / hi : zero;
   const V4l big = t > kTanPi8;
   const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
-  const V4d z = u * u, z2 = z * z, z4 = z2 * z2;
-  const V4d p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
-                z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
-                      z4 * (kAtanP[8] + kAtanP[9] * z));
-  V4d at = u + u * z * p;
+  V4d at;
+  AtanReduced(u, &at);
   at = big ? at + 0.25 * kPi : at;
   at = ay > ax ? 0.5 * kPi - at : at;
   at = cs < 0 ? kPi - at : at;
