@@ -3,7 +3,6 @@
 
 #include <tbb/parallel_invoke.h>
 
-#include <chrono>
 #include <filesystem>
 #include <sstream>
 
@@ -36,7 +35,7 @@ struct ReconstructArgs {
 };
 
 void Run(const ReconstructArgs& a) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch t0;
   const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;
   if (!a.roi.empty()) opt.roi = ParsePixelRect(a.roi, "--roi");
@@ -123,8 +122,7 @@ void Run(const ReconstructArgs& a) {
         {"points_exr", points_s}, {"height_exr", height_s},       {"normal_exr", normal_s},
         {"ground_truth", gt_s},   {"error_map_png", error_map_s}, {"all", write_clock.Seconds()}};
     if (gt) scan.report["ground_truth"] = gt->ToJson();
-    const double total =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double total = t0.Seconds();
     scan.report["wall_time_s"] = total;
     // The process's own figures (comparable with bench_reconstruct's full-resolution row): CPU
     // time of every thread since the start (session reading and loading the libraries excluded)
