@@ -38,6 +38,21 @@ TEST(ImageIo, Png16RoundTripIsExact) {
   EXPECT_EQ(files, 1);
 }
 
+// Reading as another type than the file's goes through ReadPixels' strips of scan lines (at most
+// 256 at a time): an 8-bit PNG taller than one strip, whose height is no multiple of it, reads
+// back exactly, each value v as v / 255.
+TEST(ImageIo, ConvertedReadsCoverEveryStrip) {
+  const fs::path dir = TempDir("strips");
+  ImageU8 im(3, 601, 3);  // RGB: a 2- or 4-channel PNG has alpha, which OpenImageIO premultiplies
+  for (size_t i = 0; i < im.data().size(); ++i) im.data()[i] = static_cast<uint8_t>((i * 37) % 251);
+  WritePng8(dir / "tall.png", im);
+  const ImageF f = ReadImage(dir / "tall.png");
+  ASSERT_EQ(f.height(), 601);
+  ASSERT_EQ(f.channels(), 3);
+  for (size_t i = 0; i < im.data().size(); ++i)
+    ASSERT_FLOAT_EQ(f.data()[i], im.data()[i] / 255.0f) << i;
+}
+
 TEST(ImageIo, ExrNamedChannelsAndAttributes) {
   const fs::path dir = TempDir("exr");
   HeightField hf;
@@ -103,6 +118,15 @@ TEST(ImageIo, ExrHeaderSizesThatCannotBeTrue) {
   // chunk offset table alone would be megabytes in a file of a few hundred bytes.
   ExpectRefused(patched(std::string("dataWindow") + '\0' + "box2i" + '\0', 4 + 12, 20000000, "tall.exr"),
                 "offset table");
+  // An attribute of a type no reader knows, claiming 1.7 GB, first in the header: OpenEXR's core
+  // skips it with an error message and succeeds; its C++ reader would allocate the 1.7 GB.
+  {
+    int32_t size = 1768685568;
+    std::string b = bytes.substr(0, 8) + std::string("custom\0blob\0", 12) +
+                    std::string(reinterpret_cast<const char*>(&size), 4) + bytes.substr(8);
+    WriteTextFile(dir / "opaque.exr", b);
+    ExpectRefused(dir / "opaque.exr", "Invalid size 1768685568");
+  }
 }
 
 }  // namespace

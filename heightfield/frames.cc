@@ -64,11 +64,11 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
   bool ok;
   if (d.is_float) {
     d.f32.resize(n);
-    ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeFloat, d.f32.data());
+    ok = ReadPixels(*in, OIIO::TypeFloat, d.f32.data());
   } else {
     std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
-    ok = in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::UINT16, dst.data());
+    ok = ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());
   }
   if (!ok) {
     std::string err = in->geterror();
