@@ -8,6 +8,7 @@
 
 #include "core/error.h"
 #include "core/log.h"
+#include "core/robust_stats.h"
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {
@@ -15,12 +16,6 @@ namespace {
 
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
 }
 
 }  // namespace
@@ -144,7 +139,7 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(scatter);
     n = es.eigenvectors().col(0);
     for (size_t k = 0; k < p.size(); ++k) dist[k] = std::abs(n.dot(p[k] - c));
-    const double sigma = 1.4826 * Median(dist);
+    const double sigma = kMadToSigma * Median(dist);
     plane.robust_sigma_m = sigma;
     for (size_t k = 0; k < p.size(); ++k)
       use[k] = dist[k] <= options.reject_sigmas * sigma + 1e-12;

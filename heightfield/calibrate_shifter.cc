@@ -12,17 +12,12 @@
 
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/robust_stats.h"
 
 namespace mesoscan {
 namespace {
 
 constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
 
 Json ShifterJson(const LensShifter& s) {
   return {{"axis", std::string(1, s.axis)},
@@ -113,7 +108,7 @@ ShifterCalibration CalibrateShifter(const Session& session, const FlatTargetScan
     for (size_t k = 0; k < fit.size(); ++k) res[k] = fit[k]->y - terms(*fit[k]).dot(a);
     std::vector<double> ab(res.size());
     for (size_t k = 0; k < res.size(); ++k) ab[k] = std::abs(res[k]);
-    sigma = 1.4826 * Median(ab);
+    sigma = kMadToSigma * Median(ab);
     for (size_t k = 0; k < fit.size(); ++k)
       use[k] = std::abs(res[k]) <= options.reject_sigmas * sigma + 1e-15;
   }

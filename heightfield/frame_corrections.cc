@@ -8,18 +8,13 @@
 #include <numeric>
 
 #include "core/parallel.h"
+#include "core/robust_stats.h"
 #include "heightfield/frames.h"
 
 namespace mesoscan {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
 
 // Projects delta off span{1, x} (the affine gauge).
 void ProjectAffine(std::vector<double>* delta, const std::vector<double>& x) {
@@ -206,7 +201,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     const double med = Median(rel);
     std::vector<double> dev(rel.size());
     for (size_t q = 0; q < rel.size(); ++q) dev[q] = std::abs(rel[q] - med);
-    const double mad = 1.4826 * Median(dev);
+    const double mad = kMadToSigma * Median(dev);
     const double s2_floor = 1e-3 * Median(sig2) + 1e-30;
     p.pix.clear();
     for (size_t q = 0; q < keep.size(); ++q)
@@ -482,7 +477,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
         z.push_back(std::abs(row.r) * std::sqrt(row.w));
       }
     if (static_cast<int>(z.size()) < kMinReferencePixels) return false;
-    const double limit = 4.0 * 1.4826 * Median(z);
+    const double limit = 4.0 * kMadToSigma * Median(z);
     // Normal equations of (c, eps_c, eps_s) and the phase-shift gain nuisance.
     const int nv = 3 + n_nuis;
     Eigen::MatrixXd A = Eigen::MatrixXd::Zero(nv, nv);

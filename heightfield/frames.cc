@@ -14,6 +14,7 @@
 #include "core/log.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/robust_stats.h"
 
 namespace mesoscan {
 namespace {
@@ -261,7 +262,7 @@ double OutlierLimit(std::vector<double> values) {
   const double med = values[mid];
   for (double& v : values) v = std::abs(v - med);
   std::nth_element(values.begin(), values.begin() + mid, values.end());
-  return med + 4 * 1.4826 * values[mid];
+  return med + 4 * kMadToSigma * values[mid];
 }
 
 std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,

@@ -10,6 +10,7 @@
 
 #include "core/error.h"
 #include "core/parallel.h"
+#include "core/robust_stats.h"
 
 namespace mesoscan {
 namespace {
@@ -75,7 +76,7 @@ PolyFit FitPolynomial(const ImageF& z, const ImageU8& mask, int degree, const Fl
     Eigen::VectorXd r = (b - A * f.c).cwiseAbs();
     std::vector<double> rs(r.data(), r.data() + m);
     std::nth_element(rs.begin(), rs.begin() + m / 2, rs.end());
-    const double sigma = std::max(1.4826 * rs[m / 2], 1e-12);
+    const double sigma = std::max(kMadToSigma * rs[m / 2], 1e-12);
     const double t = o.huber_k * sigma;
     for (int i = 0; i < m; ++i) wgt[i] = r[i] <= t ? 1.0 : t / r[i];
   }

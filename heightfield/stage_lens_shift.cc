@@ -11,6 +11,7 @@
 #include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/progress.h"
+#include "core/robust_stats.h"
 #include "core/stage_timer.h"
 
 namespace mesoscan {
@@ -78,7 +79,7 @@ std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h)
     }
     std::vector<double> sorted = r;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    const double mad = 1.4826 * sorted[sorted.size() / 2];
+    const double mad = kMadToSigma * sorted[sorted.size() / 2];
     for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
   }
   std::vector<float> out(f.size());
