@@ -12,6 +12,11 @@ namespace mesoscan {
 
 namespace {
 
+// Added to the guide's depth channel (in [0, 1]) by the fraction of a pixel's camera rays that
+// missed the height field: the sample and the mount never share a fit (on the demo at 16 spp
+// the mount's error fell from 1.36% to 0.78%; 1 and 3 did alike).
+constexpr double kMountOffset = 3.0;
+
 // Demodulated (radiance / base colour) copy of a radiance buffer as an OpenCV image.
 cv::Mat Demodulate(const ImageF& L, const ImageF& albedo) {
   const int w = L.width(), h = L.height();
@@ -53,7 +58,7 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const int w = L.width(), h = L.height();
   MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0);
   MESOSCAN_CHECK(r.normal.width() == w && r.depth.width() == w && r.albedo.width() == w &&
-                 r.half[0].width() == w && r.half[1].width() == w);
+                 r.sample_mask.width() == w && r.half[0].width() == w && r.half[1].width() == w);
   cv::Mat full = Demodulate(L, r.albedo);
   const cv::Mat half[2] = {Demodulate(r.half[0], r.albedo), Demodulate(r.half[1], r.albedo)};
   cv::Mat guide(h, w, CV_32FC3);
@@ -68,7 +73,8 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
     cv::Vec3f* gr = guide.ptr<cv::Vec3f>(y);
     for (int x = 0; x < w; ++x)
       gr[x] = cv::Vec3f(r.normal(x, y, 0), r.normal(x, y, 1),
-                        static_cast<float>((r.depth(x, y, 0) - dmin) * dscale));
+                        static_cast<float>((r.depth(x, y, 0) - dmin) * dscale +
+                                           kMountOffset * (1.0 - r.sample_mask(x, y, 0))));
   }
   // Candidates: the raw pixel and guided filters of growing radius. Each is judged by
   // cross-validation on the two half-buffers (even / odd samples, independent noise): the

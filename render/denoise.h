@@ -11,7 +11,8 @@
 // Method: candidates are the raw pixel and OpenCV's guided filter (He et al. 2013,
 // cv::ximgproc::guidedFilter) at radii 1, 2, 4, ... max_radius: within each window the
 // demodulated radiance (radiance / base colour) is fitted as an affine function of the guide
-// (normal x, normal y, depth scaled to [0, 1]), so shading that follows the relief survives
+// (normal x, normal y, depth scaled to [0, 1] plus 3 where the camera rays missed the height
+// field, so the sample and the mount are never fitted together), so shading that follows the relief survives
 // while the noise averages out. Each pixel takes the candidate with the least squared error,
 // estimated by cross-validation on the renderer's two half-buffers (even / odd samples, whose
 // noise is independent: a candidate filtered from one half is compared with the other half,
