@@ -26,6 +26,7 @@
 #include "heightfield/export.h"
 #include "heightfield/maps_fill.h"
 #include "render/animation.h"
+#include "render/denoise.h"
 #include "render/env_map.h"
 #include "render/path_tracer.h"
 
@@ -42,6 +43,7 @@ struct RenderArgs {
   int threads = 0, turntable = 0, turntable_spp = 0;
   bool spp_given = false, min_spp_given = false;
   bool force = false;
+  bool denoise = false;  // also write preview_denoised.exr/png (render/denoise.h)
 };
 
 // "lambert", "ggx", "ggx-merl" (GGX tabulated into the MERL layout, written next to the
@@ -247,6 +249,17 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
   });
   WritePreview(out, result);
   MESOSCAN_LOG(kInfo) << "render: " << result.summary.BriefReport();
+  if (a.denoise) {
+    // The optional denoise stage: biased, so written beside the raw preview, never instead.
+    const auto t0 = std::chrono::steady_clock::now();
+    const ImageF dn = DenoisePreview(result);
+    WriteExr(out / "preview_denoised.exr", dn, {"R", "G", "B"}, {}, {}, "none");
+    WritePng8(out / "preview_denoised.png", ToneMapForDisplay(dn, result.tone));
+    MESOSCAN_LOG(kInfo) << "render: denoised in "
+                        << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()
+                        << " s: preview_denoised.png / .exr (biased: edge-aware smoothing; the raw "
+                           "render is preview.png / .exr)";
+  }
 
   if (other_scan) {
     // Side by side: a second scan through the same camera (the first scan's framing), light,
@@ -336,6 +349,9 @@ void Run(const RenderArgs& args) {
   if (!a.camera.empty()) ParseCamera(a.camera, &o);
   // A time budget without an explicit sample cap renders until the time is up.
   if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
+  // --denoise within --time: the denoiser's share comes out of the budget.
+  if (a.denoise && o.time_limit_s > 0)
+    o.time_limit_s -= DenoiseTimeReserve(o.width, o.height, o.time_limit_s);
   // --spp below the default --min-spp lowers it (an explicit --min-spp above --spp stays an error).
   if (!a.min_spp_given) o.min_spp = std::min(o.min_spp, o.max_spp);
   if (a.turntable < 0 || a.turntable > 720)
@@ -464,6 +480,10 @@ void AddRenderCommand(CLI::App* app) {
                 "map also aim at the environment mirrored in the field's plane; same image, less "
                 "noise on reliefs lit by the field's reflection)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
+  cmd->add_flag("--denoise", args->denoise,
+                "Also write preview_denoised.png / .exr: the render smoothed by an edge-aware "
+                "filter guided by normal and depth buffers (biased; the raw preview is still "
+                "written; with --time its cost comes out of the budget)");
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out that is not an earlier output of `mesoscan render`");
   cmd->callback([args] { Run(*args); });

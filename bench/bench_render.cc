@@ -42,6 +42,7 @@
 #include "core/progress.h"
 #include "core/scan_folder.h"
 #include "heightfield/maps_fill.h"
+#include "render/denoise.h"
 #include "render/embree_scene.h"
 #include "render/env_map.h"
 #include "render/path_tracer.h"
@@ -274,7 +275,7 @@ void DemoPreview(const fs::path& dir) {
   }
   std::ofstream csv(dir / "demo_preview.csv");
   csv << "run,spp,relrmse,relrmse_sample,relrmse_mount,relrmse_corrected,display_relrmse,cpu_s,"
-         "wall_s,cpu_s_per_spp,load\n";
+         "wall_s,cpu_s_per_spp,load,denoised_relrmse,denoised_display_relrmse,denoise_wall_s\n";
   const ToneMapping ref_tone = MeterExposure(ref, &mask);
   double ref_mse = 0;  // estimated from the 64 spp run
   struct Run {
@@ -283,15 +284,35 @@ void DemoPreview(const fs::path& dir) {
     double time_s;
   };
   // "no-guide": the same spp with BRDF sampling alone (without the mirrored-environment
-  // sampler, render/mirror_guide.h), same seed as the run before it: the before/after.
-  const std::vector<Run> runs = {{"fixed", 64, 0}, {"fixed", 8, 0},    {"fixed", 16, 0},
-                                 {"fixed", 32, 0}, {"no-guide", 32, 0}, {"time 3 s", 0, 3.0}};
+  // sampler, render/mirror_guide.h), same seed as the fixed run before it: the before/after.
+  std::vector<Run> runs = {{"fixed", 64, 0}, {"fixed", 8, 0},    {"fixed", 16, 0},
+                           {"fixed", 32, 0}, {"no-guide", 32, 0}, {"time 3 s", 0, 3.0},
+                           {"denoise", 0, 3.0}};
+  // "denoise": as `render --time 3 --denoise` (the denoiser's time comes out of the budget;
+  // its wall time is the render's plus the denoiser's). Every run also reports the denoised
+  // figure (render/denoise.h) next to its raw one.
+  // MESOSCAN_BENCH_DEMO_RUNS="32,time" keeps only the runs named (spp of the fixed runs,
+  // "no-guide", "time", "denoise"): a quicker loop while tuning (the corrected column needs the
+  // 64 spp run).
+  if (const char* keep = std::getenv("MESOSCAN_BENCH_DEMO_RUNS")) {
+    std::vector<Run> kept;
+    std::string list = std::string(",") + keep + ",";
+    for (const Run& r : runs) {
+      const std::string key = r.name == "denoise" ? r.name
+                              : r.time_s > 0      ? "time"
+                              : r.name != "fixed" ? r.name
+                                                  : std::to_string(r.spp);
+      if (list.find("," + key + ",") != std::string::npos) kept.push_back(r);
+    }
+    runs = kept;
+  }
   uint64_t seed = 2;
   for (const Run& run : runs) {
     o.mirror_guide = run.name != "no-guide";
     if (o.mirror_guide) o.seed = seed++;
     if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap
       o.time_limit_s = run.time_s;
+      if (run.name == "denoise") o.time_limit_s -= DenoiseTimeReserve(o.width, o.height, run.time_s);
       o.noise = 0.01;
       o.min_spp = 16;
       o.max_spp = 1 << 16;
@@ -314,8 +335,33 @@ void DemoPreview(const fs::path& dir) {
                 "the reference's noise), display %.4f, in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), "
                 "load %s\n",
                 run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
+    // The optional denoise stage (render/denoise.h, `render --denoise`): its error against the
+    // same reference, bias included, next to the raw figure above. Never in the Cycles tables.
+    double dn_e = 0, dn_ed = 0, dn_s = 0;
+    {
+      const double c1 = CpuNow(), t1 = Now();
+      const ImageF dn = DenoisePreview(r);
+      dn_s = Now() - t1;
+      dn_e = RelRmseMasked(dn, ref, mask, 0);
+      dn_ed = DisplayRelRmse(dn, ref, ref_tone);
+      std::printf("demo preview: %-8s %6.1f spp: denoised relRMSE %.4f (sample %.4f, mount %.4f; "
+                  "raw %.4f), display %.4f; denoise %.3f s wall, %.3f CPU s; render + denoise "
+                  "%.2f s wall\n",
+                  run.name.c_str(), spp, dn_e, RelRmseMasked(dn, ref, mask, 1),
+                  RelRmseMasked(dn, ref, mask, 2), e, dn_ed, dn_s, CpuNow() - c1, wall + dn_s);
+      if (std::getenv("MESOSCAN_BENCH_DEMO_EXR")) {  // for a look at the error maps
+        const std::string stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp_" +
+                                 (run.name == "fixed" ? std::string("") : run.name + "_");
+        WriteExr(dir / (stem + "denoised.exr"), dn, {"R", "G", "B"});
+        WriteExr(dir / (stem + "raw.exr"), r.radiance, {"R", "G", "B"});
+      }
+      WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp" +
+                       (o.mirror_guide ? "" : "_noguide") + "_denoised.png"),
+                ToneMapForDisplay(dn, r.tone));
+    }
     csv << run.name << "," << spp << "," << e << "," << es << "," << em << "," << corrected << ","
-        << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "\n";
+        << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "," << dn_e
+        << "," << dn_ed << "," << dn_s << "\n";
     WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp" +
                      (o.mirror_guide ? "" : "_noguide") + ".png"),
               ToneMapForDisplay(r.radiance, r.tone));

@@ -93,7 +93,15 @@ struct Scene {
   }
 };
 
-// Radiance along one camera ray. `hit_sample` reports whether the camera ray hit the height field.
+// What a camera ray's first hit reports besides its radiance (the feature buffers).
+struct FirstHit {
+  bool sample = false;  // hit the height field
+  Vec3 normal = Vec3::Zero();
+  double depth = 0;
+  Rgb albedo = Rgb::Zero();
+};
+
+// Radiance along one camera ray. `first` reports the camera ray's first hit.
 //
 // Control variate on the mount (a Lambert plane facing +z): its reflected radiance is
 // f E_env - f int (Le - L_traced)(w) cos dw over the directions the sample (or a hole's
@@ -107,7 +115,7 @@ struct Scene {
 // background, where the grain was).
 Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
               const EnvironmentMap& env, Vec3 origin, Vec3 dir, ZSobolSampler& sampler,
-              bool* hit_sample) {
+              FirstHit* first) {
   Rgb L = Rgb::Zero(), beta = Rgb::Ones();
   double prev_brdf_pdf = 0;  // 0: the previous direction was not BRDF-sampled (camera ray)
   bool prev_cv = false;      // the previous vertex was a mount vertex with the control variate
@@ -115,7 +123,7 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
   for (int depth = 0;; ++depth) {
     const auto hit =
         scene.embree.Intersect(origin, dir, 1e-9, 1e30, depth == 0 ? scene.camera_mask : EmbreeScene::kMaskAll);
-    if (depth == 0) *hit_sample = hit && hit->geometry == scene.hf_id;
+    if (depth == 0) first->sample = hit && hit->geometry == scene.hf_id;
     if (!hit) {
       if (!prev_cv) {
         double env_pdf = 0;
@@ -144,6 +152,11 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     const bool cv = on_mount && n.z() > 0;
     if (cv) L += beta * mount.albedo() * (kInvPi)*scene.mount_irradiance;
     const Rgb tint = on_mount ? Rgb::Ones() : scene.Tint(hit->point);
+    if (depth == 0) {
+      first->normal = n;
+      first->depth = hit->t;
+      first->albedo = on_mount ? mount.albedo() : tint;
+    }
     auto f = [&](const Vec3& wi) -> Rgb { return on_mount ? mount.f(wo, wi) : Rgb(brdf.f(wo, wi) * tint); };
     // Continuation density: BRDF sampling, mixed with the mirrored-environment sampler with
     // probability cg at surface vertices whose tangent plane lets it aim somewhere (one-sample
@@ -284,6 +297,7 @@ struct PixelState {
   double a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
   int n = 0;        // samples taken
   int hits = 0;     // camera rays that hit the height field
+  double normal[3] = {0, 0, 0}, depth = 0, albedo[3] = {0, 0, 0};  // sums over the samples
   bool done = false;
 };
 
@@ -348,6 +362,12 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   result.summary.mirror_guide = scene.guide != nullptr;
   result.radiance = ImageF(W, H, 3, 0.0f);
   result.sample_mask = ImageF(W, H, 1, 0.0f);
+  result.normal = ImageF(W, H, 3, 0.0f);
+  result.depth = ImageF(W, H, 1, 0.0f);
+  result.albedo = ImageF(W, H, 3, 0.0f);
+  result.variance = ImageF(W, H, 1, 0.0f);
+  result.half[0] = ImageF(W, H, 3, 0.0f);
+  result.half[1] = ImageF(W, H, 3, 0.0f);
   std::atomic<int64_t> samples{0};
   std::vector<float> var(px.size()), var_s(px.size());
 
@@ -358,6 +378,17 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
       for (int c = 0; c < 3; ++c)
         result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
       result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
+      const double inv = p.n ? 1.0 / p.n : 0.0;
+      for (int c = 0; c < 3; ++c) {
+        result.normal(x, y, c) = static_cast<float>(p.normal[c] * inv);
+        result.albedo(x, y, c) = static_cast<float>(p.albedo[c] * inv);
+      }
+      result.depth(x, y, 0) = static_cast<float>(p.depth * inv);
+      const int na = (p.n + 1) / 2, nb = p.n / 2;
+      for (int c = 0; c < 3; ++c) {
+        result.half[0](x, y, c) = na ? static_cast<float>(p.a[c] / na) : 0.0f;
+        result.half[1](x, y, c) = nb ? static_cast<float>(p.b[c] / nb) : result.half[0](x, y, c);
+      }
     }
     result.tone = MeterExposure(result.radiance, &result.sample_mask);
   };
@@ -393,12 +424,17 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
             sampler.Get2D(&jx, &jy);
             const double sx = (x + jx) / W * 2 - 1;
             const double sy = 1 - (y + jy) / H * 2;
-            bool hit_sample = false;
+            FirstHit first;
             const Rgb L = TracePath(scene, brdf, mount, env, cam.eye, cam.Direction(sx, sy),
-                                    sampler, &hit_sample);
+                                    sampler, &first);
             double* acc = (p.n & 1) ? p.b : p.a;
-            for (int c = 0; c < 3; ++c) acc[c] += L[c];
-            p.hits += hit_sample;
+            for (int c = 0; c < 3; ++c) {
+              acc[c] += L[c];
+              p.normal[c] += first.normal[c];
+              p.albedo[c] += first.albedo[c];
+            }
+            p.depth += first.depth;
+            p.hits += first.sample;
             ++local;
           }
         }
@@ -418,6 +454,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
       const double d = Luminance(ma) - Luminance(mb);
       var[i] = static_cast<float>(0.25 * d * d);
     }
+    for (size_t i = 0; i < px.size(); ++i) result.variance.data()[i] = var[i];
     // 3x3 mean of the estimates (the single-pixel estimate has one degree of freedom).
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {

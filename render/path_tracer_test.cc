@@ -576,3 +576,37 @@ TEST(PathTracer, MirrorGuideLeavesTheImageUnbiased) {
 
 }  // namespace
 }  // namespace mesoscan
+
+namespace mesoscan {
+namespace {
+
+// The feature buffers the denoiser is guided by: on a flat field seen from straight above, the
+// first-hit normal is +z, the depth the eye's height, the base colour the albedo map's, and
+// the two half-buffers average to the radiance.
+TEST(PathTracer, FeatureBuffersDescribeTheFirstHit) {
+  Progress::SetEnabled(false);
+  const HeightField hf = FlatField(32, 1e-4);
+  ImageF albedo(32, 32, 3, 0.5f);
+  RenderOptions o;
+  o.width = o.height = 8;
+  o.min_spp = o.max_spp = 4;
+  o.noise = 0;
+  o.fov_deg = 5;
+  o.albedo = &albedo;
+  const Vec3 centre(hf.X(15.5), hf.Y(15.5), 0);
+  o.camera = CameraSpec{centre + Vec3(0, 0, 0.01), centre};
+  const RenderResult r = Render(hf, Brdf(LambertBrdf(Rgb::Constant(0.7))),
+                                EnvironmentMap::Constant(Rgb::Ones()), o);
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      EXPECT_NEAR(r.normal(x, y, 2), 1.0, 1e-6);
+      EXPECT_NEAR(r.depth(x, y, 0), 0.01, 3e-5);  // rays up to 3.5 degrees off axis: 1.9e-5 longer
+      EXPECT_FLOAT_EQ(r.albedo(x, y, 1), 0.5f);
+      EXPECT_FLOAT_EQ(r.sample_mask(x, y, 0), 1.0f);
+      EXPECT_NEAR(0.5 * (r.half[0](x, y, 0) + r.half[1](x, y, 0)), r.radiance(x, y, 0),
+                  1e-5 * r.radiance(x, y, 0));
+    }
+}
+
+}  // namespace
+}  // namespace mesoscan

@@ -1,5 +1,6 @@
 // `mesoscan render` end to end on a small synthetic scan: seeds, explicit camera, named and
-// rotated environments, turntable, side-by-side, albedo, and the usage / bad-input exits.
+// rotated environments, turntable, side-by-side, albedo, --denoise, and the usage / bad-input
+// exits.
 
 #include <gtest/gtest.h>
 
@@ -55,6 +56,21 @@ TEST(RenderCli, SeedsReproduceAndDiffer) {
   EXPECT_TRUE(SameFile(a / "preview.exr", b / "preview.exr"));
   EXPECT_FALSE(SameFile(a / "preview.exr", c / "preview.exr"));
   EXPECT_TRUE(fs::exists(a / "preview.png"));
+}
+
+// --denoise writes preview_denoised.exr/png beside the raw preview, which stays the render
+// without it (same seed: bit for bit); the denoised image is finite and as large.
+TEST(RenderCli, DenoiseWritesBesideTheRawPreview) {
+  const fs::path a = CliTempDir("render", "dn"), b = CliTempDir("render", "raw");
+  ASSERT_EQ(RunMesoscan(Base(a) + " --seed 5 --denoise").code, 0);
+  ASSERT_EQ(RunMesoscan(Base(b) + " --seed 5").code, 0);
+  EXPECT_TRUE(SameFile(a / "preview.exr", b / "preview.exr"));
+  EXPECT_FALSE(fs::exists(b / "preview_denoised.exr"));
+  ASSERT_TRUE(fs::exists(a / "preview_denoised.png"));
+  const ImageF dn = ReadImage(a / "preview_denoised.exr"), raw = ReadImage(a / "preview.exr");
+  ASSERT_EQ(dn.width(), raw.width());
+  ASSERT_EQ(dn.height(), raw.height());
+  for (const float v : dn.data()) ASSERT_TRUE(std::isfinite(v) && v >= 0);
 }
 
 TEST(RenderCli, CameraTurntableCompareAlbedo) {
