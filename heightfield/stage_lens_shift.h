@@ -35,6 +35,9 @@ struct LensShiftStageOptions {
   // The fixed-frequency pass with the row kernel (FixedFrequencyRowFitter: pixels of a row in
   // SIMD lanes); false: every pixel through LensShiftBatchFitter::Fit (the reference, slower).
   bool row_kernel = true;
+  // Keep LensShiftPixels::offset and frequency (the diagnostics): else they are released
+  // before the fixed-frequency pass, which then does not store them.
+  bool keep_offset_frequency = true;
   // If set, receives the wall time of each step of the stage (bench_lens_shift_stage).
   StageTimings* step_timings = nullptr;
 };
@@ -45,7 +48,9 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
 
 // A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),
 // evaluated everywhere; empty if there are fewer than 50 values. Fitted to ~50000 of them; two
-// rounds drop values beyond 4 MADs of the residual.
-std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h);
+// rounds drop values beyond 4 MADs of the residual. With stride > 1, `f` is a subsample: its
+// entry (x, y) is pixel (x stride, y stride) of an out_w x out_h grid, where the map is evaluated.
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride = 1,
+                                      int out_w = 0, int out_h = 0);
 
 }  // namespace mesoscan
