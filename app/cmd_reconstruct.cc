@@ -14,6 +14,7 @@
 #include "core/fs.h"
 #include "core/json.h"
 #include "core/log.h"
+#include "core/malloc_tuning.h"
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
@@ -35,6 +36,7 @@ struct ReconstructArgs {
 };
 
 void Run(const ReconstructArgs& a) {
+  MapLargeBuffersSeparately();  // freed frames and per-pixel arrays leave the RSS at once
   const Stopwatch t0;
   const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;

@@ -70,6 +70,14 @@ FlatTargetScan ScanFlatTarget(const Session& session_in, const Rig& rig) {
   const CombinedPixels combined = CombinePhases(plan, ps, ls, ro.Combine(), &state);
   TriangulatedPoints tri = TriangulatePoints(session.rig, out.grid, combined, {}, &state);
   out.xyz = std::move(tri.points.xyz);
+  out.sigma_z.assign(out.xyz.pixels(), std::numeric_limits<float>::quiet_NaN());
+  for (int y = 0; y < out.grid.height; ++y)
+    for (int x = 0; x < out.grid.width; ++x) {
+      const size_t i = static_cast<size_t>(y) * out.grid.width + x;
+      if (state[i] == PixelState::kOk)
+        out.sigma_z[static_cast<size_t>(y + out.grid.roi.y) * session.rig.camera.width + x +
+                    out.grid.roi.x] = tri.sigma_z[i];
+    }
   out.lens_shift_frames = static_cast<int>(plan.ls_stack.size());
   if (!ls.empty()) {
     // ROI grid -> camera grid (the ROI is the whole image here, but keep the mapping explicit).
@@ -99,6 +107,8 @@ Json MountPlane::ToJson() const {
           {"robust_sigma_um", robust_sigma_m * 1e6},
           {"normal_sigma_deg", normal_sigma_rad * 180.0 / 3.14159265358979323846},
           {"offset_sigma_um", offset_sigma_m * 1e6},
+          {"predicted_rms_um", predicted_rms_m * 1e6},
+          {"rms_over_predicted", rms_over_predicted},
           {"seconds", seconds}};
 }
 
@@ -116,8 +126,12 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
                                  << options.min_points << " (is the mount lit and in focus?)");
   const size_t stride = std::max<size_t>(1, idx.size() / options.max_samples);
   std::vector<Vec3d> p;
-  for (size_t k = 0; k < idx.size(); k += stride)
+  std::vector<float> sig;  // their predicted sigmas (NaN: none)
+  const bool have_sigma = scan.sigma_z.size() == xyz.pixels();
+  for (size_t k = 0; k < idx.size(); k += stride) {
     p.emplace_back(xyz.channel(0)[idx[k]], xyz.channel(1)[idx[k]], xyz.channel(2)[idx[k]]);
+    sig.push_back(have_sigma ? scan.sigma_z[idx[k]] : std::numeric_limits<float>::quiet_NaN());
+  }
   std::vector<uint8_t> use(p.size(), 1);
   Vec3d n = Vec3d::UnitZ(), c = Vec3d::Zero();
   Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
@@ -157,6 +171,18 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
       ++inl;
     }
   plane.rms_m = inl ? std::sqrt(s2 / inl) : 0;
+  double p2 = 0, r2 = 0;
+  int64_t n_sig = 0;
+  for (size_t k = 0; k < p.size(); ++k)
+    if (use[k] && std::isfinite(sig[k]) && sig[k] > 0) {
+      p2 += static_cast<double>(sig[k]) * sig[k];
+      r2 += std::pow(dist[k] / sig[k], 2);
+      ++n_sig;
+    }
+  if (n_sig > 0) {
+    plane.predicted_rms_m = std::sqrt(p2 / n_sig);
+    plane.rms_over_predicted = std::sqrt(r2 / n_sig);
+  }
   plane.inliers = inl * static_cast<int64_t>(stride);
   if (inl < 3 || static_cast<double>(inl) < 0.5 * static_cast<double>(p.size()))
     MESOSCAN_BAD_INPUT("mount: only " << inl << " of " << p.size()

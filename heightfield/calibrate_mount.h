@@ -32,6 +32,9 @@ struct FlatTargetScan {
                                     // (cycles per nominal projector px); empty without lens shift
   double ls_period_px = 2;   // the stripes' period (projector px)
   int lens_shift_frames = 0;
+  // Camera grid: the triangulation's predicted depth sigma of each point (m, from the lens-shift
+  // residuals), NaN where no point.
+  std::vector<float> sigma_z;
   int64_t points = 0;        // pixels with a point
   double seconds = 0;
 };
@@ -62,6 +65,11 @@ struct MountPlane {
   double robust_sigma_m = 0;      // 1.4826 MAD of the distances
   double normal_sigma_rad = 0;    // 1-sigma of the normal's direction (least-squares covariance)
   double offset_sigma_m = 0;      // 1-sigma of the plane at the points' centroid
+  // The noise's share (FlatTargetScan::sigma_z over the inliers): RMS of the predicted sigmas,
+  // and RMS of distance / predicted sigma (1 for points as good as the noise allows along the
+  // ray; the plane's normal is within a few degrees of it); 0 without sigmas.
+  double predicted_rms_m = 0;
+  double rms_over_predicted = 0;
   double seconds = 0;
   Json ToJson() const;
 };

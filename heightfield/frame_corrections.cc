@@ -623,13 +623,10 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
 }
 
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
-                                        const std::vector<float>& fitted_freq,
+                                        const FirstPassFits& first,
                                         const std::vector<float>& f_map, std::vector<double>* x,
                                         std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
-                                        const std::vector<float>* amp,
-                                        const std::vector<float>* phase,
-                                        const std::vector<float>* offset,
                                         const PhaseReference* reference) {
   if (reference && !reference->empty() && options.method == FrameGainMethod::kJoint &&
       options.estimate_gains) {
@@ -668,20 +665,22 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
       return fc;
     }
   }
-  std::vector<uint32_t> pixels;
-  for (size_t i = 0; i < fitted_freq.size(); ++i)
-    if (std::isfinite(fitted_freq[i]) && std::isfinite(f_map[i]))
-      pixels.push_back(static_cast<uint32_t>(i));
+  std::vector<uint32_t> pixels, entries;  // and their entries in `first`
+  for (size_t q = 0; q < first.pixels.size(); ++q)
+    if (first.pixels[q] < f_map.size() && std::isfinite(f_map[first.pixels[q]])) {
+      pixels.push_back(first.pixels[q]);
+      entries.push_back(static_cast<uint32_t>(q));
+    }
   std::vector<double> g0;
   for (int k : frames) g0.push_back(1.0 / (*inv_gain)[k]);
   if (options.method == FrameGainMethod::kAlternating) return {};
   // Frame means are unbiased only where the view's stripes average out: the residual sinusoid
   // of the view relative to its mean level, |sum a e^{i phi}| / sum d over the first-pass fits.
   double residual_stripe = 0.0;
-  if (amp && phase && offset) {
+  if (!first.amplitude.empty()) {
     double re = 0, im = 0, dsum = 0;
-    for (uint32_t i : pixels) {
-      const double a = (*amp)[i], ph = (*phase)[i], d = (*offset)[i];
+    for (uint32_t q : entries) {
+      const double a = first.amplitude[q], ph = first.phase[q], d = first.offset[q];
       if (!std::isfinite(a) || !std::isfinite(ph) || !std::isfinite(d)) continue;
       re += a * std::cos(ph);
       im += a * std::sin(ph);

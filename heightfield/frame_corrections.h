@@ -67,7 +67,7 @@ struct FrameCorrectionOptions {
   bool start_from_frame_means = true;
   // ... but only where the view's stripes average out: |sum a e^{i phi}| / sum d over the
   // first-pass fits at most this (else the start is the given gains, in band too).
-  // CorrectLensShiftFrames with amp/phase/offset only.
+  // CorrectLensShiftFrames with FirstPassFits::amplitude only.
   double max_residual_stripe = 5e-3;
   // ... and at most this fraction of the RMS deviation of the frame-mean gains from 1 (the
   // jitter they would correct), so their bias stays well below what they remove, >= 0.
@@ -164,22 +164,27 @@ namespace mesoscan {
 std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<int>& frames,
                                    const std::vector<uint32_t>& pixels);
 
+// The first (4-parameter) lens-shift pass's fits that CorrectLensShiftFrames reads, compact (the
+// pass fits a sparse subsample): the stack pixels with a finite fitted frequency, in increasing
+// order, and per entry the fit's amplitude, phase at shift 0 and offset (NaN: not valid).
+struct FirstPassFits {
+  std::vector<uint32_t> pixels;
+  std::vector<float> amplitude, phase, offset;  // empty: no residual-stripe gate input
+};
+
 // Pipeline hook (between the frequency pass and the fixed-frequency pass of the lens-shift fit):
-// estimates the corrections of frames `frames` on the pixels whose first-pass frequency
-// `fitted_freq` is finite (f held at `f_map`), starting from gains 1 / inv_gain[frames[k]].
+// estimates the corrections of frames `frames` on the pixels of `first` (f held at `f_map`),
+// starting from gains 1 / inv_gain[frames[k]].
 // If valid, writes the new gains into inv_gain (as 1 / g) and adds the positions to *x.
 // With a non-empty `reference` (kJoint): on the reference's pixels instead, starting from the
 // given gains, in-band gains from the reference (no frame means, no gate); without one, or with
 // too few usable reference pixels (200 + 10 per nuisance parameter), as before: frame means
 // where the view's residual stripe allows, else the given gains kept.
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
-                                        const std::vector<float>& fitted_freq,
+                                        const FirstPassFits& first,
                                         const std::vector<float>& f_map, std::vector<double>* x,
                                         std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
-                                        const std::vector<float>* amp = nullptr,
-                                        const std::vector<float>* phase = nullptr,
-                                        const std::vector<float>* offset = nullptr,
                                         const PhaseReference* reference = nullptr);
 
 }  // namespace mesoscan

@@ -58,8 +58,12 @@ struct PixelClasses {
 struct PhaseShiftPixels {
   std::vector<std::vector<float>> theta;         // [p][i], radians in [0, 2 pi)
   std::vector<std::vector<float>> modulation;    // [p][i], B, linear units
-  std::vector<std::vector<float>> residual_rms;  // [p][i], linear units
-  std::vector<float> level;  // white level (white frame, or 2 x offset of the first period)
+  // [p][i], linear units; [p] empty for a period of 3 frames (their fit is exact: residual 0).
+  std::vector<std::vector<float>> residual_rms;
+  // White level: with a white frame the classify stage's white_level of every pixel (the stream
+  // moves it here, PixelClasses::white_level is then empty until the driver moves it back for the
+  // mixed pixels); without one 2 x the offset of the first period (kActive pixels, else NaN).
+  std::vector<float> level;
   int64_t pixels_lit = 0;    // kActive after this stage: lit, unsaturated, modulated
 };
 
@@ -69,6 +73,9 @@ struct LensShiftPixels {
   std::vector<float> phase0;        // phase at shift 0 with the pixel's frequency, radians
   std::vector<float> amplitude;     // a, linear units (after luminance normalisation)
   std::vector<float> frequency;     // f, cycles per projector px
+  // d and f are read by the frame corrections (on the frequency subsample) and the diagnostics
+  // only: empty after a fixed-frequency pass unless LensShiftStageOptions::keep_offset_frequency
+  // (issue 12: peak RSS).
   std::vector<float> offset;        // d
   std::vector<float> residual_rms;  // linear units
   std::vector<float> samples;       // samples used

@@ -52,6 +52,8 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
   const int64_t pixels_lit = ps.pixels_lit, pixels_fitted = ls.pixels_fitted;
   const Json frame_corrections = ls.frame_corrections;
+  if (classes.white_level.empty())  // the stream moved it to ps.level (a white frame)
+    classes.white_level = options.keep_diagnostics ? ps.level : std::move(ps.level);
   if (!options.keep_diagnostics) {
     ps = PhaseShiftPixels();
     ls = LensShiftPixels();

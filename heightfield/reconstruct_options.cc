@@ -107,6 +107,7 @@ LensShiftStageOptions ReconstructOptions::LensShift() const {
   o.smooth_frequency = smooth_frequency;
   o.frame_gain_method = frame_gain_method;
   o.correct_positions = correct_positions;
+  o.keep_offset_frequency = keep_diagnostics;
   return o;
 }
 

@@ -128,8 +128,8 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
                   (solvers[p].ThetaVariance(sigma, modulation[p][i]) + sys2);
         out.sigma_u[i] = static_cast<float>(1.0 / std::sqrt(info));
         double e = 0.0;
-        for (int p = 0; p < nper; ++p)
-          e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
+        for (int p = 0; p < nper; ++p)  // (no array: 3 frames, residual 0)
+          if (!ps_res[p].empty()) e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
         c = 1.0 - std::sqrt(e * options.confidence_t);
         if (use_ls) c *= options.phase_shift_fallback_confidence;
       }

@@ -38,24 +38,57 @@ class StepClock {
 
 }  // namespace
 
-std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h) {
+void QuadraticMap::Terms(size_t px, size_t py, double* t) const {
+  const double sx = 2.0 / std::max(1, width), sy = 2.0 / std::max(1, height);
+  const double x = (static_cast<double>(px) + 0.5) * sx - 1.0;
+  const double y = (static_cast<double>(py) + 0.5) * sy - 1.0;
+  t[0] = 1;
+  t[1] = x;
+  t[2] = y;
+  t[3] = x * x;
+  t[4] = x * y;
+  t[5] = y * y;
+}
+
+void QuadraticMap::Row(int y, int x0, int n, float* out) const {
+  for (int j = 0; j < n; ++j) {
+    double t[6];
+    Terms(static_cast<size_t>(x0 + j), static_cast<size_t>(y), t);
+    double v = 0;
+    for (int q = 0; q < 6; ++q) v += t[q] * c[q];
+    out[j] = static_cast<float>(v);
+  }
+}
+
+std::vector<float> QuadraticMap::Evaluate() const {
+  std::vector<float> out(static_cast<size_t>(width) * height);
+  ParallelForRows(height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) Row(y, 0, width, out.data() + static_cast<size_t>(y) * width);
+  });
+  return out;
+}
+
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride,
+                                      int out_w, int out_h) {
+  QuadraticMap map;
+  if (!FitSmoothFrequencyMap(f, w, h, stride, out_w, out_h, &map)) return {};
+  return map.Evaluate();
+}
+
+bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride, int out_w,
+                           int out_h, QuadraticMap* map) {
+  if (stride <= 1) stride = 1, out_w = w, out_h = h;
+  map->width = out_w;
+  map->height = out_h;
   std::vector<size_t> idx;
   for (size_t i = 0; i < f.size(); ++i)
     if (std::isfinite(f[i])) idx.push_back(i);
-  if (idx.size() < 50) return {};
-  const size_t stride = std::max<size_t>(1, idx.size() / 50000);
+  if (idx.size() < 50) return false;
+  const size_t step = std::max<size_t>(1, idx.size() / 50000);
   std::vector<size_t> sample;
-  for (size_t k = 0; k < idx.size(); k += stride) sample.push_back(idx[k]);
-  const double sx = 2.0 / std::max(1, w), sy = 2.0 / std::max(1, h);
-  auto terms = [&](size_t i, double* t) {
-    const double x = (static_cast<double>(i % w) + 0.5) * sx - 1.0;
-    const double y = (static_cast<double>(i / w) + 0.5) * sy - 1.0;
-    t[0] = 1;
-    t[1] = x;
-    t[2] = y;
-    t[3] = x * x;
-    t[4] = x * y;
-    t[5] = y * y;
+  for (size_t k = 0; k < idx.size(); k += step) sample.push_back(idx[k]);
+  auto terms = [&](size_t i, double* t) {  // entry i of f
+    map->Terms(i % w * stride, i / w * stride, t);
   };
   std::vector<uint8_t> use(sample.size(), 1);
   Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
@@ -70,7 +103,7 @@ std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h)
       b += t * static_cast<double>(f[sample[k]]);
     }
     c = A.ldlt().solve(b);
-    if (!c.allFinite()) return {};
+    if (!c.allFinite()) return false;
     std::vector<double> r(sample.size());
     for (size_t k = 0; k < sample.size(); ++k) {
       Eigen::Matrix<double, 6, 1> t;
@@ -82,17 +115,8 @@ std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h)
     const double mad = kMadToSigma * sorted[sorted.size() / 2];
     for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
   }
-  std::vector<float> out(f.size());
-  ParallelForRows(h, [&](int y0, int y1) {
-    for (size_t i = static_cast<size_t>(y0) * w; i < static_cast<size_t>(y1) * w; ++i) {
-      double t[6];
-      terms(i, t);
-      double v = 0;
-      for (int q = 0; q < 6; ++q) v += t[q] * c(q);
-      out[i] = static_cast<float>(v);
-    }
-  });
-  return out;
+  for (int q = 0; q < 6; ++q) map->c[q] = c(q);
+  return true;
 }
 
 LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
@@ -110,9 +134,12 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
   const std::vector<double>& ls_shift_px = plan.ls_shift_px;
   std::vector<float>& inv_gain = gains->inv_gain;  // refined by the frame corrections
   const int nls = static_cast<int>(ls_stack.size());
-  for (auto* v :
-       {&out.phase0, &out.amplitude, &out.frequency, &out.offset, &out.residual_rms, &out.samples})
-    v->assign(np, kNaN);
+  // The output arrays of n entries, NaN; offset and frequency only if `all`.
+  auto allocate = [&](LensShiftPixels& o, size_t n, bool all) {
+    for (auto* v : {&o.phase0, &o.amplitude, &o.residual_rms, &o.samples}) v->assign(n, kNaN);
+    if (all)
+      for (auto* v : {&o.frequency, &o.offset}) v->assign(n, kNaN);
+  };
   const double centre = plan.LensShiftCentre();
   // Box filter: 5-sample moving average ("valid" part only, so no sample is shifted).
   const bool box = options.box_filter && nls >= 9;
@@ -138,28 +165,38 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     bool Row(int y) const { return complement || y % stride == 0; }
     bool Has(int x, int y) const { return (x % stride == 0 && y % stride == 0) != complement; }
   };
-  // The outputs of pixel i from its fit.
-  auto store = [&](size_t i, const LensShiftFit& fit) {
+  // Where a pass stores: ROI pixel (x, y) at entry (y / stride) * width + x / stride of `px`
+  // (stride 1: the ROI grid; the frequency pass: its sparse subsample's own grid).
+  struct Target {
+    LensShiftPixels* px;
+    int stride, width;
+    size_t At(size_t x, int y) const {
+      return static_cast<size_t>(y / stride) * width + x / static_cast<size_t>(stride);
+    }
+  };
+  const Target full{&out, 1, w};
+  // The outputs of pixel i (entry di of o) from its fit.
+  auto store = [&](LensShiftPixels& o, size_t di, size_t i, const LensShiftFit& fit) {
     if (!fit.valid) {
       state[i] = PixelState::kFitFailed;
       if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
-        out.residual_rms[i] = static_cast<float>(fit.residual_rms);
-        out.samples[i] = static_cast<float>(fit.samples_used);
+        o.residual_rms[di] = static_cast<float>(fit.residual_rms);
+        o.samples[di] = static_cast<float>(fit.samples_used);
       }
       return;
     }
     // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
-    out.phase0[i] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
-    out.amplitude[i] = static_cast<float>(fit.amplitude);
-    out.frequency[i] = static_cast<float>(fit.frequency);
-    out.offset[i] = static_cast<float>(fit.offset);
-    out.residual_rms[i] = static_cast<float>(fit.residual_rms);
-    out.samples[i] = static_cast<float>(fit.samples_used);
+    o.phase0[di] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
+    o.amplitude[di] = static_cast<float>(fit.amplitude);
+    if (!o.frequency.empty()) o.frequency[di] = static_cast<float>(fit.frequency);
+    if (!o.offset.empty()) o.offset[di] = static_cast<float>(fit.offset);
+    o.residual_rms[di] = static_cast<float>(fit.residual_rms);
+    o.samples[di] = static_cast<float>(fit.samples_used);
   };
   // One pass over the active pixels of `subset`; f_map (if given) is the per-pixel frequency
   // held fixed. Rows without a pixel of the subset are not even gathered.
   auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
-                      const PixelSubset& subset, const char* label) {
+                      const PixelSubset& subset, const char* label, const Target& to) {
     Progress progress(label, h);
     ParallelForRows(h, [&](int y0, int y1) {
       const size_t n = static_cast<size_t>(w);
@@ -195,7 +232,8 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
             b = prof.data();
             stride = 1;
           }
-          store(i, f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride));
+          store(*to.px, to.stride == 1 ? i : to.At(j, y), i,
+                f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride));
         }
       }
       progress.Advance(y1 - y0);
@@ -203,7 +241,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
   };
   // The fixed-frequency pass of every active pixel with the row kernel (LensShiftRowFitter):
   // tiles of a row gathered frame-major, the gains applied inside the kernel.
-  auto fit_pass_rows = [&](const LensShiftRowFitter& fitter, const std::vector<float>& f_map) {
+  auto fit_pass_rows = [&](const LensShiftRowFitter& fitter, const QuadraticMap& f_map) {
     std::vector<float> gain(static_cast<size_t>(nls));
     for (int k = 0; k < nls; ++k) gain[k] = inv_gain[ls_stack[k]];
     Progress progress("fit lens shift", h);
@@ -212,6 +250,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
       std::vector<float> buf(static_cast<size_t>(nls) * kTile);
       std::vector<uint8_t> use(kTile);
       std::vector<LensShiftFit> fits(kTile);
+      std::vector<float> f(kTile);  // the map's frequencies of the tile
       for (int y = y0; y < y1; ++y) {
         for (int x0 = 0; x0 < w; x0 += kTile) {
           const int cnt = std::min(kTile, w - x0);
@@ -224,10 +263,11 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
           if (!any) continue;
           const size_t stride = static_cast<size_t>(cnt);
           for (int k = 0; k < nls; ++k) stack.Gather(ls_stack[k], i0, stride, buf.data() + k * stride);
-          fitter.FitRow(buf.data(), stride, cnt, gain.data(), f_map.data() + i0, use.data(),
+          f_map.Row(y, x0, cnt, f.data());
+          fitter.FitRow(buf.data(), stride, cnt, gain.data(), f.data(), use.data(),
                         fits.data());
           for (int j = 0; j < cnt; ++j)
-            if (use[j]) store(i0 + j, fits[j]);
+            if (use[j]) store(out, i0 + j, i0 + j, fits[j]);
         }
       }
       progress.Advance(y1 - y0);
@@ -245,20 +285,55 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     for (size_t i = 0; i < np; ++i) n_active += state[i] == PixelState::kActive;
     PixelSubset subset;
     subset.stride = std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
-    fit_pass(fitter, nullptr, subset, "fit lens shift frequency");
+    // The 4-parameter fits of the subsample on its own grid (cw x ch): the full-size arrays
+    // are made only for the fixed-frequency pass, after the frame corrections (issue 12: they
+    // are 75 MB at 3 Mpx, and the frame corrections are the stage's peak).
+    const int sub = subset.stride, cw = (w + sub - 1) / sub, ch = (h + sub - 1) / sub;
+    LensShiftPixels first;
+    allocate(first, static_cast<size_t>(cw) * ch, true);
+    fit_pass(fitter, nullptr, subset, "fit lens shift frequency", {&first, sub, cw});
     step.Stage("frequency_fit");
-    std::vector<float> f_map = SmoothFrequencyMap(out.frequency, w, h);
+    // Evaluated per row tile where it is used (12.5 MB less at 3 Mpx in the fixed pass).
+    QuadraticMap f_map;
+    const bool have_map = FitSmoothFrequencyMap(first.frequency, cw, ch, sub, w, h, &f_map);
     step.Stage("frequency_map");
-    if (!f_map.empty()) {
+    // The full grid's arrays with the subsample's fits in place (the fixed-frequency pass
+    // overwrites them, except where it fails).
+    auto full_arrays = [&](bool all) {
+      allocate(out, np, all);
+      auto scatter = [&](const std::vector<float>& from, std::vector<float>& to) {
+        if (to.empty()) return;
+        for (int y = 0; y < h; y += sub)
+          for (int x = 0; x < w; x += sub)
+            to[static_cast<size_t>(y) * w + x] = from[static_cast<size_t>(y / sub) * cw + x / sub];
+      };
+      scatter(first.phase0, out.phase0);
+      scatter(first.amplitude, out.amplitude);
+      scatter(first.frequency, out.frequency);
+      scatter(first.offset, out.offset);
+      scatter(first.residual_rms, out.residual_rms);
+      scatter(first.samples, out.samples);
+      first = LensShiftPixels();
+    };
+    if (have_map) {
       LensShiftFitOptions fo2 = fo;
       fo2.fit_frequency = false;
       if (!box) {  // issue 13: joint frame gains and shifter positions
         FrameCorrectionOptions fco;
         fco.method = options.frame_gain_method;
         fco.estimate_positions = options.correct_positions;
+        FirstPassFits fits;
+        for (int y = 0; y < h; y += sub)
+          for (int x = 0; x < w; x += sub) {
+            const size_t q = static_cast<size_t>(y / sub) * cw + x / sub;
+            if (!std::isfinite(first.frequency[q])) continue;
+            fits.pixels.push_back(static_cast<uint32_t>(static_cast<size_t>(y) * w + x));
+            fits.amplitude.push_back(first.amplitude[q]);
+            fits.phase.push_back(first.phase0[q]);
+            fits.offset.push_back(first.offset[q]);
+          }
         const FrameCorrections fc =
-            CorrectLensShiftFrames(stack, ls_stack, out.frequency, f_map, &x, &inv_gain, fco,
-                                   &out.amplitude, &out.phase0, &out.offset,
+            CorrectLensShiftFrames(stack, ls_stack, fits, f_map.Evaluate(), &x, &inv_gain, fco,
                                    &gains->phase_reference);
         for (int k = 0; k < nls; ++k) {
           const size_t f = static_cast<size_t>(plan.frames[ls_stack[k]]);
@@ -267,18 +342,25 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
         out.frame_corrections = fc.ToJson();
         step.Stage("frame_corrections");
       }
-      if (options.row_kernel && !box && fo2.fitter == LensShiftFitter::kFast)
+      full_arrays(options.keep_offset_frequency);
+      if (options.row_kernel && !box && fo2.fitter == LensShiftFitter::kFast) {
         fit_pass_rows(LensShiftRowFitter(x, 0.5, fo2), f_map);
-      else
-        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_map, PixelSubset(), "fit lens shift");
+      } else {
+        const std::vector<float> f_all = f_map.Evaluate();
+        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_all, PixelSubset(), "fit lens shift", full);
+      }
       step.Stage("fixed_frequency_fit");
-    } else if (subset.stride > 1) {
-      // No frequency map: the 4-parameter fit everywhere else too.
-      subset.complement = true;
-      fit_pass(fitter, nullptr, subset, "fit lens shift");
+    } else {
+      full_arrays(true);
+      if (subset.stride > 1) {
+        // No frequency map: the 4-parameter fit everywhere else too.
+        subset.complement = true;
+        fit_pass(fitter, nullptr, subset, "fit lens shift", full);
+      }
     }
   } else {
-    fit_pass(fitter, nullptr, PixelSubset(), "fit lens shift");
+    allocate(out, np, true);
+    fit_pass(fitter, nullptr, PixelSubset(), "fit lens shift", full);
   }
   for (size_t i = 0; i < np; ++i)
     out.pixels_fitted += state[i] == PixelState::kActive || state[i] == PixelState::kFitFailed;

@@ -7,6 +7,8 @@
 // corrections (gains, shifter positions) refine gains->inv_gain and the positions. Moves pixels
 // to kFitFailed. Returns empty arrays when the plan has no lens-shift frames.
 
+#include <array>
+#include <cstddef>
 #include <vector>
 
 #include "core/stage_timer.h"
@@ -35,6 +37,9 @@ struct LensShiftStageOptions {
   // The fixed-frequency pass with the row kernel (FixedFrequencyRowFitter: pixels of a row in
   // SIMD lanes); false: every pixel through LensShiftBatchFitter::Fit (the reference, slower).
   bool row_kernel = true;
+  // Keep LensShiftPixels::offset and frequency (the diagnostics): else they are released
+  // before the fixed-frequency pass, which then does not store them.
+  bool keep_offset_frequency = true;
   // If set, receives the wall time of each step of the stage (bench_lens_shift_stage).
   StageTimings* step_timings = nullptr;
 };
@@ -45,7 +50,23 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
 
 // A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),
 // evaluated everywhere; empty if there are fewer than 50 values. Fitted to ~50000 of them; two
-// rounds drop values beyond 4 MADs of the residual.
-std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h);
+// rounds drop values beyond 4 MADs of the residual. With stride > 1, `f` is a subsample: its
+// entry (x, y) is pixel (x stride, y stride) of an out_w x out_h grid, where the map is evaluated.
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride = 1,
+                                      int out_w = 0, int out_h = 0);
+
+// Its quadratic: c . (1, x, y, x^2, x y, y^2) with x, y the pixel centre scaled to [-1, 1] over
+// width x height; evaluated where needed instead of stored (the fixed-frequency pass per tile).
+struct QuadraticMap {
+  std::array<double, 6> c{};
+  int width = 0, height = 0;
+  void Terms(size_t x, size_t y, double* t) const;
+  // Pixels (x0 .. x0 + n - 1, y) into out[0..n).
+  void Row(int y, int x0, int n, float* out) const;
+  std::vector<float> Evaluate() const;  // every pixel, row-major
+};
+// SmoothFrequencyMap's fit alone; false where it returns an empty map.
+bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride, int out_w,
+                           int out_h, QuadraticMap* map);
 
 }  // namespace mesoscan

@@ -36,7 +36,9 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   PhaseShiftPixels out;
   out.theta.assign(nper, std::vector<float>(np, kNaN));
   out.modulation.assign(nper, std::vector<float>(np, kNaN));
-  out.residual_rms.assign(nper, std::vector<float>(np, kNaN));
+  out.residual_rms.resize(nper);  // three samples fit exactly: no residual array (issue 12: RSS)
+  for (int p = 0; p < nper; ++p)
+    if (periods[p].stack_frames.size() > 3) out.residual_rms[p].assign(np, kNaN);
   out.level.assign(np, kNaN);
   auto& theta = out.theta;
   auto& modulation = out.modulation;
@@ -69,7 +71,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
         if (!r.valid) continue;
         theta[p][i] = r.theta;
         modulation[p][i] = r.modulation;
-        out.residual_rms[p][i] = r.residual_rms;
+        if (!out.residual_rms[p].empty()) out.residual_rms[p][i] = r.residual_rms;
         if (p == 0 && !has_white) level[i] = 2.0f * r.offset;
       }
     }

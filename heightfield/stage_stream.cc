@@ -64,6 +64,10 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     }
     out.ps.pixels_lit = std::count(state.begin(), state.end(), PixelState::kActive);
   }
+  if (plan.has_white()) {  // the same values where read (kActive pixels): one array, not two
+    out.ps.level = std::move(out.classes.white_level);
+    out.classes.white_level = {};
+  }
   EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
                          &out.gains, &out.ps);
   return out;

@@ -30,7 +30,8 @@ struct StreamStageOptions {
 
 struct StreamedFrames {
   FrameStack stack;        // the lens-shift frames (every frame if the plan has none)
-  PixelClasses classes;    // classify, then moved on by the phase shift
+  PixelClasses classes;    // classify, then moved on by the phase shift; with a white frame
+                           // white_level is moved to ps.level (see PhaseShiftPixels::level)
   FrameGains gains;        // sine and lens-shift frames
   PhaseShiftPixels ps;
   double decode_s = 0.0;   // when the last frame was decoded, s after the call
