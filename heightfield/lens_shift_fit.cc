@@ -445,39 +445,39 @@ struct Objective {
   bool ok = false;
 };
 
-// The Taylor polynomials of Evaluate with two derivatives at eps (Horner): z_coef to order
-// top_z into z[0..2] (value, first, second derivative), and the interleaved Gram coefficients
-// e12 (e1 re, e1 im, e2 re, e2 im per order) to order top_g into e[0..2] (4 values each). Each
-// lane rounds as the complex scalar recurrences would.
-MESOSCAN_SIMD_CLONES
-void HornerWithDerivatives(const Cd* z_coef, int top_z, const double* e12, int top_g, double eps,
-                           double* z_out, double* e_out) {
-  const V4d zero4 = {0, 0, 0, 0};
-  V4d v, d1 = zero4, d2 = zero4;
-  std::memcpy(&v, e12 + 4 * top_g, sizeof v);
-  for (int m = top_g - 1; m >= 0; --m) {
-    V4d c;
-    std::memcpy(&c, e12 + 4 * m, sizeof c);
+// Horner's scheme with two derivatives at eps for a polynomial whose coefficients are vectors V
+// (one V per order, contiguous from `coef`, orders 0..top): writes the value, the first and the
+// second derivative, one V each, to `out`. Every lane rounds as the scalar recurrence would.
+// Through memcpy and pointers, not V by value (the AVX2 clone's ABI, as AtanReduced).
+template <class V>
+inline __attribute__((always_inline)) void HornerVec(const void* coef, int top, double eps,
+                                                     void* out) {
+  const auto* c8 = static_cast<const unsigned char*>(coef);
+  const V zero = {};
+  V v, d1 = zero, d2 = zero;
+  std::memcpy(&v, c8 + sizeof(V) * top, sizeof v);
+  for (int m = top - 1; m >= 0; --m) {
+    V c;
+    std::memcpy(&c, c8 + sizeof(V) * m, sizeof c);
     d2 = d2 * eps + (d1 + d1);
     d1 = d1 * eps + v;
     v = v * eps + c;
   }
-  std::memcpy(e_out, &v, sizeof v);
-  std::memcpy(e_out + 4, &d1, sizeof d1);
-  std::memcpy(e_out + 8, &d2, sizeof d2);
-  const V2d zero2 = {0, 0};
-  V2d zv, z1 = zero2, z2 = zero2;
-  std::memcpy(&zv, z_coef + top_z, sizeof zv);
-  for (int m = top_z - 1; m >= 0; --m) {
-    V2d c;
-    std::memcpy(&c, z_coef + m, sizeof c);
-    z2 = z2 * eps + (z1 + z1);
-    z1 = z1 * eps + zv;
-    zv = zv * eps + c;
-  }
-  std::memcpy(z_out, &zv, sizeof zv);
-  std::memcpy(z_out + 2, &z1, sizeof z1);
-  std::memcpy(z_out + 4, &z2, sizeof z2);
+  auto* o8 = static_cast<unsigned char*>(out);
+  std::memcpy(o8, &v, sizeof v);
+  std::memcpy(o8 + sizeof v, &d1, sizeof d1);
+  std::memcpy(o8 + 2 * sizeof v, &d2, sizeof d2);
+}
+
+// The Taylor polynomials of Evaluate with two derivatives at eps: z_coef (complex) to order
+// top_z into z[0..2] (value, first, second derivative, 2 values each), and the interleaved Gram
+// coefficients e12 (e1 re, e1 im, e2 re, e2 im per order) to order top_g into e[0..2] (4 values
+// each). Each lane rounds as the complex scalar recurrences would.
+MESOSCAN_SIMD_CLONES
+void HornerWithDerivatives(const Cd* z_coef, int top_z, const double* e12, int top_g, double eps,
+                           double* z_out, double* e_out) {
+  HornerVec<V4d>(e12, top_g, eps, e_out);
+  HornerVec<V2d>(z_coef, top_z, eps, z_out);
 }
 
 // J(eps') = q^T G^-1 q (variable projection: sum y^2 - J is the residual of the best linear fit
