@@ -23,6 +23,7 @@
 #include "core/output_dir.h"
 #include "core/parallel.h"
 #include "core/scan_folder.h"
+#include "core/stage_timer.h"
 #include "heightfield/export.h"
 #include "heightfield/maps_fill.h"
 #include "render/animation.h"
@@ -251,12 +252,12 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
   MESOSCAN_LOG(kInfo) << "render: " << result.summary.BriefReport();
   if (a.denoise) {
     // The optional denoise stage: biased, so written beside the raw preview, never instead.
-    const auto t0 = std::chrono::steady_clock::now();
+    const Stopwatch denoise_time;
     const ImageF dn = DenoisePreview(result);
     WriteExr(out / "preview_denoised.exr", dn, {"R", "G", "B"}, {}, {}, "none");
     WritePng8(out / "preview_denoised.png", ToneMapForDisplay(dn, result.tone));
     MESOSCAN_LOG(kInfo) << "render: denoised in "
-                        << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()
+                        << denoise_time.Seconds()
                         << " s: preview_denoised.png / .exr (biased: edge-aware smoothing; the raw "
                            "render is preview.png / .exr)";
   }

@@ -335,6 +335,8 @@ void DemoPreview(const fs::path& dir) {
                 "the reference's noise), display %.4f, in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), "
                 "load %s\n",
                 run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
+    const std::string png_stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) +
+                                 "spp" + (o.mirror_guide ? "" : "_noguide");
     // The optional denoise stage (render/denoise.h, `render --denoise`): its error against the
     // same reference, bias included, next to the raw figure above. Never in the Cycles tables.
     double dn_e = 0, dn_ed = 0, dn_s = 0;
@@ -355,16 +357,12 @@ void DemoPreview(const fs::path& dir) {
         WriteExr(dir / (stem + "denoised.exr"), dn, {"R", "G", "B"});
         WriteExr(dir / (stem + "raw.exr"), r.radiance, {"R", "G", "B"});
       }
-      WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp" +
-                       (o.mirror_guide ? "" : "_noguide") + "_denoised.png"),
-                ToneMapForDisplay(dn, r.tone));
+      WritePng8(dir / (png_stem + "_denoised.png"), ToneMapForDisplay(dn, r.tone));
     }
     csv << run.name << "," << spp << "," << e << "," << es << "," << em << "," << corrected << ","
         << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "," << dn_e
         << "," << dn_ed << "," << dn_s << "\n";
-    WritePng8(dir / ("demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp" +
-                     (o.mirror_guide ? "" : "_noguide") + ".png"),
-              ToneMapForDisplay(r.radiance, r.tone));
+    WritePng8(dir / (png_stem + ".png"), ToneMapForDisplay(r.radiance, r.tone));
   }
 }
 

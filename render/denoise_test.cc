@@ -19,7 +19,6 @@ RenderResult Synthetic(int w, int h, double sigma, Truth truth, uint64_t seed) {
   r.normal = ImageF(w, h, 3, 0.0f);
   r.depth = ImageF(w, h, 1, 1.0f);
   r.albedo = ImageF(w, h, 3, 1.0f);
-  r.variance = ImageF(w, h, 1, static_cast<float>(sigma * sigma / 2));
   r.sample_mask = ImageF(w, h, 1, 1.0f);
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> noise(0, sigma);

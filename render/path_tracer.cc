@@ -365,7 +365,6 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   result.normal = ImageF(W, H, 3, 0.0f);
   result.depth = ImageF(W, H, 1, 0.0f);
   result.albedo = ImageF(W, H, 3, 0.0f);
-  result.variance = ImageF(W, H, 1, 0.0f);
   result.half[0] = ImageF(W, H, 3, 0.0f);
   result.half[1] = ImageF(W, H, 3, 0.0f);
   std::atomic<int64_t> samples{0};
@@ -454,7 +453,6 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
       const double d = Luminance(ma) - Luminance(mb);
       var[i] = static_cast<float>(0.25 * d * d);
     }
-    for (size_t i = 0; i < px.size(); ++i) result.variance.data()[i] = var[i];
     // 3x3 mean of the estimates (the single-pixel estimate has one degree of freedom).
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {

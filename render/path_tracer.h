@@ -83,7 +83,6 @@ struct RenderResult {
   ImageF depth;     // 1 channel: distance from the eye, metres
   ImageF albedo;    // 3 channels: the base colour the hit multiplies (the scan's tint on the
                     // height field, the mount's albedo on the mount)
-  ImageF variance;  // 1 channel: the luminance variance of each pixel's mean (half-buffers)
   ImageF half[2];   // 3 channels each: the means of the even and of the odd samples
   ToneMapping tone;    // metered on the sample (mask > 0.5), not on the mount
   RenderSummary summary;
