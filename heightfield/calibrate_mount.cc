@@ -2,21 +2,18 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 
 #include "core/error.h"
 #include "core/log.h"
+#include "core/numbers.h"
 #include "core/robust_stats.h"
+#include "core/stage_timer.h"
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {
 namespace {
-
-double Seconds(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 }  // namespace
 
@@ -32,7 +29,7 @@ bool HasBoardPatterns(const Session& session) {
 }
 
 FlatTargetScan ScanFlatTarget(const Session& session_in, const Rig& rig) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch timer;
   const std::string where = session_in.root.string() + "/session.json";
   if (session_in.rig.camera.width != rig.camera.width ||
       session_in.rig.camera.height != rig.camera.height ||
@@ -93,7 +90,7 @@ FlatTargetScan ScanFlatTarget(const Session& session_in, const Rig& rig) {
       }
   }
   for (size_t i = 0; i < out.xyz.pixels(); ++i) out.points += std::isfinite(out.xyz.channel(2)[i]);
-  out.seconds = Seconds(t0);
+  out.seconds = timer.Seconds();
   return out;
 }
 
@@ -105,7 +102,7 @@ Json MountPlane::ToJson() const {
           {"inliers", inliers},
           {"rms_um", rms_m * 1e6},
           {"robust_sigma_um", robust_sigma_m * 1e6},
-          {"normal_sigma_deg", normal_sigma_rad * 180.0 / 3.14159265358979323846},
+          {"normal_sigma_deg", normal_sigma_rad * 180.0 / kPi},
           {"offset_sigma_um", offset_sigma_m * 1e6},
           {"predicted_rms_um", predicted_rms_m * 1e6},
           {"rms_over_predicted", rms_over_predicted},
@@ -114,7 +111,7 @@ Json MountPlane::ToJson() const {
 
 MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
                          const MountPlaneOptions& options) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch timer;
   MountPlane plane;
   const ImageF& xyz = scan.xyz;
   std::vector<size_t> idx;
@@ -194,7 +191,7 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
   plane.offset_sigma_m = plane.rms_m / std::sqrt(static_cast<double>(inl));
   plane.normal_sigma_rad = plane.rms_m / std::sqrt(lmid);
   plane.session = "";
-  plane.seconds = Seconds(t0);
+  plane.seconds = timer.Seconds();
   return plane;
 }
 

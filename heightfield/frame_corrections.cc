@@ -7,14 +7,13 @@
 #include <limits>
 #include <numeric>
 
+#include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/robust_stats.h"
 #include "heightfield/frames.h"
 
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // Projects delta off span{1, x} (the affine gauge).
 void ProjectAffine(std::vector<double>* delta, const std::vector<double>& x) {

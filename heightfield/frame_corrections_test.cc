@@ -6,10 +6,10 @@
 #include <limits>
 #include <random>
 
+#include "core/numbers.h"
+
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 struct Synthetic {
   int nk = 50, n = 1500;

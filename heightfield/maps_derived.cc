@@ -5,13 +5,13 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
 #include "heightfield/maps_flatten.h"
 
 namespace mesoscan {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
 
 int Wrap(int i, int n) { return ((i % n) + n) % n; }

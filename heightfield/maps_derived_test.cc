@@ -4,10 +4,10 @@
 
 #include <cmath>
 
+#include "core/numbers.h"
+
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 HeightField Grid(int w, int h, double p) {
   HeightField hf;

@@ -9,10 +9,10 @@
 #include <random>
 #include <vector>
 
+#include "core/numbers.h"
+
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // A smooth synthetic surface (metres) on a 240 x 200 grid of 20 um: a tilt, a bend and two
 // waves of 2.4 and 3.1 mm, up to ~150 um of relief.

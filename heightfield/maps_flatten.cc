@@ -9,13 +9,12 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/robust_stats.h"
 
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // Monomials u^a v^b with a + b <= degree, u and v the pixel coordinates mapped to [-1, 1].
 int Terms(int degree) { return (degree + 1) * (degree + 2) / 2; }

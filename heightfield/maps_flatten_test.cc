@@ -5,10 +5,10 @@
 #include <cmath>
 #include <iostream>
 
+#include "core/numbers.h"
+
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // A weave-like texture (zero mean over whole periods): wavelengths 0.5-0.9 mm, 30 um.
 double Texture(double u, double v) {

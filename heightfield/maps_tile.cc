@@ -7,12 +7,11 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
 
 namespace mesoscan {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // Summed-area table of a 0/1 predicate, (w+1) x (h+1).
 template <typename Pred>

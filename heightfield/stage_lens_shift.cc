@@ -68,10 +68,9 @@ std::vector<float> QuadraticMap::Evaluate() const {
   return out;
 }
 
-std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride,
-                                      int out_w, int out_h) {
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h) {
   QuadraticMap map;
-  if (!FitSmoothFrequencyMap(f, w, h, stride, out_w, out_h, &map)) return {};
+  if (!FitSmoothFrequencyMap(f, w, h, 1, w, h, &map)) return {};
   return map.Evaluate();
 }
 

@@ -50,10 +50,8 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
 
 // A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),
 // evaluated everywhere; empty if there are fewer than 50 values. Fitted to ~50000 of them; two
-// rounds drop values beyond 4 MADs of the residual. With stride > 1, `f` is a subsample: its
-// entry (x, y) is pixel (x stride, y stride) of an out_w x out_h grid, where the map is evaluated.
-std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride = 1,
-                                      int out_w = 0, int out_h = 0);
+// rounds drop values beyond 4 MADs of the residual.
+std::vector<float> SmoothFrequencyMap(const std::vector<float>& f, int w, int h);
 
 // Its quadratic: c . (1, x, y, x^2, x y, y^2) with x, y the pixel centre scaled to [-1, 1] over
 // width x height; evaluated where needed instead of stored (the fixed-frequency pass per tile).
@@ -65,7 +63,9 @@ struct QuadraticMap {
   void Row(int y, int x0, int n, float* out) const;
   std::vector<float> Evaluate() const;  // every pixel, row-major
 };
-// SmoothFrequencyMap's fit alone; false where it returns an empty map.
+// SmoothFrequencyMap's fit alone; false where it returns an empty map. With stride > 1, `f` is a
+// subsample: its entry (x, y) is pixel (x stride, y stride) of the out_w x out_h grid the map
+// covers.
 bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride, int out_w,
                            int out_h, QuadraticMap* map);
 
