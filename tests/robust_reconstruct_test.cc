@@ -30,6 +30,12 @@ fs::path TempDir(const std::string& name) {
   return fs::temp_directory_path() / ("mesoscan_robust_" + std::to_string(getpid()) + "_" + name);
 }
 
+// Simulates `so` into `dir` and reads the session back.
+Session SimulateAndRead(const SimulateOptions& so, const fs::path& dir) {
+  Simulate(so, dir);
+  return ReadSession(dir);
+}
+
 struct Figures {
   GroundTruthErrors e;
   double crlb = 0;          // RMS Cramer-Rao depth floor over the scored pixels, m
@@ -72,9 +78,7 @@ TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
   Progress::SetEnabled(false);
   const fs::path d0 = TempDir("coin_j0"), d1 = TempDir("coin_j2");
   const SimulateOptions s0 = CoinJitter(0.0), s1 = CoinJitter(0.02);
-  Simulate(s0, d0);
-  Simulate(s1, d1);
-  const Session a = ReadSession(d0), b = ReadSession(d1);
+  const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
   const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
   ReconstructOptions als;
   als.frame_gain_method = FrameGainMethod::kAlternating;
@@ -170,8 +174,7 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   so.crop = PixelRect{900, 600, 384, 288};
   so.blur_sigma_px = 0.7;
   const fs::path dir = TempDir("leaf");
-  Simulate(so, dir);
-  const Session s = ReadSession(dir);
+  const Session s = SimulateAndRead(so, dir);
   Figures f = RunCase(s, so);
   {  // before issue 13: alternating least squares gains (on the same pixels as below)
     ReconstructOptions als;
@@ -206,8 +209,7 @@ TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
   so.crop = PixelRect{960, 620, 256, 192};
   so.focus_height_m = 0.0;
   const fs::path dir = TempDir("plane_defocus");
-  Simulate(so, dir);
-  const Session s = ReadSession(dir);
+  const Session s = SimulateAndRead(so, dir);
   ReconstructOptions off;
   off.phase_shift_fallback = false;
   const Figures before = RunCase(s, so, off), f = RunCase(s, so);
@@ -278,9 +280,7 @@ TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
   SimulateOptions s1 = s0;
   s1.shift_position_error_px = 0.02;
   const fs::path d0 = TempDir("coin_p0"), d1 = TempDir("coin_p2");
-  Simulate(s0, d0);
-  Simulate(s1, d1);
-  const Session a = ReadSession(d0), b = ReadSession(d1);
+  const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
   ReconstructOptions nopos;
   nopos.correct_positions = false;
   const Figures clean = RunCase(a, s0), corrected = RunCase(b, s1), uncorrected = RunCase(b, s1, nopos);
@@ -423,8 +423,7 @@ TEST(RobustReconstruct, CuePeriodEqualToTheProjectorWidth) {
   so.ps_periods_px = {width / 16, width};
   so.ps_phases = 3;
   const fs::path dir = TempDir("cue_width");
-  Simulate(so, dir);
-  const Session s = ReadSession(dir);
+  const Session s = SimulateAndRead(so, dir);
   const Figures f = RunCase(s, so);
   Print("plane, cue = projector width", f);
   EXPECT_GE(f.e.coverage, 0.95);
@@ -475,9 +474,7 @@ TEST(RobustReconstruct, HorizontalFringesAtTheNoiseFloor) {
   Progress::SetEnabled(false);
   const SimulateOptions sx = BarOptions('x'), sy = BarOptions('y');
   const fs::path dx = TempDir("bar_x"), dy = TempDir("bar_y");
-  Simulate(sx, dx);
-  Simulate(sy, dy);
-  const Session a = ReadSession(dx), b = ReadSession(dy);
+  const Session a = SimulateAndRead(sx, dx), b = SimulateAndRead(sy, dy);
   ASSERT_EQ(b.rig.lens_shifter->axis, 'y');
   for (const Frame& f : b.frames) {
     if (f.pattern.type == PatternType::kSine || f.pattern.type == PatternType::kStripes) {
@@ -563,9 +560,7 @@ TEST(RobustReconstruct, NoWhiteNoBlackFrame) {
   SimulateOptions without = with;
   without.white = without.black = false;
   const fs::path dw = TempDir("leaf_white"), dn = TempDir("leaf_nowhite");
-  Simulate(with, dw);
-  Simulate(without, dn);
-  const Session a = ReadSession(dw), b = ReadSession(dn);
+  const Session a = SimulateAndRead(with, dw), b = SimulateAndRead(without, dn);
   const Figures fw = RunCase(a, with), fn = RunCase(b, without);
   Print("leaf, white + black", fw);
   Print("leaf, no white, no black", fn);
@@ -720,9 +715,7 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
   };
   const SimulateOptions s0 = options(0.0), s1 = options(0.02);
   const fs::path d0 = TempDir("bar_j0"), d1 = TempDir("bar_j2");
-  Simulate(s0, d0);
-  Simulate(s1, d1);
-  const Session a = ReadSession(d0), b = ReadSession(d1);
+  const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
   const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
   ReconstructOptions means;
   means.frame_gain_method = FrameGainMethod::kFrameMeans;
