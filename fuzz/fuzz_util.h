@@ -18,14 +18,21 @@
 
 namespace mesoscan::fuzz {
 
+// The per-process folder, removed when the fuzzer exits normally (after a finding it is kept).
 inline std::filesystem::path WorkDir() {
-  static const std::filesystem::path dir = [] {
-    auto d = std::filesystem::temp_directory_path() /
-             ("mesoscan_fuzz_" + std::to_string(getpid()));
-    std::filesystem::create_directories(d);
-    return d;
-  }();
-  return dir;
+  struct Folder {
+    std::filesystem::path path;
+    Folder()
+        : path(std::filesystem::temp_directory_path() / ("mesoscan_fuzz_" + std::to_string(getpid()))) {
+      std::filesystem::create_directories(path);
+    }
+    ~Folder() {
+      std::error_code ec;
+      std::filesystem::remove_all(path, ec);
+    }
+  };
+  static const Folder folder;
+  return folder.path;
 }
 
 inline std::filesystem::path WriteInput(const std::string& name, const uint8_t* data, size_t size) {

@@ -81,6 +81,8 @@ class ExportCoin : public ::testing::Test {
     delete mesh_;
     scan_ = nullptr;
     mesh_ = nullptr;
+    std::error_code ec;
+    fs::remove_all(root_, ec);  // each ctest case is its own process: do not leave its folder behind
   }
   void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
 

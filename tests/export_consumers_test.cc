@@ -91,7 +91,11 @@ class ExportConsumers : public ::testing::Test {
     status_c_ = RunMesoscan(scan + Q(root_ / "c") + " --format glb --max-triangles 4000", &out);
     log_ += out;
   }
-  static void TearDownTestSuite() { delete scan_; }
+  static void TearDownTestSuite() {
+    delete scan_;
+    std::error_code ec;
+    fs::remove_all(root_, ec);  // each ctest case is its own process: do not leave its folder behind
+  }
 
   void SetUp() override {
     ASSERT_EQ(status_a_, 0) << log_;

@@ -98,7 +98,11 @@ class MapsCli : public ::testing::Test {
     whole_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "whole") + " --flatten poly:2 --maps height,confidence", &out);
     log_ += out;
   }
-  static void TearDownTestSuite() { delete syn_; }
+  static void TearDownTestSuite() {
+    delete syn_;
+    std::error_code ec;
+    fs::remove_all(root_, ec);  // each ctest case is its own process: do not leave its folder behind
+  }
   void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
   static inline fs::path root_;
   static inline Synthetic* syn_ = nullptr;
