@@ -383,26 +383,52 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   //    estimate, which then becomes the weighted mean of the per-period estimates so far
   //    (hierarchical sets need the chain); a last pass re-derives every order at the final u.
   //    Keep the candidate with the smaller chi^2.
+  // Both candidates advance together (two independent chains the CPU overlaps). The fringe
+  // orders need u / p_i only up to rounding: u * (1 / p_i) with the running mean's u = swu *
+  // (1 / sw) (the prefix sums of the weights are the same for both candidates) gives the same
+  // integer unless u / p_i - t_i lies within 1e-9 cycles of a half-integer (the products are off
+  // by a few ulps, ~1e-13 cycles), where the exact quotient decides. Same results to the last bit
+  // as dividing throughout, without the chain of dependent divisions.
+  std::array<double, kMaxPeriods> inv_prefix_w{};
+  {
+    double sw = 0.0;
+    for (int o = 0; o < m; ++o) {
+      sw += w_px[order_[o]];
+      inv_prefix_w[o] = 1.0 / sw;
+    }
+  }
+  auto fringe_order = [&](double u_approx, int i, double u_exact_num, double u_exact_den) {
+    const double x = u_approx * inv_periods_[i] - t[i];
+    const double n = RoundNearest(x);
+    if (std::abs(std::abs(x - n) - 0.5) > 1e-9 * (1.0 + std::abs(x))) return n;
+    return RoundNearest((u_exact_num / u_exact_den) / periods_[i] - t[i]);
+  };
+  const int nc = std::isfinite(best_score[1]) ? 2 : 1;
+  double u_c[2], swu_c[2] = {0.0, 0.0}, sw_prev = 1.0;
+  for (int c = 0; c < 2; ++c) u_c[c] = pa * (ta + best_k[c]);
+  double num_c[2] = {u_c[0], u_c[1]};  // u = num / den exactly (den 1 for the start)
+  double sw = 0.0;
+  for (int o = 0; o < m; ++o) {
+    const int i = order_[o];
+    sw += w_px[i];
+    for (int c = 0; c < 2; ++c) {
+      const double n_i = fringe_order(u_c[c], i, num_c[c], sw_prev);
+      swu_c[c] += w_px[i] * periods_[i] * (t[i] + n_i);
+      u_c[c] = swu_c[c] * inv_prefix_w[o];
+      num_c[c] = swu_c[c];
+    }
+    sw_prev = sw;
+  }
   double best_score_refined = std::numeric_limits<double>::infinity();
   double best_chi2 = 0.0, best_u = 0.0;
-  for (int c = 0; c < 2; ++c) {
-    if (!std::isfinite(best_score[c])) continue;
-    double u = pa * (ta + best_k[c]);
-    double sw = 0.0, swu = 0.0;
-    for (int o = 0; o < m; ++o) {
-      const int i = order_[o];
-      const double n_i = RoundNearest(u / periods_[i] - t[i]);
-      sw += w_px[i];
-      swu += w_px[i] * periods_[i] * (t[i] + n_i);
-      u = swu / sw;
-    }
-    sw = swu = 0.0;
+  for (int c = 0; c < nc; ++c) {
+    double sw_f = 0.0, swu = 0.0;
     for (int i = 0; i < m; ++i) {
-      const double n_i = RoundNearest(u / periods_[i] - t[i]);
-      sw += w_px[i];
+      const double n_i = fringe_order(u_c[c], i, num_c[c], sw_prev);
+      sw_f += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
     }
-    u = swu / sw;
+    const double u = swu / sw_f;
     double chi2 = 0.0;
     for (int i = 0; i < m; ++i) {
       const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
@@ -411,7 +437,7 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
     // Where the code repeats exactly at the projector width (e.g. 7/11/13 on 1001 px) the two
     // ends alias: prefer the estimate inside the domain, by its distance outside in sigma_u.
     const double out = std::max({0.0, -0.5 - u, u - (range_px_ - 0.5)});
-    const double score = chi2 + out * out * sw;
+    const double score = chi2 + out * out * sw_f;
     if (score < best_score_refined) {
       best_score_refined = score;
       best_chi2 = chi2;
