@@ -7,12 +7,14 @@
 #include <atomic>
 #include <cctype>
 #include <cmath>
+#include <string_view>
 
 #include "capture/raw_frame.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "core/png_gray16.h"
 #include "core/progress.h"
 #include "core/robust_stats.h"
 
@@ -69,7 +71,12 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
   } else {
     std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
-    ok = ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());
+    // A grey 16-bit PNG (every frame the rig writes): libpng without its checksums
+    // (core/png_gray16.h); anything it does not take is decoded (or refused) by OIIO.
+    ok = (d.channels == 1 && spec.format == OIIO::TypeDesc::UINT16 &&
+          std::string_view(in->format_name()) == "png" &&
+          ReadPngGray16(path, d.width, d.height, dst.data())) ||
+         ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());
   }
   if (!ok) {
     std::string err = in->geterror();
