@@ -8,13 +8,14 @@
 namespace mesoscan {
 namespace {
 
-// libpng reports errors by longjmp to the setjmp in Decode; warnings are dropped (the caller
-// falls back to OpenImageIO for anything unusual).
+// libpng reports errors by longjmp to the setjmp in Decode, silently, as it drops warnings: the
+// caller falls back to OpenImageIO, which names the problem if there is one.
+[[noreturn]] void OnError(png_structp png, png_const_charp) { png_longjmp(png, 1); }
 void OnWarning(png_structp, png_const_charp) {}
 
 // Plain C objects only between setjmp and any longjmp (no destructors are skipped).
 bool Decode(std::FILE* file, int width, int height, uint16_t* out) {
-  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, OnWarning);
+  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, nullptr, OnError, OnWarning);
   if (!png) return false;
   png_infop info = png_create_info_struct(png);
   if (!info) {
