@@ -123,10 +123,9 @@ void ExpectRefused(const fs::path& path, const std::string& why) {
 
 TEST(ImageIo, ExrHeaderSizesThatCannotBeTrue) {
   const fs::path dir = TempDir("exr_sizes");
-  HeightField hf;
-  hf.z = ImageF(4, 3, 1, 0.001f);
-  hf.pixel_size = 55e-6;
-  WriteHeightExr(dir / "height.exr", hf);
+  // A small EXR with a string attribute (the first patch below makes it claim 1.9 GB).
+  WriteExr(dir / "height.exr", ImageF(4, 3, 1, 0.001f), {"Z"}, {{"mesoscan:pixel_size", 55e-6}},
+           {{"mesoscan:note", "a string attribute"}}, "none");
   EXPECT_EQ(ReadImage(dir / "height.exr").width(), 4);  // the untouched file reads
   const std::string bytes = ReadTextFile(dir / "height.exr");
   auto patched = [&](const std::string& key, size_t offset, int32_t value, const std::string& name) {
