@@ -67,6 +67,8 @@ std::array<int, kK> Smallest(const double* v, int n) {
 // slots after it shift up; slots not yet filled take any value. The same indices as Smallest<4>
 // for values without NaN (a later index ranks after an equal value: strict <), which is checked
 // (with a NaN, Smallest<4> decides).
+// (GCC's __builtin_shuffle and vector conditionals; other compilers use Smallest<4>.)
+#if defined(__GNUC__) && !defined(__clang__)
 typedef double V4d __attribute__((vector_size(32)));
 typedef long long V4l __attribute__((vector_size(32)));
 __attribute__((always_inline)) inline std::array<int, 4> SmallestFour(const double* v, int n) {
@@ -91,6 +93,9 @@ __attribute__((always_inline)) inline std::array<int, 4> SmallestFour(const doub
   return {static_cast<int>(id[0]), static_cast<int>(id[1]), static_cast<int>(id[2]),
           static_cast<int>(id[3])};
 }
+#else
+inline std::array<int, 4> SmallestFour(const double* v, int n) { return Smallest<4>(v, n); }
+#endif
 
 }  // namespace
 
