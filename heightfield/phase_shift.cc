@@ -11,6 +11,7 @@
 #include <numeric>
 
 #include "core/error.h"
+#include "heightfield/fast_atan.h"
 
 namespace mesoscan {
 namespace {
@@ -150,8 +151,18 @@ WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int s
     const double r = v - (a + c * cos_[i] - s * sin_[i]);
     ssr += r * r;
   }
-  double theta = std::atan2(s, c);
-  if (theta < 0.0) theta += kTwoPi;
+  // theta is stored as a float: FastAtan2 (~2 ulp) gives the float std::atan2 (correctly
+  // rounded) would, unless theta lies within 1e-13 rad of a float rounding boundary or of 0
+  // (where the sign picks the branch); there std::atan2 decides. Same floats, 3-4x faster.
+  auto to_0_2pi = [](double theta) {
+    if (theta < 0.0) theta += kTwoPi;
+    return theta;
+  };
+  const double fast = FastAtan2(s, c);
+  double theta = to_0_2pi(fast);
+  if (!(std::abs(fast) > 1e-13) ||
+      static_cast<float>(theta - 1e-13) != static_cast<float>(theta + 1e-13))
+    theta = to_0_2pi(std::atan2(s, c));
   float theta_f = static_cast<float>(theta);
   if (theta_f >= static_cast<float>(kTwoPi)) theta_f = 0.0f;  // float rounding of 2 pi - tiny
   result.theta = theta_f;
