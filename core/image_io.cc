@@ -1,5 +1,10 @@
 #include "core/image_io.h"
 
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFloatAttribute.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/openexr.h>
 #include <OpenImageIO/imageio.h>
 
@@ -279,6 +284,33 @@ void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::
   for (const auto& [k, v] : string_attributes) spec.attribute(k, v);
   const std::vector<float> inter = Interleave(image);
   WriteWithOiio(path, spec, oiio::TypeFloat, inter.data());
+}
+
+void WriteExrPlanes(const fs::path& path, int width, int height, const std::vector<ExrPlane>& planes,
+                    const std::map<std::string, double>& float_attributes) {
+  MESOSCAN_CHECK(width > 0 && height > 0 && !planes.empty());
+  WriteAtomically(path, [&](const fs::path& tmp) {
+    try {
+      Imf::Header header(width, height);
+      header.compression() = Imf::NO_COMPRESSION;
+      for (const auto& [k, v] : float_attributes)
+        header.insert(k, Imf::FloatAttribute(static_cast<float>(v)));
+      Imf::FrameBuffer fb;
+      for (const ExrPlane& p : planes) {
+        MESOSCAN_CHECK(p.data != nullptr);
+        header.channels().insert(p.name, Imf::Channel(Imf::FLOAT));
+        fb.insert(p.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(p.data)),
+                                     sizeof(float), sizeof(float) * static_cast<size_t>(width)));
+      }
+      Imf::OutputFile file(tmp.c_str(), header, /*numThreads=*/1);
+      file.setFrameBuffer(fb);
+      file.writePixels(height);
+    } catch (const std::exception& e) {
+      std::string err = e.what();
+      std::replace(err.begin(), err.end(), '\n', ' ');
+      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+    }
+  });
 }
 
 void WritePng16(const fs::path& path, const ImageU16& image, int compression_level) {

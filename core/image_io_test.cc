@@ -8,6 +8,7 @@
 
 #include "core/error.h"
 #include "core/fs.h"
+#include "core/png_gray16.h"
 #include "core/scan_folder.h"
 
 namespace mesoscan {
@@ -36,6 +37,31 @@ TEST(ImageIo, Png16RoundTripIsExact) {
   int files = 0;
   for (auto& e : fs::directory_iterator(dir)) files += e.is_regular_file();
   EXPECT_EQ(files, 1);
+}
+
+// The frames' fast path (core/png_gray16.h) gives OpenImageIO's samples to the bit on a grey
+// 16-bit PNG, and declines (false, for OIIO to decode or refuse) a colour PNG, another size and a
+// truncated file.
+TEST(ImageIo, PngGray16FastPathMatchesOiioAndDeclinesTheRest) {
+  const fs::path dir = TempDir("png_gray16");
+  const int w = 301, h = 37;  // odd sizes, rows not a multiple of anything
+  ImageU16 im(w, h, 1);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) im(x, y) = static_cast<uint16_t>((x * 2654435761u + y * 40503u) >> 7);
+  WritePng16(dir / "g.png", im);
+  std::vector<uint16_t> fast(static_cast<size_t>(w) * h, 0);
+  ASSERT_TRUE(ReadPngGray16(dir / "g.png", w, h, fast.data()));
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) ASSERT_EQ(fast[static_cast<size_t>(y) * w + x], im(x, y)) << x << "," << y;
+  EXPECT_FALSE(ReadPngGray16(dir / "g.png", w + 1, h, fast.data()));
+  EXPECT_FALSE(ReadPngGray16(dir / "missing.png", w, h, fast.data()));
+  ImageU16 rgb(w, h, 3, 1000);
+  WritePng16(dir / "rgb.png", rgb);
+  EXPECT_FALSE(ReadPngGray16(dir / "rgb.png", w, h, fast.data()));
+  const auto size = fs::file_size(dir / "g.png");
+  fs::copy_file(dir / "g.png", dir / "cut.png");
+  fs::resize_file(dir / "cut.png", size / 2);
+  EXPECT_FALSE(ReadPngGray16(dir / "cut.png", w, h, fast.data()));
 }
 
 // Reading as another type than the file's goes through ReadPixels' strips of scan lines (at most
@@ -97,10 +123,9 @@ void ExpectRefused(const fs::path& path, const std::string& why) {
 
 TEST(ImageIo, ExrHeaderSizesThatCannotBeTrue) {
   const fs::path dir = TempDir("exr_sizes");
-  HeightField hf;
-  hf.z = ImageF(4, 3, 1, 0.001f);
-  hf.pixel_size = 55e-6;
-  WriteHeightExr(dir / "height.exr", hf);
+  // A small EXR with a string attribute (the first patch below makes it claim 1.9 GB).
+  WriteExr(dir / "height.exr", ImageF(4, 3, 1, 0.001f), {"Z"}, {{"mesoscan:pixel_size", 55e-6}},
+           {{"mesoscan:note", "a string attribute"}}, "none");
   EXPECT_EQ(ReadImage(dir / "height.exr").width(), 4);  // the untouched file reads
   const std::string bytes = ReadTextFile(dir / "height.exr");
   auto patched = [&](const std::string& key, size_t offset, int32_t value, const std::string& name) {

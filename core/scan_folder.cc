@@ -10,10 +10,10 @@ namespace mesoscan {
 namespace fs = std::filesystem;
 
 namespace {
-// The scan folder's EXRs are written uncompressed: ZIP saves ~20 % on this noisy float data but
-// costs ~2.5 s of CPU per full-resolution scan, more than the reconstruction itself (issue 3's
-// end-to-end goal). Readers take any EXR compression; `mesoscan export` compresses its files.
-constexpr const char* kScanExrCompression = "none";
+// The scan folder's EXRs are written uncompressed (WriteExrPlanes): ZIP saves ~20 % on this noisy
+// float data but costs ~2.5 s of CPU per full-resolution scan, more than the reconstruction
+// itself (issue 3's end-to-end goal). Readers take any EXR compression; `mesoscan export`
+// compresses its files.
 
 std::map<std::string, double> GridAttributes(const HeightField& hf) {
   return {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size}};
@@ -31,19 +31,6 @@ void ReadGridAttributes(const fs::path& path, const std::map<std::string, double
     MESOSCAN_BAD_INPUT(path.string() << ": header attribute '" << kAttrPixelSize << "': expected a positive number");
 }
 
-ImageF Stack(const std::vector<const ImageF*>& planes) {
-  int nc = 0;
-  for (auto* p : planes) nc += p->channels();
-  ImageF out(planes[0]->width(), planes[0]->height(), nc);
-  int c = 0;
-  for (auto* p : planes) {
-    MESOSCAN_CHECK(p->width() == out.width() && p->height() == out.height());
-    for (int k = 0; k < p->channels(); ++k, ++c)
-      std::copy(p->channel(k), p->channel(k) + p->pixels(), out.channel(c));
-  }
-  return out;
-}
-
 ImageF Plane(const ImageF& all, int c0, int n) {
   ImageF out(all.width(), all.height(), n);
   for (int k = 0; k < n; ++k)
@@ -53,15 +40,22 @@ ImageF Plane(const ImageF& all, int c0, int n) {
 }  // namespace
 
 void WritePointsExr(const fs::path& path, const ScanPoints& p) {
+  // Straight from the planes (no stacked or interleaved copy: 75 MB at full resolution).
+  std::vector<ExrPlane> planes = {{"X", p.xyz.channel(0)},
+                                  {"Y", p.xyz.channel(1)},
+                                  {"Z", p.xyz.channel(2)},
+                                  {"confidence", p.confidence.channel(0)},
+                                  {"projector_u", p.projector_u.channel(0)}};
+  for (const ImageF* plane : {&p.confidence, &p.projector_u})
+    MESOSCAN_CHECK(plane->width() == p.xyz.width() && plane->height() == p.xyz.height() &&
+                   plane->channels() == 1);
   if (!p.source.empty()) {
-    WriteExr(path, Stack({&p.xyz, &p.confidence, &p.projector_u, &p.source}),
-             {"X", "Y", "Z", "confidence", "projector_u", "source"}, {}, {}, kScanExrCompression);
-    return;
+    MESOSCAN_CHECK(p.source.width() == p.xyz.width() && p.source.height() == p.xyz.height() &&
+                   p.source.channels() == 1);
+    planes.push_back({"source", p.source.channel(0)});
   }
-  WriteExr(path, Stack({&p.xyz, &p.confidence, &p.projector_u}),
-           {"X", "Y", "Z", "confidence", "projector_u"}, {}, {}, kScanExrCompression);
+  WriteExrPlanes(path, p.xyz.width(), p.xyz.height(), planes);
 }
-
 ScanPoints ReadPointsExr(const fs::path& path) {
   try {  // `source` is optional (scan-outputs.md)
     ImageF all = ReadExrChannels(path, {"X", "Y", "Z", "confidence", "projector_u", "source"});
@@ -73,13 +67,17 @@ ScanPoints ReadPointsExr(const fs::path& path) {
 }
 
 void WriteHeightExr(const fs::path& path, const HeightField& hf) {
-  ImageF conf = hf.confidence;
-  if (conf.empty()) {
-    conf = ImageF(hf.width(), hf.height(), 1, 0.0f);
-    for (size_t i = 0; i < conf.pixels(); ++i) conf.data()[i] = std::isfinite(hf.z.data()[i]) ? 1.0f : 0.0f;
+  ImageF own_conf;
+  if (hf.confidence.empty()) {
+    own_conf = ImageF(hf.width(), hf.height(), 1, 0.0f);
+    for (size_t i = 0; i < own_conf.pixels(); ++i)
+      own_conf.data()[i] = std::isfinite(hf.z.data()[i]) ? 1.0f : 0.0f;
   }
-  WriteExr(path, Stack({&hf.z, &conf}), {"Z", "confidence"}, GridAttributes(hf), {},
-           kScanExrCompression);
+  const ImageF& conf = hf.confidence.empty() ? own_conf : hf.confidence;
+  MESOSCAN_CHECK(conf.width() == hf.z.width() && conf.height() == hf.z.height() &&
+                 conf.channels() == 1 && hf.z.channels() == 1);
+  WriteExrPlanes(path, hf.z.width(), hf.z.height(),
+                 {{"Z", hf.z.channel(0)}, {"confidence", conf.channel(0)}}, GridAttributes(hf));
 }
 
 HeightField ReadHeightExr(const fs::path& path) {
@@ -94,7 +92,9 @@ HeightField ReadHeightExr(const fs::path& path) {
 
 void WriteNormalExr(const fs::path& path, const HeightField& grid, const ImageF& n) {
   MESOSCAN_CHECK_EQ(n.channels(), 3);
-  WriteExr(path, n, {"X", "Y", "Z"}, GridAttributes(grid), {}, kScanExrCompression);
+  WriteExrPlanes(path, n.width(), n.height(),
+                 {{"X", n.channel(0)}, {"Y", n.channel(1)}, {"Z", n.channel(2)}},
+                 GridAttributes(grid));
 }
 
 void WriteScanFolder(const fs::path& dir, const Scan& scan) {

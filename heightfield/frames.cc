@@ -7,12 +7,15 @@
 #include <atomic>
 #include <cctype>
 #include <cmath>
+#include <cstring>
+#include <string_view>
 
 #include "capture/raw_frame.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "core/png_gray16.h"
 #include "core/progress.h"
 #include "core/robust_stats.h"
 
@@ -69,7 +72,12 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
   } else {
     std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
-    ok = ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());
+    // A grey 16-bit PNG (every frame the rig writes): libpng without its checksums
+    // (core/png_gray16.h); anything it does not take is decoded (or refused) by OIIO.
+    ok = (d.channels == 1 && spec.format == OIIO::TypeDesc::UINT16 &&
+          std::string_view(in->format_name()) == "png" &&
+          ReadPngGray16(path, d.width, d.height, dst.data())) ||
+         ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());
   }
   if (!ok) {
     std::string err = in->geterror();
@@ -77,6 +85,21 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     MESOSCAN_BAD_INPUT(label << ": cannot decode image (" << err << ")");
   }
   return d;
+}
+
+// Runtime dispatch as in lens_shift_fit.cc: an AVX2 clone (4 double lanes) and the baseline
+// one; no FMA in either, so both round the same way.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
+#define MESOSCAN_FRAME_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MESOSCAN_FRAME_CLONES
+#endif
+
+// out[i] = float(src[i] * scale + offset), the product and sum in double.
+MESOSCAN_FRAME_CLONES
+void AffineToFloat(const uint16_t* src, size_t n, double scale, double offset, float* out) {
+  for (size_t i = 0; i < n; ++i) out[i] = static_cast<float>(src[i] * scale + offset);
 }
 
 // Colour channels averaged (an alpha channel, 2nd of 2 or 4th of 4, ignored).
@@ -97,6 +120,10 @@ void FrameStack::Gather(int k, size_t i0, size_t n, float* out) const {
     for (size_t i = 0; i < n; ++i) out[i] = src[i] - float_black_;
   } else {
     const uint16_t* src = raw_[k].data() + i0;
+    if (lut_affine_) {
+      AffineToFloat(src, n, lut_scale_, lut_offset_, out);
+      return;
+    }
     const float* lut = lut_.data();
     for (size_t i = 0; i < n; ++i) out[i] = lut[src[i]];
   }
@@ -252,6 +279,21 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
     s.lut_.resize(65536);
     for (int c = 0; c < 65536; ++c)
       s.lut_[c] = static_cast<float>(resp.ToLinear(c / 65535.0) - black_lin);
+    // A linear response: the table is (usually) float(c / 65535 - black) = float(c * (1 /
+    // 65535) - black) to the bit (the double product is off by an ulp at most, which moves the
+    // float only within 2^-29 of a rounding boundary). Checked code by code, with the arithmetic
+    // Gather uses.
+    if (resp.kind == Response::Kind::kLinear) {
+      const double scale = 1.0 / 65535.0, offset = -black_lin;
+      std::vector<uint16_t> codes(65536);
+      std::vector<float> affine(65536);
+      for (int c = 0; c < 65536; ++c) codes[c] = static_cast<uint16_t>(c);
+      AffineToFloat(codes.data(), codes.size(), scale, offset, affine.data());
+      s.lut_affine_ = std::isfinite(offset) &&
+                      std::memcmp(affine.data(), s.lut_.data(), affine.size() * sizeof(float)) == 0;
+      s.lut_scale_ = scale;
+      s.lut_offset_ = offset;
+    }
   }
   return s;
 }

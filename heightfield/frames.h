@@ -76,6 +76,11 @@ class FrameStack {
   std::vector<std::vector<uint16_t>> raw_;
   std::vector<std::vector<float>> raw_float_;
   std::vector<float> lut_;  // raw code -> linear radiance (black subtracted), 65536 entries
+  // Where every entry of lut_ equals float(code * lut_scale_ + lut_offset_) (double arithmetic;
+  // a linear response, checked over all 65536 codes), Gather computes it instead of looking it
+  // up: the same floats, in vector registers (the lens-shift stage gathers 150 M samples).
+  bool lut_affine_ = false;
+  double lut_scale_ = 0.0, lut_offset_ = 0.0;
   std::vector<uint8_t> saturated_;
   int eight_bit_frames_ = 0;
 };

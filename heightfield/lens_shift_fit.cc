@@ -17,6 +17,7 @@
 
 #include "core/error.h"
 #include "core/numbers.h"
+#include "heightfield/fast_atan.h"
 
 namespace mesoscan {
 namespace {
@@ -87,45 +88,6 @@ double WrapPhase(double phi) {
   phi = std::remainder(phi, kTwoPi);
   if (phi <= -kPi) phi += kTwoPi;
   return phi;
-}
-
-// atan(t) = t + t^3 P(t^2) for |t| <= tan(pi / 8): P interpolates (atan(s) - s) / s^3 at the 10
-// Chebyshev nodes in t^2 (computed at 50 digits); the largest error of the double evaluation
-// over the interval is 1.1e-16 (one rounding of atan).
-constexpr double kAtanP[10] = {-0.3333333333333325,  0.19999999999898407, -0.1428571426609662,
-                               0.11111109636534361,  -0.09090852557176049, 0.0769105515839315,
-                               -0.06649613695291669, 0.05736332165907643,  -0.04483334622272886,
-                               0.02275052699336167};
-constexpr double kTanPi8 = 0.41421356237309503;
-
-// atan(u) for |u| <= tan(pi / 8) with the polynomial above in Estrin's scheme (short dependency
-// chains; the same 1.1e-16 over the interval). T is double (Atan2) or a vector of doubles
-// (FitBlock's lanes): one sequence of operations, so both round the same way. By reference: a
-// vector passed or returned by value would change the ABI between the AVX2 clone and the default.
-template <class T>
-inline __attribute__((always_inline)) void AtanReduced(const T& u, T* at) {
-  const T z = u * u, z2 = z * z, z4 = z2 * z2;
-  const T p = ((kAtanP[0] + kAtanP[1] * z) + z2 * (kAtanP[2] + kAtanP[3] * z)) +
-              z4 * (((kAtanP[4] + kAtanP[5] * z) + z2 * (kAtanP[6] + kAtanP[7] * z)) +
-                    z4 * (kAtanP[8] + kAtanP[9] * z));
-  *at = u + u * z * p;
-}
-
-// atan2(y, x) in [-pi, pi] to ~2 ulp (the same steps as FitBlock's lanes; glibc's atan2 is
-// correctly rounded and several times slower). atan2(0, 0) = 0; NaN in, NaN out.
-double Atan2(double y, double x) {
-  if (std::isnan(x) || std::isnan(y)) return x + y;
-  const double ay = std::abs(y), ax = std::abs(x);
-  const double hi = std::max(ay, ax), lo = std::min(ay, ax);
-  const double t = hi > 0.0 ? lo / hi : 0.0;
-  const bool big = t > kTanPi8;
-  const double u = big ? (t - 1.0) / (t + 1.0) : t;
-  double at;
-  AtanReduced(u, &at);
-  if (big) at += 0.25 * kPi;
-  if (ay > ax) at = 0.5 * kPi - at;
-  if (x < 0) at = kPi - at;
-  return y < 0 ? -at : at;
 }
 
 // Order needed for a Taylor series in r = |argument| whose m-th coefficient is bounded by
@@ -803,7 +765,7 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   }
   const double f = f0 + j * t.h + eps / two_pi_x;
   // Model y = c0 cos + c1 sin + c2 = a sin(phi + theta) + c2: c0 = a sin phi, c1 = a cos phi.
-  const double phi = Atan2(o.c[0], o.c[1]);
+  const double phi = FastAtan2(o.c[0], o.c[1]);
   const double a = std::sqrt(o.c[0] * o.c[0] + o.c[1] * o.c[1]);  // data units: no overflow
   const double ssr = y2 - o.j;
   return Finalize(phi, a, f, o.c[2] + mean, ssr, n, iterations, converged, f0, options);

@@ -11,6 +11,7 @@
 #include <numeric>
 
 #include "core/error.h"
+#include "heightfield/fast_atan.h"
 
 namespace mesoscan {
 namespace {
@@ -60,6 +61,42 @@ std::array<int, kK> Smallest(const double* v, int n) {
   }
   return idx;
 }
+
+// Smallest<4> without its branches (which mispredict on noisy residuals: ~80% of its time):
+// four sorted slots in one vector of GCC's vector extensions (one AVX2 register in Unwrap's AVX2
+// clone, two SSE2 halves otherwise); each value goes to the first slot it is smaller than, the
+// slots after it shift up; slots not yet filled take any value. The same indices as Smallest<4>
+// for values without NaN (a later index ranks after an equal value: strict <), which is checked
+// (with a NaN, Smallest<4> decides).
+// (GCC's __builtin_shuffle and vector conditionals; other compilers use Smallest<4>.)
+#if defined(__GNUC__) && !defined(__clang__)
+typedef double V4d __attribute__((vector_size(32)));
+typedef long long V4l __attribute__((vector_size(32)));
+__attribute__((always_inline)) inline std::array<int, 4> SmallestFour(const double* v, int n) {
+  bool nan = false;
+  for (int j = 0; j < n; ++j) nan |= std::isnan(v[j]);
+  if (nan || n < 4) return Smallest<4>(v, n);
+  V4d s = {0, 0, 0, 0};
+  V4l id = {0, 0, 0, 0};
+  const V4l lane = {0, 1, 2, 3};
+  const V4l shift = {0, 0, 1, 2};
+  const V4l not_first = {0, -1, -1, -1};
+  for (int j = 0; j < n; ++j) {
+    const V4d x = {v[j], v[j], v[j], v[j]};
+    const V4l jv = {j, j, j, j};
+    const V4l m = (x < s) | (lane >= jv);  // slots x goes before (or that are still empty)
+    const V4l m_prev = __builtin_shuffle(m, shift) & not_first;
+    const V4d s_prev = __builtin_shuffle(s, shift);
+    const V4l id_prev = __builtin_shuffle(id, shift);
+    s = m_prev ? s_prev : (m ? x : s);
+    id = m_prev ? id_prev : (m ? jv : id);
+  }
+  return {static_cast<int>(id[0]), static_cast<int>(id[1]), static_cast<int>(id[2]),
+          static_cast<int>(id[3])};
+}
+#else
+inline std::array<int, 4> SmallestFour(const double* v, int n) { return Smallest<4>(v, n); }
+#endif
 
 }  // namespace
 
@@ -114,8 +151,18 @@ WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int s
     const double r = v - (a + c * cos_[i] - s * sin_[i]);
     ssr += r * r;
   }
-  double theta = std::atan2(s, c);
-  if (theta < 0.0) theta += kTwoPi;
+  // theta is stored as a float: FastAtan2 (~2 ulp) gives the float std::atan2 (correctly
+  // rounded) would, unless theta lies within 1e-13 rad of a float rounding boundary or of 0
+  // (where the sign picks the branch); there std::atan2 decides. Same floats, 3-4x faster.
+  auto to_0_2pi = [](double theta) {
+    if (theta < 0.0) theta += kTwoPi;
+    return theta;
+  };
+  const double fast = FastAtan2(s, c);
+  double theta = to_0_2pi(fast);
+  if (!(std::abs(fast) > 1e-13) ||
+      static_cast<float>(theta - 1e-13) != static_cast<float>(theta + 1e-13))
+    theta = to_0_2pi(std::atan2(s, c));
   float theta_f = static_cast<float>(theta);
   if (theta_f >= static_cast<float>(kTwoPi)) theta_f = 0.0f;  // float rounding of 2 pi - tiny
   result.theta = theta_f;
@@ -245,6 +292,17 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
   }
 }
 
+// Runtime dispatch as in lens_shift_fit.cc: an AVX2 clone (SSE4.1's inline floor, 4-lane loops)
+// and the baseline x86-64 one, chosen once by the loader. No FMA in either, so both round every
+// operation the same way: the results do not depend on the machine.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
+#define MESOSCAN_UNWRAP_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MESOSCAN_UNWRAP_CLONES
+#endif
+
+MESOSCAN_UNWRAP_CLONES
 UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight) const {
   UnwrapResult result;
   const int m = static_cast<int>(periods_.size());
@@ -314,8 +372,9 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
     if (qa >= kPairRank && qb >= kPairRank) {
       const double* ta_v = table[ia].data();
       const double* tb_v = table[ib].data();
-      const auto sa = Smallest<kPairRank>(ta_v, qa);
-      const auto sb = Smallest<kPairRank>(tb_v, qb);
+      static_assert(kPairRank == 4, "SmallestFour");
+      const auto sa = SmallestFour(ta_v, qa);
+      const auto sb = SmallestFour(tb_v, qb);
       // (score, offset) of the best two, compared lexicographically (the scan keeps the first
       // of equal scores). The score adds the periods in index order, as the scan does.
       double s0 = std::numeric_limits<double>::infinity(), s1 = s0;
@@ -383,26 +442,52 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   //    estimate, which then becomes the weighted mean of the per-period estimates so far
   //    (hierarchical sets need the chain); a last pass re-derives every order at the final u.
   //    Keep the candidate with the smaller chi^2.
+  // Both candidates advance together (two independent chains the CPU overlaps). The fringe
+  // orders need u / p_i only up to rounding: u * (1 / p_i) with the running mean's u = swu *
+  // (1 / sw) (the prefix sums of the weights are the same for both candidates) gives the same
+  // integer unless u / p_i - t_i lies within 1e-9 cycles of a half-integer (the products are off
+  // by a few ulps, ~1e-13 cycles), where the exact quotient decides. Same results to the last bit
+  // as dividing throughout, without the chain of dependent divisions.
+  std::array<double, kMaxPeriods> inv_prefix_w{};
+  {
+    double sw = 0.0;
+    for (int o = 0; o < m; ++o) {
+      sw += w_px[order_[o]];
+      inv_prefix_w[o] = 1.0 / sw;
+    }
+  }
+  auto fringe_order = [&](double u_approx, int i, double u_exact_num, double u_exact_den) {
+    const double x = u_approx * inv_periods_[i] - t[i];
+    const double n = RoundNearest(x);
+    if (std::abs(std::abs(x - n) - 0.5) > 1e-9 * (1.0 + std::abs(x))) return n;
+    return RoundNearest((u_exact_num / u_exact_den) / periods_[i] - t[i]);
+  };
+  const int nc = std::isfinite(best_score[1]) ? 2 : 1;
+  double u_c[2], swu_c[2] = {0.0, 0.0}, sw_prev = 1.0;
+  for (int c = 0; c < 2; ++c) u_c[c] = pa * (ta + best_k[c]);
+  double num_c[2] = {u_c[0], u_c[1]};  // u = num / den exactly (den 1 for the start)
+  double sw = 0.0;
+  for (int o = 0; o < m; ++o) {
+    const int i = order_[o];
+    sw += w_px[i];
+    for (int c = 0; c < 2; ++c) {
+      const double n_i = fringe_order(u_c[c], i, num_c[c], sw_prev);
+      swu_c[c] += w_px[i] * periods_[i] * (t[i] + n_i);
+      u_c[c] = swu_c[c] * inv_prefix_w[o];
+      num_c[c] = swu_c[c];
+    }
+    sw_prev = sw;
+  }
   double best_score_refined = std::numeric_limits<double>::infinity();
   double best_chi2 = 0.0, best_u = 0.0;
-  for (int c = 0; c < 2; ++c) {
-    if (!std::isfinite(best_score[c])) continue;
-    double u = pa * (ta + best_k[c]);
-    double sw = 0.0, swu = 0.0;
-    for (int o = 0; o < m; ++o) {
-      const int i = order_[o];
-      const double n_i = RoundNearest(u / periods_[i] - t[i]);
-      sw += w_px[i];
-      swu += w_px[i] * periods_[i] * (t[i] + n_i);
-      u = swu / sw;
-    }
-    sw = swu = 0.0;
+  for (int c = 0; c < nc; ++c) {
+    double sw_f = 0.0, swu = 0.0;
     for (int i = 0; i < m; ++i) {
-      const double n_i = RoundNearest(u / periods_[i] - t[i]);
-      sw += w_px[i];
+      const double n_i = fringe_order(u_c[c], i, num_c[c], sw_prev);
+      sw_f += w_px[i];
       swu += w_px[i] * periods_[i] * (t[i] + n_i);
     }
-    u = swu / sw;
+    const double u = swu / sw_f;
     double chi2 = 0.0;
     for (int i = 0; i < m; ++i) {
       const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
@@ -411,7 +496,7 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
     // Where the code repeats exactly at the projector width (e.g. 7/11/13 on 1001 px) the two
     // ends alias: prefer the estimate inside the domain, by its distance outside in sigma_u.
     const double out = std::max({0.0, -0.5 - u, u - (range_px_ - 0.5)});
-    const double score = chi2 + out * out * sw;
+    const double score = chi2 + out * out * sw_f;
     if (score < best_score_refined) {
       best_score_refined = score;
       best_chi2 = chi2;

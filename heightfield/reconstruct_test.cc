@@ -110,7 +110,7 @@ Session WriteSynthetic(const fs::path& dir, const SyntheticOptions& o) {
         const double px = x - 0.5 + (k + 0.5) / sub;
         Vec3d p = HitSurface(s.rig, px, y, o.surface);
         if (o.surface2 && p.x() > o.edge_x) p = HitSurface(s.rig, px, y, o.surface2);
-        Vec2d uv;
+        Vec2d uv(std::numeric_limits<double>::quiet_NaN(), 0.0);  // unset if Project fails
         s.rig.projector.Project(p, &uv);
         u.push_back(uv.x());
       }

@@ -34,7 +34,8 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
         if (std::isfinite(u[i])) points.projector_u(cx, cy) = u[i];
         if (state[i] != PixelState::kActive) continue;
         const Vec3d ray = tri.CameraRay(cx, cy);
-        const auto p = tri.Intersect(ray, u[i]);
+        const Vec3d ray_device = tri.DeviceDirection(ray);
+        const auto p = tri.IntersectDevice(ray, ray_device, u[i]);
         if (!p) {
           state[i] = PixelState::kNoIntersection;
           continue;
@@ -44,7 +45,7 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
         if (!combined.source.empty()) points.source(cx, cy) = combined.source[i];
         state[i] = PixelState::kOk;
         // dZ/du by a forward difference (the map is smooth on this scale).
-        const auto b = tri.Intersect(ray, u[i] + 0.5);
+        const auto b = tri.IntersectDevice(ray, ray_device, u[i] + 0.5);
         if (b) {
           const float d = static_cast<float>(2.0 * (b->z() - p->z()));
           if (options.keep_dz_du) out.dz_du(cx, cy) = d;

@@ -7,15 +7,17 @@ namespace mesoscan {
 Triangulator::Triangulator(const PinholeCamera& camera, const PinholeCamera& projector, char axis)
     : camera_(camera), projector_(projector), axis_(axis == 'y' ? 1 : 0) {
   proj_from_world_ = projector.world_from_device.Inverse();
+  camera_centre_in_device_ = proj_from_world_ * camera_.CentreInWorld();
   projector_distorted_ = projector.HasDistortion();
   // The row v = fy y/z + cy holds no skew term; only columns need Newton for a skewed K.
   projector_skewed_ = axis_ == 0 && projector.K(0, 1) != 0.0;
 }
 
-std::optional<Vec3d> Triangulator::Intersect(const Vec3d& ray_in_world, double u) const {
+std::optional<Vec3d> Triangulator::IntersectDevice(const Vec3d& ray_in_world,
+                                                    const Vec3d& ray_in_device, double u) const {
   // The ray in projector device coordinates: p(t) = o + t d.
-  const Vec3d o = proj_from_world_ * camera_.CentreInWorld();
-  const Vec3d d = proj_from_world_.rotation * ray_in_world;
+  const Vec3d& o = camera_centre_in_device_;
+  const Vec3d& d = ray_in_device;
   const Mat3d& K = projector_.K;
   // Pinhole (zero-skew) plane x - xn z = 0 (rows: y - yn z = 0) through the projector centre.
   const int a = axis_;

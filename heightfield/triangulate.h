@@ -26,7 +26,17 @@ class Triangulator {
   // The world point on the ray (origin = camera centre, unit `ray_in_world`) whose projection
   // into the projector has column `u` (projector pixels). nullopt if the ray is parallel to the
   // column's surface, the point lies behind the camera or the projector, or Newton fails.
-  std::optional<Vec3d> Intersect(const Vec3d& ray_in_world, double u) const;
+  std::optional<Vec3d> Intersect(const Vec3d& ray_in_world, double u) const {
+    return IntersectDevice(ray_in_world, DeviceDirection(ray_in_world), u);
+  }
+
+  // The same in two steps, for several columns on one ray (triangulation and its dZ/du): the
+  // ray's direction in projector device coordinates, then the intersection given it.
+  Vec3d DeviceDirection(const Vec3d& ray_in_world) const {
+    return proj_from_world_.rotation * ray_in_world;
+  }
+  std::optional<Vec3d> IntersectDevice(const Vec3d& ray_in_world, const Vec3d& ray_in_device,
+                                       double u) const;
 
   // CameraRay + Intersect.
   std::optional<Vec3d> Triangulate(double x, double y, double u) const {
@@ -39,6 +49,7 @@ class Triangulator {
  private:
   PinholeCamera camera_, projector_;
   Rigid3d proj_from_world_;
+  Vec3d camera_centre_in_device_;  // the rays' origin in projector device coordinates
   bool projector_distorted_ = false;
   bool projector_skewed_ = false;
   int axis_ = 0;  // 0: columns (x), 1: rows (y)
