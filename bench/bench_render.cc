@@ -334,9 +334,25 @@ void DemoPreview(const fs::path& dir) {
                                                      : std::to_string(r.spp);
       if (list.find("," + key + ",") != std::string::npos) kept.push_back(r);
     }
+    // "allocN": an alloc run at N spp not in the list above (e.g. alloc8).
+    for (size_t a = list.find(",alloc"); a != std::string::npos; a = list.find(",alloc", a + 1)) {
+      const int n = std::atoi(list.c_str() + a + 6);
+      bool listed = false;
+      for (const Run& r : runs) listed = listed || (r.name == "alloc" && r.spp == n);
+      if (n > 0 && !listed) kept.push_back({"alloc", n, 0});
+    }
     runs = kept;
   }
   uint64_t seed = 2;
+  // MESOSCAN_BENCH_DEMO_ALLOC="pilot,radius,floor,by_cost" overrides the allocation's settings
+  // (for tuning).
+  if (const char* a = std::getenv("MESOSCAN_BENCH_DEMO_ALLOC")) {
+    int by_cost = 1;
+    std::sscanf(a, "%d,%d,%lf,%d", &o.allocate_pilot_spp, &o.allocate_radius, &o.allocate_floor, &by_cost);
+    o.allocate_by_cost = by_cost != 0;
+    std::printf("demo preview: allocation pilot %d spp, radius %d, floor %g, by cost %d\n",
+                o.allocate_pilot_spp, o.allocate_radius, o.allocate_floor, by_cost);
+  }
   const int default_pilot = o.allocate_pilot_spp;
   for (const Run& run : runs) {
     o.mirror_guide = run.name != "no-guide";

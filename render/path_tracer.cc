@@ -303,6 +303,7 @@ struct PixelState {
   int n = 0;        // samples taken
   int hits = 0;     // camera rays that hit the height field
   double normal[3] = {0, 0, 0}, depth = 0, albedo[3] = {0, 0, 0};  // sums over the samples
+  double cost = 0;  // seconds spent on its samples (for the error-driven allocation)
   bool done = false;
 };
 
@@ -319,9 +320,11 @@ struct PixelState {
 void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const RenderOptions& o,
                      double budget, double total_final, int round, std::vector<int>* goal) {
   const size_t n = px.size();
-  std::vector<double> v(n), c(n);
+  std::vector<double> v(n), c(n), cost(n), count(n);
   for (size_t i = 0; i < n; ++i) {
     const PixelState& p = px[i];
+    cost[i] = p.cost;
+    count[i] = p.n;
     const int na = (p.n + 1) / 2, nb = p.n / 2;
     if (na == 0 || nb == 0) continue;
     const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
@@ -339,9 +342,10 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
             s[static_cast<size_t>(y) * (W + 1) + x];
     return s;
   };
-  const std::vector<double> sv = integral(v), sc = integral(c);
+  const std::vector<double> sv = integral(v), sc = integral(c), scost = integral(cost),
+                            scount = integral(count);
   const int r = o.allocate_radius;
-  std::vector<double> w(n, 0.0);
+  std::vector<double> w(n, 0.0), cps(n, 0.0);  // deviation; cost per sample (seconds)
   double wsum = 0;
   int64_t active = 0;
   for (int y = 0; y < H; ++y)
@@ -355,15 +359,22 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
       };
       const double cnt = box(sc) - c[i];
       w[i] = cnt > 0 ? std::sqrt(std::max(0.0, box(sv) - v[i]) / cnt) : 0.0;
+      const double samples = box(scount) - count[i];
+      cps[i] = samples > 0 ? (box(scost) - cost[i]) / samples : 0.0;
       if (!px[i].done) {
         wsum += w[i];
         ++active;
       }
     }
   const double floor = o.allocate_floor * (active ? wsum / active : 0.0);
+  // At a fixed cost the optimum is sigma / sqrt(cost per sample) (the sunlit rim's paths cost
+  // several times the mount's).
+  double mean_cps = 0;
+  for (size_t i = 0; i < n; ++i) mean_cps += cps[i] / n;
   wsum = 0;
   for (size_t i = 0; i < n; ++i) {
     w[i] = std::max(w[i], floor);
+    if (o.allocate_by_cost && mean_cps > 0) w[i] /= std::sqrt(std::max(cps[i], 0.05 * mean_cps) / mean_cps);
     if (!px[i].done) wsum += w[i];
   }
   if (!(wsum > 0)) wsum = 1, std::fill(w.begin(), w.end(), 1.0 / std::max<int64_t>(active, 1));
@@ -495,6 +506,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   const bool allocate = (options.time_limit_s > 0 || sample_budget > 0) && options.allocate_pilot_spp > 0;
   bool allocating = false;
   std::vector<int> goal;
+  double round_start_s = 0, round_start_samples = 0, round_start_cost = 0;
   for (int round = 0; active > 0; ++round) {
     // Shorten the round if it would overrun the time budget (paths/s measured so far).
     if (options.time_limit_s > 0 && round > 0) {
@@ -514,15 +526,40 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     if (allocating) {
       // What is left to spend, in samples (by the time left and the paths/s so far, or by the
       // sample budget), and this round's share: as many samples as so far (rounds double).
+      // Paths per second of the last round (the allocated rounds' mix of cheap and costly
+      // pixels differs from the uniform pilot's).
       const double done = static_cast<double>(samples.load());
+      const double rate = (done - round_start_samples) / std::max(elapsed() - round_start_s, 1e-3);
       const double left =
-          sample_budget > 0
-              ? sample_budget - done
-              : (options.time_limit_s - elapsed()) * done / std::max(elapsed(), 1e-3);
+          sample_budget > 0 ? sample_budget - done : (options.time_limit_s - elapsed()) * rate;
       const double budget = std::min(left, done);
       if (budget < 1) break;
       AllocateSamples(px, W, H, options, budget, done + left, round, &goal);
+      if (options.time_limit_s > 0) {
+        // The goals' predicted wall time: each pixel's new samples at its measured seconds per
+        // sample, times the last round's wall seconds per thread-second of pixel work. If the
+        // round would overrun the budget (the goals favour costly pixels, so the paths/s above
+        // are optimistic), shrink it once in proportion.
+        double work = 0, cost_now = 0;
+        for (size_t i = 0; i < px.size(); ++i) {
+          const PixelState& p = px[i];
+          cost_now += p.cost;
+          if (!p.done && goal[i] > p.n && p.n > 0) work += (goal[i] - p.n) * p.cost / p.n;
+        }
+        const double wall_per_work =
+            (elapsed() - round_start_s) / std::max(cost_now - round_start_cost, 1e-9);
+        const double predicted = work * wall_per_work, time_left = options.time_limit_s - elapsed();
+        if (predicted > time_left && predicted > 0) {
+          if (budget * time_left / predicted < 1) break;
+          AllocateSamples(px, W, H, options, budget * time_left / predicted,
+                          done + left * time_left / predicted, round, &goal);
+        }
+      }
     }
+    round_start_s = elapsed();
+    round_start_samples = static_cast<double>(samples.load());
+    round_start_cost = 0;
+    for (const PixelState& p : px) round_start_cost += p.cost;
     ParallelForRows(H, [&](int y0, int y1) {
       int64_t local = 0;
       ZSobolSampler sampler(log2_spp, W, H, options.seed);
@@ -533,6 +570,8 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
           PixelState& p = px[static_cast<size_t>(y) * W + x];
           if (p.done) continue;
           const int goal_n = allocating ? goal[static_cast<size_t>(y) * W + x] : target;
+          if (p.n >= goal_n) continue;
+          const auto t_pixel = std::chrono::steady_clock::now();
           for (; p.n < goal_n; ++p.n) {
             sampler.StartPixelSample(x, y, static_cast<uint32_t>(p.n));
             double jx, jy;
@@ -552,6 +591,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
             p.hits += first.sample;
             ++local;
           }
+          p.cost += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_pixel).count();
         }
       }
       samples.fetch_add(local, std::memory_order_relaxed);

@@ -65,9 +65,12 @@ struct RenderOptions {
   // time budget (0: none; then min_spp / max_spp / noise as above). Reproducible: the bench's
   // and the tests' way to compare allocations at equal cost.
   double allocate_spp = 0;
-  int allocate_pilot_spp = 8;
+  int allocate_pilot_spp = 4;
   int allocate_radius = 3;
   double allocate_floor = 0.1;
+  // Divide each pixel's share by sqrt(its neighbourhood's measured seconds per sample): the
+  // optimum at a fixed cost rather than at a fixed sample count.
+  bool allocate_by_cost = false;
   void Check() const;
 };
 

@@ -620,7 +620,7 @@ namespace {
 // (total samples = budget within one per pixel), (2) the noisy pixels get more samples than
 // the quiet ones, (3) the image converges to the uniform render's (means over the image and
 // over the brightest tenth agree within 4 standard errors over six seeds each), and (4) its
-// squared error against a high-spp uniform render is lower than the uniform render's.
+// squared error against a 512-spp uniform render is lower than the uniform render's.
 TEST(PathTracer, ErrorDrivenAllocationIsUnbiasedAndHelps) {
   Progress::SetEnabled(false);
   HeightField hf = FlatField(64, 1e-4);
@@ -641,8 +641,8 @@ TEST(PathTracer, ErrorDrivenAllocationIsUnbiasedAndHelps) {
   const Vec3 target = centre + Vec3(1.7e-3 * std::cos(az), 1.7e-3 * std::sin(az), 0.3e-3);
   o.camera = CameraSpec{target + 6e-3 * Vec3(0, -0.64, 0.77).normalized(), target};
   const int spp = 32;
-  // Reference: uniform, 1024 spp.
-  o.min_spp = o.max_spp = 1024;
+  // Reference: uniform, 512 spp.
+  o.min_spp = o.max_spp = 512;
   o.seed = 99;
   const ImageF ref = Render(hf, copper, env, o).radiance;
   auto lum = [](const ImageF& im, size_t i) {
