@@ -633,7 +633,10 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
         p.done = true;
         continue;
       }
-      if (options.noise > 0 && p.n >= options.min_spp && p.n >= 4) {
+      // With error-driven allocation the allocation decides (a pixel's own noise test would make
+      // its sample count depend on its samples, and the display-space test stops the bright rim
+      // that dominates the linear error first).
+      if (options.noise > 0 && !allocate && p.n >= options.min_spp && p.n >= 4) {
         const double v = result.tone.exposure *
                          Luminance(Rgb(result.radiance(x, y, 0), result.radiance(x, y, 1),
                                        result.radiance(x, y, 2)));

@@ -60,7 +60,8 @@ struct RenderOptions {
   // proportional to the per-sample standard deviation estimated over its neighbourhood
   // ((2 allocate_radius + 1)^2 pixels, leaving the pixel itself out, so that its sample count
   // does not depend on its own samples and its mean stays unbiased), with a floor of
-  // `allocate_floor` times the image's mean deviation. 0 pilot spp: uniform rounds.
+  // `allocate_floor` times the image's mean deviation. 0 pilot spp: uniform rounds. While
+  // allocating, pixels do not stop on `noise` (the budget is spent where the error is).
   // The same with a fixed budget of `allocate_spp` samples per pixel on average instead of a
   // time budget (0: none; then min_spp / max_spp / noise as above). Reproducible: the bench's
   // and the tests' way to compare allocations at equal cost.
