@@ -307,14 +307,15 @@ struct PixelState {
   bool done = false;
 };
 
-// Per-pixel sample goals for the next round of a time-budgeted render (RenderOptions::
+// Per-pixel sample goals for the next round of a time- or sample-budgeted render (RenderOptions::
 // allocate_*): the optimal allocation for the sum of the pixels' squared errors gives each pixel
 // samples in proportion to its per-sample standard deviation sigma. sigma^2 is estimated per
 // pixel from the two half-buffers (n (mean_a - mean_b)^2 / 4, luminance) and averaged over the
 // pixel's neighbourhood without the pixel itself: the noise that matters (a glossy reflection of
 // a sunlit edge) is spatially coherent, a pixel's own few samples are a poor estimate of a
 // heavy-tailed variance, and leaving the pixel out keeps its sample count independent of its
-// samples (so its mean stays unbiased). Each pixel's final share is total_final * w / sum(w)
+// samples (so its mean stays unbiased; they enter only through the image-wide sums below, as
+// one of W x H terms). Each pixel's final share is total_final * w / sum(w)
 // (w = max(sigma, floor x mean sigma)); this round's `budget` is spread over the deficits.
 // Rounding is stochastic from a hash of (pixel, round, seed), not from the pixel's values.
 void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const RenderOptions& o,
