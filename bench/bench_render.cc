@@ -27,6 +27,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -223,8 +224,9 @@ double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& to
 // it, GGX copper tabulated into the MERL layout, the procedural sky (sun at 25 / 200 degrees),
 // 480x360, default framing. Needs the scan folder: MESOSCAN_BENCH_DEMO_SCAN=demo/coin.scan
 // (bench/demo_preview.sh makes it). Reference: the mean of two MESOSCAN_BENCH_DEMO_REF_SPP
-// (default 1024) spp renders with seeds 1 and 1001, cached as render/demo_ref_<spp>spp.exr and
-// demo_ref_<spp>spp_seed1001.exr (delete them after changing what the renderer converges to).
+// (default 1024) spp renders with seeds 1 and 1001, cached as render/demo_ref_<spp>spp_<key>.exr
+// and demo_ref_<spp>spp_seed1001_<key>.exr, key = a hash of the filled height field (delete them
+// after changing what the renderer converges to).
 // Test renders: fixed 8/16/32/64 spp and the demo's own `--time 3`, seeds 2.., each with its
 // relative RMSE (whole image; sample; mount), CPU seconds, wall seconds and the load average.
 // The reference's own noise adds to each figure (relMSE_measured = relMSE_test + relMSE_ref,
@@ -260,11 +262,22 @@ void DemoPreview(const fs::path& dir) {
   // measured against their mean, and the mean's own noise is estimated from their difference
   // (per pixel, var(mean) = (Y_a - Y_b)^2 / 4 in expectation), so the "corrected" figure is
   // sqrt(relMSE_measured - relMSE_ref) with no assumption about the sampler's convergence rate.
-  const fs::path mask_file = dir / "demo_ref_mask.exr";
+  // The cache is keyed by the height field (FNV-1a of its floats): a re-made demo scan differs
+  // bit for bit, and a reference of another scan would be measured as error.
+  uint64_t key = 1469598103934665603ull;
+  for (const float z : hf.z.data()) {
+    uint32_t b;
+    std::memcpy(&b, &z, 4);
+    for (int i = 0; i < 4; ++i) key = (key ^ ((b >> (8 * i)) & 0xFF)) * 1099511628211ull;
+  }
+  char tag[24];
+  std::snprintf(tag, sizeof tag, "_%016llx", static_cast<unsigned long long>(key));
+  const fs::path mask_file = dir / ("demo_ref_mask" + std::string(tag) + ".exr");
+  std::printf("demo preview: height field key %s\n", tag + 1);
   ImageF refs[2], mask;
   for (int k = 0; k < 2; ++k) {
-    const fs::path ref_file =
-        dir / ("demo_ref_" + std::to_string(ref_spp) + "spp" + (k ? "_seed1001" : "") + ".exr");
+    const fs::path ref_file = dir / ("demo_ref_" + std::to_string(ref_spp) + "spp" +
+                                     (k ? "_seed1001" : "") + tag + ".exr");
     if (fs::exists(ref_file) && fs::exists(mask_file)) {
       refs[k] = ReadImage(ref_file);
       if (k == 0) mask = ReadImage(mask_file);
