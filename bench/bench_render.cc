@@ -27,6 +27,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -222,14 +223,15 @@ double DisplayRelRmse(const ImageF& im, const ImageF& ref, const ToneMapping& to
 // `make demo`'s preview (step 5 of scripts/demo): the demo coin's scan, filled as `render` fills
 // it, GGX copper tabulated into the MERL layout, the procedural sky (sun at 25 / 200 degrees),
 // 480x360, default framing. Needs the scan folder: MESOSCAN_BENCH_DEMO_SCAN=demo/coin.scan
-// (bench/demo_preview.sh makes it). Reference: MESOSCAN_BENCH_DEMO_REF_SPP (default 1024) spp
-// with seed 1, cached as render/demo_ref_<spp>spp.exr (delete it after changing what the
-// renderer converges to). Test renders: fixed 8/16/32/64 spp and the demo's own `--time 3`,
-// seeds 2.., each with its relative RMSE (whole image; sample; mount), CPU seconds, wall
-// seconds and the load average. The reference's own noise adds to each figure
-// (relMSE_measured = relMSE_test + relMSE_ref, independent seeds); the "corrected" column
-// subtracts relMSE_ref estimated as relMSE(N spp) * N / N_ref from the 64 spp render (an
-// upper bound for a low-discrepancy sampler, so the corrected figure is conservative).
+// (bench/demo_preview.sh makes it). Reference: the mean of two MESOSCAN_BENCH_DEMO_REF_SPP
+// (default 1024) spp renders with seeds 1 and 1001, cached as render/demo_ref_<spp>spp_<key>.exr
+// and demo_ref_<spp>spp_seed1001_<key>.exr, key = a hash of the filled height field (delete them
+// after changing what the renderer converges to).
+// Test renders: fixed 8/16/32/64 spp and the demo's own `--time 3`, seeds 2.., each with its
+// relative RMSE (whole image; sample; mount), CPU seconds, wall seconds and the load average.
+// The reference's own noise adds to each figure (relMSE_measured = relMSE_test + relMSE_ref,
+// independent seeds); the "corrected" columns subtract relMSE_ref, estimated from the two
+// references' difference.
 void DemoPreview(const fs::path& dir) {
   const char* scan = std::getenv("MESOSCAN_BENCH_DEMO_SCAN");
   if (!scan) {
@@ -256,28 +258,63 @@ void DemoPreview(const fs::path& dir) {
   o.noise = 0;
   o.seed = 1;
   o.min_spp = o.max_spp = ref_spp;
-  const fs::path ref_file = dir / ("demo_ref_" + std::to_string(ref_spp) + "spp.exr");
-  const fs::path mask_file = dir / "demo_ref_mask.exr";
-  ImageF ref, mask;
-  if (fs::exists(ref_file) && fs::exists(mask_file)) {
-    ref = ReadImage(ref_file);
-    mask = ReadImage(mask_file);
-    std::printf("demo preview: reference %s (cached)\n", ref_file.c_str());
-  } else {
+  // Two independent references (seeds 1 and 1001, ref_spp each), cached; the test renders are
+  // measured against their mean, and the mean's own noise is estimated from their difference
+  // (per pixel, var(mean) = (Y_a - Y_b)^2 / 4 in expectation), so the "corrected" figure is
+  // sqrt(relMSE_measured - relMSE_ref) with no assumption about the sampler's convergence rate.
+  // The cache is keyed by the height field (FNV-1a of its floats): a re-made demo scan differs
+  // bit for bit, and a reference of another scan would be measured as error.
+  uint64_t key = 1469598103934665603ull;
+  for (const float z : hf.z.data()) {
+    uint32_t b;
+    std::memcpy(&b, &z, 4);
+    for (int i = 0; i < 4; ++i) key = (key ^ ((b >> (8 * i)) & 0xFF)) * 1099511628211ull;
+  }
+  char tag[24];
+  std::snprintf(tag, sizeof tag, "_%016llx", static_cast<unsigned long long>(key));
+  const fs::path mask_file = dir / ("demo_ref_mask" + std::string(tag) + ".exr");
+  std::printf("demo preview: height field key %s\n", tag + 1);
+  ImageF refs[2], mask;
+  for (int k = 0; k < 2; ++k) {
+    const fs::path ref_file = dir / ("demo_ref_" + std::to_string(ref_spp) + "spp" +
+                                     (k ? "_seed1001" : "") + tag + ".exr");
+    if (fs::exists(ref_file) && fs::exists(mask_file)) {
+      refs[k] = ReadImage(ref_file);
+      if (k == 0) mask = ReadImage(mask_file);
+      std::printf("demo preview: reference %s (cached)\n", ref_file.c_str());
+      continue;
+    }
+    o.seed = k ? 1001 : 1;
     c0 = CpuNow(), t0 = Now();
     RenderResult r = Render(hf, brdf, env, o);
-    std::printf("demo preview: reference %d spp in %.1f s wall, %.1f CPU s (load %s)\n", ref_spp,
-                Now() - t0, CpuNow() - c0, LoadAvg().c_str());
-    ref = std::move(r.radiance);
-    mask = std::move(r.sample_mask);
-    WriteExr(ref_file, ref, {"R", "G", "B"});
-    WriteExr(mask_file, mask, {"Y"});
+    std::printf("demo preview: reference %d spp, seed %d in %.1f s wall, %.1f CPU s (load %s)\n",
+                ref_spp, static_cast<int>(o.seed), Now() - t0, CpuNow() - c0, LoadAvg().c_str());
+    refs[k] = std::move(r.radiance);
+    WriteExr(ref_file, refs[k], {"R", "G", "B"});
+    if (k == 0) {
+      mask = std::move(r.sample_mask);
+      WriteExr(mask_file, mask, {"Y"});
+    }
   }
+  ImageF ref = refs[0];
+  double ref_var = 0, ref_sum = 0;  // sum over pixels of var(mean reference); of its luminance
+  for (size_t i = 0; i < ref.pixels(); ++i) {
+    const double a = Luminance(Rgb(refs[0].channel(0)[i], refs[0].channel(1)[i], refs[0].channel(2)[i]));
+    const double b = Luminance(Rgb(refs[1].channel(0)[i], refs[1].channel(1)[i], refs[1].channel(2)[i]));
+    ref_var += 0.25 * (a - b) * (a - b);
+    ref_sum += 0.5 * (a + b);
+    for (int c = 0; c < 3; ++c) ref.channel(c)[i] = 0.5f * (refs[0].channel(c)[i] + refs[1].channel(c)[i]);
+  }
+  // relMSE of the mean reference (whole image), and of one reference alone (twice that).
+  const double ref_mse = ref_var / ref.pixels() / ((ref_sum / ref.pixels()) * (ref_sum / ref.pixels()));
+  std::printf("demo preview: reference = mean of the two: its own relRMSE %.4f (one reference "
+              "alone %.4f; the two differ by relRMSE %.4f)\n",
+              std::sqrt(ref_mse), std::sqrt(2 * ref_mse), RelRmse(refs[0], refs[1]));
   std::ofstream csv(dir / "demo_preview.csv");
   csv << "run,spp,relrmse,relrmse_sample,relrmse_mount,relrmse_corrected,display_relrmse,cpu_s,"
-         "wall_s,cpu_s_per_spp,load,denoised_relrmse,denoised_display_relrmse,denoise_wall_s\n";
+         "wall_s,cpu_s_per_spp,load,denoised_relrmse,denoised_relrmse_corrected,denoised_display_relrmse,"
+         "denoise_wall_s\n";
   const ToneMapping ref_tone = MeterExposure(ref, &mask);
-  double ref_mse = 0;  // estimated from the 64 spp run
   struct Run {
     std::string name;
     int spp;
@@ -285,8 +322,13 @@ void DemoPreview(const fs::path& dir) {
   };
   // "no-guide": the same spp with BRDF sampling alone (without the mirrored-environment
   // sampler, render/mirror_guide.h), same seed as the fixed run before it: the before/after.
-  std::vector<Run> runs = {{"fixed", 64, 0}, {"fixed", 8, 0},    {"fixed", 16, 0},
-                           {"fixed", 32, 0}, {"no-guide", 32, 0}, {"time 3 s", 0, 3.0},
+  // "alloc": the same mean spp with the samples allocated by the error (RenderOptions::
+  // allocate_spp: a uniform 8 spp pilot, then by the neighbourhood's deviation), same seed as
+  // the fixed run of that spp: the before/after at equal cost, independent of the load.
+  // "uniform": as "denoise" with uniform rounds (allocate_pilot_spp = 0), the before.
+  std::vector<Run> runs = {{"fixed", 64, 0},   {"fixed", 8, 0},      {"fixed", 16, 0},
+                           {"alloc", 16, 0},   {"fixed", 32, 0},     {"alloc", 32, 0},
+                           {"no-guide", 32, 0}, {"time 3 s", 0, 3.0}, {"uniform", 0, 3.0},
                            {"denoise", 0, 3.0}};
   // "denoise": as `render --time 3 --denoise` (the denoiser's time comes out of the budget;
   // its wall time is the render's plus the denoiser's). Every run also reports the denoised
@@ -298,21 +340,42 @@ void DemoPreview(const fs::path& dir) {
     std::vector<Run> kept;
     std::string list = std::string(",") + keep + ",";
     for (const Run& r : runs) {
-      const std::string key = r.name == "denoise" ? r.name
-                              : r.time_s > 0      ? "time"
-                              : r.name != "fixed" ? r.name
-                                                  : std::to_string(r.spp);
+      const std::string key = r.name == "denoise" || r.name == "uniform" ? r.name
+                              : r.time_s > 0                              ? "time"
+                              : r.name == "alloc"    ? "alloc" + std::to_string(r.spp)
+                              : r.name != "fixed"    ? r.name
+                                                     : std::to_string(r.spp);
       if (list.find("," + key + ",") != std::string::npos) kept.push_back(r);
+    }
+    // "allocN": an alloc run at N spp not in the list above (e.g. alloc8).
+    for (size_t a = list.find(",alloc"); a != std::string::npos; a = list.find(",alloc", a + 1)) {
+      const int n = std::atoi(list.c_str() + a + 6);
+      bool listed = false;
+      for (const Run& r : runs) listed = listed || (r.name == "alloc" && r.spp == n);
+      if (n > 0 && !listed) kept.push_back({"alloc", n, 0});
     }
     runs = kept;
   }
   uint64_t seed = 2;
+  // MESOSCAN_BENCH_DEMO_ALLOC="pilot,radius,floor,by_cost" overrides the allocation's settings
+  // (for tuning).
+  if (const char* a = std::getenv("MESOSCAN_BENCH_DEMO_ALLOC")) {
+    int by_cost = 1;
+    std::sscanf(a, "%d,%d,%lf,%d", &o.allocate_pilot_spp, &o.allocate_radius, &o.allocate_floor, &by_cost);
+    o.allocate_by_cost = by_cost != 0;
+    std::printf("demo preview: allocation pilot %d spp, radius %d, floor %g, by cost %d\n",
+                o.allocate_pilot_spp, o.allocate_radius, o.allocate_floor, by_cost);
+  }
+  const int default_pilot = o.allocate_pilot_spp;
   for (const Run& run : runs) {
     o.mirror_guide = run.name != "no-guide";
-    if (o.mirror_guide) o.seed = seed++;
+    if (o.mirror_guide && run.name != "alloc") o.seed = seed++;
+    o.allocate_spp = run.name == "alloc" ? run.spp : 0;
+    o.allocate_pilot_spp = run.name == "uniform" ? 0 : default_pilot;
     if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap
       o.time_limit_s = run.time_s;
-      if (run.name == "denoise") o.time_limit_s -= DenoiseTimeReserve(o.width, o.height, run.time_s);
+      if (run.name == "denoise" || run.name == "uniform")
+        o.time_limit_s -= DenoiseTimeReserve(o.width, o.height, run.time_s);
       o.noise = 0.01;
       o.min_spp = 16;
       o.max_spp = 1 << 16;
@@ -320,6 +383,7 @@ void DemoPreview(const fs::path& dir) {
       o.time_limit_s = 0;
       o.noise = 0;
       o.min_spp = o.max_spp = run.spp;
+      if (run.name == "alloc") o.min_spp = 1, o.max_spp = 1 << 16;
     }
     c0 = CpuNow(), t0 = Now();
     const RenderResult r = Render(hf, brdf, env, o);
@@ -327,7 +391,6 @@ void DemoPreview(const fs::path& dir) {
     const double e = RelRmseMasked(r.radiance, ref, mask, 0);
     const double es = RelRmseMasked(r.radiance, ref, mask, 1);
     const double em = RelRmseMasked(r.radiance, ref, mask, 2);
-    if (run.spp == 64 && run.time_s == 0) ref_mse = e * e * 64.0 / ref_spp;
     const double corrected = std::sqrt(std::max(0.0, e * e - ref_mse));
     const double spp = r.summary.mean_spp;
     const double ed = DisplayRelRmse(r.radiance, ref, ref_tone);
@@ -336,20 +399,22 @@ void DemoPreview(const fs::path& dir) {
                 "load %s\n",
                 run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
     const std::string png_stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) +
-                                 "spp" + (o.mirror_guide ? "" : "_noguide");
+                                 "spp" + (o.mirror_guide ? "" : "_noguide") +
+                                 (run.name == "alloc" || run.name == "uniform" ? "_" + run.name : "");
     // The optional denoise stage (render/denoise.h, `render --denoise`): its error against the
     // same reference, bias included, next to the raw figure above. Never in the Cycles tables.
-    double dn_e = 0, dn_ed = 0, dn_s = 0;
+    double dn_e = 0, dn_ed = 0, dn_s = 0, dn_corrected = 0;
     {
       const double c1 = CpuNow(), t1 = Now();
       const ImageF dn = DenoisePreview(r);
       dn_s = Now() - t1;
       dn_e = RelRmseMasked(dn, ref, mask, 0);
+      dn_corrected = std::sqrt(std::max(0.0, dn_e * dn_e - ref_mse));
       dn_ed = DisplayRelRmse(dn, ref, ref_tone);
-      std::printf("demo preview: %-8s %6.1f spp: denoised relRMSE %.4f (sample %.4f, mount %.4f; "
-                  "raw %.4f), display %.4f; denoise %.3f s wall, %.3f CPU s; render + denoise "
+      std::printf("demo preview: %-8s %6.1f spp: denoised relRMSE %.4f (%.4f without the "
+                  "reference's noise; sample %.4f, mount %.4f; raw %.4f), display %.4f; denoise %.3f s wall, %.3f CPU s; render + denoise "
                   "%.2f s wall\n",
-                  run.name.c_str(), spp, dn_e, RelRmseMasked(dn, ref, mask, 1),
+                  run.name.c_str(), spp, dn_e, dn_corrected, RelRmseMasked(dn, ref, mask, 1),
                   RelRmseMasked(dn, ref, mask, 2), e, dn_ed, dn_s, CpuNow() - c1, wall + dn_s);
       if (std::getenv("MESOSCAN_BENCH_DEMO_EXR")) {  // for a look at the error maps
         const std::string stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp_" +
@@ -361,7 +426,7 @@ void DemoPreview(const fs::path& dir) {
     }
     csv << run.name << "," << spp << "," << e << "," << es << "," << em << "," << corrected << ","
         << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "," << dn_e
-        << "," << dn_ed << "," << dn_s << "\n";
+        << "," << dn_corrected << "," << dn_ed << "," << dn_s << "\n";
     WritePng8(dir / (png_stem + ".png"), ToneMapForDisplay(r.radiance, r.tone));
   }
 }

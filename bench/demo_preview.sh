@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # The demo preview's error against time (issue 14: "make demo's preview reaches 3% relative RMSE
 # in the time it takes"). Makes the demo's coin scan as scripts/demo does (if DEMO_OUT has none),
-# then runs bench_render's demo section: a 1024-spp reference of the demo's render (cached in
-# build/bench-results/render/demo_ref_1024spp.exr), fixed 8/16/32/64 spp and the demo's own
-# `--time 3`, each with its relative RMSE (linear luminance, whole image / sample / mount, and in
-# display space), CPU seconds per spp, wall seconds and the load average.
+# then runs bench_render's demo section: two independent 1024-spp references of the demo's render
+# (seeds 1 and 1001, cached in build/bench-results/render/demo_ref_1024spp[_seed1001]_<key>.exr,
+# key = a hash of the height field; their mean is the reference and their difference its own
+# noise, which the "corrected" figures subtract), fixed 8/16/32/64 spp, the same spp with
+# error-driven allocation, and the demo's own `--time 3`, each with its relative RMSE (linear
+# luminance, whole image / sample / mount, and in display space), CPU seconds per spp, wall
+# seconds and the load average. MESOSCAN_BENCH_DEMO_RUNS="16,alloc8,denoise" picks runs.
 #   bench/demo_preview.sh [BUILD]     (DEMO_OUT=demo by default)
 set -euo pipefail
 BUILD=${1:-build}

@@ -25,6 +25,11 @@ void RenderOptions::Check() const {
   if (!(time_limit_s >= 0) || !std::isfinite(time_limit_s))
     MESOSCAN_BAD_INPUT("render: --time must be >= 0 seconds");
   if (max_depth < 1) MESOSCAN_BAD_INPUT("render: max_depth must be >= 1");
+  if (!(allocate_spp >= 0) || !std::isfinite(allocate_spp) || allocate_spp > (1 << 24))
+    MESOSCAN_BAD_INPUT("render: allocate_spp must be in [0, 16777216]");
+  if (allocate_pilot_spp < 0 || allocate_radius < 1 || !(allocate_floor > 0 && allocate_floor <= 1))
+    MESOSCAN_BAD_INPUT("render: expected allocate_pilot_spp >= 0, allocate_radius >= 1, "
+                       "allocate_floor in (0, 1]");
   if (!(elevation_deg > 0 && elevation_deg <= 90))
     MESOSCAN_BAD_INPUT("render: elevation must be in (0, 90] degrees");
   if (!(fov_deg >= 0 && fov_deg < 180)) MESOSCAN_BAD_INPUT("render: fov must be in (0, 180) degrees");
@@ -298,8 +303,104 @@ struct PixelState {
   int n = 0;        // samples taken
   int hits = 0;     // camera rays that hit the height field
   double normal[3] = {0, 0, 0}, depth = 0, albedo[3] = {0, 0, 0};  // sums over the samples
+  double cost = 0;  // seconds spent on its samples (for the error-driven allocation)
   bool done = false;
 };
+
+// Per-pixel sample goals for the next round of a time- or sample-budgeted render (RenderOptions::
+// allocate_*): the optimal allocation for the sum of the pixels' squared errors gives each pixel
+// samples in proportion to its per-sample standard deviation sigma. sigma^2 is estimated per
+// pixel from the two half-buffers (n (mean_a - mean_b)^2 / 4, luminance) and averaged over the
+// pixel's neighbourhood without the pixel itself: the noise that matters (a glossy reflection of
+// a sunlit edge) is spatially coherent, a pixel's own few samples are a poor estimate of a
+// heavy-tailed variance, and leaving the pixel out keeps its sample count independent of its
+// samples (so its mean stays unbiased; they enter only through the image-wide sums below, as
+// one of W x H terms). Each pixel's final share is total_final * w / sum(w)
+// (w = max(sigma, floor x mean sigma)); this round's `budget` is spread over the deficits.
+// Rounding is stochastic from a hash of (pixel, round, seed), not from the pixel's values.
+void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const RenderOptions& o,
+                     double budget, double total_final, int round, std::vector<int>* goal) {
+  const size_t n = px.size();
+  std::vector<double> v(n), c(n), cost(n), count(n);
+  for (size_t i = 0; i < n; ++i) {
+    const PixelState& p = px[i];
+    cost[i] = p.cost;
+    count[i] = p.n;
+    const int na = (p.n + 1) / 2, nb = p.n / 2;
+    if (na == 0 || nb == 0) continue;
+    const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
+                     Luminance(Rgb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb));
+    v[i] = 0.25 * d * d * p.n;
+    c[i] = 1;
+  }
+  // Box sums through summed-area tables.
+  auto integral = [&](const std::vector<double>& a) {
+    std::vector<double> s(static_cast<size_t>(W + 1) * (H + 1), 0.0);
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x)
+        s[static_cast<size_t>(y + 1) * (W + 1) + x + 1] = a[static_cast<size_t>(y) * W + x] +
+            s[static_cast<size_t>(y) * (W + 1) + x + 1] + s[static_cast<size_t>(y + 1) * (W + 1) + x] -
+            s[static_cast<size_t>(y) * (W + 1) + x];
+    return s;
+  };
+  const std::vector<double> sv = integral(v), sc = integral(c), scost = integral(cost),
+                            scount = integral(count);
+  const int r = o.allocate_radius;
+  std::vector<double> w(n, 0.0), cps(n, 0.0);  // deviation; cost per sample (seconds)
+  double wsum = 0;
+  int64_t active = 0;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const size_t i = static_cast<size_t>(y) * W + x;
+      const int x0 = std::max(0, x - r), x1 = std::min(W, x + r + 1);
+      const int y0 = std::max(0, y - r), y1 = std::min(H, y + r + 1);
+      auto box = [&](const std::vector<double>& s) {
+        return s[static_cast<size_t>(y1) * (W + 1) + x1] - s[static_cast<size_t>(y0) * (W + 1) + x1] -
+               s[static_cast<size_t>(y1) * (W + 1) + x0] + s[static_cast<size_t>(y0) * (W + 1) + x0];
+      };
+      const double cnt = box(sc) - c[i];
+      w[i] = cnt > 0 ? std::sqrt(std::max(0.0, box(sv) - v[i]) / cnt) : 0.0;
+      const double samples = box(scount) - count[i];
+      cps[i] = samples > 0 ? (box(scost) - cost[i]) / samples : 0.0;
+      if (!px[i].done) {
+        wsum += w[i];
+        ++active;
+      }
+    }
+  const double floor = o.allocate_floor * (active ? wsum / active : 0.0);
+  // At a fixed cost the optimum is sigma / sqrt(cost per sample) (the sunlit rim's paths cost
+  // several times the mount's).
+  double mean_cps = 0;
+  for (size_t i = 0; i < n; ++i) mean_cps += cps[i] / n;
+  wsum = 0;
+  for (size_t i = 0; i < n; ++i) {
+    w[i] = std::max(w[i], floor);
+    if (o.allocate_by_cost && mean_cps > 0) w[i] /= std::sqrt(std::max(cps[i], 0.05 * mean_cps) / mean_cps);
+    if (!px[i].done) wsum += w[i];
+  }
+  if (!(wsum > 0)) wsum = 1, std::fill(w.begin(), w.end(), 1.0 / std::max<int64_t>(active, 1));
+  std::vector<double> deficit(n, 0.0);
+  double dsum = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (px[i].done) continue;
+    deficit[i] = std::max(0.0, total_final * w[i] / wsum - px[i].n);
+    dsum += deficit[i];
+  }
+  // Everyone at or above its share (the estimates moved): spread the round in proportion to w.
+  const bool by_weight = !(dsum > 0.5);
+  const double scale = by_weight ? budget / wsum : std::min(1.0, budget / dsum);
+  goal->assign(n, 0);
+  for (size_t i = 0; i < n; ++i) {
+    const PixelState& p = px[i];
+    if (p.done) continue;
+    const double give = (by_weight ? w[i] : deficit[i]) * scale;
+    uint64_t h = (static_cast<uint64_t>(i) << 20) ^ (static_cast<uint64_t>(round) << 8) ^ (o.seed * 0x9E3779B97F4A7C15ull);
+    h ^= h >> 33, h *= 0xff51afd7ed558ccdull, h ^= h >> 33, h *= 0xc4ceb9fe1a85ec53ull, h ^= h >> 33;
+    const double u = (h >> 11) * 0x1.0p-53;
+    const double g = std::min<double>(o.max_spp, p.n + std::floor(give + u));
+    (*goal)[i] = static_cast<int>(g);
+  }
+}
 
 double ToneCurveSlope(double v, double white) {
   // d/dv of v (1 + v / w^2) / (1 + v).
@@ -367,6 +468,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   result.albedo = ImageF(W, H, 3, 0.0f);
   result.half[0] = ImageF(W, H, 3, 0.0f);
   result.half[1] = ImageF(W, H, 3, 0.0f);
+  result.spp = ImageF(W, H, 1, 0.0f);
   std::atomic<int64_t> samples{0};
   std::vector<float> var(px.size()), var_s(px.size());
 
@@ -377,6 +479,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
       for (int c = 0; c < 3; ++c)
         result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
       result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
+      result.spp(x, y, 0) = static_cast<float>(p.n);
       const double inv = p.n ? 1.0 / p.n : 0.0;
       for (int c = 0; c < 3; ++c) {
         result.normal(x, y, c) = static_cast<float>(p.normal[c] * inv);
@@ -395,8 +498,16 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   Progress progress("render (pixels done)", static_cast<int64_t>(W) * H);
   // Under a time budget the rounds start at 1 spp (so even the first round respects the
   // budget on a slow or loaded machine); adaptivity still waits for min_spp.
-  int target = options.time_limit_s > 0 ? 1 : std::min(options.min_spp, options.max_spp);
+  // A sample budget (allocate_spp) is spent like a time budget, in rounds from 1 spp.
+  const double sample_budget = options.allocate_spp * static_cast<double>(W) * H;
+  int target = options.time_limit_s > 0 || sample_budget > 0 ? 1 : std::min(options.min_spp, options.max_spp);
   int active = W * H;
+  // Error-driven allocation under a time or sample budget (RenderOptions::allocate_*): per-pixel
+  // goals instead of one uniform target, once every pixel has the pilot's samples.
+  const bool allocate = (options.time_limit_s > 0 || sample_budget > 0) && options.allocate_pilot_spp > 0;
+  bool allocating = false;
+  std::vector<int> goal;
+  double round_start_s = 0, round_start_samples = 0, round_start_cost = 0;
   for (int round = 0; active > 0; ++round) {
     // Shorten the round if it would overrun the time budget (paths/s measured so far).
     if (options.time_limit_s > 0 && round > 0) {
@@ -408,6 +519,48 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
       const double affordable = left * rate / std::max(active, 1);
       target = std::min(target, prev + std::max(1, static_cast<int>(affordable)));
     }
+    if (allocate && round > 0) {
+      int prev = 0;
+      for (const auto& p : px) prev = std::max(prev, p.done ? 0 : p.n);
+      if (prev >= options.allocate_pilot_spp) allocating = true;
+    }
+    if (allocating) {
+      // What is left to spend, in samples (by the time left and the paths/s so far, or by the
+      // sample budget), and this round's share: as many samples as so far (rounds double).
+      // Paths per second of the last round (the allocated rounds' mix of cheap and costly
+      // pixels differs from the uniform pilot's).
+      const double done = static_cast<double>(samples.load());
+      const double rate = (done - round_start_samples) / std::max(elapsed() - round_start_s, 1e-3);
+      const double left =
+          sample_budget > 0 ? sample_budget - done : (options.time_limit_s - elapsed()) * rate;
+      const double budget = std::min(left, done);
+      if (budget < 1) break;
+      AllocateSamples(px, W, H, options, budget, done + left, round, &goal);
+      if (options.time_limit_s > 0) {
+        // The goals' predicted wall time: each pixel's new samples at its measured seconds per
+        // sample, times the last round's wall seconds per thread-second of pixel work. If the
+        // round would overrun the budget (the goals favour costly pixels, so the paths/s above
+        // are optimistic), shrink it once in proportion.
+        double work = 0, cost_now = 0;
+        for (size_t i = 0; i < px.size(); ++i) {
+          const PixelState& p = px[i];
+          cost_now += p.cost;
+          if (!p.done && goal[i] > p.n && p.n > 0) work += (goal[i] - p.n) * p.cost / p.n;
+        }
+        const double wall_per_work =
+            (elapsed() - round_start_s) / std::max(cost_now - round_start_cost, 1e-9);
+        const double predicted = work * wall_per_work, time_left = options.time_limit_s - elapsed();
+        if (predicted > time_left && predicted > 0) {
+          if (budget * time_left / predicted < 1) break;
+          AllocateSamples(px, W, H, options, budget * time_left / predicted,
+                          done + left * time_left / predicted, round, &goal);
+        }
+      }
+    }
+    round_start_s = elapsed();
+    round_start_samples = static_cast<double>(samples.load());
+    round_start_cost = 0;
+    for (const PixelState& p : px) round_start_cost += p.cost;
     ParallelForRows(H, [&](int y0, int y1) {
       int64_t local = 0;
       ZSobolSampler sampler(log2_spp, W, H, options.seed);
@@ -417,7 +570,10 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
         for (int x = 0; x < W; ++x) {
           PixelState& p = px[static_cast<size_t>(y) * W + x];
           if (p.done) continue;
-          for (; p.n < target; ++p.n) {
+          const int goal_n = allocating ? goal[static_cast<size_t>(y) * W + x] : target;
+          if (p.n >= goal_n) continue;
+          const auto t_pixel = std::chrono::steady_clock::now();
+          for (; p.n < goal_n; ++p.n) {
             sampler.StartPixelSample(x, y, static_cast<uint32_t>(p.n));
             double jx, jy;
             sampler.Get2D(&jx, &jy);
@@ -436,6 +592,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
             p.hits += first.sample;
             ++local;
           }
+          p.cost += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_pixel).count();
         }
       }
       samples.fetch_add(local, std::memory_order_relaxed);
@@ -477,7 +634,10 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
         p.done = true;
         continue;
       }
-      if (options.noise > 0 && p.n >= options.min_spp && p.n >= 4) {
+      // With error-driven allocation the allocation decides (a pixel's own noise test would make
+      // its sample count depend on its samples, and the display-space test stops the bright rim
+      // that dominates the linear error first).
+      if (options.noise > 0 && !allocate && p.n >= options.min_spp && p.n >= 4) {
         const double v = result.tone.exposure *
                          Luminance(Rgb(result.radiance(x, y, 0), result.radiance(x, y, 1),
                                        result.radiance(x, y, 2)));
@@ -498,7 +658,10 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     progress.Advance(was_active - active);
     if (on_round) on_round(result);
     if (options.time_limit_s > 0 && elapsed() >= options.time_limit_s) break;
+    if (sample_budget > 0 && static_cast<double>(samples.load()) >= sample_budget - 0.5) break;
     target = std::min(options.max_spp, 2 * target);
+    // A sample budget without allocation: uniform rounds up to the budget's spp.
+    if (sample_budget > 0 && !allocate) target = std::min(target, static_cast<int>(std::ceil(options.allocate_spp)));
   }
   progress.Finish();
   result.summary.seconds = elapsed();

@@ -55,6 +55,23 @@ struct RenderOptions {
   // BRDF (render/mirror_guide.h), where the scene needs it (a non-Lambert BRDF under a
   // non-constant environment). false: BRDF sampling alone (the bench's before/after).
   bool mirror_guide = true;
+  // Under a time budget (time_limit_s > 0): after a uniform pilot of `allocate_pilot_spp`
+  // samples per pixel, the remaining samples go where the error is: each pixel's share is
+  // proportional to the per-sample standard deviation estimated over its neighbourhood
+  // ((2 allocate_radius + 1)^2 pixels, leaving the pixel itself out, so that its sample count
+  // does not depend on its own samples and its mean stays unbiased), with a floor of
+  // `allocate_floor` times the image's mean deviation. 0 pilot spp: uniform rounds. While
+  // allocating, pixels do not stop on `noise` (the budget is spent where the error is).
+  // The same with a fixed budget of `allocate_spp` samples per pixel on average instead of a
+  // time budget (0: none; then min_spp / max_spp / noise as above). Reproducible: the bench's
+  // and the tests' way to compare allocations at equal cost.
+  double allocate_spp = 0;
+  int allocate_pilot_spp = 4;
+  int allocate_radius = 3;
+  double allocate_floor = 0.1;
+  // Divide each pixel's share by sqrt(its neighbourhood's measured seconds per sample): the
+  // optimum at a fixed cost rather than at a fixed sample count.
+  bool allocate_by_cost = false;
   void Check() const;
 };
 
@@ -84,6 +101,7 @@ struct RenderResult {
   ImageF albedo;    // 3 channels: the base colour the hit multiplies (the scan's tint on the
                     // height field, the mount's albedo on the mount)
   ImageF half[2];   // 3 channels each: the means of the even and of the odd samples
+  ImageF spp;       // 1 channel: samples taken per pixel
   ToneMapping tone;    // metered on the sample (mask > 0.5), not on the mount
   RenderSummary summary;
 };
