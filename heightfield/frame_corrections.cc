@@ -507,8 +507,9 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     // Standard error of the gain components, with the residuals' own scale (chi^2 after the
     // fit = before - sol . rhs).
     const double chi2 = std::max(0.0, r2 - sol.dot(rhs));
-    const Eigen::MatrixXd cov = ldlt.solve(Eigen::MatrixXd::Identity(nv, nv)) *
-                                std::max(1.0, chi2 / std::max(1, used - nv));
+    const double scatter = chi2 / std::max(1, used - nv);  // ~1 where the weights are right
+    const Eigen::MatrixXd info_inv = ldlt.solve(Eigen::MatrixXd::Identity(nv, nv));
+    const Eigen::MatrixXd cov = info_inv * std::max(1.0, scatter);
     // Shrinkage towards the start. Where the start's in-band gains are right the estimate is
     // noise alone, and applying it adds that noise to every pixel's phase (times d / a): on a
     // 24x18 view of the tilted bar without jitter 1.39-1.44 um against 1.02-1.08 um with the
@@ -521,7 +522,10 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     //    k = 1 - 2 / z2 (0 below z2 = 2).
     double shrink = 1.0;
     if (options.shrink_in_band_gains) {
-      const Eigen::Matrix2d C = cov.block<2, 2>(1, 1);
+      // The estimate's noise from the residuals' own scatter, also where it is below what the
+      // weights assume (they take 1% of the level per sample: noise-free data would otherwise
+      // shrink an accurate estimate).
+      const Eigen::Matrix2d C = info_inv.block<2, 2>(1, 1) * scatter;
       const Eigen::Vector2d e(sol(1), sol(2));
       const Eigen::LDLT<Eigen::Matrix2d> cl(C);
       const double z2 = cl.info() == Eigen::Success ? e.dot(cl.solve(e)) : 0.0;
