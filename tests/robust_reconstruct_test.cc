@@ -748,7 +748,7 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
 // within 5% (the jitter allowance) of the same session with the alternating gains, which
 // leave the in-band gains at 1, i.e. right here: applied in full (before the shrinkage), the
 // reference's noise made it 1.236 um against 1.088 um here (seeds 1-3: 1.39-1.44 um against
-// 1.02-1.08 um), and 1.200 um with jitter (now 1.099). With 2% jitter: at or below the plain decoder
+// 1.02-1.08 um), and 1.200 um with jitter (now 1.110). With 2% jitter: at or below the plain decoder
 // and the alternating gains (the jitter's own cost is not held to 5% here: the reference's noise
 // is the floor of what it can correct, reported).
 TEST(RobustReconstruct, InBandReferenceOnATinyViewOfTheTiltedBar) {
