@@ -10,8 +10,9 @@
 //     with gain jitter 0 / 0.02 (joint frame gains, the older alternating gains, frame means) and with
 //     lens-shifter position errors 0 / 0.02 px RMS (estimated, and nominal positions), each with
 //     the plain fixed-frequency least-squares decoder (tests/plain_ls_decoder.h) on the same
-//     pixels. Written to table1_disturbances.csv. MESOSCAN_BENCH_TABLE1_DISTURBANCES_ONLY=1 runs
-//     only this part.
+//     pixels; and jitter 0 / 0.02 on a 24x18 view (joint and alternating gains), where the
+//     phase-shift reference's in-band estimate is as noisy as the jitter it corrects. Written to
+//     table1_disturbances.csv. MESOSCAN_BENCH_TABLE1_DISTURBANCES_ONLY=1 runs only this part.
 //  2. Full resolution (2176 x 1434, 9 + 50 + 2 frames, the coin): bare PNG decode time of the
 //     frames, compute time (frames in memory to height field), end-to-end (read session,
 //     reconstruct, write the scan folder) and peak RSS of the reconstruction, measured in a child
@@ -408,6 +409,7 @@ std::vector<DisturbedRow> Table1Disturbances(const fs::path& work) {
     double jitter, position_error;
     FrameGainMethod gains = FrameGainMethod::kJoint;
     bool correct_positions = true;
+    int w = 128, h = 96;  // the view (a 24x18 one: ~430 phase-shift reference pixels)
   };
   const std::vector<Config> configs = {
       {"LS 50 + PS 9 jitter 0", 0.0, 0.0},
@@ -417,20 +419,28 @@ std::vector<DisturbedRow> Table1Disturbances(const fs::path& work) {
       {"LS 50 + PS 9 jitter 0.005 shifter 0", 0.005, 0.0},
       {"LS 50 + PS 9 jitter 0.005 shifter 0.02px", 0.005, 0.02},
       {"LS 50 + PS 9 jitter 0.005 shifter 0.02px (nominal)", 0.005, 0.02, FrameGainMethod::kJoint,
-       false}};
+       false},
+      {"24x18 view: LS 50 + PS 9 jitter 0", 0.0, 0.0, FrameGainMethod::kJoint, true, 24, 18},
+      {"24x18 view: jitter 0 (alternating gains)", 0.0, 0.0, FrameGainMethod::kAlternating, true,
+       24, 18},
+      {"24x18 view: jitter 0.02", 0.02, 0.0, FrameGainMethod::kJoint, true, 24, 18},
+      {"24x18 view: jitter 0.02 (alternating gains)", 0.02, 0.0, FrameGainMethod::kAlternating,
+       true, 24, 18}};
   std::vector<DisturbedRow> rows;
   for (const Config& c : configs) {
     Session sessions[2];
     SimulateOptions so[2];
     for (int k = 0; k < 2; ++k) {
-      so[k] = PlaneOptions(128, 96, 21 + k);
+      so[k] = PlaneOptions(c.w, c.h, 21 + k);
       so[k].ps_phases = 3;
       so[k].ls_frames = 50;
       so[k].gain_jitter = c.jitter;
       so[k].shift_position_error_px = c.position_error;
       char name[96];
       std::snprintf(name, sizeof name, "t1d_j%.3f_p%.3f_%d", c.jitter, c.position_error, k);
-      const fs::path dir = work / name;
+      const std::string view =
+          c.w == 128 && c.h == 96 ? "" : "_" + std::to_string(c.w) + "x" + std::to_string(c.h);
+      const fs::path dir = work / (name + view);
       if (!fs::exists(dir / "session.json")) Simulate(so[k], dir);
       sessions[k] = ReadSession(dir);
     }

@@ -27,8 +27,9 @@
 // in-band gain error moves the fitted phases by (d / a) times a sinusoid of the phase, which no
 // constant absorbs. With a reference the in-band gains are set from it (a weighted least-squares
 // fit of the phase disagreement, with the constant between the cues and the phase-shift
-// frames' own gain-error shapes as nuisance parameters) and everything else as before, the
-// in-band directions held.
+// frames' own gain-error shapes as nuisance parameters, the estimate shrunk towards the start
+// by how far it stands out of its own noise) and everything else as before, the in-band
+// directions held.
 //
 // Gauges: the gains are normalised to mean 1 (a common scale is absorbed by every pixel's
 // coefficients); the positions are identifiable up to an affine map x -> s0 + s1 x (the phase
@@ -81,6 +82,12 @@ struct FrameCorrectionOptions {
   double min_position_rms_px = 0.003;
   // Gains outside [1 - this, 1 + this] likewise, in (0, 1).
   double max_gain_deviation = 0.3;
+  // With a phase-shift reference: the in-band correction it gives is multiplied by a factor in
+  // [0, 1], the posterior mean under a normal prior whose variance is the larger of the white
+  // jitter the starting gains show and the estimate's own excess over its noise (empirical
+  // Bayes, see the .cc). Without it the reference's noise is added to the gains where there is
+  // no in-band jitter to correct (small views). false: applied in full.
+  bool shrink_in_band_gains = true;
 };
 
 // The projector coordinate that phase shifting alone decoded at a sample of pixels: it predicts
@@ -126,10 +133,12 @@ struct FrameCorrections {
   double position_rms_px = 0.0;
   // The in-band gain components set from the phase-shift reference (PhaseConstraint): the
   // pixels used, the correction applied in the last round (relative gain along cos / sin of
-  // 2 pi f x) and its standard error; in_band_pixels = 0: in-band gains kept at their start.
+  // 2 pi f x, after the shrinkage) and the estimate's standard error; in_band_pixels = 0:
+  // in-band gains kept at their start.
   int in_band_pixels = 0;
   double in_band_correction[2] = {0.0, 0.0};
   double in_band_sigma = 0.0;
+  double in_band_shrink = 0.0;  // the factor applied (shrink_in_band_gains; 1 without)
   Json ToJson() const;
 };
 

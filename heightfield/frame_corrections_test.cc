@@ -225,6 +225,48 @@ TEST(FrameCorrections, InBandGainsFromAPhaseReference) {
   EXPECT_EQ(none.model, "gains");
 }
 
+// Where the starting gains are right (no jitter) the reference's in-band estimate is its noise
+// alone. Few reference pixels (400, reference noise 0.1 rad) make that noise large; over 24 draws
+// of the reference noise, the applied in-band correction's mean square, shrunk, is well below
+// the unshrunk one (~0.22x for a 2-component estimate shrunk by 1 - 2 / z2; allowed 0.5x, the
+// 24-draw mean of the unshrunk one is within +-30% of its expectation at 2 sigma), and the
+// unshrunk one matches its predicted 2 sigma^2 (chi^2 with 48 degrees of freedom: 0.6-1.5x).
+TEST(FrameCorrections, InBandReferenceNoiseIsShrunkWithoutJitter) {
+  const Synthetic s = Make(0.0, 0.0, 0.002, 6, 400);
+  std::vector<double> ones(s.nk, 1.0);
+  FrameCorrectionOptions shrunk, full;
+  shrunk.estimate_positions = full.estimate_positions = false;
+  full.shrink_in_band_gains = false;
+  std::mt19937 rng(7);
+  std::normal_distribution<double> nd;
+  double ms_shrunk = 0, ms_full = 0, predicted = 0;
+  constexpr int kDraws = 24;
+  for (int draw = 0; draw < kDraws; ++draw) {
+    PhaseConstraint pc;
+    for (int j = 0; j < s.n; ++j) {
+      pc.phase.push_back(s.phase[j] + 0.3 + 0.1 * nd(rng));
+      pc.sigma.push_back(0.1);
+    }
+    const FrameCorrections a = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, shrunk, &pc);
+    const FrameCorrections b = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, full, &pc);
+    ASSERT_TRUE(a.valid);
+    ASSERT_TRUE(b.valid);
+    ASSERT_GT(a.in_band_pixels, 0);
+    EXPECT_EQ(b.in_band_shrink, 1.0);
+    EXPECT_GE(a.in_band_shrink, 0.0);
+    EXPECT_LE(a.in_band_shrink, 1.0);
+    ms_shrunk += (std::pow(a.in_band_correction[0], 2) + std::pow(a.in_band_correction[1], 2)) / kDraws;
+    ms_full += (std::pow(b.in_band_correction[0], 2) + std::pow(b.in_band_correction[1], 2)) / kDraws;
+    predicted += 2 * b.in_band_sigma * b.in_band_sigma / kDraws;
+  }
+  std::printf("in-band correction without jitter, RMS over %d draws: shrunk %.2e, full %.2e "
+              "(predicted %.2e)\n",
+              kDraws, std::sqrt(ms_shrunk), std::sqrt(ms_full), std::sqrt(predicted));
+  EXPECT_GT(ms_full, 0.6 * predicted);
+  EXPECT_LT(ms_full, 1.5 * predicted);
+  EXPECT_LT(ms_shrunk, 0.5 * ms_full);
+}
+
 TEST(FrameCorrections, DegenerateInputKeepsTheStart) {
   std::vector<double> x(10), g(10, 1.0);
   for (int k = 0; k < 10; ++k) x[k] = 0.2 * (k - 4.5);
