@@ -498,6 +498,33 @@ TEST(EnvironmentMap, SamplingPassesChiSquare) {
 namespace mesoscan {
 namespace {
 
+// A coin-like mesa: a bevelled rim (1 mm high, 2 mm radius, 0.6 mm bevel) on a flat field of
+// 64 x 64 samples at 0.1 mm, and its GGX copper; under a sun at 25 degrees the sunlit bevel and
+// its reflection in the field carry most of the noise (used by the mirror-guide and the
+// allocation tests).
+HeightField CopperMesa() {
+  HeightField hf = FlatField(64, 1e-4);
+  for (int j = 0; j < 64; ++j)
+    for (int i = 0; i < 64; ++i) {
+      const double r = std::hypot(i - 31.5, j - 31.5) * 1e-4;
+      hf.z(i, j) = static_cast<float>(1e-3 * std::clamp((2.0e-3 - r) / 0.6e-3, 0.0, 1.0));
+    }
+  return hf;
+}
+// Two estimators, one value per seed each (v[0], v[1], `seeds` values): the difference of their
+// means in standard errors estimated from the seeds' spread.
+double SeedZScore(const std::vector<double>* v, int seeds) {
+  double m[2] = {0, 0}, var[2] = {0, 0};
+  for (int g = 0; g < 2; ++g) {
+    for (const double x : v[g]) m[g] += x / seeds;
+    for (const double x : v[g]) var[g] += (x - m[g]) * (x - m[g]) / (seeds - 1);
+  }
+  return (m[1] - m[0]) / std::sqrt((var[0] + var[1]) / seeds);
+}
+Brdf MesaCopper() {
+  return Brdf(GgxBrdf<double>::Conductor(0.25, Rgb(0.27, 0.68, 1.22), Rgb(3.61, 2.63, 2.29)));
+}
+
 // The mirrored-environment sampler (render/mirror_guide.h) changes only the noise: a coin-like
 // mesa (bevelled rim on a flat field, GGX copper, sun at 25 degrees) rendered with and without
 // it converges to the same image. Six seeds each; the image means agree within 4 standard
@@ -505,14 +532,9 @@ namespace {
 // the strategy acts. The two estimators must differ pixel by pixel (else nothing was tested).
 TEST(PathTracer, MirrorGuideLeavesTheImageUnbiased) {
   Progress::SetEnabled(false);
-  HeightField hf = FlatField(64, 1e-4);
-  for (int j = 0; j < 64; ++j)
-    for (int i = 0; i < 64; ++i) {
-      const double r = std::hypot(i - 31.5, j - 31.5) * 1e-4;
-      hf.z(i, j) = static_cast<float>(1e-3 * std::clamp((2.0e-3 - r) / 0.6e-3, 0.0, 1.0));
-    }
+  const HeightField hf = CopperMesa();
   const EnvironmentMap env = EnvironmentMap::Sky(25, 200, 128);
-  const Brdf copper(GgxBrdf<double>::Conductor(0.25, Rgb(0.27, 0.68, 1.22), Rgb(3.61, 2.63, 2.29)));
+  const Brdf copper = MesaCopper();
   RenderOptions o;
   o.width = 24;
   o.height = 18;
@@ -559,14 +581,7 @@ TEST(PathTracer, MirrorGuideLeavesTheImageUnbiased) {
       if (s == 0) first[g] = im;
     }
   }
-  auto z_score = [&](const std::vector<double>* v) {
-    double m[2] = {0, 0}, var[2] = {0, 0};
-    for (int g = 0; g < 2; ++g) {
-      for (const double x : v[g]) m[g] += x / seeds;
-      for (const double x : v[g]) var[g] += (x - m[g]) * (x - m[g]) / (seeds - 1);
-    }
-    return (m[1] - m[0]) / std::sqrt((var[0] + var[1]) / seeds);
-  };
+  auto z_score = [&](const std::vector<double>* v) { return SeedZScore(v, seeds); };
   EXPECT_LT(std::abs(z_score(all)), 4.0);
   EXPECT_LT(std::abs(z_score(rim)), 4.0);
   bool differ = false;
@@ -623,14 +638,9 @@ namespace {
 // squared error against a 512-spp uniform render is lower than the uniform render's.
 TEST(PathTracer, ErrorDrivenAllocationIsUnbiasedAndHelps) {
   Progress::SetEnabled(false);
-  HeightField hf = FlatField(64, 1e-4);
-  for (int j = 0; j < 64; ++j)
-    for (int i = 0; i < 64; ++i) {
-      const double r = std::hypot(i - 31.5, j - 31.5) * 1e-4;
-      hf.z(i, j) = static_cast<float>(1e-3 * std::clamp((2.0e-3 - r) / 0.6e-3, 0.0, 1.0));
-    }
+  const HeightField hf = CopperMesa();
   const EnvironmentMap env = EnvironmentMap::Sky(25, 200, 128);
-  const Brdf copper(GgxBrdf<double>::Conductor(0.25, Rgb(0.27, 0.68, 1.22), Rgb(3.61, 2.63, 2.29)));
+  const Brdf copper = MesaCopper();
   RenderOptions o;
   o.width = 32;
   o.height = 24;
@@ -689,14 +699,7 @@ TEST(PathTracer, ErrorDrivenAllocationIsUnbiasedAndHelps) {
       }
     }
   }
-  auto z_score = [&](const std::vector<double>* v) {
-    double m[2] = {0, 0}, var[2] = {0, 0};
-    for (int g = 0; g < 2; ++g) {
-      for (const double x : v[g]) m[g] += x / seeds;
-      for (const double x : v[g]) var[g] += (x - m[g]) * (x - m[g]) / (seeds - 1);
-    }
-    return (m[1] - m[0]) / std::sqrt((var[0] + var[1]) / seeds);
-  };
+  auto z_score = [&](const std::vector<double>* v) { return SeedZScore(v, seeds); };
   EXPECT_LT(std::abs(z_score(all)), 4.0);
   EXPECT_LT(std::abs(z_score(top)), 4.0);
   EXPECT_LT(mse[1], mse[0]) << "allocated " << mse[1] << " vs uniform " << mse[0];

@@ -446,6 +446,34 @@ SimulateOptions BarOptions(char axis, int w = 160, int h = 120) {
   return o;
 }
 
+// The tilted bar w x h, LS 50 + PS 9, seed 21, simulated with gain jitter 0 (s0, a) and 0.02
+// (s1, b): the same pixel noise, so the pair isolates the jitter. Its folders go with it.
+struct BarJitterPair {
+  BarJitterPair(const std::string& name, int w, int h)
+      : s0(Options(w, h, 0.0)),
+        s1(Options(w, h, 0.02)),
+        d0(TempDir(name + "_j0")),
+        d1(TempDir(name + "_j2")),
+        a(SimulateAndRead(s0, d0)),
+        b(SimulateAndRead(s1, d1)) {}
+  ~BarJitterPair() {
+    std::error_code ec;
+    fs::remove_all(d0, ec);
+    fs::remove_all(d1, ec);
+  }
+  static SimulateOptions Options(int w, int h, double jitter) {
+    SimulateOptions so = BarOptions('x', w, h);
+    so.seed = 21;
+    so.ps_phases = 3;
+    so.ls_frames = 50;
+    so.gain_jitter = jitter;
+    return so;
+  }
+  SimulateOptions s0, s1;
+  fs::path d0, d1;
+  Session a, b;
+};
+
 // Writes `rig` as a rig file (a JSON object with "rig", as `simulate --rig` reads).
 fs::path WriteRig(const Rig& rig, const fs::path& file) {
   Session s;
@@ -705,17 +733,9 @@ TEST(RobustReconstruct, WeakStripesConfidenceIsHonest) {
 // for the plain decoder.
 TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
   Progress::SetEnabled(false);
-  auto options = [](double jitter) {
-    SimulateOptions so = BarOptions('x', 128, 96);
-    so.seed = 21;
-    so.ps_phases = 3;
-    so.ls_frames = 50;
-    so.gain_jitter = jitter;
-    return so;
-  };
-  const SimulateOptions s0 = options(0.0), s1 = options(0.02);
-  const fs::path d0 = TempDir("bar_j0"), d1 = TempDir("bar_j2");
-  const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
+  const BarJitterPair pair("bar", 128, 96);
+  const SimulateOptions &s0 = pair.s0, &s1 = pair.s1;
+  const Session &a = pair.a, &b = pair.b;
   const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
   ReconstructOptions means;
   means.frame_gain_method = FrameGainMethod::kFrameMeans;
@@ -738,8 +758,6 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
   EXPECT_LE(jit.e.median_abs_m, 1.05 * clean.e.median_abs_m);
   EXPECT_LE(pipe, plain);
   EXPECT_LE(jit.e.rms_m, jit_means.e.rms_m);
-  fs::remove_all(d0);
-  fs::remove_all(d1);
 }
 
 // The in-band gains from the phase-shift reference on a view too small for them to be precise
@@ -753,17 +771,9 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
 // is the floor of what it can correct, reported).
 TEST(RobustReconstruct, InBandReferenceOnATinyViewOfTheTiltedBar) {
   Progress::SetEnabled(false);
-  auto options = [](double jitter) {
-    SimulateOptions so = BarOptions('x', 24, 18);
-    so.seed = 21;
-    so.ps_phases = 3;
-    so.ls_frames = 50;
-    so.gain_jitter = jitter;
-    return so;
-  };
-  const SimulateOptions s0 = options(0.0), s1 = options(0.02);
-  const fs::path d0 = TempDir("tiny_j0"), d1 = TempDir("tiny_j2");
-  const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
+  const BarJitterPair pair("tiny", 24, 18);
+  const SimulateOptions &s0 = pair.s0, &s1 = pair.s1;
+  const Session &a = pair.a, &b = pair.b;
   ReconstructOptions als;
   als.frame_gain_method = FrameGainMethod::kAlternating;
   const Figures clean = RunCase(a, s0), clean_als = RunCase(a, s0, als);
@@ -787,8 +797,6 @@ TEST(RobustReconstruct, InBandReferenceOnATinyViewOfTheTiltedBar) {
   EXPECT_LE(clean.e.rms_m, 1.05 * clean_als.e.rms_m);
   EXPECT_LE(pipe, plain);
   EXPECT_LE(jit.e.rms_m, jit_als.e.rms_m);
-  fs::remove_all(d0);
-  fs::remove_all(d1);
 }
 
 }  // namespace
