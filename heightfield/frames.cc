@@ -18,6 +18,7 @@
 #include "core/png_gray16.h"
 #include "core/progress.h"
 #include "core/robust_stats.h"
+#include "core/simd_clones.h"
 
 namespace mesoscan {
 namespace {
@@ -87,17 +88,8 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
   return d;
 }
 
-// Runtime dispatch as in lens_shift_fit.cc: an AVX2 clone (4 double lanes) and the baseline
-// one; no FMA in either, so both round the same way.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
-    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
-#define MESOSCAN_FRAME_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define MESOSCAN_FRAME_CLONES
-#endif
-
-// out[i] = float(src[i] * scale + offset), the product and sum in double.
-MESOSCAN_FRAME_CLONES
+// out[i] = float(src[i] * scale + offset), the product and sum in double (core/simd_clones.h).
+MESOSCAN_SIMD_CLONES
 void AffineToFloat(const uint16_t* src, size_t n, double scale, double offset, float* out) {
   for (size_t i = 0; i < n; ++i) out[i] = static_cast<float>(src[i] * scale + offset);
 }

@@ -17,6 +17,7 @@
 
 #include "core/error.h"
 #include "core/numbers.h"
+#include "core/simd_clones.h"
 #include "heightfield/fast_atan.h"
 
 namespace mesoscan {
@@ -65,17 +66,6 @@ constexpr int kStackSamples = 512;
 constexpr double kMinRelativeAmplitude = 1e-5;
 
 using Cd = std::complex<double>;
-
-// Runtime dispatch: an AVX2 clone (4 double lanes in one register) and the baseline x86-64 one
-// (two SSE2 halves), chosen once by the loader; the binary still runs on any x86-64. No FMA in
-// either clone, so both round every operation the same way: the results do not depend on the
-// machine.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
-    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
-#define MESOSCAN_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define MESOSCAN_SIMD_CLONES
-#endif
 
 typedef double V4d __attribute__((vector_size(32)));
 typedef float V4f __attribute__((vector_size(16)));

@@ -11,6 +11,7 @@
 #include <numeric>
 
 #include "core/error.h"
+#include "core/simd_clones.h"
 #include "heightfield/fast_atan.h"
 
 namespace mesoscan {
@@ -292,17 +293,9 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
   }
 }
 
-// Runtime dispatch as in lens_shift_fit.cc: an AVX2 clone (SSE4.1's inline floor, 4-lane loops)
-// and the baseline x86-64 one, chosen once by the loader. No FMA in either, so both round every
-// operation the same way: the results do not depend on the machine.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
-    !defined(__SANITIZE_ADDRESS__) && defined(__linux__)
-#define MESOSCAN_UNWRAP_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define MESOSCAN_UNWRAP_CLONES
-#endif
-
-MESOSCAN_UNWRAP_CLONES
+// Runtime dispatch (core/simd_clones.h): the AVX2 clone has SSE4.1's inline floor and 4-lane
+// loops.
+MESOSCAN_SIMD_CLONES
 UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight) const {
   UnwrapResult result;
   const int m = static_cast<int>(periods_.size());
