@@ -286,9 +286,15 @@ void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::
   WriteWithOiio(path, spec, oiio::TypeFloat, inter.data());
 }
 
-void WriteExrPlanes(const fs::path& path, int width, int height, const std::vector<ExrPlane>& planes,
+void WriteExrPlanes(const fs::path& path, const std::vector<ExrPlane>& planes,
                     const std::map<std::string, double>& float_attributes) {
-  MESOSCAN_CHECK(width > 0 && height > 0 && !planes.empty());
+  MESOSCAN_CHECK(!planes.empty() && planes[0].image != nullptr);
+  const int width = planes[0].image->width(), height = planes[0].image->height();
+  MESOSCAN_CHECK(width > 0 && height > 0);
+  for (const ExrPlane& p : planes)
+    MESOSCAN_CHECK(p.image != nullptr && p.image->width() == width && p.image->height() == height &&
+                   (p.channel == -1 ? p.image->channels() == 1
+                                    : p.channel >= 0 && p.channel < p.image->channels()));
   WriteAtomically(path, [&](const fs::path& tmp) {
     try {
       Imf::Header header(width, height);
@@ -297,9 +303,9 @@ void WriteExrPlanes(const fs::path& path, int width, int height, const std::vect
         header.insert(k, Imf::FloatAttribute(static_cast<float>(v)));
       Imf::FrameBuffer fb;
       for (const ExrPlane& p : planes) {
-        MESOSCAN_CHECK(p.data != nullptr);
         header.channels().insert(p.name, Imf::Channel(Imf::FLOAT));
-        fb.insert(p.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(p.data)),
+        const float* data = p.image->channel(std::max(p.channel, 0));
+        fb.insert(p.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(data)),
                                      sizeof(float), sizeof(float) * static_cast<size_t>(width)));
       }
       Imf::OutputFile file(tmp.c_str(), header, /*numThreads=*/1);

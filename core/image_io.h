@@ -42,16 +42,16 @@ void WriteExr(const std::filesystem::path& path, const ImageF& image,
               const std::map<std::string, std::string>& string_attributes = {},
               const std::string& compression = "zip");
 
-// An uncompressed float32 EXR written from planes (one float array of width x height per
-// channel, row-major) straight through OpenEXR, with float header attributes: no interleaved
-// copy of the image (the scan folder's points.exr is 75 MB at full resolution). The same pixels
-// and attributes as WriteExr with compression "none".
+// An uncompressed float32 EXR written from planes (channel `channel` of `image`; channel -1: the
+// image's only channel, which it must be; all planes of one size) straight through OpenEXR, with float header attributes: no interleaved copy of the
+// image (the scan folder's points.exr is 75 MB at full resolution). The same pixels and
+// attributes as WriteExr with compression "none".
 struct ExrPlane {
   std::string name;
-  const float* data = nullptr;
+  const ImageF* image = nullptr;
+  int channel = -1;
 };
-void WriteExrPlanes(const std::filesystem::path& path, int width, int height,
-                    const std::vector<ExrPlane>& planes,
+void WriteExrPlanes(const std::filesystem::path& path, const std::vector<ExrPlane>& planes,
                     const std::map<std::string, double>& float_attributes = {});
 
 // 16-bit PNG (1, 2, 3 or 4 channels), values already quantised. compression_level: zlib level

@@ -41,21 +41,15 @@ ImageF Plane(const ImageF& all, int c0, int n) {
 
 void WritePointsExr(const fs::path& path, const ScanPoints& p) {
   // Straight from the planes (no stacked or interleaved copy: 75 MB at full resolution).
-  std::vector<ExrPlane> planes = {{"X", p.xyz.channel(0)},
-                                  {"Y", p.xyz.channel(1)},
-                                  {"Z", p.xyz.channel(2)},
-                                  {"confidence", p.confidence.channel(0)},
-                                  {"projector_u", p.projector_u.channel(0)}};
-  for (const ImageF* plane : {&p.confidence, &p.projector_u})
-    MESOSCAN_CHECK(plane->width() == p.xyz.width() && plane->height() == p.xyz.height() &&
-                   plane->channels() == 1);
-  if (!p.source.empty()) {
-    MESOSCAN_CHECK(p.source.width() == p.xyz.width() && p.source.height() == p.xyz.height() &&
-                   p.source.channels() == 1);
-    planes.push_back({"source", p.source.channel(0)});
-  }
-  WriteExrPlanes(path, p.xyz.width(), p.xyz.height(), planes);
+  std::vector<ExrPlane> planes = {{"X", &p.xyz, 0},
+                                  {"Y", &p.xyz, 1},
+                                  {"Z", &p.xyz, 2},
+                                  {"confidence", &p.confidence},
+                                  {"projector_u", &p.projector_u}};
+  if (!p.source.empty()) planes.push_back({"source", &p.source});
+  WriteExrPlanes(path, planes);
 }
+
 ScanPoints ReadPointsExr(const fs::path& path) {
   try {  // `source` is optional (scan-outputs.md)
     ImageF all = ReadExrChannels(path, {"X", "Y", "Z", "confidence", "projector_u", "source"});
@@ -74,10 +68,7 @@ void WriteHeightExr(const fs::path& path, const HeightField& hf) {
       own_conf.data()[i] = std::isfinite(hf.z.data()[i]) ? 1.0f : 0.0f;
   }
   const ImageF& conf = hf.confidence.empty() ? own_conf : hf.confidence;
-  MESOSCAN_CHECK(conf.width() == hf.z.width() && conf.height() == hf.z.height() &&
-                 conf.channels() == 1 && hf.z.channels() == 1);
-  WriteExrPlanes(path, hf.z.width(), hf.z.height(),
-                 {{"Z", hf.z.channel(0)}, {"confidence", conf.channel(0)}}, GridAttributes(hf));
+  WriteExrPlanes(path, {{"Z", &hf.z}, {"confidence", &conf}}, GridAttributes(hf));
 }
 
 HeightField ReadHeightExr(const fs::path& path) {
@@ -92,9 +83,7 @@ HeightField ReadHeightExr(const fs::path& path) {
 
 void WriteNormalExr(const fs::path& path, const HeightField& grid, const ImageF& n) {
   MESOSCAN_CHECK_EQ(n.channels(), 3);
-  WriteExrPlanes(path, n.width(), n.height(),
-                 {{"X", n.channel(0)}, {"Y", n.channel(1)}, {"Z", n.channel(2)}},
-                 GridAttributes(grid));
+  WriteExrPlanes(path, {{"X", &n, 0}, {"Y", &n, 1}, {"Z", &n, 2}}, GridAttributes(grid));
 }
 
 void WriteScanFolder(const fs::path& dir, const Scan& scan) {
