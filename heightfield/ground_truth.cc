@@ -69,15 +69,28 @@ double LensShiftDepthCrlbRms(const Session& session, const ReconstructDiagnostic
   return n ? std::sqrt(s2 / n) : 0.0;
 }
 
-GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
-                                             const PixelRect& roi_in, double gross_threshold_m) {
+GroundTruthPoints ReadGroundTruthPoints(const Session& session) {
   if (!session.ground_truth)
     MESOSCAN_BAD_INPUT(session.root.string() << "/session.json: ground_truth: not present");
-  const auto path = session.root / session.ground_truth->points;
+  GroundTruthPoints gt;
+  gt.path = session.root / session.ground_truth->points;
   // One read, used in place (no header read first, no copy of the channels: 62 MB at 3 Mpx).
-  ImageInfo info;
-  const ImageF gt = ReadImage(path, &info);
-  const auto& names = info.channel_names;
+  gt.image = ReadImage(gt.path, &gt.info);
+  return gt;
+}
+
+GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
+                                             const PixelRect& roi, double gross_threshold_m) {
+  return EvaluateAgainstGroundTruth(ReadGroundTruthPoints(session), points, roi,
+                                    gross_threshold_m);
+}
+
+GroundTruthErrors EvaluateAgainstGroundTruth(const GroundTruthPoints& gt_points,
+                                             const ScanPoints& points, const PixelRect& roi_in,
+                                             double gross_threshold_m) {
+  const auto& path = gt_points.path;
+  const ImageF& gt = gt_points.image;
+  const auto& names = gt_points.info.channel_names;
   auto channel = [&](const char* c) {
     const auto it = std::find(names.begin(), names.end(), c);
     return it == names.end() ? -1 : static_cast<int>(it - names.begin());

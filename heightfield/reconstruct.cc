@@ -48,6 +48,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   }
   LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
   stack = FrameStack();
+  if (options.on_frames_released) options.on_frames_released();
   timer.Stage("lens_shift");
   CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
   const int64_t pixels_lit = ps.pixels_lit, pixels_fitted = ls.pixels_fitted;
