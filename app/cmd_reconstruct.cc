@@ -82,6 +82,7 @@ void Run(const ReconstructArgs& a) {
   std::future<GroundTruthPoints> gt_read;
   if (session.ground_truth)
     opt.on_frames_released = [&] {
+      ReleaseFreedHeap();
       gt_read = std::async(std::launch::async, [&session] { return ReadGroundTruthPoints(session); });
     };
   ReconstructSummary summary;
