@@ -4,6 +4,7 @@
 #include <tbb/parallel_invoke.h>
 
 #include <filesystem>
+#include <future>
 #include <sstream>
 
 #include "app/commands.h"
@@ -76,6 +77,14 @@ void Run(const ReconstructArgs& a) {
   if (!a.export_formats.empty() && !a.export_dir.empty()) CheckOutputFolder(export_spec);
 
   const Session session = ReadSession(a.session);
+  // The ground truth (simulations) is read while the last stages run: started once the frames
+  // are released (the memory peak is behind), on its own thread.
+  std::future<GroundTruthPoints> gt_read;
+  if (session.ground_truth)
+    opt.on_frames_released = [&] {
+      ReleaseFreedHeap();
+      gt_read = std::async(std::launch::async, [&session] { return ReadGroundTruthPoints(session); });
+    };
   ReconstructSummary summary;
   Scan scan = ReconstructOrExplain(session, opt, &summary);  // names session.json; no empty scan
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
@@ -115,7 +124,9 @@ void Run(const ReconstructArgs& a) {
         [&] {
           if (!session.ground_truth) return;
           Stopwatch c;
-          gt = EvaluateAgainstGroundTruth(session, scan.points, opt.roi);
+          gt = EvaluateAgainstGroundTruth(
+              gt_read.valid() ? gt_read.get() : ReadGroundTruthPoints(session), scan.points,
+              opt.roi);
           gt_s = c.Restart();
           WriteErrorMapPng(tmp / "error_map.png", gt->error);
           error_map_s = c.Seconds();

@@ -326,10 +326,12 @@ void WritePng16(const fs::path& path, const ImageU16& image, int compression_lev
   WriteWithOiio(path, spec, oiio::TypeUInt16, inter.data());
 }
 
-void WritePng8(const fs::path& path, const ImageU8& image, int compression_level) {
+void WritePng8(const fs::path& path, const ImageU8& image, int compression_level,
+               bool filter_rows) {
   oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt8);
   if (compression_level >= 0)
     spec.attribute("png:compressionLevel", std::min(compression_level, 9));
+  if (!filter_rows) spec.attribute("png:filter", 0x08);  // PNG_FILTER_NONE
   const std::vector<uint8_t> inter = Interleave(image);
   WriteWithOiio(path, spec, oiio::TypeUInt8, inter.data());
 }

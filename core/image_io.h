@@ -59,8 +59,12 @@ void WriteExrPlanes(const std::filesystem::path& path, const std::vector<ExrPlan
 // the default for ~2% larger files.
 void WritePng16(const std::filesystem::path& path, const ImageU16& image,
                 int compression_level = -1);
-// 8-bit PNG (1, 3 or 4 channels); compression_level as for WritePng16.
-void WritePng8(const std::filesystem::path& path, const ImageU8& image, int compression_level = -1);
+// 8-bit PNG (1, 3 or 4 channels); compression_level as for WritePng16. filter_rows = false
+// writes every row unfiltered (libpng's PNG_FILTER_NONE) instead of libpng's adaptive per-row
+// choice: for noisy false-colour images (error maps) at level 1 about 2x faster and smaller
+// (full-resolution coin error map: 0.40 -> 0.18 s, 8.6 -> 5.0 MB).
+void WritePng8(const std::filesystem::path& path, const ImageU8& image, int compression_level = -1,
+               bool filter_rows = true);
 
 // Float [0, 1] -> 16-bit / 8-bit with clamping and rounding; NaN maps to 0.
 ImageU16 QuantizeU16(const ImageF& image);

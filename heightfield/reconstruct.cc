@@ -9,6 +9,49 @@
 #include "heightfield/stage_stream.h"
 
 namespace mesoscan {
+namespace {
+
+void CheckCalibrated(const Session& session) {
+  if (session.rig.uncalibrated)
+    MESOSCAN_BAD_INPUT(session.root.string()
+                       << "/session.json: rig: a calibration session (no calibrated K, distortion "
+                          "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
+}
+
+// The front's wall times: decode (until the last frame), what of the overlapped sine-frame
+// stages ran after it, then the lens-shift frames' gains ("normalize"); front_s is the whole.
+void RecordFrontTimings(const StreamedFrames& front, double front_s, ReconstructSummary* sum) {
+  sum->timings_s.back().second = front.decode_s;
+  const double ps_s = std::max(0.0, front.phase_shift_s - front.decode_s);
+  sum->timings_s.emplace_back("phase_shift", ps_s);
+  sum->timings_s.emplace_back("normalize", std::max(0.0, front_s - front.decode_s - ps_s));
+}
+
+// The plan's figures, the frame gains and the lens-shift frame corrections.
+void SummarizeFrames(const ReconstructPlan& plan, const FrameGains& gains,
+                     const Json& frame_corrections, double ls_offset_px, ReconstructSummary* sum) {
+  sum->frame_gains = gains.session_gain;
+  sum->frame_corrections = frame_corrections;
+  if (sum->frame_corrections.is_object())  // issue 13: the positions' constant, from phase shifting
+    sum->frame_corrections["phase_shift_offset_px"] = ls_offset_px;
+  sum->unwrapping = plan.unwrapping;
+  sum->axis = std::string(1, plan.axis);
+  sum->used_lens_shift = plan.use_lens_shift();
+  sum->lens_shift_frames = static_cast<int>(plan.ls_stack.size());
+  sum->phase_shift_frames = plan.PhaseShiftFrames();
+}
+
+// The pixel counts (the final states) and the predicted depth RMS.
+void SummarizePixels(const Rig& rig, const PixelClasses& classes, const RoiGrid& grid,
+                     const std::vector<float>& sigma_z, ReconstructSummary* sum) {
+  sum->pixels_total = static_cast<int64_t>(rig.camera.width) * rig.camera.height;
+  sum->pixels_roi = classes.pixels_roi;
+  sum->pixels_saturated = classes.pixels_saturated;
+  CountFinalStates(classes.state, sum);
+  sum->predicted_depth_rms_m = PredictedDepthRms(grid, classes.state, sigma_z);
+}
+
+}  // namespace
 
 Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                  ReconstructSummary* summary_out) {
@@ -20,11 +63,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   StageTimer timer(&sum.timings_s, &sum.cpu_s);
   ThreadLimit thread_limit(options.num_threads);
   const Rig& rig = session.rig;
-  if (rig.uncalibrated)
-    MESOSCAN_BAD_INPUT(session.root.string()
-                       << "/session.json: rig: a calibration session (no calibrated K, distortion "
-                          "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
-
+  CheckCalibrated(session);
   const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
   // Decode, classify, gains and phase shift as one stream (stage_stream.h); each frame is
   // released after the last stage that reads it, the per-period arrays after combining.
@@ -38,23 +77,18 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   PhaseShiftPixels& ps = front.ps;
   const RoiGrid grid = RoiGrid::Of(stack);
   classes.black_value = {};  // read by phase shifting only: 12.5 MB less at the peak (3 Mpx)
-  {  // decode (until the last frame), what of the overlapped sine-frame stages ran after it,
-     // then the lens-shift frames' gains
-    const double front_s = timer.Stage("decode");
-    sum.timings_s.back().second = front.decode_s;
-    const double ps_s = std::max(0.0, front.phase_shift_s - front.decode_s);
-    sum.timings_s.emplace_back("phase_shift", ps_s);
-    sum.timings_s.emplace_back("normalize", std::max(0.0, front_s - front.decode_s - ps_s));
-  }
+  RecordFrontTimings(front, timer.Stage("decode"), &sum);
   LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
   stack = FrameStack();
+  if (options.on_frames_released) options.on_frames_released();
   timer.Stage("lens_shift");
   CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
-  const int64_t pixels_lit = ps.pixels_lit, pixels_fitted = ls.pixels_fitted;
-  const Json frame_corrections = ls.frame_corrections;
+  sum.pixels_lit = ps.pixels_lit;
+  sum.pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
+  SummarizeFrames(plan, gains, ls.frame_corrections, combined.ls_offset_px, &sum);
   if (classes.white_level.empty())  // the stream moved it to ps.level (a white frame)
     classes.white_level = options.keep_diagnostics ? ps.level : std::move(ps.level);
-  if (!options.keep_diagnostics) {
+  if (!options.keep_diagnostics) {  // what the later stages do not read
     ps = PhaseShiftPixels();
     ls = LensShiftPixels();
     combined.u_coarse = {};
@@ -74,22 +108,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   scan.normals = std::move(hf.normals);
   timer.Stage("height_field");
 
-  sum.pixels_total = static_cast<int64_t>(rig.camera.width) * rig.camera.height;
-  sum.pixels_roi = classes.pixels_roi;
-  sum.pixels_saturated = classes.pixels_saturated;
-  sum.pixels_lit = pixels_lit;
-  sum.pixels_fitted = plan.use_lens_shift() ? pixels_fitted : pixels_lit;
-  CountFinalStates(state, &sum);
-  sum.predicted_depth_rms_m = PredictedDepthRms(grid, state, tri.sigma_z);
-  sum.frame_gains = gains.session_gain;
-  sum.frame_corrections = frame_corrections;
-  if (sum.frame_corrections.is_object())  // issue 13: the positions' constant, from phase shifting
-    sum.frame_corrections["phase_shift_offset_px"] = combined.ls_offset_px;
-  sum.unwrapping = plan.unwrapping;
-  sum.axis = std::string(1, plan.axis);
-  sum.used_lens_shift = plan.use_lens_shift();
-  sum.lens_shift_frames = static_cast<int>(plan.ls_stack.size());
-  sum.phase_shift_frames = plan.PhaseShiftFrames();
+  SummarizePixels(rig, classes, grid, tri.sigma_z, &sum);
   if (options.keep_diagnostics)
     sum.diagnostics = CollectDiagnostics(rig, grid, ps, ls, combined, std::move(tri.dz_du));
   sum.total_s = timer.Total();

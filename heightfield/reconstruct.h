@@ -23,6 +23,7 @@
 // Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted. Ground-truth
 // evaluation is in heightfield/ground_truth.h, the error map in heightfield/error_map_png.h.
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -114,6 +115,10 @@ struct ReconstructOptions {
   ResampleOptions resample;
   // Keep per-pixel intermediate images in the summary (tests, benchmarks, CRLB).
   bool keep_diagnostics = false;
+  // Called once, on the calling thread, when the frames have been released after the lens-shift
+  // stage (the memory peak is behind): `mesoscan reconstruct` starts reading the session's ground
+  // truth there, to overlap the remaining stages. Empty: nothing. Not part of ToJson().
+  std::function<void()> on_frames_released;
 
   void Check() const;
   Json ToJson() const;

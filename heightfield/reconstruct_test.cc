@@ -357,5 +357,65 @@ TEST_F(ReconstructTest, PerFrameBrightnessJitterIsNormalised) {
   EXPECT_GE(moved, 3);
 }
 
+// The ground truth's reader (the CLI's, through OpenEXR directly) returns the Z and footprint
+// channels of gt_points.exr as stored, and names the file and the channel when X, Y or Z is
+// missing; the evaluation is the same as from the image read whole through OIIO.
+TEST_F(ReconstructTest, GroundTruthReaderTakesZAndFootprintChannels) {
+  const fs::path dir = TestDir("gt_reader");
+  fs::create_directories(dir);
+  const int w = 7, h = 5;
+  ImageF gt(w, h, 5);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      gt(x, y, 0) = 0.001f * x;
+      gt(x, y, 1) = 0.002f * y;
+      gt(x, y, 2) = (x + y) % 4 == 0 ? NAN : 1e-4f * (x * 3 + y);
+      gt(x, y, 3) = (x % 3) / 2.0f;
+      gt(x, y, 4) = 1e-6f * y;
+    }
+  WriteExr(dir / "gt_points.exr", gt, {"X", "Y", "Z", "lit_fraction", "relief"});
+  Session s;
+  s.root = dir;
+  s.ground_truth = GroundTruth{"gt_points.exr", "gt_height.exr"};
+  const GroundTruthPoints read = ReadGroundTruthPoints(s);
+  ASSERT_EQ(read.info.channel_names, (std::vector<std::string>{"Z", "lit_fraction", "relief"}));
+  ASSERT_EQ(read.image.width(), w);
+  ASSERT_EQ(read.image.height(), h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (int c = 0; c < 3; ++c) {
+        const float want = gt(x, y, c + 2), got = read.image(x, y, c);
+        EXPECT_TRUE(std::isnan(want) ? std::isnan(got) : got == want) << x << "," << y << "," << c;
+      }
+  // The same figures as from the whole image read through OIIO.
+  ScanPoints points;
+  points.xyz = ImageF(w, h, 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      points.xyz(x, y, 0) = gt(x, y, 0);
+      points.xyz(x, y, 1) = gt(x, y, 1);
+      points.xyz(x, y, 2) = (x == 1 && y == 1) ? NAN : gt(x, y, 2) + 1e-7f * ((x * 7 + y) % 5);
+    }
+  GroundTruthPoints whole;
+  whole.path = dir / "gt_points.exr";
+  whole.image = ReadImage(whole.path, &whole.info);
+  const Json a = EvaluateAgainstGroundTruth(read, points).ToJson();
+  const Json b = EvaluateAgainstGroundTruth(whole, points).ToJson();
+  EXPECT_EQ(a.dump(), b.dump());
+  EXPECT_TRUE(a["footprint_known"].get<bool>());
+  // A missing Y channel: bad input naming the file and the channel.
+  ImageF xz(w, h, 2, 0.0f);
+  WriteExr(dir / "gt_points.exr", xz, {"X", "Z"});
+  try {
+    ReadGroundTruthPoints(s);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
+    EXPECT_NE(std::string(e.what()).find("gt_points.exr"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("'Y'"), std::string::npos) << e.what();
+  }
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace mesoscan

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <optional>
 
+#include <tbb/parallel_invoke.h>
+
 #include "core/error.h"
 #include "core/numbers.h"
 #include "heightfield/phase_shift.h"
@@ -91,12 +93,35 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
   return ref;
 }
 
+namespace {
+// The frame gains of one group (EstimateLuminanceGains without the phase reference).
+void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
+                          const PixelStates& state, GainGroup group, FrameGains* gains);
+}  // namespace
+
 void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
                             const PixelStates& state, GainGroup group, const GainOptions& options,
                             FrameGains* gains, const PhaseShiftPixels* ps) {
   FrameGains& g = *gains;
-  if (group == GainGroup::kLensShift && ps) g.phase_reference = MakePhaseReference(plan, *ps, state);
-  if (!options.normalize_luminance) return;
+  // The lens-shift frames' phase reference and their gains are independent (different members
+  // of g, read-only inputs): computed at once, on the otherwise idle second core right after the
+  // last frame (~45 and ~80 ms at full resolution, both serial).
+  const auto frame_gains = [&] {
+    if (options.normalize_luminance) EstimateGainsOfGroup(stack, plan, state, group, &g);
+  };
+  if (group == GainGroup::kLensShift && ps) {
+    tbb::parallel_invoke([&] { g.phase_reference = MakePhaseReference(plan, *ps, state); },
+                         frame_gains);
+  } else {
+    frame_gains();
+  }
+}
+
+namespace {
+
+void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
+                          const PixelStates& state, GainGroup group, FrameGains* gains) {
+  FrameGains& g = *gains;
   const size_t np = state.size();
   std::vector<uint32_t> sample;
   size_t n_active = 0;
@@ -145,5 +170,7 @@ void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan
     apply(ls, EstimateFrameGains(stack, ls, sample));
   }
 }
+
+}  // namespace
 
 }  // namespace mesoscan
