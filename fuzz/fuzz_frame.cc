@@ -13,14 +13,10 @@
 
 namespace {
 
-void CheckPngFastPath(const std::filesystem::path& path) {
+// `info`: the header OpenImageIO read (a file it refuses at the header never reaches the fast
+// path in the loader either).
+void CheckPngFastPath(const std::filesystem::path& path, const mesoscan::ImageInfo& info) {
   using namespace mesoscan;
-  ImageInfo info;
-  try {
-    info = ReadImageInfo(path);
-  } catch (const Error&) {
-    return;  // refused at the header: the loader never calls the fast path
-  }
   if (info.channels != 1 || static_cast<double>(info.width) * info.height > (1 << 22)) return;
   std::vector<uint16_t> fast(static_cast<size_t>(info.width) * info.height);
   if (!ReadPngGray16(path, info.width, info.height, fast.data())) return;
@@ -51,7 +47,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string name = std::string("frame") + kExt[data[0] % 3];
   const auto path = fuzz::WriteInput(name, data + 1, size - 1);
   fuzz::Expect([&] { (void)ReadImage(path); });
-  fuzz::Expect([&] { (void)ReadImageInfo(path); });
-  if (data[0] % 3 == 0) CheckPngFastPath(path);
+  ImageInfo info;
+  bool have_info = false;
+  fuzz::Expect([&] {
+    info = ReadImageInfo(path);
+    have_info = true;
+  });
+  if (data[0] % 3 == 0 && have_info) CheckPngFastPath(path, info);
   return 0;
 }
