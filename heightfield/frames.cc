@@ -73,9 +73,10 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
   } else {
     std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
-    // A grey 16-bit PNG (every frame the rig writes): libpng without its checksums
-    // (core/png_gray16.h); anything it does not take is decoded (or refused) by OIIO.
-    ok = (d.channels == 1 && spec.format == OIIO::TypeDesc::UINT16 &&
+    // A grey 8- or 16-bit PNG (every frame the rig writes): the fast path (core/png_gray16.h);
+    // anything it does not take is decoded (or refused) by OIIO.
+    ok = (d.channels == 1 &&
+          (spec.format == OIIO::TypeDesc::UINT16 || spec.format == OIIO::TypeDesc::UINT8) &&
           std::string_view(in->format_name()) == "png" &&
           ReadPngGray16(path, d.width, d.height, dst.data())) ||
          ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());

@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <sstream>
@@ -409,6 +410,33 @@ TEST_F(Hostile, Item6_UnsignedZeroProjectorSizeIsRefused) {
   j["rig"]["projector"]["width"] = 0u;
   WriteJsonFile(s / "session.json", j);
   ExpectRefused(Cli("check " + Q(s)), 3, "rig.projector.width");
+  fs::remove_all(s);
+}
+
+// A frame whose only damage is a chunk checksum (the first IDAT's stored CRC, its data intact):
+// the frames' fast path checks every CRC and leaves the file to OpenImageIO, whose libpng
+// refuses it; reconstruct exits 3 with one line naming the frame (a reader with its checks off
+// would decode it).
+TEST_F(Hostile, FrameWithAWrongChunkCrcIsRefused) {
+  const fs::path s = CopySession("S_crc");
+  const std::string frame = FirstFrame(s);
+  std::string bytes;
+  {
+    std::ifstream in(s / frame, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const size_t idat = bytes.find("IDAT");
+  ASSERT_NE(idat, std::string::npos);
+  ASSERT_GE(idat, 4u);
+  const uint32_t len = (uint32_t{static_cast<uint8_t>(bytes[idat - 4])} << 24) |
+                       (uint32_t{static_cast<uint8_t>(bytes[idat - 3])} << 16) |
+                       (uint32_t{static_cast<uint8_t>(bytes[idat - 2])} << 8) |
+                       static_cast<uint8_t>(bytes[idat - 1]);
+  ASSERT_LE(idat + 4 + len + 4, bytes.size());
+  bytes[idat + 4 + len + 3] ^= 0x01;  // the last byte of the IDAT's CRC
+  std::ofstream(s / frame, std::ios::binary | std::ios::trunc) << bytes;
+  ExpectRefused(Cli("reconstruct " + Q(s) + " --out " + Q(Work() / "SC_crc")), 3, frame);
+  EXPECT_FALSE(fs::exists(Work() / "SC_crc"));
   fs::remove_all(s);
 }
 
