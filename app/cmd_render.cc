@@ -480,6 +480,10 @@ void AddRenderCommand(CLI::App* app) {
                 "Sample continuation rays by BRDF alone (default: glossy BRDFs under an environment "
                 "map also aim at the environment mirrored in the field's plane; same image, less "
                 "noise on reliefs lit by the field's reflection)");
+  cmd->add_option("--resample", args->options.resample_candidates,
+                  "Candidate directions resampled towards the BRDF x the field's reflection at "
+                  "vertices that aim at it (0 or 1: off)")
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
   cmd->add_flag("--denoise", args->denoise,
                 "Also write preview_denoised.png / .exr: the render smoothed by an edge-aware "

@@ -326,16 +326,18 @@ void DemoPreview(const fs::path& dir) {
   // allocate_spp: a uniform 8 spp pilot, then by the neighbourhood's deviation), same seed as
   // the fixed run of that spp: the before/after at equal cost, independent of the load.
   // "uniform": as "denoise" with uniform rounds (allocate_pilot_spp = 0), the before.
-  std::vector<Run> runs = {{"fixed", 64, 0},   {"fixed", 8, 0},      {"fixed", 16, 0},
-                           {"alloc", 16, 0},   {"fixed", 32, 0},     {"alloc", 32, 0},
-                           {"no-guide", 32, 0}, {"time 3 s", 0, 3.0}, {"uniform", 0, 3.0},
-                           {"denoise", 0, 3.0}};
+  // "no-resample": the fixed 16 spp run (same seed) without the resampled first continuation
+  // (RenderOptions::resample_candidates): the before/after.
+  std::vector<Run> runs = {{"fixed", 64, 0},       {"fixed", 8, 0},       {"fixed", 16, 0},
+                           {"alloc", 16, 0},       {"no-resample", 16, 0}, {"fixed", 32, 0},
+                           {"alloc", 32, 0},       {"no-guide", 32, 0},   {"time 3 s", 0, 3.0},
+                           {"uniform", 0, 3.0},    {"denoise", 0, 3.0}};
   // "denoise": as `render --time 3 --denoise` (the denoiser's time comes out of the budget;
   // its wall time is the render's plus the denoiser's). Every run also reports the denoised
   // figure (render/denoise.h) next to its raw one.
   // MESOSCAN_BENCH_DEMO_RUNS="32,time" keeps only the runs named (spp of the fixed runs,
-  // "no-guide", "time", "denoise"): a quicker loop while tuning (the corrected column needs the
-  // 64 spp run).
+  // "no-guide", "no-resample", "time", "denoise"): a quicker loop while tuning (the corrected
+  // column needs the 64 spp run).
   if (const char* keep = std::getenv("MESOSCAN_BENCH_DEMO_RUNS")) {
     std::vector<Run> kept;
     std::string list = std::string(",") + keep + ",";
@@ -369,7 +371,8 @@ void DemoPreview(const fs::path& dir) {
   const int default_pilot = o.allocate_pilot_spp;
   for (const Run& run : runs) {
     o.mirror_guide = run.name != "no-guide";
-    if (o.mirror_guide && run.name != "alloc") o.seed = seed++;
+    o.resample_candidates = run.name == "no-resample" ? 0 : RenderOptions{}.resample_candidates;
+    if (o.mirror_guide && run.name != "alloc" && run.name != "no-resample") o.seed = seed++;
     o.allocate_spp = run.name == "alloc" ? run.spp : 0;
     o.allocate_pilot_spp = run.name == "uniform" ? 0 : default_pilot;
     if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap

@@ -62,6 +62,9 @@ MirrorGuide::MirrorGuide(const EnvironmentMap& env, const Brdf& brdf, const Opti
   cdf_.assign(cells + 1, 0.0);
   for (int c = 0; c < cells; ++c) cdf_[c + 1] = cdf_[c] + lum[c] + floor;
   const double total = cdf_[cells];
+  lum_.resize(cells);
+  for (int c = 0; c < cells; ++c) lum_[c] = lum[c] + floor;
+  mean_lum_ = mean + floor;
   pdf_.resize(cells);
   for (int c = 0; c < cells; ++c) pdf_[c] = (cdf_[c + 1] - cdf_[c]) / total / cell_solid_angle_;
   // Blocks for the product with the vertex's BRDF.

@@ -54,6 +54,10 @@ class MirrorGuide {
   double Pdf(const Vec3& w) const;
   // Probability of choosing this strategy at a vertex with unit normal n.
   double SelectProbability(const Vec3& n) const;
+  // The table's estimate of the flat field's reflected luminance arriving along world direction
+  // w (z < 0, i.e. L_r(-w)), floor included; its mean over the lower hemisphere for w.z >= 0.
+  // The target of the renderer's resampling (RenderOptions::resample_candidates).
+  double Radiance(const Vec3& w) const { return w.z() < 0 ? lum_[Cell(w)] : mean_lum_; }
 
   // Product with the vertex's BRDF (coarsely): the density above, re-weighted per block of
   // kBlockPhi x kBlockZ cells by the BRDF's luminance x cosine at the block's centre for this
@@ -79,6 +83,8 @@ class MirrorGuide {
   int nphi_, nz_;
   std::vector<double> cdf_;   // nphi_ * nz_ + 1, over cells (z-major)
   std::vector<double> pdf_;   // per cell, per unit solid angle
+  std::vector<double> lum_;   // per cell: reflected luminance + floor
+  double mean_lum_ = 0;
   double cell_solid_angle_ = 0;
   // Selection probability over normals: n_theta x n_phi table (theta from +z in [0, pi],
   // nearest node).

@@ -30,6 +30,8 @@ void RenderOptions::Check() const {
   if (allocate_pilot_spp < 0 || allocate_radius < 1 || !(allocate_floor > 0 && allocate_floor <= 1))
     MESOSCAN_BAD_INPUT("render: expected allocate_pilot_spp >= 0, allocate_radius >= 1, "
                        "allocate_floor in (0, 1]");
+  if (resample_candidates < 0 || resample_candidates > 16)
+    MESOSCAN_BAD_INPUT("render: resample_candidates must be in [0, 16]");
   if (!(elevation_deg > 0 && elevation_deg <= 90))
     MESOSCAN_BAD_INPUT("render: elevation must be in (0, 90] degrees");
   if (!(fov_deg >= 0 && fov_deg < 180)) MESOSCAN_BAD_INPUT("render: fov must be in (0, 180) degrees");
@@ -88,6 +90,7 @@ struct Scene {
   unsigned camera_mask = EmbreeScene::kMaskAll;
   // The mirrored-environment sampler for continuation rays (render/mirror_guide.h), or null.
   const MirrorGuide* guide = nullptr;
+  int resample = 0;  // RenderOptions::resample_candidates (with the guide only)
 
   Rgb Tint(const Vec3& p) const {
     if (!albedo) return Rgb::Ones();
@@ -171,10 +174,14 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     double cg = (scene.guide && !on_mount) ? scene.guide->SelectProbability(n) : 0.0;
     MirrorGuide::Local gl;
     if (cg < kMinGuideSelect || !scene.guide->Prepare(brdf, frame.s, frame.t, frame.n, wo, &gl)) cg = 0;
+    auto mix = [&](double pb, const Vec3& wi) {
+      double p = pb;
+      if (cg > 0) p = (1 - cg) * p + cg * scene.guide->Pdf(gl, frame.FromLocal(wi));
+      return p;
+    };
     auto pdf = [&](const Vec3& wi) {
       if (on_mount) return mount.Pdf(wo, wi);
-      const double pb = brdf.Pdf(wo, wi);
-      return cg > 0 ? (1 - cg) * pb + cg * scene.guide->Pdf(gl, frame.FromLocal(wi)) : pb;
+      return mix(brdf.Pdf(wo, wi), wi);
     };
     // Continue (and test shadows) from the side the ray arrived on.
     const Vec3 next_origin = EmbreeScene::ShadowRayOrigin(*hit, dir);
@@ -204,23 +211,65 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     sampler.Get2D(&u.x(), &u.y());
     const double u_rr = sampler.Get1D();
     std::optional<BrdfSample> bs;
-    if (cg > 0) {
-      // One of the two strategies by u.x (rescaled, so each keeps a stratified uniform).
-      if (u.x() < cg) {
-        double pg = 0;
-        const Vec3 d = scene.guide->Sample(gl, Vec2(u.x() / cg, u.y()), &pg);
-        const Vec3 wi = frame.ToLocal(d);
-        if (wi.z() <= 0) break;  // below the tangent plane: f = 0
-        bs = BrdfSample{wi, brdf.f(wo, wi), (1 - cg) * brdf.Pdf(wo, wi) + cg * pg};
-      } else {
-        bs = brdf.Sample(wo, Vec2((u.x() - cg) / (1 - cg), u.y()));
-        if (bs) bs->pdf = (1 - cg) * bs->pdf + cg * scene.guide->Pdf(gl, frame.FromLocal(bs->wi));
+    // A directed candidate from the mixture by u (rescaled, so each strategy keeps a
+    // stratified uniform): its local direction, f and the mixture's density, or nullopt.
+    auto candidate = [&](const Vec2& uc) -> std::optional<BrdfSample> {
+      if (uc.x() >= cg) {
+        auto b = brdf.Sample(wo, Vec2((uc.x() - cg) / (1 - cg), uc.y()));
+        if (b) b->pdf = mix(b->pdf, b->wi);
+        return b;
       }
+      double pg = 0;
+      const Vec3 d = scene.guide->Sample(gl, Vec2(uc.x() / cg, uc.y()), &pg);
+      const Vec3 wi = frame.ToLocal(d);
+      if (wi.z() <= 0) return std::nullopt;  // below the tangent plane: f = 0
+      return BrdfSample{wi, brdf.f(wo, wi), mix(brdf.Pdf(wo, wi), wi)};
+    };
+    double ris_weight = 0;  // > 0: bs was resampled; its unbiased contribution weight
+    if (cg > 0 && scene.resample > 1 && depth == 0) {
+      // At the camera ray's vertex only (on the demo, resampling at every vertex lowered the
+      // error no further: 12.3% either way at 16 spp, for more CPU).
+      // Resampled importance sampling (Talbot et al. 2005) towards the product of this vertex's
+      // BRDF x cosine and the field's reflected luminance from the guide's table (the sky's
+      // mean above the horizon): M candidates from the mixture at rotated points of u (each
+      // distributed like the mixture: the estimator's expectation needs only the marginals),
+      // one kept with probability proportional to target / mixture density, weighted by
+      // W = mean(target / density) / target(kept). Unbiased for any target that is positive
+      // wherever the integrand is; the MIS weights against the light sample keep the mixture's
+      // density (they only need to sum to one).
+      const int M = scene.resample;
+      std::optional<BrdfSample> cand[16];
+      double w[16], target[16], wsum = 0;
+      for (int j = 0; j < M; ++j) {
+        double cx = u.x() + j * 0.7548776662466927, cy = u.y() + j * 0.5698402909980532;
+        cx -= std::floor(cx);
+        cy -= std::floor(cy);
+        cand[j] = candidate(Vec2(cx, cy));
+        w[j] = target[j] = 0;
+        if (cand[j] && cand[j]->pdf > 0 && cand[j]->wi.z() > 0) {
+          const Vec3 d = frame.FromLocal(cand[j]->wi);
+          target[j] = Luminance(cand[j]->f) * cand[j]->wi.z() * scene.guide->Radiance(d);
+          if (target[j] > 0 && std::isfinite(target[j])) w[j] = target[j] / cand[j]->pdf;
+          else target[j] = 0;
+        }
+        wsum += w[j];
+      }
+      if (!(wsum > 0)) break;
+      const double pick = sampler.Get1D() * wsum;
+      int k = 0;
+      double acc = w[0];
+      while (k < M - 1 && (acc <= pick || !(w[k] > 0))) acc += w[++k];
+      while (!(w[k] > 0)) --k;
+      bs = cand[k];
+      ris_weight = wsum / M / target[k];
+    } else if (cg > 0) {
+      bs = candidate(u);
     } else {
       bs = on_mount ? mount.Sample(wo, u) : brdf.Sample(wo, u);
     }
     if (!bs || !(bs->pdf > 0) || bs->wi.z() <= 0) break;
-    beta *= bs->f * (on_mount ? Rgb::Ones() : tint) * (bs->wi.z() / bs->pdf);
+    const double weight = ris_weight > 0 ? ris_weight : 1.0 / bs->pdf;
+    beta *= bs->f * (on_mount ? Rgb::Ones() : tint) * (bs->wi.z() * weight);
     if (!beta.allFinite() || !(beta > 0).any()) break;
     // Russian roulette only on long paths (max_depth > 4): within the first four vertices it
     // added variance for no saving (Cycles' default starts later too).
@@ -452,6 +501,12 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     guide.emplace(env, brdf);
     scene.guide = &*guide;
   }
+  // Not under error-driven allocation (RenderOptions::allocate_*): it already spends the samples
+  // on the rim, and there the candidates cost more than they saved (demo, 8 spp allocated: MSE
+  // -5% raw / -16% denoised for +27% CPU; uniform 16 spp: -33% for +17%).
+  const bool allocates =
+      (options.time_limit_s > 0 || options.allocate_spp > 0) && options.allocate_pilot_spp > 0;
+  if (scene.guide && !allocates) scene.resample = std::min(options.resample_candidates, 16);
 
   const int W = options.width, H = options.height;
   int log2_spp = 0;

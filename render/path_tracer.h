@@ -55,6 +55,13 @@ struct RenderOptions {
   // BRDF (render/mirror_guide.h), where the scene needs it (a non-Lambert BRDF under a
   // non-constant environment). false: BRDF sampling alone (the bench's before/after).
   bool mirror_guide = true;
+  // At the camera ray's first vertex, where it uses the mirrored-environment sampler, draw this
+  // many candidate directions from its mixture with BRDF sampling and keep one by resampling
+  // towards the product of the vertex's BRDF x cosine and the field's reflected luminance (the
+  // guide's table): resampled importance sampling (Talbot et al. 2005), unbiased. 0 or 1: off.
+  // At most 16. Not used under error-driven allocation (allocate_* below), where it cost more
+  // CPU than it saved.
+  int resample_candidates = 8;
   // Under a time budget (time_limit_s > 0): after a uniform pilot of `allocate_pilot_spp`
   // samples per pixel, the remaining samples go where the error is: each pixel's share is
   // proportional to the per-sample standard deviation estimated over its neighbourhood

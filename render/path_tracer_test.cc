@@ -589,6 +589,63 @@ TEST(PathTracer, MirrorGuideLeavesTheImageUnbiased) {
   EXPECT_TRUE(differ);
 }
 
+// Resampling the first continuation direction towards BRDF x the field's reflection
+// (RenderOptions::resample_candidates) changes only the noise: the copper mesa seen whole (the
+// demo's framing; its sunlit bevel reflects the field's reflected sun) rendered with 8
+// candidates and with none (the mixture's own sample) converges to the same image: image and
+// brightest-tenth means within 4 standard errors over six seeds, and the two estimators differ
+// pixel by pixel (else nothing was tested). Its variance reduction is measured in the bench,
+// not asserted here: on this small scene it is ~10% (the demo's rim: -33% at 16 spp), within
+// the six seeds' spread.
+TEST(PathTracer, ResampledContinuationIsUnbiased) {
+  Progress::SetEnabled(false);
+  const HeightField hf = CopperMesa();
+  const EnvironmentMap env = EnvironmentMap::Sky(25, 200, 128);
+  const Brdf copper = MesaCopper();
+  RenderOptions o;
+  o.width = 48;
+  o.height = 36;
+  o.min_spp = o.max_spp = 32;
+  o.noise = 0;
+  const int seeds = 6;
+  std::vector<double> all[2], rim[2];
+  std::vector<char> rim_mask;
+  std::vector<ImageF> images[2];
+  for (int g = 0; g < 2; ++g) {
+    o.resample_candidates = g == 1 ? 8 : 0;
+    for (int s = 0; s < seeds; ++s) {
+      o.seed = 31 + s;
+      const ImageF im = RenderHeightField(hf, copper, env, o);
+      if (rim_mask.empty()) {
+        std::vector<double> y(im.pixels());
+        for (size_t i = 0; i < im.pixels(); ++i)
+          y[i] = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
+        std::vector<double> sorted = y;
+        std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 9 / 10, sorted.end());
+        const double cut = sorted[sorted.size() * 9 / 10];
+        rim_mask.resize(im.pixels());
+        for (size_t i = 0; i < im.pixels(); ++i) rim_mask[i] = y[i] >= cut;
+      }
+      double a = 0, r = 0;
+      int nr = 0;
+      for (size_t i = 0; i < im.pixels(); ++i) {
+        const double y = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
+        a += y / im.pixels();
+        if (rim_mask[i]) r += y, ++nr;
+      }
+      all[g].push_back(a);
+      rim[g].push_back(r / nr);
+      images[g].push_back(im);
+    }
+  }
+  EXPECT_LT(std::abs(SeedZScore(all, seeds)), 4.0);
+  EXPECT_LT(std::abs(SeedZScore(rim, seeds)), 4.0);
+  bool differ = false;
+  for (size_t i = 0; i < images[0][0].pixels(); ++i)
+    differ = differ || images[0][0].channel(1)[i] != images[1][0].channel(1)[i];
+  EXPECT_TRUE(differ);
+}
+
 }  // namespace
 }  // namespace mesoscan
 
