@@ -555,6 +555,236 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   }
   return result;
 }
+
+#if defined(__GNUC__) && !defined(__clang__)  // GCC's vector extensions (V4d, V4l)
+// UnwrapMany's lanes: Unwrap()'s steps for the common case (three periods, residual tables, the
+// best two among the smallest table entries), every step a loop over four pixels (the compiler
+// makes them vector operations), per lane the same operations in the same order as Unwrap().
+// done[l] is false where lane l left the common case (Unwrap() then decides).
+MESOSCAN_SIMD_CLONES
+void TemporalUnwrapper::UnwrapFour(const double* theta, const double* weight, UnwrapResult* result,
+                                   bool* done) const {
+  constexpr int kL = 4;
+  constexpr int kM = 3;
+  constexpr double kMagic = 6755399441055744.0;  // RoundNearest's
+  constexpr double kRoundLimit = 2251799813685248.0;
+  const int a = anchor_;
+  const double pa = periods_[a];
+  bool ok[kL];
+  double t[kM][kL], w_px[kM][kL];
+  for (int l = 0; l < kL; ++l) {
+    bool good = true;
+    for (int i = 0; i < kM; ++i) {
+      const double th = theta[l * kM + i], w = weight[l * kM + i];
+      good &= std::isfinite(th) & (w > 0.0) & std::isfinite(w);
+    }
+    ok[l] = good;
+  }
+  for (int i = 0; i < kM; ++i) {
+    const double g = phase_rate_[i];
+    for (int l = 0; l < kL; ++l) {
+      const double c = theta[l * kM + i] / kTwoPi;
+      t[i][l] = c - std::floor(c);
+      w_px[i][l] = weight[l * kM + i] * g * g;
+    }
+  }
+  double var_a_px[kL], inv_var[kM][kL];
+  for (int l = 0; l < kL; ++l) var_a_px[l] = 1.0 / w_px[a][l];
+  for (int i = 0; i < kM; ++i) {
+    if (i == a) continue;
+    for (int l = 0; l < kL; ++l) {
+      const double var_i_px = 1.0 / w_px[i][l];
+      inv_var[i][l] = periods_[i] * periods_[i] / (var_i_px + var_a_px[l]);
+    }
+  }
+  int k_first[kL], nk[kL];
+  for (int l = 0; l < kL; ++l) {
+    k_first[l] = 0, nk[l] = 0;
+    if (!ok[l]) continue;
+    const double ta = t[a][l];
+    const double margin = 0.5 + 6.0 * std::sqrt(var_a_px[l]);
+    auto inside = [&](int k) {
+      const double u = pa * (ta + k);
+      return !(u < -0.5 - margin || u >= range_px_ - 0.5 + margin);
+    };
+    int kf = static_cast<int>(std::floor((-0.5 - margin) / pa));
+    int kl = static_cast<int>(std::floor((range_px_ - 0.5 + margin) / pa));
+    while (kf <= kl && !inside(kf)) ++kf;
+    while (kl >= kf && !inside(kl)) --kl;
+    ok[l] = kf <= kl && kl - kf < table_candidates_;
+    if (ok[l]) k_first[l] = kf, nk[l] = kl - kf + 1;
+  }
+  const int ia = pair_[0], ib = pair_[1];
+  const int qa = cycle_[ia], qb = cycle_[ib];
+  double table[kM][kMaxCycle][kL];
+  for (int i = 0; i < kM; ++i) {
+    if (i == a) continue;
+    const double ip = inv_periods_[i];
+    for (int j = 0; j < cycle_[i]; ++j)
+      for (int l = 0; l < kL; ++l) {
+        const double r = WrapCyclesSmall(pa * (t[a][l] + (k_first[l] + j)) * ip - t[i][l]);
+        table[i][j][l] = r * r * inv_var[i][l];
+      }
+  }
+  for (int l = 0; l < kL; ++l) {
+    bool nan = false;
+    for (int j = 0; j < qa; ++j) nan |= std::isnan(table[ia][j][l]);
+    for (int j = 0; j < qb; ++j) nan |= std::isnan(table[ib][j][l]);
+    ok[l] &= !nan;
+  }
+  // SmallestFourInsert per lane: slot k takes x if x < slot k (or the slot is still empty, k >=
+  // j), after shifting up when slot k - 1 took it.
+  // Four sorted slots per lane, in GCC vectors across the lanes (V4d from SmallestFour).
+  auto insert = [&](const double* xp, int j, V4d* sv, V4l* id) {
+    V4d x;
+    __builtin_memcpy(&x, xp, sizeof(x));
+    const V4l jv = {j, j, j, j};
+    V4l m[4];
+    for (int k = 0; k < 4; ++k) m[k] = (x < sv[k]) | (k >= j ? V4l{-1, -1, -1, -1} : V4l{});
+    for (int k = 3; k >= 1; --k) {
+      sv[k] = m[k - 1] ? sv[k - 1] : (m[k] ? x : sv[k]);
+      id[k] = m[k - 1] ? id[k - 1] : (m[k] ? jv : id[k]);
+    }
+    sv[0] = m[0] ? x : sv[0];
+    id[0] = m[0] ? jv : id[0];
+  };
+  V4d sva[4] = {}, svb[4] = {};
+  V4l ida[4] = {}, idb[4] = {};
+  for (int j = 0; j < qa || j < qb; ++j) {
+    if (j < qa) insert(table[ia][j], j, sva, ida);
+    if (j < qb) insert(table[ib][j], j, svb, idb);
+  }
+  // The best two of the 16 pairs of slots per lane: Unwrap()'s comparisons as selects (a slot's
+  // value is the table entry at its index, so the score is the sum of the two slots).
+  const V4l nk_v = {nk[0], nk[1], nk[2], nk[3]};
+  const double inf = std::numeric_limits<double>::infinity();
+  V4d s0 = {inf, inf, inf, inf}, s1 = s0;
+  V4l r0 = {-1, -1, -1, -1}, r1 = r0;
+  for (int x = 0; x < 4; ++x)
+    for (int y = 0; y < 4; ++y) {
+      const V4l r = {crt_[ida[x][0] * qb + idb[y][0]], crt_[ida[x][1] * qb + idb[y][1]],
+                     crt_[ida[x][2] * qb + idb[y][2]], crt_[ida[x][3] * qb + idb[y][3]]};
+      const V4d sc = (0.0 + sva[x]) + svb[y];
+      const V4l in = r < nk_v;
+      const V4l first = in & ((sc < s0) | ((sc == s0) & (r < r0)));
+      const V4l second = in & ~first & ((sc < s1) | ((sc == s1) & (r < r1)));
+      s1 = first ? s0 : (second ? sc : s1);
+      r1 = first ? r0 : (second ? r : r1);
+      s0 = first ? sc : s0;
+      r0 = first ? r : r0;
+    }
+  const V4d bound_a = sva[3] + svb[0], bound_b = sva[0] + svb[3];
+  const V4d bound = bound_b < bound_a ? bound_b : bound_a;  // std::min(bound_a, bound_b)
+  const V4l pair_ok = (r1 >= 0) & (s1 < bound);
+  int best_k[2][kL];
+  for (int l = 0; l < kL; ++l) {
+    ok[l] &= pair_ok[l] != 0;
+    best_k[0][l] = k_first[l] + static_cast<int>(r0[l]);
+    best_k[1][l] = k_first[l] + static_cast<int>(r1[l]);
+  }
+  for (int l = 0; l < kL; ++l)
+    if (!ok[l]) best_k[0][l] = best_k[1][l] = 0;
+  // 2. Refinement, both candidates together (fringe_order's fast path; a lane where the exact
+  //    quotient would decide is left to Unwrap()).
+  double inv_prefix_w[kM][kL];
+  {
+    double sw[kL] = {};
+    for (int o = 0; o < kM; ++o)
+      for (int l = 0; l < kL; ++l) {
+        sw[l] += w_px[order_[o]][l];
+        inv_prefix_w[o][l] = 1.0 / sw[l];
+      }
+  }
+  bool exact_ok[kL];
+  for (int l = 0; l < kL; ++l) exact_ok[l] = true;
+  auto fringe_order = [&](double u_approx, int i, int l) {
+    const double x = u_approx * inv_periods_[i] - t[i][l];
+    const double n = (x + kMagic) - kMagic;
+    exact_ok[l] &= (std::abs(x) < kRoundLimit) &
+                   (std::abs(std::abs(x - n) - 0.5) > 1e-9 * (1.0 + std::abs(x)));
+    return n;
+  };
+  double u_c[2][kL], swu_c[2][kL];
+  for (int c = 0; c < 2; ++c)
+    for (int l = 0; l < kL; ++l) {
+      u_c[c][l] = pa * (t[a][l] + best_k[c][l]);
+      swu_c[c][l] = 0.0;
+    }
+  for (int o = 0; o < kM; ++o) {
+    const int i = order_[o];
+    for (int c = 0; c < 2; ++c)
+      for (int l = 0; l < kL; ++l) {
+        const double n_i = fringe_order(u_c[c][l], i, l);
+        swu_c[c][l] += w_px[i][l] * periods_[i] * (t[i][l] + n_i);
+        u_c[c][l] = swu_c[c][l] * inv_prefix_w[o][l];
+      }
+  }
+  double sw_f[kL] = {}, swu_f[2][kL] = {};
+  for (int i = 0; i < kM; ++i) {
+    for (int l = 0; l < kL; ++l) sw_f[l] += w_px[i][l];
+    for (int c = 0; c < 2; ++c)
+      for (int l = 0; l < kL; ++l) {
+        const double n_i = fringe_order(u_c[c][l], i, l);
+        swu_f[c][l] += w_px[i][l] * periods_[i] * (t[i][l] + n_i);
+      }
+  }
+  double u_f[2][kL], chi2_f[2][kL] = {};
+  for (int c = 0; c < 2; ++c)
+    for (int l = 0; l < kL; ++l) u_f[c][l] = swu_f[c][l] / sw_f[l];
+  for (int i = 0; i < kM; ++i)
+    for (int c = 0; c < 2; ++c)
+      for (int l = 0; l < kL; ++l) {
+        const double x = u_f[c][l] / periods_[i] - t[i][l];
+        exact_ok[l] &= std::abs(x) < kRoundLimit;
+        const double r_px = (x - ((x + kMagic) - kMagic)) * periods_[i];
+        chi2_f[c][l] += w_px[i][l] * r_px * r_px;
+      }
+  for (int l = 0; l < kL; ++l) {
+    done[l] = ok[l] && exact_ok[l];
+    if (!done[l]) continue;
+    double best_score_refined = std::numeric_limits<double>::infinity();
+    double best_chi2 = 0.0, best_u = 0.0;
+    for (int c = 0; c < 2; ++c) {
+      const double u = u_f[c][l], chi2 = chi2_f[c][l];
+      const double out = std::max({0.0, -0.5 - u, u - (range_px_ - 0.5)});
+      const double score = chi2 + out * out * sw_f[l];
+      if (score < best_score_refined) {
+        best_score_refined = score;
+        best_chi2 = chi2;
+        best_u = u;
+      }
+    }
+    UnwrapResult& res = result[l];
+    res = UnwrapResult();
+    res.u = best_u;
+    res.residual = std::sqrt(best_chi2 / (kM - 1));
+    res.valid =
+        std::isfinite(res.u) && res.residual <= max_residual_ && res.u >= -1.0 && res.u < range_px_;
+    if (edge_margin_px_ > 0.0 &&
+        (best_u < edge_margin_px_ - 0.5 || best_u > range_px_ - 0.5 - edge_margin_px_)) {
+      res.valid = false;
+      res.ambiguous_edge = true;
+    }
+  }
+}
+#endif
 #pragma GCC diagnostic pop
+
+void TemporalUnwrapper::UnwrapMany(const double* theta, const double* weight, int n,
+                                   UnwrapResult* result) const {
+  const int m = static_cast<int>(periods_.size());
+  int p = 0;
+#if defined(__GNUC__) && !defined(__clang__)
+  if (m == 3 && pair_.size() == 2 && cycle_[pair_[0]] >= 4 && cycle_[pair_[1]] >= 4) {
+    bool done[4];
+    for (; p + 4 <= n; p += 4) {
+      UnwrapFour(theta + p * m, weight + p * m, result + p, done);
+      for (int l = 0; l < 4; ++l)
+        if (!done[l]) result[p + l] = Unwrap(theta + (p + l) * m, weight + (p + l) * m);
+    }
+  }
+#endif
+  for (; p < n; ++p) result[p] = Unwrap(theta + p * m, weight + p * m);
+}
 
 }  // namespace mesoscan

@@ -84,6 +84,13 @@ class TemporalUnwrapper {
   // weight[i]: 1 / var(theta[i]) (rad^-2), > 0. A non-finite theta or weight <= 0 gives
   // valid == false.
   UnwrapResult Unwrap(const double* theta, const double* weight) const;
+  // Unwrap() of n pixels: theta[p * m + i], weight[p * m + i] for pixel p and period i (m =
+  // periods().size()), result[p]. The same results to the last bit as n calls; pixels are taken
+  // four at a time through the common case (three periods with residual tables whose smallest
+  // entries decide) in lanes, each lane the same operations in the same order as Unwrap(); a
+  // lane that leaves the common case (non-finite input, the full scan, a fringe order within
+  // 1e-9 cycles of a half-integer) is redone by Unwrap().
+  void UnwrapMany(const double* theta, const double* weight, int n, UnwrapResult* result) const;
 
   // The smallest code distance between two columns at least half the finest period apart:
   // min over such pairs of max over periods of the circular distance in cycles. Phase errors
@@ -119,6 +126,9 @@ class TemporalUnwrapper {
   // each pair of table entries, crt_[(r mod q_a) * q_b + r mod q_b] = r.
   std::vector<int> pair_;
   std::vector<int> crt_;
+  // UnwrapMany's four pixels; false where a lane leaves the common case.
+  void UnwrapFour(const double* theta, const double* weight, UnwrapResult* result,
+                  bool* done) const;
 };
 
 }  // namespace mesoscan

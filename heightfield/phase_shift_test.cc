@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <vector>
@@ -208,6 +211,60 @@ TEST(TemporalUnwrapper, ResidualTablesPickTheSameCandidatesAsTheFullScan) {
       valid += a.valid;
     }
     EXPECT_GT(valid, 50000);
+  }
+}
+
+// UnwrapMany (four pixels at a time in the common case) gives Unwrap()'s results to the last bit:
+// good, noisy and random phases, non-finite values, weights that are 0, negative, tiny or huge
+// (their sums overflow), phases on fringe-order boundaries; period sets with and without the
+// common case, and counts that are not a multiple of four.
+TEST(TemporalUnwrapper, UnwrapManyMatchesUnwrapBitForBit) {
+  auto bits = [](double d) {
+    uint64_t b;
+    std::memcpy(&b, &d, sizeof(b));
+    return b;
+  };
+  for (const auto& [periods, range] : {std::pair{std::vector<double>{7, 11, 13}, 800.0},
+                                       std::pair{std::vector<double>{13, 7, 11}, 800.0},
+                                       std::pair{std::vector<double>{7, 11, 13}, 1001.0},
+                                       std::pair{std::vector<double>{12.5, 8, 9}, 1000.0},
+                                       std::pair{std::vector<double>{800, 20}, 800.0}}) {
+    const TemporalUnwrapper unwrapper(periods, range);
+    const int m = static_cast<int>(periods.size());
+    std::mt19937_64 rng(17);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    std::normal_distribution<double> noise(0.0, 1.0);
+    const int n = 60003;
+    std::vector<double> theta(static_cast<size_t>(n) * m), weight(theta.size());
+    for (int p = 0; p < n; ++p) {
+      const double sigma = p % 3 == 0 ? 0.3 : p % 3 == 1 ? 0.03 : 0.001;
+      const double u = -0.5 + range * uni(rng);
+      const auto t = PhasesAt(p % 7 == 0 ? std::round(u * 2.0) / 2.0 : u, periods);
+      for (int i = 0; i < m; ++i) {
+        double& th = theta[static_cast<size_t>(p) * m + i];
+        double& w = weight[static_cast<size_t>(p) * m + i];
+        th = p % 10 == 0 ? kTwoPi * uni(rng) : p % 7 == 0 ? t[i] : t[i] + sigma * noise(rng);
+        w = (0.5 + uni(rng)) / (sigma * sigma);
+        const int kind = static_cast<int>(rng() % 400);
+        if (kind == 0) th = std::nan("");
+        if (kind == 1) th = std::numeric_limits<double>::infinity();
+        if (kind == 2) w = 0.0;
+        if (kind == 3) w = -1.0;
+        if (kind == 4) w = 1e-300;
+        if (kind == 5) w = 1e300;
+        if (kind == 6) th = -th - 40.0;
+      }
+    }
+    std::vector<UnwrapResult> many(n);
+    unwrapper.UnwrapMany(theta.data(), weight.data(), n, many.data());
+    for (int p = 0; p < n; ++p) {
+      const UnwrapResult one =
+          unwrapper.Unwrap(&theta[static_cast<size_t>(p) * m], &weight[static_cast<size_t>(p) * m]);
+      ASSERT_EQ(bits(one.u), bits(many[p].u)) << p;
+      ASSERT_EQ(bits(one.residual), bits(many[p].residual)) << p;
+      ASSERT_EQ(one.valid, many[p].valid) << p;
+      ASSERT_EQ(one.ambiguous_edge, many[p].ambiguous_edge) << p;
+    }
   }
 }
 

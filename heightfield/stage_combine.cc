@@ -55,92 +55,108 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   constexpr int kBlock = 4096;
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
   ParallelForRows(blocks, [&](int b0, int b1) {
-    std::vector<double> th(nper), wt(nper);
-    const size_t i_end = std::min(np, static_cast<size_t>(b1) * kBlock);
-    for (size_t i = static_cast<size_t>(b0) * kBlock; i < i_end; ++i) {
-      // Graceful defocus: a failed lens-shift fit falls back to phase shifting.
-      if (fallback && state[i] == PixelState::kFitFailed) state[i] = PixelState::kActive;
-      if (state[i] != PixelState::kActive) continue;
-      // Per-sample noise: from the lens-shift residual (many samples) or the phase-shift
-      // residuals (K > 3), else a floor of 1% of the white level; plus a systematic part
-      // (model errors: harmonics, defocus, jitter) proportional to the modulation.
-      double sigma = 0.01 * level[i];
-      if (use_ls && ls.samples[i] > 4) {
-        sigma = ls.residual_rms[i] *
-                std::sqrt(ls.samples[i] / (ls.samples[i] - (options.four_parameter_fit ? 4 : 3)));
-      } else {
-        double s2 = 0;
-        int cnt = 0;
+    // Per block: the unwrapper's inputs of the active pixels first, then all of them unwrapped
+    // at once (TemporalUnwrapper::UnwrapMany: four pixels at a time), then the rest per pixel.
+    std::vector<double> th, wt, sigmas;
+    std::vector<size_t> active;
+    std::vector<UnwrapResult> unwrapped;
+    for (int b = b0; b < b1; ++b) {
+      const size_t i_begin = static_cast<size_t>(b) * kBlock;
+      const size_t i_end = std::min(np, i_begin + kBlock);
+      th.clear(), wt.clear(), sigmas.clear(), active.clear();
+      for (size_t i = i_begin; i < i_end; ++i) {
+        // Graceful defocus: a failed lens-shift fit falls back to phase shifting.
+        if (fallback && state[i] == PixelState::kFitFailed) state[i] = PixelState::kActive;
+        if (state[i] != PixelState::kActive) continue;
+        // Per-sample noise: from the lens-shift residual (many samples) or the phase-shift
+        // residuals (K > 3), else a floor of 1% of the white level; plus a systematic part
+        // (model errors: harmonics, defocus, jitter) proportional to the modulation.
+        double sigma = 0.01 * level[i];
+        if (use_ls && ls.samples[i] > 4) {
+          sigma = ls.residual_rms[i] *
+                  std::sqrt(ls.samples[i] / (ls.samples[i] - (options.four_parameter_fit ? 4 : 3)));
+        } else {
+          double s2 = 0;
+          int cnt = 0;
+          for (int p = 0; p < nper; ++p) {
+            const int K = static_cast<int>(periods[p].stack_frames.size());
+            if (K > 3) {
+              s2 += ps_res[p][i] * ps_res[p][i] * K / (K - 3.0);
+              ++cnt;
+            }
+          }
+          if (cnt) sigma = std::sqrt(s2 / cnt);
+        }
+        sigma = std::max(sigma, 1e-4 * level[i]);
         for (int p = 0; p < nper; ++p) {
-          const int K = static_cast<int>(periods[p].stack_frames.size());
-          if (K > 3) {
-            s2 += ps_res[p][i] * ps_res[p][i] * K / (K - 3.0);
-            ++cnt;
+          th.push_back(theta[p][i]);
+          const double var = solvers[p].ThetaVariance(sigma, modulation[p][i]) +
+                             std::pow(options.systematic_phase_noise, 2);
+          wt.push_back(1.0 / var);
+        }
+        sigmas.push_back(sigma);
+        active.push_back(i);
+      }
+      unwrapped.resize(active.size());
+      unwrapper.UnwrapMany(th.data(), wt.data(), static_cast<int>(active.size()), unwrapped.data());
+      for (size_t a = 0; a < active.size(); ++a) {
+        const size_t i = active[a];
+        const double sigma = sigmas[a];
+        const UnwrapResult& ur = unwrapped[a];
+        out.u_coarse[i] = static_cast<float>(ur.u);
+        out.unwrap_residual[i] = static_cast<float>(ur.residual);
+        if (!ur.valid) {
+          state[i] = PixelState::kUnwrapFailed;
+          continue;
+        }
+        double u = ur.u, c = 1.0;
+        bool ls_pixel = use_ls && std::isfinite(ls.phase0[i]);
+        if (ls_pixel) {
+          out.sigma_u[i] = static_cast<float>(
+              std::sqrt(2.0 * sigma * sigma / (ls.samples[i] * ls.amplitude[i] * ls.amplitude[i])) /
+              kPi);
+          // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
+          // fine phase in cycles. u_fine = 1/2 - phase0 / pi (mod 2), see reconstruct.h.
+          const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
+          u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
+          const double comb = ur.u - u;
+          const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
+          c = 1.0 - std::sqrt(e * options.confidence_t);
+          if (fallback && !(c >= options.min_confidence && c > 0)) {
+            ls_pixel = false;  // the stripes have lost their contrast: phase shifting decides
+            u = ur.u;
+          } else if (std::abs(comb) > options.max_combination_residual_px) {
+            // Good stripes that disagree with the coarse column by a period: neither is trusted.
+            state[i] = PixelState::kCombination;
+            continue;
+          } else {
+            c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
           }
         }
-        if (cnt) sigma = std::sqrt(s2 / cnt);
-      }
-      sigma = std::max(sigma, 1e-4 * level[i]);
-      for (int p = 0; p < nper; ++p) {
-        th[p] = theta[p][i];
-        const double var = solvers[p].ThetaVariance(sigma, modulation[p][i]) +
-                           std::pow(options.systematic_phase_noise, 2);
-        wt[p] = 1.0 / var;
-      }
-      const UnwrapResult ur = unwrapper.Unwrap(th.data(), wt.data());
-      out.u_coarse[i] = static_cast<float>(ur.u);
-      out.unwrap_residual[i] = static_cast<float>(ur.residual);
-      if (!ur.valid) {
-        state[i] = PixelState::kUnwrapFailed;
-        continue;
-      }
-      double u = ur.u, c = 1.0;
-      bool ls_pixel = use_ls && std::isfinite(ls.phase0[i]);
-      if (ls_pixel) {
-        out.sigma_u[i] = static_cast<float>(
-            std::sqrt(2.0 * sigma * sigma / (ls.samples[i] * ls.amplitude[i] * ls.amplitude[i])) /
-            kPi);
-        // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
-        // fine phase in cycles. u_fine = 1/2 - phase0 / pi (mod 2), see reconstruct.h.
-        const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
-        u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
-        const double comb = ur.u - u;
-        const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
-        c = 1.0 - std::sqrt(e * options.confidence_t);
-        if (fallback && !(c >= options.min_confidence && c > 0)) {
-          ls_pixel = false;  // the stripes have lost their contrast: phase shifting decides
-          u = ur.u;
-        } else if (std::abs(comb) > options.max_combination_residual_px) {
-          // Good stripes that disagree with the coarse column by a period: neither is trusted.
-          state[i] = PixelState::kCombination;
-          continue;
-        } else {
-          c *= 1.0 - std::pow(comb / options.max_combination_residual_px, 2);
+        if (!ls_pixel) {
+          out.source[i] = 1;
+          double info = 0.0;  // Fisher information of u from the periods
+          // Fallback pixels: the model errors (systematic_phase_noise) count as in the weights.
+          const double sys2 = use_ls ? std::pow(options.systematic_phase_noise, 2) : 0.0;
+          for (int p = 0; p < nper; ++p)
+            info += std::pow(2 * kPi / periods[p].period, 2) /
+                    (solvers[p].ThetaVariance(sigma, modulation[p][i]) + sys2);
+          out.sigma_u[i] = static_cast<float>(1.0 / std::sqrt(info));
+          double e = 0.0;
+          for (int p = 0; p < nper; ++p)  // (no array: 3 frames, residual 0)
+            if (!ps_res[p].empty()) e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
+          c = 1.0 - std::sqrt(e * options.confidence_t);
+          if (use_ls) c *= options.phase_shift_fallback_confidence;
         }
+        if (nper > 1) c *= 1.0 - std::pow(ur.residual / options.max_unwrap_residual, 2);
+        c = std::clamp(c, 0.0, 1.0);
+        if (!(c >= options.min_confidence) || c <= 0) {
+          state[i] = PixelState::kLowConfidence;
+          continue;
+        }
+        out.u[i] = static_cast<float>(u);
+        out.confidence[i] = static_cast<float>(c);
       }
-      if (!ls_pixel) {
-        out.source[i] = 1;
-        double info = 0.0;  // Fisher information of u from the periods
-        // Fallback pixels: the model errors (systematic_phase_noise) count as in the weights.
-        const double sys2 = use_ls ? std::pow(options.systematic_phase_noise, 2) : 0.0;
-        for (int p = 0; p < nper; ++p)
-          info += std::pow(2 * kPi / periods[p].period, 2) /
-                  (solvers[p].ThetaVariance(sigma, modulation[p][i]) + sys2);
-        out.sigma_u[i] = static_cast<float>(1.0 / std::sqrt(info));
-        double e = 0.0;
-        for (int p = 0; p < nper; ++p)  // (no array: 3 frames, residual 0)
-          if (!ps_res[p].empty()) e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
-        c = 1.0 - std::sqrt(e * options.confidence_t);
-        if (use_ls) c *= options.phase_shift_fallback_confidence;
-      }
-      if (nper > 1) c *= 1.0 - std::pow(ur.residual / options.max_unwrap_residual, 2);
-      c = std::clamp(c, 0.0, 1.0);
-      if (!(c >= options.min_confidence) || c <= 0) {
-        state[i] = PixelState::kLowConfidence;
-        continue;
-      }
-      out.u[i] = static_cast<float>(u);
-      out.confidence[i] = static_cast<float>(c);
     }
   });
   if (use_ls && options.reference_positions_to_phase_shift &&
