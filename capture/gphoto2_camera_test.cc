@@ -3,17 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
-
-#ifdef __SANITIZE_ADDRESS__
-#include <sanitizer/lsan_interface.h>
-// libgphoto2's USB port driver leaks libusb's device list (and its dlopen'ed camlibs leak small
-// blocks) on every autodetect: not ours, so LeakSanitizer ignores what is allocated in here.
-#define MESOSCAN_IGNORE_LIBRARY_LEAKS() __lsan::ScopedDisabler lsan_disabler
-#else
-#define MESOSCAN_IGNORE_LIBRARY_LEAKS() \
-  do {                                  \
-  } while (0)
-#endif
+#include "core/library_leaks.h"  // libgphoto2's libusb device lists
 
 namespace mesoscan {
 namespace {

@@ -16,17 +16,7 @@
 
 #include "core/error.h"
 #include "core/image_io.h"
-
-#ifdef __SANITIZE_ADDRESS__
-#include <sanitizer/lsan_interface.h>
-// OpenImageIO 2.4 keeps a per-thread error string per ImageInput that outlives it (fuzz/lsan.supp
-// names it too): not ours, so LeakSanitizer ignores what its refusals allocate here.
-#define MESOSCAN_IGNORE_LIBRARY_LEAKS() __lsan::ScopedDisabler lsan_disabler
-#else
-#define MESOSCAN_IGNORE_LIBRARY_LEAKS() \
-  do {                                  \
-  } while (0)
-#endif
+#include "core/library_leaks.h"  // OpenImageIO's error strings
 
 namespace mesoscan {
 namespace {

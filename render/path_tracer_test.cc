@@ -521,6 +521,31 @@ double SeedZScore(const std::vector<double>* v, int seeds) {
   }
   return (m[1] - m[0]) / std::sqrt((var[0] + var[1]) / seeds);
 }
+// Appends the image's mean luminance to *all and the mean over the rim (pixels whose luminance
+// is in the top tenth of the first image seen: the sunlit bevel and its reflections) to *rim;
+// *rim_mask is chosen from the first image and kept for the others.
+void AddImageAndRimMeans(const ImageF& im, std::vector<char>* rim_mask, std::vector<double>* all,
+                         std::vector<double>* rim) {
+  std::vector<double> y(im.pixels());
+  for (size_t i = 0; i < im.pixels(); ++i)
+    y[i] = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
+  if (rim_mask->empty()) {
+    std::vector<double> sorted = y;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 9 / 10, sorted.end());
+    const double cut = sorted[sorted.size() * 9 / 10];
+    rim_mask->resize(im.pixels());
+    for (size_t i = 0; i < im.pixels(); ++i) (*rim_mask)[i] = y[i] >= cut;
+  }
+  double a = 0, r = 0;
+  int nr = 0;
+  for (size_t i = 0; i < im.pixels(); ++i) {
+    a += y[i] / im.pixels();
+    if ((*rim_mask)[i]) r += y[i], ++nr;
+  }
+  all->push_back(a);
+  rim->push_back(r / nr);
+}
+
 Brdf MesaCopper() {
   return Brdf(GgxBrdf<double>::Conductor(0.25, Rgb(0.27, 0.68, 1.22), Rgb(3.61, 2.63, 2.29)));
 }
@@ -559,25 +584,7 @@ TEST(PathTracer, MirrorGuideLeavesTheImageUnbiased) {
       RenderSummary summary;
       const ImageF im = RenderHeightField(hf, copper, env, o, &summary);
       EXPECT_EQ(summary.mirror_guide, g == 1);
-      if (rim_mask.empty()) {
-        std::vector<double> y(im.pixels());
-        for (size_t i = 0; i < im.pixels(); ++i)
-          y[i] = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
-        std::vector<double> sorted = y;
-        std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 9 / 10, sorted.end());
-        const double cut = sorted[sorted.size() * 9 / 10];
-        rim_mask.resize(im.pixels());
-        for (size_t i = 0; i < im.pixels(); ++i) rim_mask[i] = y[i] >= cut;
-      }
-      double a = 0, r = 0;
-      int nr = 0;
-      for (size_t i = 0; i < im.pixels(); ++i) {
-        const double y = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
-        a += y / im.pixels();
-        if (rim_mask[i]) r += y, ++nr;
-      }
-      all[g].push_back(a);
-      rim[g].push_back(r / nr);
+      AddImageAndRimMeans(im, &rim_mask, &all[g], &rim[g]);
       if (s == 0) first[g] = im;
     }
   }
@@ -616,25 +623,7 @@ TEST(PathTracer, ResampledContinuationIsUnbiased) {
     for (int s = 0; s < seeds; ++s) {
       o.seed = 31 + s;
       const ImageF im = RenderHeightField(hf, copper, env, o);
-      if (rim_mask.empty()) {
-        std::vector<double> y(im.pixels());
-        for (size_t i = 0; i < im.pixels(); ++i)
-          y[i] = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
-        std::vector<double> sorted = y;
-        std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 9 / 10, sorted.end());
-        const double cut = sorted[sorted.size() * 9 / 10];
-        rim_mask.resize(im.pixels());
-        for (size_t i = 0; i < im.pixels(); ++i) rim_mask[i] = y[i] >= cut;
-      }
-      double a = 0, r = 0;
-      int nr = 0;
-      for (size_t i = 0; i < im.pixels(); ++i) {
-        const double y = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
-        a += y / im.pixels();
-        if (rim_mask[i]) r += y, ++nr;
-      }
-      all[g].push_back(a);
-      rim[g].push_back(r / nr);
+      AddImageAndRimMeans(im, &rim_mask, &all[g], &rim[g]);
       images[g].push_back(im);
     }
   }
