@@ -372,6 +372,9 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   // Candidates may leave the domain [-0.5, R - 0.5) by the anchor's own noise (a long cue
   // period turns a small phase error into pixels). u grows with k: trim both ends.
   const double margin = 0.5 + 6.0 * std::sqrt(var_a_px);
+  // An anchor whose noise spans more than the whole range (a weight near 0) tells nothing, and
+  // its candidate orders would not fit in an int: invalid.
+  if (!(margin <= range_px_)) return result;
   auto inside = [&](int k) {
     const double u = pa * (ta + k);
     return !(u < -0.5 - margin || u >= range_px_ - 0.5 + margin);
@@ -603,6 +606,10 @@ void TemporalUnwrapper::UnwrapFour(const double* theta, const double* weight, Un
     if (!ok[l]) continue;
     const double ta = t[a][l];
     const double margin = 0.5 + 6.0 * std::sqrt(var_a_px[l]);
+    if (!(margin <= range_px_)) {  // Unwrap() returns it invalid
+      ok[l] = false;
+      continue;
+    }
     auto inside = [&](int k) {
       const double u = pa * (ta + k);
       return !(u < -0.5 - margin || u >= range_px_ - 0.5 + margin);
