@@ -27,6 +27,8 @@ enum class PixelState : uint8_t {
   kUnwrapFailed,    // combine: temporal unwrapping inconsistent (residual > max_unwrap_residual)
   kCombination,     // combine: coarse and fine disagree (a period jump, paper Eq. 2)
   kLowConfidence,   // combine: paper Eq. 4 confidence below min_confidence
+  kIsolated,        // combine (RejectIsolatedColumns): u continued by too few neighbours, an
+                    // isolated fringe order (low signal: the periods' phases are mostly noise)
   kNoIntersection,  // triangulate: the camera ray misses the projector plane
   kDiscontinuity,   // mixed pixels: a mixed pixel at a depth step or shadow edge
   kActive,          // still in the running

@@ -83,6 +83,7 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   if (options.on_frames_released) options.on_frames_released();
   timer.Stage("lens_shift");
   CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
+  RejectIsolatedColumns(grid, options.Combine(), &combined, &state);
   sum.pixels_lit = ps.pixels_lit;
   sum.pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
   SummarizeFrames(plan, gains, ls.frame_corrections, combined.ls_offset_px, &sum);

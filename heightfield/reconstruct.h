@@ -80,6 +80,9 @@ struct ReconstructOptions {
   // points.exr `source` = 1 there.
   bool phase_shift_fallback = true;
   double phase_shift_fallback_confidence = 0.5;
+  // Isolated fringe orders (CombineOptions::isolated_max_region_px): regions of consistent u of
+  // at most this many pixels are rejected (kIsolated); 0 keeps them.
+  int isolated_max_region_px = 16;
   FrameGainMethod frame_gain_method = FrameGainMethod::kJoint;
   bool correct_positions = true;  // kJoint: estimate the positions too (gains only if false)
 
@@ -166,6 +169,7 @@ struct ReconstructSummary {
   int64_t pixels_rejected_combination = 0;
   int64_t pixels_rejected_confidence = 0;
   int64_t pixels_rejected_discontinuity = 0;
+  int64_t pixels_rejected_isolated = 0;  // combine: isolated fringe orders (RejectIsolatedColumns)
   int lens_shift_frames = 0, phase_shift_frames = 0;
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated
   Json frame_corrections;  // lens-shift frames: FrameCorrections::ToJson() (null if not run)

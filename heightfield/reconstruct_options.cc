@@ -122,6 +122,7 @@ CombineOptions ReconstructOptions::Combine() const {
   o.phase_shift_fallback = phase_shift_fallback;
   o.phase_shift_fallback_confidence = phase_shift_fallback_confidence;
   o.reference_positions_to_phase_shift = correct_positions;
+  o.isolated_max_region_px = isolated_max_region_px;
   return o;
 }
 

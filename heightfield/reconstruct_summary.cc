@@ -43,6 +43,7 @@ Json ReconstructSummary::ToJson() const {
                  {"rejected_unwrap", pixels_rejected_unwrap},
                  {"rejected_combination", pixels_rejected_combination},
                  {"rejected_confidence", pixels_rejected_confidence},
+                 {"rejected_isolated", pixels_rejected_isolated},
                  {"rejected_discontinuity", pixels_rejected_discontinuity}};
   j["frames"] = {{"lens_shift", lens_shift_frames}, {"phase_shift", phase_shift_frames}};
   j["frame_gains"] = frame_gains;
@@ -61,6 +62,7 @@ void CountFinalStates(const PixelStates& state, ReconstructSummary* s) {
     s->pixels_rejected_unwrap += st == PixelState::kUnwrapFailed;
     s->pixels_rejected_combination += st == PixelState::kCombination;
     s->pixels_rejected_confidence += st == PixelState::kLowConfidence;
+    s->pixels_rejected_isolated += st == PixelState::kIsolated;
   }
 }
 

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
 
 #include "core/numbers.h"
 #include "core/parallel.h"
@@ -174,6 +176,39 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
     }
   }
   return out;
+}
+
+void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
+                           CombinedPixels* combined, PixelStates* state) {
+  if (options.isolated_max_region_px <= 0 || grid.pixels() == 0) return;
+  std::vector<float>& u = combined->u;
+  // filterSpeckles takes 16-bit signed values: u in fixed point, as many fractional bits as the
+  // projector's range allows (16ths of a pixel up to 2000 px).
+  float u_max = 0.0f;
+  for (const float v : u)
+    if (std::isfinite(v)) u_max = std::max(u_max, std::abs(v));
+  const double scale = std::min(16.0, 32000.0 / std::max(1.0f, u_max));
+  constexpr int16_t kNone = std::numeric_limits<int16_t>::min();
+  cv::Mat fixed(grid.height, grid.width, CV_16SC1);
+  for (int y = 0; y < grid.height; ++y) {
+    int16_t* row = fixed.ptr<int16_t>(y);
+    for (int x = 0; x < grid.width; ++x) {
+      const float v = u[static_cast<size_t>(y) * grid.width + x];
+      row[x] = std::isfinite(v) ? static_cast<int16_t>(std::lround(v * scale)) : kNone;
+    }
+  }
+  cv::filterSpeckles(fixed, kNone, options.isolated_max_region_px,
+                     std::max(1.0, options.isolated_max_step_px * scale));
+  for (int y = 0; y < grid.height; ++y) {
+    const int16_t* row = fixed.ptr<int16_t>(y);
+    for (int x = 0; x < grid.width; ++x) {
+      const size_t i = static_cast<size_t>(y) * grid.width + x;
+      if (row[x] != kNone || !std::isfinite(u[i])) continue;
+      (*state)[i] = PixelState::kIsolated;
+      u[i] = std::numeric_limits<float>::quiet_NaN();
+      combined->confidence[i] = 0.0f;
+    }
+  }
 }
 
 }  // namespace mesoscan

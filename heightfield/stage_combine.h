@@ -37,11 +37,23 @@ struct CombineOptions {
   // shift 0, fix it: the median of u_coarse - u over the lens-shift pixels (>= 1000) is added to
   // their u (CombinedPixels::ls_offset_px).
   bool reference_positions_to_phase_shift = true;
+  // RejectIsolatedColumns: a 4-connected region of pixels whose u differ from a neighbour's by at
+  // most isolated_max_step_px is kept only if it has more than isolated_max_region_px pixels
+  // (OpenCV's filterSpeckles). A wrong fringe order moves u by several px at random, so where
+  // noise makes the unwrapping guess, the guesses do not join their neighbours; a surface seen
+  // by the camera is a region of many pixels. 0 turns it off; step in (0, smallest period / 2).
+  int isolated_max_region_px = 16;
+  double isolated_max_step_px = 3.0;
 };
 
 // `ls` may be empty (phase shifting alone).
 CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
                              const LensShiftPixels& ls, const CombineOptions& options,
                              PixelStates* state);
+
+// Stage 5b: moves the kActive pixels of small regions of consistent u (CombineOptions::
+// isolated_max_region_px) to kIsolated, their u to NaN and their confidence to 0.
+void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
+                           CombinedPixels* combined, PixelStates* state);
 
 }  // namespace mesoscan
