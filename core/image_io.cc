@@ -4,6 +4,9 @@
 #include <OpenEXR/ImfFloatAttribute.h>
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfTestFile.h>
+#include <OpenEXR/ImfThreading.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/openexr.h>
 #include <OpenImageIO/imageio.h>
@@ -11,6 +14,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <limits>
 
 #include "core/budget.h"
 #include "core/error.h"
@@ -255,9 +259,61 @@ ImageF ReadImageGrey(const fs::path& path, ImageInfo* info) {
   return grey;
 }
 
+bool ReadExrPlanes(const fs::path& path, const std::vector<std::string>& names,
+                   const std::vector<std::string>& required, ImageF* image, ImageInfo* info) {
+  const std::string file = path.string();
+  if (!Imf::isOpenExrFile(file.c_str())) return false;
+  try {
+    Imf::InputFile in(file.c_str(), Imf::globalThreadCount());
+    const Imf::ChannelList& channels = in.header().channels();
+    for (const std::string& c : required)
+      if (channels.findChannel(c) == nullptr)
+        MESOSCAN_BAD_INPUT(file << ": missing channel '" << c << "'");
+    std::vector<std::string> present;
+    for (const std::string& c : names)
+      if (channels.findChannel(c) != nullptr) present.push_back(c);
+    const Imath::Box2i dw = in.header().dataWindow();
+    const int64_t w = static_cast<int64_t>(dw.max.x) - dw.min.x + 1,
+                  h = static_cast<int64_t>(dw.max.y) - dw.min.y + 1;
+    if (w <= 0 || h <= 0 || w > (1 << 20) || h > (1 << 20))
+      MESOSCAN_BAD_INPUT(file << ": data window " << w << "x" << h << " is not an image size");
+    CheckMemoryBudget(file + ": channels " + std::to_string(present.size()),
+                      static_cast<double>(w) * h * present.size() * sizeof(float));
+    *image = ImageF(static_cast<int>(w), static_cast<int>(h), static_cast<int>(present.size()),
+                    std::numeric_limits<float>::quiet_NaN());
+    Imf::FrameBuffer fb;
+    for (size_t k = 0; k < present.size(); ++k) {
+      // OpenEXR addresses pixel (x, y) of the data window at base + x * xs + y * ys.
+      char* base = reinterpret_cast<char*>(image->channel(static_cast<int>(k))) -
+                   (static_cast<ptrdiff_t>(dw.min.x) + static_cast<ptrdiff_t>(dw.min.y) * w) *
+                       static_cast<ptrdiff_t>(sizeof(float));
+      fb.insert(present[k], Imf::Slice(Imf::FLOAT, base, sizeof(float), sizeof(float) * w, 1, 1,
+                                       std::numeric_limits<float>::quiet_NaN()));
+    }
+    in.setFrameBuffer(fb);
+    in.readPixels(dw.min.y, dw.max.y);
+    *info = ImageInfo();
+    info->width = static_cast<int>(w);
+    info->height = static_cast<int>(h);
+    info->channels = static_cast<int>(present.size());
+    info->bits_per_sample = 32;
+    info->is_float = true;
+    info->channel_names = std::move(present);
+  } catch (const Error&) {
+    throw;
+  } catch (const std::exception& e) {
+    MESOSCAN_BAD_INPUT(file << ": cannot read the OpenEXR file: " << e.what());
+  }
+  return true;
+}
+
 ImageF ReadExrChannels(const fs::path& path, const std::vector<std::string>& names,
                        std::map<std::string, double>* float_attributes) {
   ImageInfo info;
+  if (float_attributes == nullptr) {
+    ImageF planes;
+    if (ReadExrPlanes(path, names, names, &planes, &info)) return planes;
+  }
   ImageF all = ReadImage(path, &info);
   ImageF out(all.width(), all.height(), static_cast<int>(names.size()));
   for (size_t k = 0; k < names.size(); ++k) {

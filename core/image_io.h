@@ -29,9 +29,18 @@ ImageF ReadImage(const std::filesystem::path& path, ImageInfo* info = nullptr);
 // Reads one image as a single grey channel: multi-channel images are averaged (RGB -> mean).
 ImageF ReadImageGrey(const std::filesystem::path& path, ImageInfo* info = nullptr);
 
-// Reads an EXR's named channels (throws naming the file and the missing channel).
+// Reads an EXR's named channels (throws naming the file and the missing channel). Without
+// float_attributes an OpenEXR file is read through ReadExrPlanes (no interleaved copy).
 ImageF ReadExrChannels(const std::filesystem::path& path, const std::vector<std::string>& names,
                        std::map<std::string, double>* float_attributes = nullptr);
+
+// Reads the channels of `names` that an OpenEXR file has, in that order, straight into planes
+// through OpenEXR (no interleaved copy, the other channels not decoded); every channel of
+// `required` must be in the file (throws Error(kBadInput) naming the file and the channel).
+// info gets the size and the names read. Returns false, reading nothing, if the file is not
+// OpenEXR (the caller then reads it another way).
+bool ReadExrPlanes(const std::filesystem::path& path, const std::vector<std::string>& names,
+                   const std::vector<std::string>& required, ImageF* image, ImageInfo* info);
 
 // float32 EXR with named channels (one per image channel) and float header attributes.
 // compression: an OpenEXR compression name as OIIO takes it, default "zip" (lossless); "none"
