@@ -9,6 +9,7 @@
 #include "brdf/brdf.h"
 #include "brdf/brdf_test_util.h"
 #include "core/error.h"
+#include "core/test_temp_dir.h"
 
 namespace mesoscan {
 namespace {
@@ -19,13 +20,7 @@ using testing::RandomUpperDirection;
 
 const Rgb kCopperEta(0.200, 0.924, 1.102), kCopperK(3.912, 2.452, 2.142);
 
-fs::path TempDir(const std::string& name) {
-  fs::path p =
-      fs::temp_directory_path() / ("mesoscan_brdf_test_" + std::to_string(getpid()) + "_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path TempDir(const std::string& name) { return TestTempDir("brdf_test", name); }
 
 class MerlTest : public ::testing::Test {
  protected:

@@ -8,6 +8,7 @@
 #include "brdf/brdf.h"
 #include "brdf/brdf_test_util.h"
 #include "core/error.h"
+#include "core/test_temp_dir.h"
 
 namespace mesoscan {
 namespace {
@@ -31,13 +32,7 @@ std::vector<fs::path> RglFiles() {
   if (RglFiles().empty())   \
   GTEST_SKIP() << "no .bsdf files in " << kDataDir << " (the shared data folder is absent)"
 
-fs::path TempDir(const std::string& name) {
-  fs::path p =
-      fs::temp_directory_path() / ("mesoscan_brdf_test_" + std::to_string(getpid()) + "_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path TempDir(const std::string& name) { return TestTempDir("brdf_test", name); }
 
 // Directional albedo per channel from n x n stratified importance samples.
 Rgb Albedo(const RglBrdf& b, const Vec3& wo, int n) {

@@ -10,17 +10,13 @@
 #include "core/fs.h"
 #include "core/png_gray16.h"
 #include "core/scan_folder.h"
+#include "core/test_temp_dir.h"
 
 namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_core_test_" + std::to_string(getpid()) + "_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path TempDir(const std::string& name) { return TestTempDir("core_test", name); }
 
 TEST(ImageIo, Png16RoundTripIsExact) {
   const fs::path dir = TempDir("png16");

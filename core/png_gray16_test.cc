@@ -17,18 +17,13 @@
 #include "core/error.h"
 #include "core/image_io.h"
 #include "core/library_leaks.h"  // OpenImageIO's error strings
+#include "core/test_temp_dir.h"
 
 namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() /
-               ("mesoscan_png_gray16_test_" + std::to_string(getpid()) + "_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path TempDir(const std::string& name) { return TestTempDir("png_gray16_test", name); }
 
 void PutBe32(std::vector<uint8_t>& v, uint32_t x) {
   for (int s = 24; s >= 0; s -= 8) v.push_back(static_cast<uint8_t>(x >> s));

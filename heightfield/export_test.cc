@@ -13,17 +13,13 @@
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
+#include "core/test_temp_dir.h"
 
 namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("mesoscan_export_test_" + std::to_string(getpid()) + "_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path TempDir(const std::string& name) { return TestTempDir("export_test", name); }
 
 // A 96 x 64 scan, 50 um pixels: a 200 um Gaussian bump on a slight ramp, a disk-shaped hole
 // (a shadow) and a confidence falling off towards the edges.

@@ -20,6 +20,7 @@
 #include "core/numbers.h"
 #include "core/scan_folder.h"
 #include "core/progress.h"
+#include "core/test_temp_dir.h"
 #include "heightfield/frames.h"
 #include "heightfield/ground_truth.h"
 #include "heightfield/resample.h"
@@ -175,9 +176,7 @@ Session WriteSynthetic(const fs::path& dir, const SyntheticOptions& o) {
   return ReadSession(dir);
 }
 
-fs::path TestDir(const std::string& name) {
-  return fs::temp_directory_path() / ("mesoscan_reconstruct_test_" + std::to_string(getpid()) + "_" + name);
-}
+fs::path TestDir(const std::string& name) { return TestTempPath("reconstruct_test", name); }
 
 class ReconstructTest : public ::testing::Test {
  protected:

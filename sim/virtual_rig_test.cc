@@ -11,15 +11,13 @@
 #include "core/log.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
+#include "core/test_temp_dir.h"
 
 namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path TempDir(const std::string& name) {
-  return fs::temp_directory_path() /
-         ("mesoscan_sim_test_" + std::to_string(getpid()) + "_" + name);
-}
+fs::path TempDir(const std::string& name) { return TestTempPath("sim_test", name); }
 
 // Small, fast options: a crop of the paper rig, 2 x 2 supersampling, no noise.
 SimulateOptions Small(const std::string& object, PixelRect crop) {

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "core/image_io.h"
+#include "core/test_temp_dir.h"
 
 namespace {
 namespace fs = std::filesystem;
@@ -38,13 +39,7 @@ CliRun Mesoscan(const std::string& args) {
   return r;
 }
 
-fs::path TempDir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() /
-               ("mesoscan_brdf_cli_test_" + std::to_string(getpid()) + "_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path TempDir(const std::string& name) { return mesoscan::TestTempDir("brdf_cli_test", name); }
 
 TEST(BrdfCli, InfoAndPlotForEverySharedFile) {
   if (!fs::is_directory(kDataDir)) GTEST_SKIP() << kDataDir << " is absent";

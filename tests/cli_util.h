@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <string>
 
+#include "core/test_temp_dir.h"
+
 namespace mesoscan {
 
 struct CliResult {
@@ -30,10 +32,9 @@ inline CliResult RunMesoscan(const std::string& args) {
   return r;
 }
 
-// A per-process path in the temp folder: <tmp>/mesoscan_<suite>_<pid>_<name>.
+// A per-process path in the temp folder, <tmp>/mesoscan_<suite>_<pid>_<name>, removed at exit.
 inline std::filesystem::path CliTempDir(const std::string& suite, const std::string& name) {
-  return std::filesystem::temp_directory_path() /
-         ("mesoscan_" + suite + "_" + std::to_string(getpid()) + "_" + name);
+  return TestTempPath(suite, name);
 }
 
 }  // namespace mesoscan

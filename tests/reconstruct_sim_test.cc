@@ -17,6 +17,7 @@
 #include "core/image_io.h"
 #include "core/numbers.h"
 #include "core/progress.h"
+#include "core/test_temp_dir.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/ground_truth.h"
 #include "heightfield/reconstruct.h"
@@ -26,9 +27,7 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path TempDir(const std::string& name) {
-  return fs::temp_directory_path() / ("mesoscan_reconsim_" + std::to_string(getpid()) + "_" + name);
-}
+fs::path TempDir(const std::string& name) { return TestTempPath("reconsim", name); }
 
 // A crop of the paper rig's camera on the tilted bar 3 mm from its low end (z ~ 0.37 mm, near
 // the projector's focus; further up the bar defocus leaves the 1-px stripes little contrast).

@@ -15,6 +15,7 @@
 #include "capture/session.h"
 #include "core/image_io.h"
 #include "core/progress.h"
+#include "core/test_temp_dir.h"
 #include "heightfield/export.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/ground_truth.h"
@@ -26,9 +27,7 @@ namespace mesoscan {
 namespace {
 namespace fs = std::filesystem;
 
-fs::path TempDir(const std::string& name) {
-  return fs::temp_directory_path() / ("mesoscan_robust_" + std::to_string(getpid()) + "_" + name);
-}
+fs::path TempDir(const std::string& name) { return TestTempPath("robust", name); }
 
 // Simulates `so` into `dir` and reads the session back.
 Session SimulateAndRead(const SimulateOptions& so, const fs::path& dir) {
