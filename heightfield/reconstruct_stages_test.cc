@@ -349,6 +349,23 @@ CombineInput MakeCombineInput(const std::vector<double>& u_coarse,
   return in;
 }
 
+TEST(StageCombine, RoundHalfAwayIsLround) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> big(-40000.0, 40000.0), small(-3.0, 3.0);
+  for (int k = 0; k < 200000; ++k) {
+    const double v = k % 2 ? big(rng) : small(rng);
+    ASSERT_EQ(RoundHalfAway(v), std::lround(v)) << v;
+  }
+  for (double v : {0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 0.49999999999999994, -0.49999999999999994,
+                   0.0, -0.0, 31999.5, -31999.5, 4503599627370495.5 / 4096.0})
+    EXPECT_EQ(RoundHalfAway(v), std::lround(v)) << v;
+  for (double v = -3.0; v <= 3.0; v = std::nextafter(v, 4.0) + 1e-3)
+    ASSERT_EQ(RoundHalfAway(v), std::lround(v)) << v;
+  EXPECT_EQ(RoundHalfAway(std::nextafter(0.5, 0.0)), 0);
+  EXPECT_EQ(RoundHalfAway(std::nextafter(-0.5, 0.0)), 0);
+  EXPECT_EQ(RoundHalfAway(std::nextafter(2.5, 3.0)), 3);
+}
+
 TEST(StageCombine, UnwrapsAndRejectsInconsistentPhases) {
   CombineInput in = MakeCombineInput({123.4, 640.9, 300.0}, {});
   // Pixel 2: period 7 half a fringe off.

@@ -14,9 +14,23 @@ namespace mesoscan {
 namespace {
 
 double Wrap2Pi(double a) {
+  // fmod is exact: within one period either way it returns a itself (the libm call is skipped).
+  if (std::abs(a) < 2 * kPi) return a < 0 ? a + 2 * kPi : a;
   a = std::fmod(a, 2 * kPi);
   return a < 0 ? a + 2 * kPi : a;
 }
+
+}  // namespace
+
+// std::lround for |v| < 2^31 without the libm call (3 M calls per full-resolution scan): v - its
+// truncation is exact there, so the half-way test is too.
+long RoundHalfAway(double v) {
+  const long t = static_cast<long>(v);  // rounds towards zero
+  const double frac = v - static_cast<double>(t);
+  return frac >= 0.5 ? t + 1 : frac <= -0.5 ? t - 1 : t;
+}
+
+namespace {
 
 // Did the lens-shift stage estimate (and apply) per-frame shifter positions?
 bool PositionsEstimated(const Json& fc) {
@@ -184,31 +198,44 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
   std::vector<float>& u = combined->u;
   // filterSpeckles takes 16-bit signed values: u in fixed point, as many fractional bits as the
   // projector's range allows (16ths of a pixel up to 2000 px).
-  float u_max = 0.0f;
-  for (const float v : u)
-    if (std::isfinite(v)) u_max = std::max(u_max, std::abs(v));
+  // The conversions in and out run on the pool; filterSpeckles itself is serial.
+  std::vector<float> row_max(grid.height, 0.0f);
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      float m = 0.0f;
+      const float* row = u.data() + static_cast<size_t>(y) * grid.width;
+      for (int x = 0; x < grid.width; ++x)
+        if (std::isfinite(row[x])) m = std::max(m, std::abs(row[x]));
+      row_max[y] = m;
+    }
+  });
+  const float u_max = row_max.empty() ? 0.0f : *std::max_element(row_max.begin(), row_max.end());
   const double scale = std::min(16.0, 32000.0 / std::max(1.0f, u_max));
   constexpr int16_t kNone = std::numeric_limits<int16_t>::min();
   cv::Mat fixed(grid.height, grid.width, CV_16SC1);
-  for (int y = 0; y < grid.height; ++y) {
-    int16_t* row = fixed.ptr<int16_t>(y);
-    for (int x = 0; x < grid.width; ++x) {
-      const float v = u[static_cast<size_t>(y) * grid.width + x];
-      row[x] = std::isfinite(v) ? static_cast<int16_t>(std::lround(v * scale)) : kNone;
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      int16_t* row = fixed.ptr<int16_t>(y);
+      for (int x = 0; x < grid.width; ++x) {
+        const float v = u[static_cast<size_t>(y) * grid.width + x];
+        row[x] = std::isfinite(v) ? static_cast<int16_t>(RoundHalfAway(v * scale)) : kNone;
+      }
     }
-  }
+  });
   cv::filterSpeckles(fixed, kNone, options.isolated_max_region_px,
                      std::max(1.0, options.isolated_max_step_px * scale));
-  for (int y = 0; y < grid.height; ++y) {
-    const int16_t* row = fixed.ptr<int16_t>(y);
-    for (int x = 0; x < grid.width; ++x) {
-      const size_t i = static_cast<size_t>(y) * grid.width + x;
-      if (row[x] != kNone || !std::isfinite(u[i])) continue;
-      (*state)[i] = PixelState::kIsolated;
-      u[i] = std::numeric_limits<float>::quiet_NaN();
-      combined->confidence[i] = 0.0f;
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const int16_t* row = fixed.ptr<int16_t>(y);
+      for (int x = 0; x < grid.width; ++x) {
+        const size_t i = static_cast<size_t>(y) * grid.width + x;
+        if (row[x] != kNone || !std::isfinite(u[i])) continue;
+        (*state)[i] = PixelState::kIsolated;
+        u[i] = std::numeric_limits<float>::quiet_NaN();
+        combined->confidence[i] = 0.0f;
+      }
     }
-  }
+  });
 }
 
 }  // namespace mesoscan

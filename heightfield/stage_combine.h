@@ -56,4 +56,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
 void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
                            CombinedPixels* combined, PixelStates* state);
 
+// std::lround(v) for |v| < 2^31 (half-way cases away from zero) without the libm call.
+long RoundHalfAway(double v);
+
 }  // namespace mesoscan
