@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 
 #include "core/error.h"
@@ -364,6 +366,25 @@ TEST(StageCombine, RoundHalfAwayIsLround) {
   EXPECT_EQ(RoundHalfAway(std::nextafter(0.5, 0.0)), 0);
   EXPECT_EQ(RoundHalfAway(std::nextafter(-0.5, 0.0)), 0);
   EXPECT_EQ(RoundHalfAway(std::nextafter(2.5, 3.0)), 3);
+}
+
+TEST(StageCombine, RoundHalfAwayDIsStdRoundBitForBit) {
+  auto same = [](double v) {
+    const double a = RoundHalfAwayD(v), b = std::round(v);
+    return std::memcmp(&a, &b, sizeof a) == 0 || (std::isnan(a) && std::isnan(b));
+  };
+  std::mt19937_64 rng(6);
+  std::uniform_real_distribution<double> big(-1e6, 1e6), small(-3.0, 3.0);
+  for (int k = 0; k < 200000; ++k) {
+    const double v = k % 2 ? big(rng) : small(rng);
+    ASSERT_TRUE(same(v)) << v;
+  }
+  for (double v : {0.0, -0.0, 0.3, -0.3, 0.5, -0.5, 0.49999999999999994, -0.49999999999999994,
+                   1.5, -1.5, 4503599627370495.5, -4503599627370495.5, 4503599627370496.0, 1e300,
+                   -1e300, std::numeric_limits<double>::infinity(),
+                   -std::numeric_limits<double>::infinity(),
+                   std::numeric_limits<double>::quiet_NaN(), 5e-324, -5e-324})
+    EXPECT_TRUE(same(v)) << v;
 }
 
 TEST(StageCombine, UnwrapsAndRejectsInconsistentPhases) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
@@ -28,6 +29,14 @@ long RoundHalfAway(double v) {
   const long t = static_cast<long>(v);  // rounds towards zero
   const double frac = v - static_cast<double>(t);
   return frac >= 0.5 ? t + 1 : frac <= -0.5 ? t - 1 : t;
+}
+
+double RoundHalfAwayD(double v) {
+  if (!(std::abs(v) < 4503599627370496.0)) return std::round(v);  // 2^52: already an integer
+  const double t = static_cast<double>(static_cast<int64_t>(v));  // truncated, exact
+  const double frac = v - t;                                        // exact
+  const double r = frac >= 0.5 ? t + 1 : frac <= -0.5 ? t - 1 : t;
+  return r == 0 ? std::copysign(0.0, v) : r;  // std::round keeps the sign of a zero
 }
 
 namespace {
@@ -134,7 +143,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
           // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
           // fine phase in cycles. u_fine = 1/2 - phase0 / pi (mod 2), see reconstruct.h.
           const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
-          u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
+          u = 2.0 * (RoundHalfAwayD(ur.u / 2.0 - phi) + phi);
           const double comb = ur.u - u;
           const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
           c = 1.0 - std::sqrt(e * options.confidence_t);
