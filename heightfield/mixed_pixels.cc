@@ -26,99 +26,135 @@ void MixedPixelOptions::Check() const {
 
 namespace {
 
+// What every pixel's tests share: the input, the options, the squared sigmas and the derived
+// thresholds.
+struct MixedPixelJudge {
+  const MixedPixelInput& in;
+  const MixedPixelOptions& options;
+  const double* s2;  // sigma_z squared per pixel; unknown sigma counts as 0 (see SquaredSigmas)
+  bool shadow_test, dim_test;
+  double outlier_floor;
+
+  // The four tests of pixel (x, y) (index i, finite z). kInterior: (x, y) is at least 2 pixels
+  // from every edge, so no neighbour needs a bounds check (same arithmetic, same verdict).
+  template <bool kInterior>
+  bool Mixed(int x, int y, size_t i) const {
+    const int w = in.width, h = in.height;
+    auto inside = [&](int xx, int yy) {
+      return kInterior || (xx >= 0 && yy >= 0 && xx < w && yy < h);
+    };
+    const double z = in.z[i];
+    const double s2p = s2[i];
+    bool mixed = false;
+    for (int axis = 0; axis < 2 && !mixed; ++axis) {
+      const int dx = axis == 0, dy = axis == 1;
+      const ptrdiff_t step = axis == 0 ? 1 : static_cast<ptrdiff_t>(w);
+      int sides = 0, outlier_sides = 0, above = 0, below = 0;
+      double worst_sigmas = 0;  // largest |deviation| / sd over the two sides
+      // Each side's extrapolation at the point and its own change over one pixel.
+      double line[2] = {0, 0}, slope[2] = {0, 0}, deviation[2] = {0, 0};
+      bool has[2] = {false, false};
+      for (int sgn : {-1, 1}) {
+        const size_t i1 = i + sgn * step, i2 = i + 2 * sgn * step;
+        const float z1 = inside(x + sgn * dx, y + sgn * dy) ? in.z[i1] : NAN;
+        const float z2 = inside(x + 2 * sgn * dx, y + 2 * sgn * dy) ? in.z[i2] : NAN;
+        if (!std::isfinite(z1) || !std::isfinite(z2)) continue;
+        ++sides;
+        const double d = z - (2.0 * z1 - z2);
+        const double sd = std::sqrt(s2p + 4.0 * s2[i1] + s2[i2]);
+        if (sd > 0 && std::abs(d) > options.max_sigmas * sd) (d > 0 ? above : below) += 1;
+        if (sd > 0) worst_sigmas = std::max(worst_sigmas, std::abs(d) / sd);
+        const int k = sgn > 0;
+        has[k] = true;
+        line[k] = 2.0 * z1 - z2;
+        slope[k] = std::abs(static_cast<double>(z1) - z2);
+        deviation[k] = d;
+        if (options.outlier_footprints > 0 &&
+            std::abs(d) > std::max(outlier_floor, 8.0 * std::sqrt(s2p)))
+          ++outlier_sides;
+      }
+      // Step: strictly between the two sides' extrapolations, far from both.
+      if (above == 1 && below == 1) mixed = true;
+      if (sides > 0 && outlier_sides == sides) mixed = true;
+      // A sharp jump: the two sides' lines are further apart at the point than the sides
+      // change over a pixel, by the factor dim_sharpness (a smooth flank, even a curved one,
+      // changes gradually); with one side, the point is further off its line than that
+      // side's own change per pixel, by the same factor.
+      const bool sharp =
+          has[0] && has[1]
+              ? std::abs(line[1] - line[0]) > options.dim_sharpness * (slope[0] + slope[1])
+              : (has[0] && std::abs(deviation[0]) > options.dim_sharpness * slope[0]) ||
+                    (has[1] && std::abs(deviation[1]) > options.dim_sharpness * slope[1]);
+      // Dimmed step: darker than the brighter neighbour on this axis, off a side's line, at a
+      // sharp jump.
+      if (dim_test && !mixed && worst_sigmas > options.dim_sigmas && sharp) {
+        const float wp = in.white[i];
+        float brighter = 0;
+        for (int sgn : {-1, 1}) {
+          const size_t n = i + sgn * step;
+          if (inside(x + sgn * dx, y + sgn * dy) && std::isfinite(in.white[n]))
+            brighter = std::max(brighter, in.white[n]);
+        }
+        if (std::isfinite(wp) && wp < options.dim_ratio * brighter) mixed = true;
+      }
+      if (shadow_test && !mixed) {
+        for (int sgn : {-1, 1}) {
+          const size_t iu = i + sgn * step;  // the unlit side
+          const size_t io = i - sgn * step;  // the opposite side
+          if (!inside(x + sgn * dx, y + sgn * dy) || !inside(x - sgn * dx, y - sgn * dy) ||
+              !in.unlit[iu])
+            continue;
+          const float wp = in.white[i], wo = in.white[io];
+          if (std::isfinite(wp) && std::isfinite(wo) && wp < options.shadow_edge_ratio * wo)
+            mixed = true;
+        }
+      }
+    }
+    return mixed;
+  }
+};
+
+// sigma_z squared per pixel, as the tests use it: unknown (NaN) or <= 0 counts as 0, so the step
+// test then needs the other terms to be known.
+std::vector<double> SquaredSigmas(const MixedPixelInput& in) {
+  std::vector<double> s2(static_cast<size_t>(in.width) * in.height);
+  ParallelForRows(in.height, [&](int y0, int y1) {
+    for (size_t i = static_cast<size_t>(y0) * in.width; i < static_cast<size_t>(y1) * in.width;
+         ++i) {
+      const float s = in.sigma_z[i];
+      s2[i] = std::isfinite(s) && s > 0 ? static_cast<double>(s) * s : 0.0;
+    }
+  });
+  return s2;
+}
+
 // One pass of the four tests over the points of `in`; only the pixels with todo[i] != 0 if
-// `todo` is given (the others are left 0).
+// `todo` is given (the others are left 0). s2: SquaredSigmas(in).
 std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
                                          const MixedPixelOptions& options,
+                                         const std::vector<double>& s2,
                                          const std::vector<uint8_t>* todo = nullptr) {
   const int w = in.width, h = in.height;
   std::vector<uint8_t> reject(static_cast<size_t>(w) * h, 0);
   if (w <= 0 || h <= 0) return reject;
   MESOSCAN_CHECK(in.z != nullptr && in.sigma_z != nullptr);
-  const bool shadow_test = options.shadow_edge_ratio > 0 && in.white && in.unlit;
-  const bool dim_test = options.dim_ratio > 0 && in.white;
-  auto inside = [&](int x, int y) { return x >= 0 && y >= 0 && x < w && y < h; };
-  auto index = [&](int x, int y) { return static_cast<size_t>(y) * w + x; };
-  auto z_at = [&](int x, int y) { return inside(x, y) ? in.z[index(x, y)] : NAN; };
-  // Unknown sigma counts as 0: the step test then needs the other terms to be known.
-  auto s2_at = [&](int x, int y) {
-    const float s = in.sigma_z[index(x, y)];
-    return std::isfinite(s) && s > 0 ? static_cast<double>(s) * s : 0.0;
-  };
-  const double outlier_floor = options.outlier_footprints * in.footprint_m;
-
+  const MixedPixelJudge judge{in,
+                              options,
+                              s2.data(),
+                              options.shadow_edge_ratio > 0 && in.white && in.unlit,
+                              options.dim_ratio > 0 && in.white,
+                              options.outlier_footprints * in.footprint_m};
   ParallelForRows(h, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y)
+    for (int y = y0; y < y1; ++y) {
+      const bool interior_row = y >= 2 && y + 2 < h;
       for (int x = 0; x < w; ++x) {
-        const size_t i = index(x, y);
+        const size_t i = static_cast<size_t>(y) * w + x;
         if (todo && !(*todo)[i]) continue;
-        const double z = in.z[i];
-        if (!std::isfinite(z)) continue;
-        const double s2p = s2_at(x, y);
-        bool mixed = false;
-        for (int axis = 0; axis < 2 && !mixed; ++axis) {
-          const int dx = axis == 0, dy = axis == 1;
-          int sides = 0, outlier_sides = 0, above = 0, below = 0;
-          double worst_sigmas = 0;  // largest |deviation| / sd over the two sides
-          // Each side's extrapolation at the point and its own change over one pixel.
-          double line[2] = {0, 0}, slope[2] = {0, 0}, deviation[2] = {0, 0};
-          bool has[2] = {false, false};
-          for (int sgn : {-1, 1}) {
-            const int x1 = x + sgn * dx, y1n = y + sgn * dy;
-            const int x2 = x + 2 * sgn * dx, y2n = y + 2 * sgn * dy;
-            const float z1 = z_at(x1, y1n), z2 = z_at(x2, y2n);
-            if (!std::isfinite(z1) || !std::isfinite(z2)) continue;
-            ++sides;
-            const double d = z - (2.0 * z1 - z2);
-            const double sd = std::sqrt(s2p + 4.0 * s2_at(x1, y1n) + s2_at(x2, y2n));
-            if (sd > 0 && std::abs(d) > options.max_sigmas * sd) (d > 0 ? above : below) += 1;
-            if (sd > 0) worst_sigmas = std::max(worst_sigmas, std::abs(d) / sd);
-            const int k = sgn > 0;
-            has[k] = true;
-            line[k] = 2.0 * z1 - z2;
-            slope[k] = std::abs(static_cast<double>(z1) - z2);
-            deviation[k] = d;
-            if (options.outlier_footprints > 0 &&
-                std::abs(d) > std::max(outlier_floor, 8.0 * std::sqrt(s2p)))
-              ++outlier_sides;
-          }
-          // Step: strictly between the two sides' extrapolations, far from both.
-          if (above == 1 && below == 1) mixed = true;
-          if (sides > 0 && outlier_sides == sides) mixed = true;
-          // A sharp jump: the two sides' lines are further apart at the point than the sides
-          // change over a pixel, by the factor dim_sharpness (a smooth flank, even a curved one,
-          // changes gradually); with one side, the point is further off its line than that
-          // side's own change per pixel, by the same factor.
-          const bool sharp =
-              has[0] && has[1]
-                  ? std::abs(line[1] - line[0]) > options.dim_sharpness * (slope[0] + slope[1])
-                  : (has[0] && std::abs(deviation[0]) > options.dim_sharpness * slope[0]) ||
-                        (has[1] && std::abs(deviation[1]) > options.dim_sharpness * slope[1]);
-          // Dimmed step: darker than the brighter neighbour on this axis, off a side's line, at a
-          // sharp jump.
-          if (dim_test && !mixed && worst_sigmas > options.dim_sigmas && sharp) {
-            const float wp = in.white[i];
-            float brighter = 0;
-            for (int sgn : {-1, 1}) {
-              const int xn = x + sgn * dx, yn = y + sgn * dy;
-              if (inside(xn, yn) && std::isfinite(in.white[index(xn, yn)]))
-                brighter = std::max(brighter, in.white[index(xn, yn)]);
-            }
-            if (std::isfinite(wp) && wp < options.dim_ratio * brighter) mixed = true;
-          }
-          if (shadow_test && !mixed) {
-            for (int sgn : {-1, 1}) {
-              const int xu = x + sgn * dx, yu = y + sgn * dy;  // the unlit side
-              const int xo = x - sgn * dx, yo = y - sgn * dy;  // the opposite side
-              if (!inside(xu, yu) || !inside(xo, yo) || !in.unlit[index(xu, yu)]) continue;
-              const float wp = in.white[i], wo = in.white[index(xo, yo)];
-              if (std::isfinite(wp) && std::isfinite(wo) && wp < options.shadow_edge_ratio * wo)
-                mixed = true;
-            }
-          }
-        }
-        reject[i] = mixed;
+        if (!std::isfinite(in.z[i])) continue;
+        reject[i] = interior_row && x >= 2 && x + 2 < w ? judge.Mixed<true>(x, y, i)
+                                                        : judge.Mixed<false>(x, y, i);
       }
+    }
   });
   return reject;
 }
@@ -127,7 +163,10 @@ std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
 
 std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixelOptions& options) {
   options.Check();
-  std::vector<uint8_t> reject = FindMixedPixelsOnce(in, options);
+  if (in.width <= 0 || in.height <= 0) return {};
+  MESOSCAN_CHECK(in.z != nullptr && in.sigma_z != nullptr);
+  const std::vector<double> s2 = SquaredSigmas(in);
+  std::vector<uint8_t> reject = FindMixedPixelsOnce(in, options, s2);
   if (options.passes < 2 || in.width <= 0 || in.height <= 0) return reject;
   // Later passes judge the points again without the ones rejected so far: a mixed neighbour
   // bends a side's extrapolation, its hole leaves the clean side to judge by.
@@ -159,7 +198,7 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
         for (int d = -2; d <= 2; ++d)
           if (y + d >= 0 && y + d < h) todo[i + static_cast<ptrdiff_t>(d) * w] = 1;
       }
-    const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options, &todo);
+    const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options, s2, &todo);
     bool changed = false;
     for (size_t i = 0; i < z.size(); ++i) {
       fresh[i] = more[i] && !reject[i];

@@ -198,6 +198,50 @@ TEST(MixedPixels, DarkSpotsOnASmoothSurfaceAreMostlyKept) {
   EXPECT_LE(others, 3);
 }
 
+// The tests at least 2 pixels from every edge skip the bounds checks (MixedPixelJudge::
+// Mixed<true>); beyond the edge the border path reads "no point", "no white level", "not unlit".
+// So a field padded by 2 pixels of exactly that must get the same verdicts, with the old edge
+// pixels now judged by the interior path: a random field of steps, spikes, holes, dim and unlit
+// pixels, every test on, two passes.
+TEST(MixedPixels, InteriorAndBorderPathsAgree) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  Grid g(23, 17);
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      const size_t i = static_cast<size_t>(y) * g.w + x;
+      const float r = unit(rng);
+      g.z[i] = r < 0.1f ? std::nanf("") : (x > 11 ? 40e-6f : 0.0f) + (r < 0.25f ? 15e-6f : 0.0f);
+      g.sigma[i] = unit(rng) < 0.05f ? std::nanf("") : static_cast<float>(kSigma);
+      g.white[i] = unit(rng) < 0.2f ? 0.1f : 0.5f;
+      g.unlit[i] = std::isnan(g.z[i]) && unit(rng) < 0.5f;
+    }
+  Grid padded(g.w + 4, g.h + 4);
+  std::fill(padded.z.begin(), padded.z.end(), std::nanf(""));
+  std::fill(padded.white.begin(), padded.white.end(), std::nanf(""));
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      const size_t i = static_cast<size_t>(y) * g.w + x;
+      const size_t j = static_cast<size_t>(y + 2) * padded.w + x + 2;
+      padded.z[j] = g.z[i];
+      padded.sigma[j] = g.sigma[i];
+      padded.white[j] = g.white[i];
+      padded.unlit[j] = g.unlit[i];
+    }
+  MixedPixelOptions o;
+  o.passes = 2;
+  const auto r = g.Find(o), rp = padded.Find(o);
+  int rejected = 0;
+  for (int y = 0; y < g.h; ++y)
+    for (int x = 0; x < g.w; ++x) {
+      const uint8_t v = r[static_cast<size_t>(y) * g.w + x];
+      rejected += v;
+      EXPECT_EQ(v, rp[static_cast<size_t>(y + 2) * padded.w + x + 2]) << x << "," << y;
+    }
+  EXPECT_GT(rejected, 10);  // the field exercises the tests
+  EXPECT_EQ(padded.Count(rp), rejected);
+}
+
 TEST(MixedPixels, OptionsAreChecked) {
   MixedPixelOptions o;
   o.max_sigmas = 0;

@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 
 #include "core/error.h"
@@ -21,6 +23,7 @@
 #include "heightfield/stage_phase_shift.h"
 #include "heightfield/stage_plan.h"
 #include "heightfield/stage_triangulate.h"
+#include "heightfield/triangulate.h"
 
 namespace mesoscan {
 namespace {
@@ -348,6 +351,42 @@ CombineInput MakeCombineInput(const std::vector<double>& u_coarse,
   return in;
 }
 
+TEST(StageCombine, RoundHalfAwayIsLround) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> big(-40000.0, 40000.0), small(-3.0, 3.0);
+  for (int k = 0; k < 200000; ++k) {
+    const double v = k % 2 ? big(rng) : small(rng);
+    ASSERT_EQ(RoundHalfAway(v), std::lround(v)) << v;
+  }
+  for (double v : {0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 0.49999999999999994, -0.49999999999999994,
+                   0.0, -0.0, 31999.5, -31999.5, 4503599627370495.5 / 4096.0})
+    EXPECT_EQ(RoundHalfAway(v), std::lround(v)) << v;
+  for (double v = -3.0; v <= 3.0; v = std::nextafter(v, 4.0) + 1e-3)
+    ASSERT_EQ(RoundHalfAway(v), std::lround(v)) << v;
+  EXPECT_EQ(RoundHalfAway(std::nextafter(0.5, 0.0)), 0);
+  EXPECT_EQ(RoundHalfAway(std::nextafter(-0.5, 0.0)), 0);
+  EXPECT_EQ(RoundHalfAway(std::nextafter(2.5, 3.0)), 3);
+}
+
+TEST(StageCombine, RoundHalfAwayDIsStdRoundBitForBit) {
+  auto same = [](double v) {
+    const double a = RoundHalfAwayD(v), b = std::round(v);
+    return std::memcmp(&a, &b, sizeof a) == 0 || (std::isnan(a) && std::isnan(b));
+  };
+  std::mt19937_64 rng(6);
+  std::uniform_real_distribution<double> big(-1e6, 1e6), small(-3.0, 3.0);
+  for (int k = 0; k < 200000; ++k) {
+    const double v = k % 2 ? big(rng) : small(rng);
+    ASSERT_TRUE(same(v)) << v;
+  }
+  for (double v : {0.0, -0.0, 0.3, -0.3, 0.5, -0.5, 0.49999999999999994, -0.49999999999999994,
+                   1.5, -1.5, 4503599627370495.5, -4503599627370495.5, 4503599627370496.0, 1e300,
+                   -1e300, std::numeric_limits<double>::infinity(),
+                   -std::numeric_limits<double>::infinity(),
+                   std::numeric_limits<double>::quiet_NaN(), 5e-324, -5e-324})
+    EXPECT_TRUE(same(v)) << v;
+}
+
 TEST(StageCombine, UnwrapsAndRejectsInconsistentPhases) {
   CombineInput in = MakeCombineInput({123.4, 640.9, 300.0}, {});
   // Pixel 2: period 7 half a fringe off.
@@ -444,6 +483,68 @@ TEST(StageTriangulate, PointsProjectBackToTheirPixelAndColumn) {
     EXPECT_NEAR(t.sigma_z[i], 0.01 * std::abs(t.dz_du(cx, cy)), 1e-12);
   }
   EXPECT_TRUE(std::isnan(t.points.xyz(0, 0, 2)));  // outside the ROI
+}
+
+// The stage computes the pinhole camera's rays and the closed-form column planes inline; every
+// point, dZ/du and state must be the bits of the general Triangulator calls, on the inline paths
+// and on the general ones (camera or projector distortion, a skewed projector, rows), at the
+// image edges and for rays that miss (columns behind the projector).
+TEST(StageTriangulate, SameBitsAsTheTriangulatorOnEveryRig) {
+  for (int variant = 0; variant < 5; ++variant) {
+    Rig rig = SimpleRig(40, 30);
+    char axis = 'x';
+    if (variant == 1) rig.camera.distortion[0] = -0.2;
+    if (variant == 2) rig.projector.distortion[0] = 0.1;
+    if (variant == 3) rig.projector.K(0, 1) = 2.0;
+    if (variant == 4) axis = 'y';
+    if (variant == 0) rig.camera.K(0, 1) = 0.5;  // a skewed camera: x per pixel, not per column
+    const int w = 40, h = 30;
+    RoiGrid grid{{0, 0, w, h}, w, h};
+    CombinedPixels c;
+    const size_t np = static_cast<size_t>(w) * h;
+    c.u.resize(np);
+    c.confidence.assign(np, 0.5f);
+    c.sigma_u.assign(np, 0.02f);
+    PixelStates state(np, PixelState::kActive);
+    // The projector coordinate of each pixel's point on a wavy surface around z = 0.
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const Vec3d ray = rig.camera.RayDirectionInWorld({double(x), double(y)});
+        const Vec3d o = rig.camera.CentreInWorld();
+        const double z = 1e-4 * std::sin(0.7 * x + 0.3 * y);
+        Vec2d uv;
+        ASSERT_TRUE(rig.projector.Project(o + ((z - o.z()) / ray.z()) * ray, &uv));
+        c.u[static_cast<size_t>(y) * w + x] = static_cast<float>(uv[axis == 'x' ? 0 : 1]);
+      }
+    c.u[7] = -5e6f;  // far outside: no intersection in front of both devices
+    const TriangulatedPoints t = TriangulatePoints(rig, grid, c, {true, axis}, &state);
+    const Triangulator tri(rig.camera, rig.projector, axis);
+    int ok = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        const Vec3d ray = tri.CameraRay(x, y);
+        const auto p = tri.Intersect(ray, c.u[i]);
+        ASSERT_EQ(state[i], p ? PixelState::kOk : PixelState::kNoIntersection) << variant << " " << i;
+        if (!p) {
+          EXPECT_TRUE(std::isnan(t.points.xyz(x, y, 2)));
+          continue;
+        }
+        ++ok;
+        for (int k = 0; k < 3; ++k)
+          EXPECT_EQ(t.points.xyz(x, y, k), static_cast<float>((*p)[k])) << variant << " " << i;
+        const auto b = tri.Intersect(ray, c.u[i] + 0.5);
+        if (!b) {
+          EXPECT_TRUE(std::isnan(t.dz_du(x, y)) && std::isnan(t.sigma_z[i]));
+          continue;
+        }
+        const float d = static_cast<float>(2.0 * (b->z() - p->z()));
+        EXPECT_EQ(t.dz_du(x, y), d);
+        EXPECT_EQ(t.sigma_z[i], 0.02f * std::abs(d));
+      }
+    EXPECT_GT(ok, static_cast<int>(np) - 10) << variant;
+    EXPECT_EQ(state[7], PixelState::kNoIntersection) << variant;
+  }
 }
 
 TEST(StageMixedPixels, AStepPointBetweenTheSurfacesIsRemoved) {

@@ -16,6 +16,17 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
+// std::ceil / std::floor to int for values in int's range (the casts below need that anyway):
+// baseline x86-64 has no rounding instruction, and these ran four times per triangle.
+inline int CeilToInt(double v) {
+  const int t = static_cast<int>(v);  // rounds towards zero
+  return t + (t < v);
+}
+inline int FloorToInt(double v) {
+  const int t = static_cast<int>(v);
+  return t - (t > v);
+}
+
 struct GridVertex {
   double i = 0, j = 0, z = 0, c = 0;
   Vec3d p = Vec3d::Zero();
@@ -124,12 +135,10 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
       return;  // spans a depth discontinuity
     const double area = (b.i - a.i) * (c.j - a.j) - (c.i - a.i) * (b.j - a.j);
     if (std::abs(area) < 1e-12) return;
-    const int i0 = std::max(0, static_cast<int>(std::ceil(std::min({a.i, b.i, c.i}) - 1e-9)));
-    const int i1 = std::min(gw - 1, static_cast<int>(std::floor(std::max({a.i, b.i, c.i}) + 1e-9)));
-    const int j0 =
-        std::max(band_j0, static_cast<int>(std::ceil(std::min({a.j, b.j, c.j}) - 1e-9)));
-    const int j1 =
-        std::min(band_j1, static_cast<int>(std::floor(std::max({a.j, b.j, c.j}) + 1e-9)));
+    const int i0 = std::max(0, CeilToInt(std::min({a.i, b.i, c.i}) - 1e-9));
+    const int i1 = std::min(gw - 1, FloorToInt(std::max({a.i, b.i, c.i}) + 1e-9));
+    const int j0 = std::max(band_j0, CeilToInt(std::min({a.j, b.j, c.j}) - 1e-9));
+    const int j1 = std::min(band_j1, FloorToInt(std::max({a.j, b.j, c.j}) + 1e-9));
     for (int j = j0; j <= j1; ++j)
       for (int i = i0; i <= i1; ++i) {
         const double wa = ((b.i - i) * (c.j - j) - (c.i - i) * (b.j - j)) / area;
@@ -145,18 +154,30 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
       }
   };
   // Grid rows [j_lo, j_hi] that the quads of camera row pair (y, y + 1) can touch.
-  std::vector<int> j_lo(std::max(h - 1, 0), std::numeric_limits<int>::max()),
-      j_hi(std::max(h - 1, 0), std::numeric_limits<int>::min());
-  ParallelForRows(h - 1, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y)
-      for (int yy = y; yy <= y + 1; ++yy)
-        for (int x = 0; x < w; ++x) {
-          if (!std::isfinite(xyz(x, yy, 2))) continue;
-          const double j = hf.J(xyz(x, yy, 1));
-          j_lo[y] = std::min(j_lo[y], static_cast<int>(std::ceil(j - 1e-9)));
-          j_hi[y] = std::max(j_hi[y], static_cast<int>(std::floor(j + 1e-9)));
-        }
+  // Per camera row the extreme J of its points, rounded once (ceil and floor are monotone: the
+  // same as rounding every point's J), then per row pair.
+  std::vector<int> row_lo(std::max(h, 0), std::numeric_limits<int>::max()),
+      row_hi(std::max(h, 0), std::numeric_limits<int>::min());
+  ParallelForRows(h, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+      for (int x = 0; x < w; ++x) {
+        if (!std::isfinite(xyz(x, y, 2))) continue;
+        const double j = hf.J(xyz(x, y, 1));
+        lo = std::min(lo, j);
+        hi = std::max(hi, j);
+      }
+      if (lo <= hi) {
+        row_lo[y] = CeilToInt(lo - 1e-9);
+        row_hi[y] = FloorToInt(hi + 1e-9);
+      }
+    }
   });
+  std::vector<int> j_lo(std::max(h - 1, 0)), j_hi(std::max(h - 1, 0));
+  for (int y = 0; y + 1 < h; ++y) {
+    j_lo[y] = std::min(row_lo[y], row_lo[y + 1]);
+    j_hi[y] = std::max(row_hi[y], row_hi[y + 1]);
+  }
   // Parallel over bands of grid rows: each band rasterises, in the serial order (camera rows,
   // then columns), the parts of the triangles that fall into it. A grid cell belongs to one
   // band, so it sees the same writes in the same order as a serial pass: identical output.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
@@ -14,9 +15,31 @@ namespace mesoscan {
 namespace {
 
 double Wrap2Pi(double a) {
+  // fmod is exact: within one period either way it returns a itself (the libm call is skipped).
+  if (std::abs(a) < 2 * kPi) return a < 0 ? a + 2 * kPi : a;
   a = std::fmod(a, 2 * kPi);
   return a < 0 ? a + 2 * kPi : a;
 }
+
+}  // namespace
+
+// std::lround for |v| < 2^31 without the libm call (3 M calls per full-resolution scan): v - its
+// truncation is exact there, so the half-way test is too.
+long RoundHalfAway(double v) {
+  const long t = static_cast<long>(v);  // rounds towards zero
+  const double frac = v - static_cast<double>(t);
+  return frac >= 0.5 ? t + 1 : frac <= -0.5 ? t - 1 : t;
+}
+
+double RoundHalfAwayD(double v) {
+  if (!(std::abs(v) < 4503599627370496.0)) return std::round(v);  // 2^52: already an integer
+  const double t = static_cast<double>(static_cast<int64_t>(v));  // truncated, exact
+  const double frac = v - t;                                        // exact
+  const double r = frac >= 0.5 ? t + 1 : frac <= -0.5 ? t - 1 : t;
+  return r == 0 ? std::copysign(0.0, v) : r;  // std::round keeps the sign of a zero
+}
+
+namespace {
 
 // Did the lens-shift stage estimate (and apply) per-frame shifter positions?
 bool PositionsEstimated(const Json& fc) {
@@ -120,7 +143,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
           // Eq. 2: alpha = lambda (round(omega w / lambda - phi) + phi), lambda = 2 px, phi the
           // fine phase in cycles. u_fine = 1/2 - phase0 / pi (mod 2), see reconstruct.h.
           const double phi = Wrap2Pi(kPi / 2 - ls.phase0[i]) / (2 * kPi);  // cycles in [0, 1)
-          u = 2.0 * (std::round(ur.u / 2.0 - phi) + phi);
+          u = 2.0 * (RoundHalfAwayD(ur.u / 2.0 - phi) + phi);
           const double comb = ur.u - u;
           const double e = std::pow(ls.residual_rms[i] / ls.amplitude[i], 2);  // Eq. 4's E
           c = 1.0 - std::sqrt(e * options.confidence_t);
@@ -184,31 +207,44 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
   std::vector<float>& u = combined->u;
   // filterSpeckles takes 16-bit signed values: u in fixed point, as many fractional bits as the
   // projector's range allows (16ths of a pixel up to 2000 px).
-  float u_max = 0.0f;
-  for (const float v : u)
-    if (std::isfinite(v)) u_max = std::max(u_max, std::abs(v));
+  // The conversions in and out run on the pool; filterSpeckles itself is serial.
+  std::vector<float> row_max(grid.height, 0.0f);
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      float m = 0.0f;
+      const float* row = u.data() + static_cast<size_t>(y) * grid.width;
+      for (int x = 0; x < grid.width; ++x)
+        if (std::isfinite(row[x])) m = std::max(m, std::abs(row[x]));
+      row_max[y] = m;
+    }
+  });
+  const float u_max = row_max.empty() ? 0.0f : *std::max_element(row_max.begin(), row_max.end());
   const double scale = std::min(16.0, 32000.0 / std::max(1.0f, u_max));
   constexpr int16_t kNone = std::numeric_limits<int16_t>::min();
   cv::Mat fixed(grid.height, grid.width, CV_16SC1);
-  for (int y = 0; y < grid.height; ++y) {
-    int16_t* row = fixed.ptr<int16_t>(y);
-    for (int x = 0; x < grid.width; ++x) {
-      const float v = u[static_cast<size_t>(y) * grid.width + x];
-      row[x] = std::isfinite(v) ? static_cast<int16_t>(std::lround(v * scale)) : kNone;
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      int16_t* row = fixed.ptr<int16_t>(y);
+      for (int x = 0; x < grid.width; ++x) {
+        const float v = u[static_cast<size_t>(y) * grid.width + x];
+        row[x] = std::isfinite(v) ? static_cast<int16_t>(RoundHalfAway(v * scale)) : kNone;
+      }
     }
-  }
+  });
   cv::filterSpeckles(fixed, kNone, options.isolated_max_region_px,
                      std::max(1.0, options.isolated_max_step_px * scale));
-  for (int y = 0; y < grid.height; ++y) {
-    const int16_t* row = fixed.ptr<int16_t>(y);
-    for (int x = 0; x < grid.width; ++x) {
-      const size_t i = static_cast<size_t>(y) * grid.width + x;
-      if (row[x] != kNone || !std::isfinite(u[i])) continue;
-      (*state)[i] = PixelState::kIsolated;
-      u[i] = std::numeric_limits<float>::quiet_NaN();
-      combined->confidence[i] = 0.0f;
+  ParallelForRows(grid.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const int16_t* row = fixed.ptr<int16_t>(y);
+      for (int x = 0; x < grid.width; ++x) {
+        const size_t i = static_cast<size_t>(y) * grid.width + x;
+        if (row[x] != kNone || !std::isfinite(u[i])) continue;
+        (*state)[i] = PixelState::kIsolated;
+        u[i] = std::numeric_limits<float>::quiet_NaN();
+        combined->confidence[i] = 0.0f;
+      }
     }
-  }
+  });
 }
 
 }  // namespace mesoscan

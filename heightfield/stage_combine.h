@@ -56,4 +56,9 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
 void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
                            CombinedPixels* combined, PixelStates* state);
 
+// std::lround(v) for |v| < 2^31 (half-way cases away from zero) without the libm call.
+long RoundHalfAway(double v);
+// std::round(v), the same bits for every double (NaN and beyond 2^52 by std::round itself).
+double RoundHalfAwayD(double v);
+
 }  // namespace mesoscan

@@ -26,32 +26,83 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
   points.projector_u = ImageF(cam_w, cam_h, 1, kNaN);
   if (options.keep_dz_du) out.dz_du = ImageF(cam_w, cam_h, 1, kNaN);
   out.sigma_z.assign(grid.pixels(), kNaN);
+  // The camera's pinhole rays (no distortion): normalised x per column (no skew) and y per row,
+  // the arithmetic of PinholeCamera::UndistortNormalized in its order; with the closed-form
+  // column planes (Triangulator::PinholeT) the per-pixel work is two small matrix products, one
+  // square root and a few divisions, inline. Other rigs take the general calls. Same bits.
+  const PinholeCamera& cam = rig.camera;
+  const bool camera_pinhole = !cam.HasDistortion();
+  const bool closed_form = tri.closed_form();
+  const Mat3d& K = cam.K;
+  const Mat3d& rotation = cam.world_from_device.rotation;
+  const Vec3d centre = cam.CentreInWorld();
+  std::vector<double> xd_column;
+  if (camera_pinhole && K(0, 1) == 0.0) {
+    xd_column.resize(w);
+    for (int x = 0; x < w; ++x)
+      xd_column[x] = (static_cast<double>(x + roi.x) - K(0, 2) - K(0, 1) * 0.0) / K(0, 0);
+  }
+  // The point at u and the z of the point at u + du (forward difference); false: no point.
+  const auto intersect = [&](const Vec3d& ray, const Vec3d& ray_device, double uu, Vec3d* p) {
+    if (!closed_form) {
+      const auto q = tri.IntersectDevice(ray, ray_device, uu);
+      if (q) *p = *q;
+      return q.has_value();
+    }
+    double t;
+    if (!tri.PinholeT(ray_device, uu, &t)) return false;
+    if (!(t > 0) || !std::isfinite(t) || !(tri.DeviceZ(ray_device, t) > 0)) return false;
+    *p = centre + t * ray;
+    return true;
+  };
   ParallelForRows(h, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y)
+    for (int y = y0; y < y1; ++y) {
+      const int cy = y + roi.y;
+      const double yd = (static_cast<double>(cy) - K(1, 2)) / K(1, 1);
+      const size_t row = static_cast<size_t>(y) * w;
+      const float* u_row = u.data() + row;
+      PixelState* state_row = state.data() + row;
+      float* pu = points.projector_u.row(cy) + roi.x;
+      float* px = points.xyz.row(cy, 0) + roi.x;
+      float* py = points.xyz.row(cy, 1) + roi.x;
+      float* pz = points.xyz.row(cy, 2) + roi.x;
+      float* conf = points.confidence.row(cy) + roi.x;
+      float* src = points.source.row(cy) + roi.x;
       for (int x = 0; x < w; ++x) {
-        const size_t i = static_cast<size_t>(y) * w + x;
-        const int cx = x + roi.x, cy = y + roi.y;
-        if (std::isfinite(u[i])) points.projector_u(cx, cy) = u[i];
-        if (state[i] != PixelState::kActive) continue;
-        const Vec3d ray = tri.CameraRay(cx, cy);
+        if (std::isfinite(u_row[x])) pu[x] = u_row[x];
+        if (state_row[x] != PixelState::kActive) continue;
+        const size_t i = row + x;
+        const int cx = x + roi.x;
+        Vec3d ray;
+        if (!camera_pinhole) {
+          ray = tri.CameraRay(cx, cy);
+        } else {
+          const double xd = xd_column.empty()
+                                ? (static_cast<double>(cx) - K(0, 2) - K(0, 1) * yd) / K(0, 0)
+                                : xd_column[x];
+          ray = (rotation * Vec3d(xd, yd, 1.0)).normalized();
+        }
         const Vec3d ray_device = tri.DeviceDirection(ray);
-        const auto p = tri.IntersectDevice(ray, ray_device, u[i]);
-        if (!p) {
-          state[i] = PixelState::kNoIntersection;
+        Vec3d p;
+        if (!intersect(ray, ray_device, u_row[x], &p)) {
+          state_row[x] = PixelState::kNoIntersection;
           continue;
         }
-        for (int c = 0; c < 3; ++c) points.xyz(cx, cy, c) = static_cast<float>((*p)[c]);
-        points.confidence(cx, cy) = combined.confidence[i];
-        if (!combined.source.empty()) points.source(cx, cy) = combined.source[i];
-        state[i] = PixelState::kOk;
+        px[x] = static_cast<float>(p.x());
+        py[x] = static_cast<float>(p.y());
+        pz[x] = static_cast<float>(p.z());
+        conf[x] = combined.confidence[i];
+        if (!combined.source.empty()) src[x] = combined.source[i];
+        state_row[x] = PixelState::kOk;
         // dZ/du by a forward difference (the map is smooth on this scale).
-        const auto b = tri.IntersectDevice(ray, ray_device, u[i] + 0.5);
-        if (b) {
-          const float d = static_cast<float>(2.0 * (b->z() - p->z()));
+        Vec3d b;
+        if (intersect(ray, ray_device, u_row[x] + 0.5, &b)) {
+          const float d = static_cast<float>(2.0 * (b.z() - p.z()));
           if (options.keep_dz_du) out.dz_du(cx, cy) = d;
           out.sigma_z[i] = combined.sigma_u[i] * std::abs(d);
         }
       }
+    }
   });
   return out;
 }

@@ -18,13 +18,10 @@ std::optional<Vec3d> Triangulator::IntersectDevice(const Vec3d& ray_in_world,
   // The ray in projector device coordinates: p(t) = o + t d.
   const Vec3d& o = camera_centre_in_device_;
   const Vec3d& d = ray_in_device;
-  const Mat3d& K = projector_.K;
-  // Pinhole (zero-skew) plane x - xn z = 0 (rows: y - yn z = 0) through the projector centre.
   const int a = axis_;
-  const double xn = (u - K(a, 2)) / K(a, a);
-  const double den = d[a] - xn * d.z();
-  if (std::abs(den) < 1e-12) return std::nullopt;
-  double t = (xn * o.z() - o[a]) / den;
+  // Pinhole (zero-skew) plane x - xn z = 0 (rows: y - yn z = 0) through the projector centre.
+  double t;
+  if (!PinholeT(d, u, &t)) return std::nullopt;
   if (projector_distorted_ || projector_skewed_) {
     // Newton on g(t) = column(p(t)) - u; the derivative by central differences.
     auto column = [&](double tt, double* col) {

@@ -8,6 +8,7 @@
 // is the projector row v and the surfaces are those of constant row; "column" and "u" below then
 // mean row and v.
 
+#include <cmath>
 #include <optional>
 
 #include "core/camera.h"
@@ -37,6 +38,28 @@ class Triangulator {
   }
   std::optional<Vec3d> IntersectDevice(const Vec3d& ray_in_world, const Vec3d& ray_in_device,
                                        double u) const;
+
+  // True if the column surfaces are planes (no projector distortion, no skew on the decoded
+  // axis): IntersectDevice is then the closed form PinholeT, which per-pixel loops may call
+  // inline (stage_triangulate.cc).
+  bool closed_form() const { return !projector_distorted_ && !projector_skewed_; }
+  // The ray parameter t of the closed form (the point is CentreInWorld() + t ray_in_world and
+  // lies in front of the projector where t > 0 and z_device(t) > 0), IntersectDevice's
+  // arithmetic in the same order. false where the ray is parallel to the plane.
+  bool PinholeT(const Vec3d& ray_in_device, double u, double* t) const {
+    const Vec3d& o = camera_centre_in_device_;
+    const Vec3d& d = ray_in_device;
+    const int a = axis_;
+    const double xn = (u - projector_.K(a, 2)) / projector_.K(a, a);
+    const double den = d[a] - xn * d.z();
+    if (std::abs(den) < 1e-12) return false;
+    *t = (xn * o.z() - o[a]) / den;
+    return true;
+  }
+  // z of the point at t in projector device coordinates (IntersectDevice's test p.z() > 0).
+  double DeviceZ(const Vec3d& ray_in_device, double t) const {
+    return camera_centre_in_device_.z() + t * ray_in_device.z();
+  }
 
   // CameraRay + Intersect.
   std::optional<Vec3d> Triangulate(double x, double y, double u) const {
