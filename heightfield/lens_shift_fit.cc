@@ -15,6 +15,10 @@
 #include <numbers>
 #include <type_traits>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "core/error.h"
 #include "core/numbers.h"
 #include "core/simd_clones.h"
@@ -386,6 +390,9 @@ struct LensShiftBatchFitter::Tables {
   // Per grid point: the double basis rows transposed, n x rows (frame-major: one sample's
   // rows are contiguous), for AccumulateMoments.
   std::vector<std::vector<double>> km;
+  // x_{n-1-k} = -x_k for every k to 1e-15 X: the basis rows of sample n-1-k are those of
+  // sample k times their parity (FitFourLanes folds the sample pairs).
+  bool symmetric = false;
 };
 
 namespace {
@@ -776,8 +783,10 @@ struct LaneInput {
   const double* basis_km;  // grid point 0: n x kMoments, frame-major
   const double* e12;       // grid point 0: Gram Horner coefficients, 4 per order
   int n = 0;
+  bool symmetric = false;  // x_{n-1-k} = -x_k (Tables::symmetric)
   int max_iterations = 0;
   double eps_tol = 0, final_step = 0, sigma_factor = 0, tol_sigma = 0;
+  double sqrt_2_over_n = 0;  // std::sqrt(2.0 / n), as Finalize computes it
 };
 
 struct LaneOutput {
@@ -786,6 +795,9 @@ struct LaneOutput {
   double eps[4];         // final eps' (grid point 0)
   int64_t iterations[4];
   int64_t redo[4];       // != 0: the lane left the common case, FastFit alone decides it
+  // Finalize's quantities: phi in (-pi, pi], a, sum y^2 - J, sqrt(max(SSR, 0) / n),
+  // sigma_a / a and a / sigma_a.
+  double phase[4], amplitude[4], ssr[4], residual_rms[4], phase_sigma[4], snr[4];
 };
 
 struct LaneObjective {
@@ -867,6 +879,21 @@ inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4
   o->ok = regular & MESOSCAN_LANE_FINITE(o->j) & MESOSCAN_LANE_FINITE(o->j1) & MESOSCAN_LANE_FINITE(o->j2);
 }
 
+// Correctly rounded square roots of the lanes (as std::sqrt): SSE2 (baseline x86-64) halves.
+inline __attribute__((always_inline)) void LaneSqrt(const V4d& v, V4d* out) {
+#if defined(__SSE2__)
+  __m128d lo, hi;
+  std::memcpy(&lo, &v, sizeof lo);
+  std::memcpy(&hi, reinterpret_cast<const char*>(&v) + sizeof lo, sizeof hi);
+  lo = _mm_sqrt_pd(lo);
+  hi = _mm_sqrt_pd(hi);
+  std::memcpy(out, &lo, sizeof lo);
+  std::memcpy(reinterpret_cast<char*>(out) + sizeof lo, &hi, sizeof hi);
+#else
+  for (int l = 0; l < 4; ++l) (*out)[l] = std::sqrt(v[l]);
+#endif
+}
+
 inline __attribute__((always_inline)) double LaneMaxAbs(const V4d& v, const V4l& mask) {
   const V4d zero = {0, 0, 0, 0};
   const V4d a = MESOSCAN_LANE_SELECT(mask, MESOSCAN_LANE_ABS(v), zero);
@@ -889,21 +916,67 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
   // accumulators of one pass fit the 16 vector registers).
   V4d w[kMoments];
   V4d y0 = zero, y2 = zero;
-  for (int half = 0; half < 2; ++half) {
-    V4d acc[8];
-    for (int r = 0; r < 8; ++r) acc[r] = zero;
-    for (int k = 0; k < n; ++k) {
-      V4f v;
-      std::memcpy(&v, yb + 4 * k, sizeof v);
-      const V4d y = __builtin_convertvector(v, V4d) - mean;
-      const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
-      for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
-      if (half == 0) {
-        y0 += y;
-        y2 += y * y;
+  if (in->symmetric) {
+    // Positions symmetric about 0 (x_{n-1-k} = -x_k): row 2m + c (t^m cos, t^m sin) has parity
+    // (-1)^(m + c), so sample pairs (k, n-1-k) enter as s = y_k + y_{n-1-k} in the even rows and
+    // d = y_k - y_{n-1-k} in the odd ones: half the products. The middle sample of odd n sits
+    // at x = 0 and is added on its own.
+    const int half_n = n / 2;
+    for (int half = 0; half < 2; ++half) {
+      V4d acc[8];
+      for (int r = 0; r < 8; ++r) acc[r] = zero;
+      for (int k = 0; k < half_n; ++k) {
+        V4f va, vb;
+        std::memcpy(&va, yb + 4 * k, sizeof va);
+        std::memcpy(&vb, yb + 4 * (n - 1 - k), sizeof vb);
+        const V4d ya = __builtin_convertvector(va, V4d) - mean;
+        const V4d yc = __builtin_convertvector(vb, V4d) - mean;
+        const V4d sum = ya + yc, dif = ya - yc;
+        const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
+        // Rows 8 half + r: parity even for r = 0, 3, 4, 7 (m even cos, m odd sin).
+        acc[0] += bk[0] * sum;
+        acc[1] += bk[1] * dif;
+        acc[2] += bk[2] * dif;
+        acc[3] += bk[3] * sum;
+        acc[4] += bk[4] * sum;
+        acc[5] += bk[5] * dif;
+        acc[6] += bk[6] * dif;
+        acc[7] += bk[7] * sum;
+        if (half == 0) {
+          y0 += sum;
+          y2 += ya * ya + yc * yc;
+        }
       }
+      if (n % 2 != 0) {
+        V4f v;
+        std::memcpy(&v, yb + 4 * half_n, sizeof v);
+        const V4d y = __builtin_convertvector(v, V4d) - mean;
+        const double* bk = in->basis_km + static_cast<size_t>(half_n) * kMoments + 8 * half;
+        for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
+        if (half == 0) {
+          y0 += y;
+          y2 += y * y;
+        }
+      }
+      for (int r = 0; r < 8; ++r) w[8 * half + r] = acc[r];
     }
-    for (int r = 0; r < 8; ++r) w[8 * half + r] = acc[r];
+  } else {
+    for (int half = 0; half < 2; ++half) {
+      V4d acc[8];
+      for (int r = 0; r < 8; ++r) acc[r] = zero;
+      for (int k = 0; k < n; ++k) {
+        V4f v;
+        std::memcpy(&v, yb + 4 * k, sizeof v);
+        const V4d y = __builtin_convertvector(v, V4d) - mean;
+        const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
+        for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
+        if (half == 0) {
+          y0 += y;
+          y2 += y * y;
+        }
+      }
+      for (int r = 0; r < 8; ++r) w[8 * half + r] = acc[r];
+    }
   }
   // Horner coefficients i^m W_m / m! (ZCoefficients).
   V4d zr[kOrder + 1], zi[kOrder + 1];
@@ -938,12 +1011,13 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     if (in->sigma_factor > 0.0) {
       const V4d ssr = in->sigma_factor * (o.j < y2 ? y2 - o.j : zero);
       const V4d var_eps = ssr / MESOSCAN_LANE_SELECT(concave, -o.j2, zero + 1.0);
-      V4d tol = zero;
-      for (int l = 0; l < 4; ++l) tol[l] = in->tol_sigma * std::sqrt(var_eps[l]);
+      V4d tol;
+      LaneSqrt(var_eps, &tol);
+      tol = in->tol_sigma * tol;
       const V4l loose = concave & (tol > in->eps_tol);
       if (LaneAny(loose)) {
-        V4d ls = zero;
-        for (int l = 0; l < 4; ++l) ls[l] = std::sqrt(tol[l] / kQuadratic);
+        V4d ls;
+        LaneSqrt(tol / kQuadratic, &ls);
         last_step = MESOSCAN_LANE_SELECT(loose, ls, last_step);
       }
     }
@@ -988,6 +1062,39 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     active &= ~(MESOSCAN_LANE_ABS(step) < in->eps_tol);  // converged
   }
   redo |= active;  // the iteration cap: left to FastFit (converged = false there)
+  // Finalize's arithmetic in the lanes: phi = atan2(c0, c1) (FastAtan2's steps), a, the
+  // residual and the amplitude's noise (the validity decision stays scalar).
+  {
+    const V4d cc = o.c0, cs = o.c1;
+    const V4d ay = MESOSCAN_LANE_ABS(cc), ax = MESOSCAN_LANE_ABS(cs);
+    const V4d hi = ay > ax ? ay : ax, lo = ay > ax ? ax : ay;
+    const V4d t = hi > 0 ? lo / (hi > 0 ? hi : zero + 1.0) : zero;
+    const V4l big = t > kTanPi8;
+    const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
+    V4d at;
+    AtanReduced(u, &at);
+    at = big ? at + 0.25 * kPi : at;
+    at = ay > ax ? 0.5 * kPi - at : at;
+    at = cs < 0 ? kPi - at : at;
+    at = cc < 0 ? -at : at;
+    at = at <= -kPi ? zero + kPi : at;  // WrapPhase: (-pi, pi]
+    V4d a, rms, sigma_hat;
+    LaneSqrt(cc * cc + cs * cs, &a);
+    const V4d ssr0 = y2 - o.j;
+    const V4d ssr = ssr0 > 0 ? ssr0 : zero;
+    LaneSqrt(ssr / nd, &rms);
+    LaneSqrt(ssr / (nd - 4), &sigma_hat);
+    const V4d sigma_a = sigma_hat * in->sqrt_2_over_n;
+    const V4d inf = zero + std::numeric_limits<double>::infinity();
+    const V4d phase_sigma = a > 0 ? sigma_a / (a > 0 ? a : zero + 1.0) : inf;
+    const V4d snr = sigma_a > 0 ? a / (sigma_a > 0 ? sigma_a : zero + 1.0) : inf;
+    std::memcpy(out->phase, &at, sizeof at);
+    std::memcpy(out->amplitude, &a, sizeof a);
+    std::memcpy(out->ssr, &ssr0, sizeof ssr0);
+    std::memcpy(out->residual_rms, &rms, sizeof rms);
+    std::memcpy(out->phase_sigma, &phase_sigma, sizeof phase_sigma);
+    std::memcpy(out->snr, &snr, sizeof snr);
+  }
   std::memcpy(out->c[0], &o.c0, sizeof o.c0);
   std::memcpy(out->c[1], &o.c1, sizeof o.c1);
   std::memcpy(out->c[2], &o.c2, sizeof o.c2);
@@ -1024,6 +1131,9 @@ std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vecto
   double xmax = 0.0;
   for (double v : x) xmax = std::max(xmax, std::abs(v));
   t->x_scale = xmax > 0.0 ? xmax : 1.0;
+  t->symmetric = true;
+  for (int k = 0; k < n; ++k)
+    t->symmetric = t->symmetric && std::abs(x[k] + x[n - 1 - k]) <= 1e-15 * t->x_scale;
   t->fine = fine;
   const int factor = fine ? kFineFactor : 1;
   t->h = kRadius / (kPi * t->x_scale) / factor;
@@ -1252,11 +1362,14 @@ void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride
   in.basis_km = t.km[t.grid_half].data();
   in.e12 = t.e12[t.grid_half].data();
   in.n = n;
+  in.symmetric = t.symmetric;
   in.max_iterations = options_.max_iterations;
   in.eps_tol = options_.frequency_tolerance * two_pi_x;
   in.final_step = std::sqrt(in.eps_tol / 4.0);  // FastFit's kQuadratic
   in.sigma_factor = options_.frequency_tolerance_sigma > 0.0 ? 2.0 / (n - 4) : 0.0;
   in.tol_sigma = options_.frequency_tolerance_sigma;
+  in.sqrt_2_over_n = std::sqrt(2.0 / n);
+  const double max_df = options_.max_frequency_deviation * std::abs(f0_);
   alignas(32) float yb[4 * kStackSamples];
   int p0 = 0;
   for (; p0 + 4 <= count; p0 += 4) {
@@ -1293,10 +1406,28 @@ void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride
         single(p0 + l);
         continue;
       }
-      const double c0 = r.c[0][l], c1 = r.c[1][l];
-      out[p0 + l] = Finalize(FastAtan2(c0, c1), std::sqrt(c0 * c0 + c1 * c1),
-                             f0_ + r.eps[l] / two_pi_x, r.c[2][l] + mean[l], r.y2[l] - r.j[l], n,
-                             static_cast<int>(r.iterations[l]), true, f0_, options_);
+      // Finalize with the lanes' arithmetic: the same values; Finalize itself wherever the fit
+      // is not valid (its clean-up of non-finite values).
+      const double f = f0_ + r.eps[l] / two_pi_x, d = r.c[2][l] + mean[l];
+      const int iterations = static_cast<int>(r.iterations[l]);
+      LensShiftFit& fit = out[p0 + l];
+      fit.phase = r.phase[l];
+      fit.amplitude = r.amplitude[l];
+      fit.frequency = f;
+      fit.offset = d;
+      fit.residual_rms = r.residual_rms[l];
+      fit.phase_sigma = r.phase_sigma[l];
+      fit.samples_used = n;
+      fit.iterations = iterations;
+      fit.converged = true;
+      const double a = fit.amplitude;
+      fit.valid = std::isfinite(fit.phase) && std::isfinite(a) && std::isfinite(f) &&
+                  std::isfinite(d) && std::isfinite(fit.residual_rms) &&
+                  std::isfinite(fit.phase_sigma) && a > options_.min_amplitude &&
+                  a > kMinRelativeAmplitude * std::abs(d) && r.snr[l] >= options_.min_amplitude_snr &&
+                  std::abs(f - f0_) <= max_df;
+      if (!fit.valid)
+        fit = Finalize(fit.phase, a, f, d, r.ssr[l], n, iterations, true, f0_, options_);
     }
   }
   for (; p0 < count; ++p0) single(p0);
