@@ -813,6 +813,10 @@ struct LaneObjective {
 
 // Evaluate (derivatives = true) in the lanes: z Horner coefficients per lane (zr, zi: orders
 // 0..top_z), the shared Gram coefficients e12 (orders 0..top_g), each lane at its eps.
+// kSymmetric (positions symmetric about 0): sum sin((w + eps) x) and sum sin(2 (w + eps) x) are
+// 0 for every eps, so their Horner chains are skipped (their table coefficients are 0 up to
+// rounding).
+template <bool kSymmetric>
 inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4d* zi,
                                                          int top_z, const double* e12, int top_g,
                                                          const V4d& eps, const V4d& y0, double n,
@@ -828,13 +832,14 @@ inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4
     vi = vi * eps + zi[m];
   }
   V4d g[4], g1[4], g2[4];
+  constexpr int kStep = kSymmetric ? 2 : 1;  // chains e1 re, (e1 im), e2 re, (e2 im)
   for (int q = 0; q < 4; ++q) {
-    g[q] = zero + e12[4 * top_g + q];
+    g[q] = zero + (kSymmetric && q % 2 ? 0.0 : e12[4 * top_g + q]);
     g1[q] = zero;
     g2[q] = zero;
   }
   for (int m = top_g - 1; m >= 0; --m) {
-    for (int q = 0; q < 4; ++q) {
+    for (int q = 0; q < 4; q += kStep) {
       g2[q] = g2[q] * eps + (g1[q] + g1[q]);
       g1[q] = g1[q] * eps + g[q];
       g[q] = g[q] * eps + e12[4 * m + q];
@@ -994,7 +999,11 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
   const double nd = n;
   V4d eps = zero;
   LaneObjective o;
-  EvaluateLanes(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);  // at eps' = 0: orders 0..2 exactly
+  const bool sym = in->symmetric;
+  if (sym)  // at eps' = 0: orders 0..2 exactly
+    EvaluateLanes<true>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
+  else
+    EvaluateLanes<false>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
   const V4l all = {-1, -1, -1, -1};
   V4l redo = ~o.ok & all;
   V4l active = o.ok;
@@ -1041,7 +1050,10 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     const int top_z = std::min(NeededOrder(r, kOrder) + 2, kOrder);
     const int top_g = std::min(NeededOrder(2.0 * r, kGramOrder) + 2, kGramOrder);
     LaneObjective next;
-    EvaluateLanes(zr, zi, top_z, in->e12, top_g, e, y0, nd, &next);
+    if (sym)
+      EvaluateLanes<true>(zr, zi, top_z, in->e12, top_g, e, y0, nd, &next);
+    else
+      EvaluateLanes<false>(zr, zi, top_z, in->e12, top_g, e, y0, nd, &next);
     const V4l accept = next.ok & (next.j >= o.j - 1e-15 * MESOSCAN_LANE_ABS(o.j));
     redo |= active & ~accept;  // FastFit would halve the step: left to it
     active &= accept;
