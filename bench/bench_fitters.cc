@@ -680,6 +680,21 @@ int main(int argc, char** argv) {
                                    mesoscan::CompareWithCeres({15, 25, 50, 100, 200}, 7));
     return 0;
   }
+  // MESOSCAN_BENCH_FIT_MANY_N=n: FitMany alone on 5000 profiles of n samples, repeated (for a
+  // profiler), then its thread CPU ns per profile.
+  if (const char* many_n = std::getenv("MESOSCAN_BENCH_FIT_MANY_N")) {
+    const int n = std::atoi(many_n);
+    const auto set = mesoscan::MakeProfiles(n, 5000, 0.5, 100 + n);
+    mesoscan::LensShiftFitOptions o;
+    if (const char* it = std::getenv("MESOSCAN_BENCH_FIT_MANY_ITERATIONS"))
+      o.max_iterations = std::atoi(it);  // 1: (almost) no Newton steps, the moments' share
+    const mesoscan::LensShiftBatchFitter fitter(set.x, mesoscan::kF0, o);
+    std::vector<mesoscan::LensShiftFit> out(5000);
+    const double t0 = ThreadCpuSeconds();
+    for (int rep = 0; rep < 2000; ++rep) fitter.FitMany(set.b.data(), n, 1, 5000, out.data());
+    std::printf("FitMany N %d: %.1f ns/profile\n", n, 1e9 * (ThreadCpuSeconds() - t0) / 1e7);
+    return 0;
+  }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

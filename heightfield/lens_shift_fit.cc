@@ -1390,7 +1390,42 @@ void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride
     V4f sum = {0, 0, 0, 0};
     const float* src[4];
     for (int l = 0; l < 4; ++l) src[l] = b + (p0 + l) * profile_stride;
-    for (int k = 0; k < n; ++k) {
+    int k = 0;
+    if (profile_stride == 1) {
+      // Frame-major rows of adjacent pixels: one load per sample.
+      for (; k < n; ++k) {
+        V4f v;
+        std::memcpy(&v, src[0] + static_cast<std::ptrdiff_t>(k) * sample_stride, sizeof v);
+        std::memcpy(yb + 4 * k, &v, sizeof v);
+        sum += v;
+      }
+    } else if (sample_stride == 1) {
+      // Contiguous profiles: 4 x 4 blocks transposed in registers.
+      for (; k + 4 <= n; k += 4) {
+        V4f r0, r1, r2, r3;
+        std::memcpy(&r0, src[0] + k, sizeof r0);
+        std::memcpy(&r1, src[1] + k, sizeof r1);
+        std::memcpy(&r2, src[2] + k, sizeof r2);
+        std::memcpy(&r3, src[3] + k, sizeof r3);
+        const V4f t0 = __builtin_shufflevector(r0, r1, 0, 4, 1, 5);  // a0 b0 a1 b1
+        const V4f t1 = __builtin_shufflevector(r2, r3, 0, 4, 1, 5);  // c0 d0 c1 d1
+        const V4f t2 = __builtin_shufflevector(r0, r1, 2, 6, 3, 7);  // a2 b2 a3 b3
+        const V4f t3 = __builtin_shufflevector(r2, r3, 2, 6, 3, 7);  // c2 d2 c3 d3
+        const V4f c0 = __builtin_shufflevector(t0, t1, 0, 1, 4, 5);
+        const V4f c1 = __builtin_shufflevector(t0, t1, 2, 3, 6, 7);
+        const V4f c2 = __builtin_shufflevector(t2, t3, 0, 1, 4, 5);
+        const V4f c3 = __builtin_shufflevector(t2, t3, 2, 3, 6, 7);
+        std::memcpy(yb + 4 * k, &c0, sizeof c0);
+        std::memcpy(yb + 4 * k + 4, &c1, sizeof c1);
+        std::memcpy(yb + 4 * k + 8, &c2, sizeof c2);
+        std::memcpy(yb + 4 * k + 12, &c3, sizeof c3);
+        sum += c0;
+        sum += c1;
+        sum += c2;
+        sum += c3;
+      }
+    }
+    for (; k < n; ++k) {
       const std::ptrdiff_t o = static_cast<std::ptrdiff_t>(k) * sample_stride;
       const V4f v = {src[0][o], src[1][o], src[2][o], src[3][o]};
       std::memcpy(yb + 4 * k, &v, sizeof v);

@@ -607,18 +607,22 @@ TEST(LensShiftFit, FitManyMatchesFit) {
       }
       // Profile-major (profile_stride n, sample_stride 1) and frame-major with a gap
       // (sample k of profile p at k * (3 kCount) + 3 p), as a sparse row of frames.
-      std::vector<float> major(static_cast<size_t>(kCount) * n), frames(3 * kCount * n, 0.f);
+      // Also frame-major without a gap (profile_stride 1: one vector load per sample).
+      std::vector<float> major(static_cast<size_t>(kCount) * n), frames(3 * kCount * n, 0.f),
+          dense(static_cast<size_t>(kCount) * n);
       for (int p = 0; p < kCount; ++p)
         for (int k = 0; k < n; ++k) {
           major[static_cast<size_t>(p) * n + k] = profiles[p][k];
           frames[static_cast<size_t>(k) * 3 * kCount + 3 * p] = profiles[p][k];
+          dense[static_cast<size_t>(k) * kCount + p] = profiles[p][k];
         }
-      std::vector<LensShiftFit> a(kCount), b(kCount);
+      std::vector<LensShiftFit> a(kCount), b(kCount), c(kCount);
       fitter.FitMany(major.data(), n, 1, kCount, a.data());
       fitter.FitMany(frames.data(), 3, 3 * kCount, kCount, b.data());
+      fitter.FitMany(dense.data(), 1, kCount, kCount, c.data());
       for (int p = 0; p < kCount; ++p) {
         const LensShiftFit ref = fitter.Fit(profiles[p].data());
-        for (const LensShiftFit* g : {&a[p], &b[p]}) {
+        for (const LensShiftFit* g : {&a[p], &b[p], &c[p]}) {
           ++compared;
           ASSERT_EQ(g->valid, ref.valid) << "f0 " << f0 << " n " << n << " profile " << p;
           EXPECT_EQ(g->samples_used, ref.samples_used);
