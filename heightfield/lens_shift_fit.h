@@ -101,6 +101,8 @@ LensShiftFit FitLensShiftProfile(const float* b, const double* x, int n, double 
 // and f0 once (kFast: Taylor moment tables on a grid of frequencies around f0).
 // Fit() is const, thread-safe and allocation-free for kFast and kLm (kCeres allocates its
 // Problem per call). Profiles with non-finite samples fall back to the per-profile path.
+// FitMany() fits many profiles with the same results, four at a time in vector lanes (the
+// 4-parameter kFast fit about 2x cheaper per profile).
 class LensShiftBatchFitter {
  public:
   // x: n >= 1 finite positions (projector px, referenced to the centre of the shift range);
