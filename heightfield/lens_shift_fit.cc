@@ -15,6 +15,10 @@
 #include <numbers>
 #include <type_traits>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "core/error.h"
 #include "core/numbers.h"
 #include "core/simd_clones.h"
@@ -386,6 +390,9 @@ struct LensShiftBatchFitter::Tables {
   // Per grid point: the double basis rows transposed, n x rows (frame-major: one sample's
   // rows are contiguous), for AccumulateMoments.
   std::vector<std::vector<double>> km;
+  // x_{n-1-k} = -x_k for every k to 1e-15 X: the basis rows of sample n-1-k are those of
+  // sample k times their parity (FitFourLanes folds the sample pairs).
+  bool symmetric = false;
 };
 
 namespace {
@@ -761,6 +768,355 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   return Finalize(phi, a, f, o.c[2] + mean, ssr, n, iterations, converged, f0, options);
 }
 
+// ---------------------------------------------------------------------------------------------
+// The 4-parameter kFast fit of four profiles at once (LensShiftBatchFitter::FitMany): FastFit's
+// steps with the four profiles in the lanes of one vector, so that its fixed work per profile
+// (the Taylor evaluations of the variable-projection objective with their divisions, the
+// stopping rule's square roots) runs once per four profiles. Every lane starts at f0 (grid
+// point 0, eps' = 0) and takes FastFit's Newton steps with its stopping rules; a lane that
+// leaves the common case (a rejected step that would need halving, a step beyond the grid
+// radius that would re-centre the moments, a non-concave start, the iteration cap) is marked
+// and refitted by FastFit alone. Results equal FastFit's to rounding (the moments are summed in
+// another order, and the Taylor orders are those the largest |eps'| of the lanes needs).
+
+struct LaneInput {
+  const double* basis_km;  // grid point 0: n x kMoments, frame-major
+  const double* e12;       // grid point 0: Gram Horner coefficients, 4 per order
+  int n = 0;
+  bool symmetric = false;  // x_{n-1-k} = -x_k (Tables::symmetric)
+  int max_iterations = 0;
+  double eps_tol = 0, final_step = 0, sigma_factor = 0, tol_sigma = 0;
+  double sqrt_2_over_n = 0;  // std::sqrt(2.0 / n), as Finalize computes it
+};
+
+struct LaneOutput {
+  double c[3][4];        // (a sin phi, a cos phi, d - mean) per lane
+  double j[4], y2[4];    // projected energy and sum of squared centred samples
+  double eps[4];         // final eps' (grid point 0)
+  int64_t iterations[4];
+  int64_t redo[4];       // != 0: the lane left the common case, FastFit alone decides it
+  // Finalize's quantities: phi in (-pi, pi], a, sum y^2 - J, sqrt(max(SSR, 0) / n),
+  // sigma_a / a and a / sigma_a.
+  double phase[4], amplitude[4], ssr[4], residual_rms[4], phase_sigma[4], snr[4];
+};
+
+struct LaneObjective {
+  V4d j, j1, j2, c0, c1, c2, dc0, dc1, dc2;
+  V4l ok;
+};
+
+// Lane helpers as macros: a vector passed or returned by value would change the ABI between the
+// AVX2 clone and the default (see AtanReduced).
+#define MESOSCAN_LANE_ABS(v) ((v) < 0 ? -(v) : (v))
+#define MESOSCAN_LANE_SELECT(m, a, b) ((m) ? (a) : (b))
+#define MESOSCAN_LANE_FINITE(v) (((v) - (v)) == 0)
+
+// Evaluate (derivatives = true) in the lanes: z Horner coefficients per lane (zr, zi: orders
+// 0..top_z), the shared Gram coefficients e12 (orders 0..top_g), each lane at its eps.
+// kSymmetric (positions symmetric about 0): sum sin((w + eps) x) and sum sin(2 (w + eps) x) are
+// 0 for every eps, so their Horner chains are skipped (their table coefficients are 0 up to
+// rounding).
+template <bool kSymmetric>
+inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4d* zi,
+                                                         int top_z, const double* e12, int top_g,
+                                                         const V4d& eps, const V4d& y0, double n,
+                                                         LaneObjective* o) {
+  const V4d zero = {0, 0, 0, 0};
+  V4d vr = zr[top_z], vi = zi[top_z], r1 = zero, i1 = zero, r2 = zero, i2 = zero;
+  for (int m = top_z - 1; m >= 0; --m) {
+    r2 = r2 * eps + (r1 + r1);
+    i2 = i2 * eps + (i1 + i1);
+    r1 = r1 * eps + vr;
+    i1 = i1 * eps + vi;
+    vr = vr * eps + zr[m];
+    vi = vi * eps + zi[m];
+  }
+  V4d g[4], g1[4], g2[4];
+  constexpr int kStep = kSymmetric ? 2 : 1;  // chains e1 re, (e1 im), e2 re, (e2 im)
+  for (int q = 0; q < 4; ++q) {
+    g[q] = zero + (kSymmetric && q % 2 ? 0.0 : e12[4 * top_g + q]);
+    g1[q] = zero;
+    g2[q] = zero;
+  }
+  for (int m = top_g - 1; m >= 0; --m) {
+    for (int q = 0; q < 4; q += kStep) {
+      g2[q] = g2[q] * eps + (g1[q] + g1[q]);
+      g1[q] = g1[q] * eps + g[q];
+      g[q] = g[q] * eps + e12[4 * m + q];
+    }
+  }
+  const double inv_n = 1.0 / n;
+  const V4d C = g[0], E = g[1];
+  const V4d a = 0.5 * (n + g[2]) - C * C * inv_n;
+  const V4d b = 0.5 * g[3] - C * E * inv_n;
+  const V4d d = 0.5 * (n - g[2]) - E * E * inv_n;
+  const V4d wu = vr - C * y0 * inv_n;
+  const V4d wv = vi - E * y0 * inv_n;
+  const V4d det = a * d - b * b;
+  const V4l regular = det > 1e-12 * n * n;
+  const V4d inv_det = 1.0 / MESOSCAN_LANE_SELECT(regular, det, zero + 1.0);
+  const V4d cc = (d * wu - b * wv) * inv_det;
+  const V4d cs = (a * wv - b * wu) * inv_det;
+  o->c0 = cc;
+  o->c1 = cs;
+  o->c2 = (y0 - C * cc - E * cs) * inv_n;
+  o->j = wu * cc + wv * cs + y0 * y0 * inv_n;
+  const V4d C1 = g1[0], E1 = g1[1], C2 = g2[0], E2 = g2[1];
+  const V4d a1 = 0.5 * g1[2] - 2.0 * C * C1 * inv_n;
+  const V4d b1 = 0.5 * g1[3] - (C1 * E + C * E1) * inv_n;
+  const V4d d1 = -0.5 * g1[2] - 2.0 * E * E1 * inv_n;
+  const V4d a2 = 0.5 * g2[2] - 2.0 * (C1 * C1 + C * C2) * inv_n;
+  const V4d b2 = 0.5 * g2[3] - (C2 * E + 2.0 * C1 * E1 + C * E2) * inv_n;
+  const V4d d2 = -0.5 * g2[2] - 2.0 * (E1 * E1 + E * E2) * inv_n;
+  const V4d wu1 = r1 - C1 * y0 * inv_n, wv1 = i1 - E1 * y0 * inv_n;
+  const V4d wu2 = r2 - C2 * y0 * inv_n, wv2 = i2 - E2 * y0 * inv_n;
+  const V4d mc_u = a1 * cc + b1 * cs, mc_v = b1 * cc + d1 * cs;
+  const V4d ru = wu1 - mc_u, rv = wv1 - mc_v;
+  const V4d cc1 = (d * ru - b * rv) * inv_det;
+  const V4d cs1 = (a * rv - b * ru) * inv_det;
+  o->dc0 = cc1;
+  o->dc1 = cs1;
+  o->dc2 = -(C1 * cc + C * cc1 + E1 * cs + E * cs1) * inv_n;
+  o->j1 = 2.0 * (wu1 * cc + wv1 * cs) - (cc * mc_u + cs * mc_v);
+  const V4d m2c = cc * (a2 * cc + b2 * cs) + cs * (b2 * cc + d2 * cs);
+  o->j2 = 2.0 * (wu2 * cc + wv2 * cs) + 2.0 * (wu1 * cc1 + wv1 * cs1) -
+          2.0 * (cc1 * mc_u + cs1 * mc_v) - m2c;
+  o->ok = regular & MESOSCAN_LANE_FINITE(o->j) & MESOSCAN_LANE_FINITE(o->j1) & MESOSCAN_LANE_FINITE(o->j2);
+}
+
+// Correctly rounded square roots of the lanes (as std::sqrt): SSE2 (baseline x86-64) halves.
+inline __attribute__((always_inline)) void LaneSqrt(const V4d& v, V4d* out) {
+#if defined(__SSE2__)
+  __m128d lo, hi;
+  std::memcpy(&lo, &v, sizeof lo);
+  std::memcpy(&hi, reinterpret_cast<const char*>(&v) + sizeof lo, sizeof hi);
+  lo = _mm_sqrt_pd(lo);
+  hi = _mm_sqrt_pd(hi);
+  std::memcpy(out, &lo, sizeof lo);
+  std::memcpy(reinterpret_cast<char*>(out) + sizeof lo, &hi, sizeof hi);
+#else
+  for (int l = 0; l < 4; ++l) (*out)[l] = std::sqrt(v[l]);
+#endif
+}
+
+inline __attribute__((always_inline)) double LaneMaxAbs(const V4d& v, const V4l& mask) {
+  const V4d zero = {0, 0, 0, 0};
+  const V4d a = MESOSCAN_LANE_SELECT(mask, MESOSCAN_LANE_ABS(v), zero);
+  return std::max(std::max(a[0], a[1]), std::max(a[2], a[3]));
+}
+
+inline __attribute__((always_inline)) bool LaneAny(const V4l& m) {
+  return (m[0] | m[1] | m[2] | m[3]) != 0;
+}
+
+// Four profiles: samples yb[k * 4 + l] (lane l, sample k), centring references mean[l]. Straight
+// vector code with pointer arguments only (the clones' ABI, as FitBlock).
+MESOSCAN_SIMD_CLONES
+void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, LaneOutput* out) {
+  const int n = in->n;
+  const V4d zero = {0, 0, 0, 0};
+  V4d mean;
+  std::memcpy(&mean, mean_in, sizeof mean);
+  // Moments of the centred profiles against the 16 basis rows, in two passes of 8 rows (the
+  // accumulators of one pass fit the 16 vector registers).
+  V4d w[kMoments];
+  V4d y0 = zero, y2 = zero;
+  if (in->symmetric) {
+    // Positions symmetric about 0 (x_{n-1-k} = -x_k): row 2m + c (t^m cos, t^m sin) has parity
+    // (-1)^(m + c), so sample pairs (k, n-1-k) enter as s = y_k + y_{n-1-k} in the even rows and
+    // d = y_k - y_{n-1-k} in the odd ones: half the products. The middle sample of odd n sits
+    // at x = 0 and is added on its own.
+    const int half_n = n / 2;
+    for (int half = 0; half < 2; ++half) {
+      V4d acc[8];
+      for (int r = 0; r < 8; ++r) acc[r] = zero;
+      for (int k = 0; k < half_n; ++k) {
+        V4f va, vb;
+        std::memcpy(&va, yb + 4 * k, sizeof va);
+        std::memcpy(&vb, yb + 4 * (n - 1 - k), sizeof vb);
+        const V4d ya = __builtin_convertvector(va, V4d) - mean;
+        const V4d yc = __builtin_convertvector(vb, V4d) - mean;
+        const V4d sum = ya + yc, dif = ya - yc;
+        const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
+        // Rows 8 half + r: parity even for r = 0, 3, 4, 7 (m even cos, m odd sin).
+        acc[0] += bk[0] * sum;
+        acc[1] += bk[1] * dif;
+        acc[2] += bk[2] * dif;
+        acc[3] += bk[3] * sum;
+        acc[4] += bk[4] * sum;
+        acc[5] += bk[5] * dif;
+        acc[6] += bk[6] * dif;
+        acc[7] += bk[7] * sum;
+        if (half == 0) {
+          y0 += sum;
+          y2 += ya * ya + yc * yc;
+        }
+      }
+      if (n % 2 != 0) {
+        V4f v;
+        std::memcpy(&v, yb + 4 * half_n, sizeof v);
+        const V4d y = __builtin_convertvector(v, V4d) - mean;
+        const double* bk = in->basis_km + static_cast<size_t>(half_n) * kMoments + 8 * half;
+        for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
+        if (half == 0) {
+          y0 += y;
+          y2 += y * y;
+        }
+      }
+      for (int r = 0; r < 8; ++r) w[8 * half + r] = acc[r];
+    }
+  } else {
+    for (int half = 0; half < 2; ++half) {
+      V4d acc[8];
+      for (int r = 0; r < 8; ++r) acc[r] = zero;
+      for (int k = 0; k < n; ++k) {
+        V4f v;
+        std::memcpy(&v, yb + 4 * k, sizeof v);
+        const V4d y = __builtin_convertvector(v, V4d) - mean;
+        const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
+        for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
+        if (half == 0) {
+          y0 += y;
+          y2 += y * y;
+        }
+      }
+      for (int r = 0; r < 8; ++r) w[8 * half + r] = acc[r];
+    }
+  }
+  // Horner coefficients i^m W_m / m! (ZCoefficients).
+  V4d zr[kOrder + 1], zi[kOrder + 1];
+  double inv_fact = 1.0;
+  for (int m = 0; m <= kOrder; ++m) {
+    if (m > 0) inv_fact /= m;
+    const V4d re = inv_fact * w[2 * m], im = inv_fact * w[2 * m + 1];
+    switch (m & 3) {
+      case 0: zr[m] = re, zi[m] = im; break;
+      case 1: zr[m] = -im, zi[m] = re; break;
+      case 2: zr[m] = -re, zi[m] = -im; break;
+      default: zr[m] = im, zi[m] = -re; break;
+    }
+  }
+  const double nd = n;
+  V4d eps = zero;
+  LaneObjective o;
+  const bool sym = in->symmetric;
+  if (sym)  // at eps' = 0: orders 0..2 exactly
+    EvaluateLanes<true>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
+  else
+    EvaluateLanes<false>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
+  const V4l all = {-1, -1, -1, -1};
+  V4l redo = ~o.ok & all;
+  V4l active = o.ok;
+  V4l iterations = {0, 0, 0, 0};
+  constexpr double kQuadratic = 4.0;
+  for (int it = 0; it < in->max_iterations && LaneAny(active); ++it) {
+    iterations -= active;  // active lanes are -1
+    const V4l concave = o.j2 < 0;
+    V4d step = MESOSCAN_LANE_SELECT(concave, -o.j1 / MESOSCAN_LANE_SELECT(concave, o.j2, zero - 1.0),
+                          MESOSCAN_LANE_SELECT(o.j1 > 0, zero + kMaxStep, zero - kMaxStep));
+    step = MESOSCAN_LANE_SELECT(step > kMaxStep, zero + kMaxStep, step);
+    step = MESOSCAN_LANE_SELECT(step < -kMaxStep, zero - kMaxStep, step);
+    V4d last_step = zero + in->final_step;
+    if (in->sigma_factor > 0.0) {
+      const V4d ssr = in->sigma_factor * (o.j < y2 ? y2 - o.j : zero);
+      const V4d var_eps = ssr / MESOSCAN_LANE_SELECT(concave, -o.j2, zero + 1.0);
+      V4d tol;
+      LaneSqrt(var_eps, &tol);
+      tol = in->tol_sigma * tol;
+      const V4l loose = concave & (tol > in->eps_tol);
+      if (LaneAny(loose)) {
+        V4d ls;
+        LaneSqrt(tol / kQuadratic, &ls);
+        last_step = MESOSCAN_LANE_SELECT(loose, ls, last_step);
+      }
+    }
+    const V4l finish = active & concave & (MESOSCAN_LANE_ABS(step) < last_step) &
+                       (MESOSCAN_LANE_ABS(eps + step) <= kEvalRadius);
+    if (LaneAny(finish)) {
+      // FastFit's last step: coefficients to first order, J to second.
+      eps = MESOSCAN_LANE_SELECT(finish, eps + step, eps);
+      o.c0 = MESOSCAN_LANE_SELECT(finish, o.c0 + o.dc0 * step, o.c0);
+      o.c1 = MESOSCAN_LANE_SELECT(finish, o.c1 + o.dc1 * step, o.c1);
+      o.c2 = MESOSCAN_LANE_SELECT(finish, o.c2 + o.dc2 * step, o.c2);
+      o.j = MESOSCAN_LANE_SELECT(finish, o.j + step * (o.j1 + 0.5 * step * o.j2), o.j);
+      active &= ~finish;
+      if (!LaneAny(active)) break;
+    }
+    V4d e = eps + step;
+    e = MESOSCAN_LANE_SELECT(e > kEvalRadius, zero + kEvalRadius, e);
+    e = MESOSCAN_LANE_SELECT(e < -kEvalRadius, zero - kEvalRadius, e);
+    e = MESOSCAN_LANE_SELECT(active, e, eps);
+    const double r = LaneMaxAbs(e, active);
+    const int top_z = std::min(NeededOrder(r, kOrder) + 2, kOrder);
+    const int top_g = std::min(NeededOrder(2.0 * r, kGramOrder) + 2, kGramOrder);
+    LaneObjective next;
+    if (sym)
+      EvaluateLanes<true>(zr, zi, top_z, in->e12, top_g, e, y0, nd, &next);
+    else
+      EvaluateLanes<false>(zr, zi, top_z, in->e12, top_g, e, y0, nd, &next);
+    const V4l accept = next.ok & (next.j >= o.j - 1e-15 * MESOSCAN_LANE_ABS(o.j));
+    redo |= active & ~accept;  // FastFit would halve the step: left to it
+    active &= accept;
+    step = e - eps;
+    eps = MESOSCAN_LANE_SELECT(active, e, eps);
+    o.j = MESOSCAN_LANE_SELECT(active, next.j, o.j);
+    o.j1 = MESOSCAN_LANE_SELECT(active, next.j1, o.j1);
+    o.j2 = MESOSCAN_LANE_SELECT(active, next.j2, o.j2);
+    o.c0 = MESOSCAN_LANE_SELECT(active, next.c0, o.c0);
+    o.c1 = MESOSCAN_LANE_SELECT(active, next.c1, o.c1);
+    o.c2 = MESOSCAN_LANE_SELECT(active, next.c2, o.c2);
+    o.dc0 = MESOSCAN_LANE_SELECT(active, next.dc0, o.dc0);
+    o.dc1 = MESOSCAN_LANE_SELECT(active, next.dc1, o.dc1);
+    o.dc2 = MESOSCAN_LANE_SELECT(active, next.dc2, o.dc2);
+    const V4l recentre = active & (MESOSCAN_LANE_ABS(eps) > kRadius);
+    redo |= recentre;  // FastFit would re-centre the moments: left to it
+    active &= ~recentre;
+    active &= ~(MESOSCAN_LANE_ABS(step) < in->eps_tol);  // converged
+  }
+  redo |= active;  // the iteration cap: left to FastFit (converged = false there)
+  // Finalize's arithmetic in the lanes: phi = atan2(c0, c1) (FastAtan2's steps), a, the
+  // residual and the amplitude's noise (the validity decision stays scalar).
+  {
+    const V4d cc = o.c0, cs = o.c1;
+    const V4d ay = MESOSCAN_LANE_ABS(cc), ax = MESOSCAN_LANE_ABS(cs);
+    const V4d hi = ay > ax ? ay : ax, lo = ay > ax ? ax : ay;
+    const V4d t = hi > 0 ? lo / (hi > 0 ? hi : zero + 1.0) : zero;
+    const V4l big = t > kTanPi8;
+    const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
+    V4d at;
+    AtanReduced(u, &at);
+    at = big ? at + 0.25 * kPi : at;
+    at = ay > ax ? 0.5 * kPi - at : at;
+    at = cs < 0 ? kPi - at : at;
+    at = cc < 0 ? -at : at;
+    at = at <= -kPi ? zero + kPi : at;  // WrapPhase: (-pi, pi]
+    V4d a, rms, sigma_hat;
+    LaneSqrt(cc * cc + cs * cs, &a);
+    const V4d ssr0 = y2 - o.j;
+    const V4d ssr = ssr0 > 0 ? ssr0 : zero;
+    LaneSqrt(ssr / nd, &rms);
+    LaneSqrt(ssr / (nd - 4), &sigma_hat);
+    const V4d sigma_a = sigma_hat * in->sqrt_2_over_n;
+    const V4d inf = zero + std::numeric_limits<double>::infinity();
+    const V4d phase_sigma = a > 0 ? sigma_a / (a > 0 ? a : zero + 1.0) : inf;
+    const V4d snr = sigma_a > 0 ? a / (sigma_a > 0 ? sigma_a : zero + 1.0) : inf;
+    std::memcpy(out->phase, &at, sizeof at);
+    std::memcpy(out->amplitude, &a, sizeof a);
+    std::memcpy(out->ssr, &ssr0, sizeof ssr0);
+    std::memcpy(out->residual_rms, &rms, sizeof rms);
+    std::memcpy(out->phase_sigma, &phase_sigma, sizeof phase_sigma);
+    std::memcpy(out->snr, &snr, sizeof snr);
+  }
+  std::memcpy(out->c[0], &o.c0, sizeof o.c0);
+  std::memcpy(out->c[1], &o.c1, sizeof o.c1);
+  std::memcpy(out->c[2], &o.c2, sizeof o.c2);
+  std::memcpy(out->j, &o.j, sizeof o.j);
+  std::memcpy(out->y2, &y2, sizeof y2);
+  std::memcpy(out->eps, &eps, sizeof eps);
+  std::memcpy(out->iterations, &iterations, sizeof iterations);
+  std::memcpy(out->redo, &redo, sizeof redo);
+}
+
 // Copies the finite samples (and their positions) of a strided profile.
 int GatherFinite(const float* b, int stride, const double* x, int n, std::vector<float>* bf,
                  std::vector<double>* xf) {
@@ -787,6 +1143,9 @@ std::shared_ptr<const LensShiftBatchFitter::Tables> BuildTables(const std::vecto
   double xmax = 0.0;
   for (double v : x) xmax = std::max(xmax, std::abs(v));
   t->x_scale = xmax > 0.0 ? xmax : 1.0;
+  t->symmetric = true;
+  for (int k = 0; k < n; ++k)
+    t->symmetric = t->symmetric && std::abs(x[k] + x[n - 1 - k]) <= 1e-15 * t->x_scale;
   t->fine = fine;
   const int factor = fine ? kFineFactor : 1;
   t->h = kRadius / (kPi * t->x_scale) / factor;
@@ -998,6 +1357,127 @@ LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride, double f_star
     y = heap_y.data();
   }
   return FastFit<float>(*tables_, buf, sum / n, f0_, f_start, options_, y);
+}
+
+void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride,
+                                   int sample_stride, int count, LensShiftFit* out) const {
+  const int n = num_samples();
+  auto single = [&](int p) { out[p] = Fit(b + p * profile_stride, sample_stride); };
+  if (options_.fitter != LensShiftFitter::kFast || !options_.fit_frequency ||
+      !options_.double_accumulation || n < 5 || n > kStackSamples) {
+    for (int p = 0; p < count; ++p) single(p);
+    return;
+  }
+  const Tables& t = *tables_;
+  const double two_pi_x = kTwoPi * t.x_scale;
+  LaneInput in;
+  in.basis_km = t.km[t.grid_half].data();
+  in.e12 = t.e12[t.grid_half].data();
+  in.n = n;
+  in.symmetric = t.symmetric;
+  in.max_iterations = options_.max_iterations;
+  in.eps_tol = options_.frequency_tolerance * two_pi_x;
+  in.final_step = std::sqrt(in.eps_tol / 4.0);  // FastFit's kQuadratic
+  in.sigma_factor = options_.frequency_tolerance_sigma > 0.0 ? 2.0 / (n - 4) : 0.0;
+  in.tol_sigma = options_.frequency_tolerance_sigma;
+  in.sqrt_2_over_n = std::sqrt(2.0 / n);
+  const double max_df = options_.max_frequency_deviation * std::abs(f0_);
+  alignas(32) float yb[4 * kStackSamples];
+  int p0 = 0;
+  for (; p0 + 4 <= count; p0 += 4) {
+    // Lane-interleaved copy and the per-lane float sums (FastFit's centring reference; a
+    // non-finite sum: NaN / Inf samples, left to Fit).
+    V4f sum = {0, 0, 0, 0};
+    const float* src[4];
+    for (int l = 0; l < 4; ++l) src[l] = b + (p0 + l) * profile_stride;
+    int k = 0;
+    if (profile_stride == 1) {
+      // Frame-major rows of adjacent pixels: one load per sample.
+      for (; k < n; ++k) {
+        V4f v;
+        std::memcpy(&v, src[0] + static_cast<std::ptrdiff_t>(k) * sample_stride, sizeof v);
+        std::memcpy(yb + 4 * k, &v, sizeof v);
+        sum += v;
+      }
+    } else if (sample_stride == 1) {
+      // Contiguous profiles: 4 x 4 blocks transposed in registers.
+      for (; k + 4 <= n; k += 4) {
+        V4f r0, r1, r2, r3;
+        std::memcpy(&r0, src[0] + k, sizeof r0);
+        std::memcpy(&r1, src[1] + k, sizeof r1);
+        std::memcpy(&r2, src[2] + k, sizeof r2);
+        std::memcpy(&r3, src[3] + k, sizeof r3);
+        const V4f t0 = __builtin_shufflevector(r0, r1, 0, 4, 1, 5);  // a0 b0 a1 b1
+        const V4f t1 = __builtin_shufflevector(r2, r3, 0, 4, 1, 5);  // c0 d0 c1 d1
+        const V4f t2 = __builtin_shufflevector(r0, r1, 2, 6, 3, 7);  // a2 b2 a3 b3
+        const V4f t3 = __builtin_shufflevector(r2, r3, 2, 6, 3, 7);  // c2 d2 c3 d3
+        const V4f c0 = __builtin_shufflevector(t0, t1, 0, 1, 4, 5);
+        const V4f c1 = __builtin_shufflevector(t0, t1, 2, 3, 6, 7);
+        const V4f c2 = __builtin_shufflevector(t2, t3, 0, 1, 4, 5);
+        const V4f c3 = __builtin_shufflevector(t2, t3, 2, 3, 6, 7);
+        std::memcpy(yb + 4 * k, &c0, sizeof c0);
+        std::memcpy(yb + 4 * k + 4, &c1, sizeof c1);
+        std::memcpy(yb + 4 * k + 8, &c2, sizeof c2);
+        std::memcpy(yb + 4 * k + 12, &c3, sizeof c3);
+        sum += c0;
+        sum += c1;
+        sum += c2;
+        sum += c3;
+      }
+    }
+    for (; k < n; ++k) {
+      const std::ptrdiff_t o = static_cast<std::ptrdiff_t>(k) * sample_stride;
+      const V4f v = {src[0][o], src[1][o], src[2][o], src[3][o]};
+      std::memcpy(yb + 4 * k, &v, sizeof v);
+      sum += v;
+    }
+    bool lane_ok[4];
+    alignas(32) double mean[4];
+    bool any = false;
+    for (int l = 0; l < 4; ++l) {
+      lane_ok[l] = std::isfinite(sum[l]);
+      mean[l] = lane_ok[l] ? static_cast<double>(sum[l] / static_cast<float>(n)) : 0.0;
+      any = any || lane_ok[l];
+    }
+    if (!any) {
+      for (int l = 0; l < 4; ++l) single(p0 + l);
+      continue;
+    }
+    for (int l = 0; l < 4; ++l)
+      if (!lane_ok[l])
+        for (int k = 0; k < n; ++k) yb[4 * k + l] = 0.0f;
+    LaneOutput r;
+    FitFourLanes(&in, yb, mean, &r);
+    for (int l = 0; l < 4; ++l) {
+      if (!lane_ok[l] || r.redo[l]) {
+        single(p0 + l);
+        continue;
+      }
+      // Finalize with the lanes' arithmetic: the same values; Finalize itself wherever the fit
+      // is not valid (its clean-up of non-finite values).
+      const double f = f0_ + r.eps[l] / two_pi_x, d = r.c[2][l] + mean[l];
+      const int iterations = static_cast<int>(r.iterations[l]);
+      LensShiftFit& fit = out[p0 + l];
+      fit.phase = r.phase[l];
+      fit.amplitude = r.amplitude[l];
+      fit.frequency = f;
+      fit.offset = d;
+      fit.residual_rms = r.residual_rms[l];
+      fit.phase_sigma = r.phase_sigma[l];
+      fit.samples_used = n;
+      fit.iterations = iterations;
+      fit.converged = true;
+      const double a = fit.amplitude;
+      fit.valid = std::isfinite(fit.phase) && std::isfinite(a) && std::isfinite(f) &&
+                  std::isfinite(d) && std::isfinite(fit.residual_rms) &&
+                  std::isfinite(fit.phase_sigma) && a > options_.min_amplitude &&
+                  a > kMinRelativeAmplitude * std::abs(d) && r.snr[l] >= options_.min_amplitude_snr &&
+                  std::abs(f - f0_) <= max_df;
+      if (!fit.valid)
+        fit = Finalize(fit.phase, a, f, d, r.ssr[l], n, iterations, true, f0_, options_);
+    }
+  }
+  for (; p0 < count; ++p0) single(p0);
 }
 
 int LensShiftBatchFitter::num_samples() const { return static_cast<int>(x_.size()); }

@@ -575,3 +575,90 @@ TEST(LensShiftFit, BatchFitIsThreadSafe) {
 
 }  // namespace
 }  // namespace mesoscan
+
+namespace mesoscan {
+namespace {
+
+// FitMany (four profiles in vector lanes) gives Fit's result for every profile to rounding:
+// symmetric and asymmetric positions, odd and even n, a count that leaves a tail, both profile
+// layouts, noisy and clean profiles, and the profiles the lanes hand back to Fit (NaN samples,
+// a frequency far enough off f0 to re-centre the moments, constant and pure-noise profiles).
+TEST(LensShiftFit, FitManyMatchesFit) {
+  std::mt19937_64 rng(31);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  int compared = 0, valid = 0;
+  for (double f0 : {kF0, -kF0}) {
+    for (int n : {5, 15, 50, 51, 40}) {
+      auto x = CentredPositions(n);
+      if (n == 40)  // asymmetric: jittered positions
+        for (double& v : x) v += 0.01 * (uni(rng) - 0.5);
+      const LensShiftBatchFitter fitter(x, f0, {});
+      constexpr int kCount = 43;  // 10 groups of four and a tail of three
+      std::vector<std::vector<float>> profiles;
+      for (int p = 0; p < kCount; ++p) {
+        const double sigma = p % 3 == 0 ? 1e-4 : 0.02;
+        double f = f0 * (0.95 + 0.1 * uni(rng));
+        if (p % 11 == 5) f = f0 * 1.25;  // beyond the grid radius: re-centred by Fit
+        Truth t{-kPi + 2 * kPi * uni(rng), 0.2, f, 0.5};
+        if (p % 13 == 7) t.amplitude = 0.0;  // pure noise (or constant)
+        auto b = Profile(t, x, p % 13 == 7 && p % 2 ? 0.0 : sigma, &rng);
+        if (p % 17 == 3) b[n / 2] = std::numeric_limits<float>::quiet_NaN();
+        profiles.push_back(b);
+      }
+      // Profile-major (profile_stride n, sample_stride 1) and frame-major with a gap
+      // (sample k of profile p at k * (3 kCount) + 3 p), as a sparse row of frames.
+      // Also frame-major without a gap (profile_stride 1: one vector load per sample).
+      std::vector<float> major(static_cast<size_t>(kCount) * n), frames(3 * kCount * n, 0.f),
+          dense(static_cast<size_t>(kCount) * n);
+      for (int p = 0; p < kCount; ++p)
+        for (int k = 0; k < n; ++k) {
+          major[static_cast<size_t>(p) * n + k] = profiles[p][k];
+          frames[static_cast<size_t>(k) * 3 * kCount + 3 * p] = profiles[p][k];
+          dense[static_cast<size_t>(k) * kCount + p] = profiles[p][k];
+        }
+      std::vector<LensShiftFit> a(kCount), b(kCount), c(kCount);
+      fitter.FitMany(major.data(), n, 1, kCount, a.data());
+      fitter.FitMany(frames.data(), 3, 3 * kCount, kCount, b.data());
+      fitter.FitMany(dense.data(), 1, kCount, kCount, c.data());
+      for (int p = 0; p < kCount; ++p) {
+        const LensShiftFit ref = fitter.Fit(profiles[p].data());
+        for (const LensShiftFit* g : {&a[p], &b[p], &c[p]}) {
+          ++compared;
+          ASSERT_EQ(g->valid, ref.valid) << "f0 " << f0 << " n " << n << " profile " << p;
+          EXPECT_EQ(g->samples_used, ref.samples_used);
+          EXPECT_EQ(g->converged, ref.converged);
+          if (!ref.valid) continue;
+          ++valid;
+          const double tol = 1e-9 * std::max(1.0, std::abs(ref.offset));
+          EXPECT_NEAR(PhaseDiff(g->phase, ref.phase), 0.0, 1e-9) << "n " << n << " p " << p;
+          EXPECT_NEAR(g->amplitude, ref.amplitude, tol);
+          EXPECT_NEAR(g->frequency, ref.frequency, 1e-9);
+          EXPECT_NEAR(g->offset, ref.offset, tol);
+          EXPECT_NEAR(g->residual_rms, ref.residual_rms, 1e-6 * ref.residual_rms + 1e-9);
+          EXPECT_NEAR(g->phase_sigma, ref.phase_sigma, 1e-6 * ref.phase_sigma + 1e-12);
+        }
+      }
+    }
+  }
+  EXPECT_GT(valid, compared / 2);
+  // Any other configuration loops over Fit: the 3-parameter fit, float accumulation, LM.
+  const auto x = CentredPositions(30);
+  std::vector<float> b(30 * 5);
+  for (int p = 0; p < 5; ++p) {
+    const auto prof = Profile({0.3 * p, 0.2, kF0, 0.5}, x, 0.01, &rng);
+    std::copy(prof.begin(), prof.end(), b.begin() + 30 * p);
+  }
+  for (int config = 0; config < 3; ++config) {
+    LensShiftFitOptions o;
+    if (config == 0) o.fit_frequency = false;
+    if (config == 1) o.double_accumulation = false;
+    if (config == 2) o.fitter = LensShiftFitter::kLm;
+    const LensShiftBatchFitter fitter(x, kF0, o);
+    std::vector<LensShiftFit> out(5);
+    fitter.FitMany(b.data(), 30, 1, 5, out.data());
+    for (int p = 0; p < 5; ++p) EXPECT_EQ(out[p].phase, fitter.Fit(b.data() + 30 * p).phase);
+  }
+}
+
+}  // namespace
+}  // namespace mesoscan
