@@ -600,7 +600,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
 
 FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::vector<int>& frames,
                                           const std::vector<uint32_t>& pixels,
-                                          const std::vector<float>& f_map,
+                                          const FrequencyAt& f_map,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
                                           const FrameCorrectionOptions& options,
@@ -617,7 +617,7 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
   std::vector<double> freq;
   for (size_t q = 0; q < pixels.size(); q += stride) {
     const uint32_t i = pixels[q];
-    freq.push_back(f_map[i]);
+    freq.push_back(f_map(i));
     for (int k = 0; k < nk; ++k) samples.push_back(stack.Value(frames[k], i));
     if (with_ref) {
       sub.phase.push_back(reference->phase[q]);
@@ -657,7 +657,7 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
 
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
                                         const FirstPassFits& first,
-                                        const std::vector<float>& f_map, std::vector<double>* x,
+                                        const FrequencyAt& f_map, std::vector<double>* x,
                                         std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
                                         const PhaseReference* reference) {
@@ -670,10 +670,12 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
     const double centre = reference->ls_centre_px;
     for (size_t q = 0; q < reference->pixels.size(); ++q) {
       const uint32_t i = reference->pixels[q];
-      if (i >= f_map.size() || !std::isfinite(f_map[i])) continue;
+      if (i >= stack.pixels()) continue;
+      const float fi = f_map(i);
+      if (!std::isfinite(fi)) continue;
       pixels.push_back(i);
       // Shift 0: pi/2 - pi u (stage_combine.cc); the fit's x = 0 is the range's centre.
-      pc.phase.push_back(kPi / 2 - kPi * reference->u_px[q] + 2 * kPi * f_map[i] * centre);
+      pc.phase.push_back(kPi / 2 - kPi * reference->u_px[q] + 2 * kPi * fi * centre);
       pc.sigma.push_back(kPi * reference->sigma_u_px[q]);
       const int m = reference->nuisance_per_pixel;
       if (m > 0 && reference->nuisance.size() == reference->pixels.size() * m)
@@ -700,7 +702,7 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
   }
   std::vector<uint32_t> pixels, entries;  // and their entries in `first`
   for (size_t q = 0; q < first.pixels.size(); ++q)
-    if (first.pixels[q] < f_map.size() && std::isfinite(f_map[first.pixels[q]])) {
+    if (first.pixels[q] < stack.pixels() && std::isfinite(f_map(first.pixels[q]))) {
       pixels.push_back(first.pixels[q]);
       entries.push_back(static_cast<uint32_t>(q));
     }

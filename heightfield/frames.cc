@@ -95,6 +95,25 @@ void AffineToFloat(const uint16_t* src, size_t n, double scale, double offset, f
   for (size_t i = 0; i < n; ++i) out[i] = static_cast<float>(src[i] * scale + offset);
 }
 
+// Marks (mark(i)) the samples src[i] >= code of src[0..n): blocks of 256 are screened first by
+// a branch-free OR (vectorised; every block of a well exposed frame passes at once).
+MESOSCAN_SIMD_CLONES
+bool AnyAtLeast(const uint16_t* src, size_t n, uint16_t code) {
+  unsigned any = 0;
+  for (size_t i = 0; i < n; ++i) any |= src[i] >= code;
+  return any != 0;
+}
+template <class Mark>
+void MarkAtLeast(const uint16_t* src, size_t n, uint16_t code, Mark&& mark) {
+  constexpr size_t kBlock = 256;
+  for (size_t b = 0; b < n; b += kBlock) {
+    const size_t m = std::min(kBlock, n - b);
+    if (!AnyAtLeast(src + b, m, code)) continue;
+    for (size_t i = b; i < b + m; ++i)
+      if (src[i] >= code) mark(i);
+  }
+}
+
 // Colour channels averaged (an alpha channel, 2nd of 2 or 4th of 4, ignored).
 int ColourChannels(int channels) { return (channels == 2 || channels == 4) ? channels - 1 : channels; }
 
@@ -211,9 +230,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
         MESOSCAN_BAD_INPUT(label << ": a floating-point image in a file named .png");
       if (d.eight_bit) eight_bit.fetch_add(1);
       if (d.direct) {
-        const uint16_t* src = s.raw_[k].data();
-        for (size_t i = 0; i < np; ++i)
-          if (src[i] >= sat_code) mark_saturated(i);
+        MarkAtLeast(s.raw_[k].data(), np, sat_code, mark_saturated);
         progress.Advance();
         return;
       }

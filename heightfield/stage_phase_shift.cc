@@ -45,6 +45,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   auto& level = out.level;
   ParallelForRows(h, [&](int y0, int y1) {
     std::vector<float> buf;
+    std::vector<WrappedPhaseSolver::Result> solved;  // SolveMany's (without gamma)
     const size_t i0 = static_cast<size_t>(y0) * w, n = static_cast<size_t>(y1 - y0) * w;
     for (int p = 0; p < nper; ++p) {
       const int K = static_cast<int>(periods[p].stack_frames.size());
@@ -54,6 +55,10 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
         stack.Gather(sk, i0, n, buf.data() + k * n);
         const float g = inv_gain[sk];
         for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+      }
+      if (!linearize_gamma) {  // every pixel at once (a few are not kActive: solved anyway)
+        solved.resize(n);
+        solvers[p].SolveMany(buf.data(), n, static_cast<int>(n), solved.data());
       }
       for (size_t j = 0; j < n; ++j) {
         const size_t i = i0 + j;
@@ -67,7 +72,8 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
             s = static_cast<float>(std::pow(v, 1.0 / proj_gamma) * wl);
           }
         }
-        const auto r = solvers[p].Solve(buf.data() + j, static_cast<int>(n));
+        const auto r = linearize_gamma ? solvers[p].Solve(buf.data() + j, static_cast<int>(n))
+                                       : solved[j];
         if (!r.valid) continue;
         theta[p][i] = r.theta;
         modulation[p][i] = r.modulation;
