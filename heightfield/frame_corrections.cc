@@ -68,15 +68,29 @@ void PixelTrig(const Problem& p, int j, const std::vector<double>& delta, double
 // Per-pixel coefficients c = (d, alpha, beta) for frame parameters (g, delta) with the pixel's
 // cos / sin from PixelTrig; the unweighted SSR in *ssr.
 bool SolvePixel(const Problem& p, int j, const std::vector<double>& g, const double* ct,
-                const double* st, Eigen::Vector3d* c, double* ssr) {
-  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+                const double* st, Eigen::Vector3d* c, double* ssr,
+                Eigen::LLT<Eigen::Matrix3d>* llt_out = nullptr) {
+  // A = sum D D^T, b = sum D I with D = g (1, cos, sin): the six distinct entries of A summed
+  // in scalars (the same products and sums as the Eigen expressions A += D D^T, b += D I; the
+  // 3x3 temporaries cost more than the sums), mirrored for the solve.
+  double a00 = 0, a10 = 0, a20 = 0, a11 = 0, a21 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
   const float* I = p.s.data() + static_cast<size_t>(j) * p.nk;
   for (int k = 0; k < p.nk; ++k) {
-    const Eigen::Vector3d D(g[k], g[k] * ct[k], g[k] * st[k]);
-    A += D * D.transpose();
-    b += D * static_cast<double>(I[k]);
+    const double d0 = g[k], d1 = g[k] * ct[k], d2 = g[k] * st[k];
+    const double v = static_cast<double>(I[k]);
+    a00 += d0 * d0;
+    a10 += d1 * d0;
+    a20 += d2 * d0;
+    a11 += d1 * d1;
+    a21 += d2 * d1;
+    a22 += d2 * d2;
+    b0 += d0 * v;
+    b1 += d1 * v;
+    b2 += d2 * v;
   }
+  Eigen::Matrix3d A;
+  A << a00, a10, a20, a10, a11, a21, a20, a21, a22;
+  const Eigen::Vector3d b(b0, b1, b2);
   Eigen::LLT<Eigen::Matrix3d> llt(A);
   if (llt.info() != Eigen::Success) return false;
   // Conditioning (cheaper than an rcond estimate): the Cholesky pivots' spread, squared.
@@ -90,6 +104,7 @@ bool SolvePixel(const Problem& p, int j, const std::vector<double>& g, const dou
     r2 += r * r;
   }
   *ssr = r2;
+  if (llt_out) *llt_out = llt;
   return c->allFinite() && std::isfinite(r2);
 }
 
@@ -279,16 +294,16 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
           Eigen::Vector3d c;
           double ssr;
           PixelTrig(p, j, delta, ct.data(), st.data(), dz);
-          if (!SolvePixel(p, j, g, ct.data(), st.data(), &c, &ssr)) continue;
+          // Hcc, the pixel's block (sum D D^T): SolvePixel's normal matrix, factored there.
+          Eigen::LLT<Eigen::Matrix3d> llt;
+          if (!SolvePixel(p, j, g, ct.data(), st.data(), &c, &ssr, &llt)) continue;
           const double wq = wts[q], om = 2 * kPi * freq[j];
           const float* I = samples.data() + static_cast<size_t>(j) * nk;
           F.setZero();
-          Eigen::Matrix3d Hcc = Eigen::Matrix3d::Zero();
           for (int k = 0; k < nk; ++k) {
             const Eigen::Vector3d D(g[k], g[k] * ct[k], g[k] * st[k]);
             const double m = c(0) + c(1) * ct[k] + c(2) * st[k];
             const double r = I[k] - g[k] * m;
-            Hcc += D * D.transpose();
             const double Jd = g[k] * om * (-c(1) * st[k] + c(2) * ct[k]);
             if (est_gain) {
               part.S(k, k) += wq * m * m;
@@ -306,8 +321,6 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
             }
           }
           // Schur complement of the pixel's block: S -= w F Hcc^-1 F^T = (sqrt(w) L^-1 F^T)^T (..).
-          Eigen::LLT<Eigen::Matrix3d> llt(Hcc);
-          if (llt.info() != Eigen::Success) continue;
           G.middleRows(3 * (q - q0), 3) =
               std::sqrt(wq) * llt.matrixL().solve(F.transpose());  // 3 x P
         }
