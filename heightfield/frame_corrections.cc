@@ -626,12 +626,12 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
       reference->sigma.size() == pixels.size() &&
       reference->nuisance.size() == pixels.size() * std::max(0, reference->nuisance_per_pixel);
   if (with_ref) sub.nuisance_per_pixel = reference->nuisance_per_pixel;
-  std::vector<float> samples;
+  std::vector<uint32_t> used;  // the pixels taken
   std::vector<double> freq;
   for (size_t q = 0; q < pixels.size(); q += stride) {
     const uint32_t i = pixels[q];
+    used.push_back(i);
     freq.push_back(f_map(i));
-    for (int k = 0; k < nk; ++k) samples.push_back(stack.Value(frames[k], i));
     if (with_ref) {
       sub.phase.push_back(reference->phase[q]);
       sub.sigma.push_back(reference->sigma[q]);
@@ -641,6 +641,17 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
                             reference->nuisance.begin() + (q + 1) * m);
     }
   }
+  // The samples, pixel-major: gathered frame by frame (in parallel; one frame's samples at
+  // increasing pixels, not one cache miss per sample), then transposed.
+  const size_t n = used.size();
+  std::vector<float> by_frame(n * static_cast<size_t>(nk));
+  ParallelFor(nk, [&](int64_t k) {
+    float* dst = by_frame.data() + static_cast<size_t>(k) * n;
+    for (size_t q = 0; q < n; ++q) dst[q] = stack.Value(frames[k], used[q]);
+  });
+  std::vector<float> samples(n * static_cast<size_t>(nk));
+  for (size_t q = 0; q < n; ++q)
+    for (int k = 0; k < nk; ++k) samples[q * nk + k] = by_frame[static_cast<size_t>(k) * n + q];
   return EstimateFrameCorrections(samples, nk, freq, x, initial_gains, options,
                                   with_ref ? &sub : nullptr);
 }

@@ -335,8 +335,16 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
     for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
   const size_t n = pixels.size();
   Eigen::MatrixXd I(nk, n);  // samples, frame-major
-  for (int k = 0; k < nk; ++k)
-    for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], pixels[j]);
+  {
+    // Gathered frame by frame in parallel (a frame's samples at increasing pixels), then copied.
+    std::vector<float> by_frame(static_cast<size_t>(nk) * n);
+    ParallelFor(nk, [&](int64_t k) {
+      float* dst = by_frame.data() + static_cast<size_t>(k) * n;
+      for (size_t j = 0; j < n; ++j) dst[j] = stack.Value(model.frames[k], pixels[j]);
+    });
+    for (size_t j = 0; j < n; ++j)
+      for (int k = 0; k < nk; ++k) I(k, j) = by_frame[static_cast<size_t>(k) * n + j];
+  }
   std::vector<uint8_t> use(n, 1);
   for (int it = 0; it < iterations; ++it) {
     Eigen::MatrixXd Mg = M;

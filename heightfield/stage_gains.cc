@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <optional>
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
 
 #include "core/error.h"
 #include "core/numbers.h"
@@ -53,8 +56,14 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
         return false;
     return true;
   };
-  size_t n_usable = 0;
-  for (size_t i = 0; i < np; ++i) n_usable += usable(i);
+  // Counted in parallel (a pass over eight arrays of every pixel).
+  const size_t n_usable = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, np, 1 << 16), size_t{0},
+      [&](const tbb::blocked_range<size_t>& r, size_t n) {
+        for (size_t i = r.begin(); i < r.end(); ++i) n += usable(i);
+        return n;
+      },
+      std::plus<size_t>());
   if (n_usable == 0) return ref;
   // About 1 in `stride` of the usable pixels, scattered by a multiplicative hash of the index (a
   // regular stride could fall on the same few columns of every row, i.e. the same few stripe
