@@ -56,11 +56,12 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
         const float g = inv_gain[sk];
         for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
       }
-      if (!linearize_gamma) {  // every pixel at once (a few are not kActive: solved anyway)
-        solved.resize(n);
-        solvers[p].SolveMany(buf.data(), n, static_cast<int>(n), solved.data());
-      }
+      constexpr size_t kTile = 256;  // SolveMany's results per tile (they stay in L1)
+      solved.resize(kTile);
       for (size_t j = 0; j < n; ++j) {
+        if (!linearize_gamma && j % kTile == 0)  // every pixel (a few not kActive: solved anyway)
+          solvers[p].SolveMany(buf.data() + j, n, static_cast<int>(std::min(kTile, n - j)),
+                               solved.data());
         const size_t i = i0 + j;
         if (state[i] != PixelState::kActive) continue;
         if (linearize_gamma) {
@@ -73,7 +74,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
           }
         }
         const auto r = linearize_gamma ? solvers[p].Solve(buf.data() + j, static_cast<int>(n))
-                                       : solved[j];
+                                       : solved[j % kTile];
         if (!r.valid) continue;
         theta[p][i] = r.theta;
         modulation[p][i] = r.modulation;
