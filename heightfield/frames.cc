@@ -38,14 +38,14 @@ struct DecodedFrame {
   bool is_float = false;
   bool eight_bit = false;
   bool direct = false;        // decoded into the caller's buffer (u16 left empty)
-  std::vector<uint16_t> u16;  // interleaved
+  FrameSamples u16;           // interleaved
   std::vector<float> f32;     // interleaved
 };
 
 // Decodes a frame. `direct` (optional): where a single-channel integer frame is stored as it is
 // (resized to width x height); d.direct tells whether it was used.
 DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
-                    std::vector<uint16_t>* direct = nullptr) {
+                    FrameSamples* direct = nullptr) {
   if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (capture/raw_frame.h)
     CheckRegularFile(path, label);
     ImageU16 grey = ReadRawGrey(path, label);
@@ -53,7 +53,7 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     d.width = grey.width();
     d.height = grey.height();
     d.channels = 1;
-    d.u16 = std::move(grey.data());
+    d.u16.assign(grey.data().begin(), grey.data().end());  // (camera raw files: a copy)
     return d;
   }
   auto in = OpenImageInput(path, label);  // regular file, extension's reader, size vs header
@@ -71,7 +71,7 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     d.f32.resize(n);
     ok = ReadPixels(*in, OIIO::TypeFloat, d.f32.data());
   } else {
-    std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
+    FrameSamples& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
     // A grey 8- or 16-bit PNG (every frame the rig writes): the fast path (core/png_gray16.h);
     // anything it does not take is decoded (or refused) by OIIO.
@@ -216,7 +216,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
       const auto path = session.FramePath(f);
       const std::string label = path.string() + ": frames[" + std::to_string(f) + "]";
       // A grey integer frame covering the whole ROI decodes straight into the stack (no copy).
-      std::vector<uint16_t>* direct =
+      FrameSamples* direct =
           (!any_float && s.roi_.x == 0 && s.roi_.y == 0 && s.roi_.w == cam.width &&
            s.roi_.h == cam.height)
               ? &s.raw_[k]
