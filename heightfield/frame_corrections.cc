@@ -68,15 +68,29 @@ void PixelTrig(const Problem& p, int j, const std::vector<double>& delta, double
 // Per-pixel coefficients c = (d, alpha, beta) for frame parameters (g, delta) with the pixel's
 // cos / sin from PixelTrig; the unweighted SSR in *ssr.
 bool SolvePixel(const Problem& p, int j, const std::vector<double>& g, const double* ct,
-                const double* st, Eigen::Vector3d* c, double* ssr) {
-  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+                const double* st, Eigen::Vector3d* c, double* ssr,
+                Eigen::LLT<Eigen::Matrix3d>* llt_out = nullptr) {
+  // A = sum D D^T, b = sum D I with D = g (1, cos, sin): the six distinct entries of A summed
+  // in scalars (the same products and sums as the Eigen expressions A += D D^T, b += D I; the
+  // 3x3 temporaries cost more than the sums), mirrored for the solve.
+  double a00 = 0, a10 = 0, a20 = 0, a11 = 0, a21 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
   const float* I = p.s.data() + static_cast<size_t>(j) * p.nk;
   for (int k = 0; k < p.nk; ++k) {
-    const Eigen::Vector3d D(g[k], g[k] * ct[k], g[k] * st[k]);
-    A += D * D.transpose();
-    b += D * static_cast<double>(I[k]);
+    const double d0 = g[k], d1 = g[k] * ct[k], d2 = g[k] * st[k];
+    const double v = static_cast<double>(I[k]);
+    a00 += d0 * d0;
+    a10 += d1 * d0;
+    a20 += d2 * d0;
+    a11 += d1 * d1;
+    a21 += d2 * d1;
+    a22 += d2 * d2;
+    b0 += d0 * v;
+    b1 += d1 * v;
+    b2 += d2 * v;
   }
+  Eigen::Matrix3d A;
+  A << a00, a10, a20, a10, a11, a21, a20, a21, a22;
+  const Eigen::Vector3d b(b0, b1, b2);
   Eigen::LLT<Eigen::Matrix3d> llt(A);
   if (llt.info() != Eigen::Success) return false;
   // Conditioning (cheaper than an rcond estimate): the Cholesky pivots' spread, squared.
@@ -90,6 +104,7 @@ bool SolvePixel(const Problem& p, int j, const std::vector<double>& g, const dou
     r2 += r * r;
   }
   *ssr = r2;
+  if (llt_out) *llt_out = llt;
   return c->allFinite() && std::isfinite(r2);
 }
 
@@ -279,16 +294,16 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
           Eigen::Vector3d c;
           double ssr;
           PixelTrig(p, j, delta, ct.data(), st.data(), dz);
-          if (!SolvePixel(p, j, g, ct.data(), st.data(), &c, &ssr)) continue;
+          // Hcc, the pixel's block (sum D D^T): SolvePixel's normal matrix, factored there.
+          Eigen::LLT<Eigen::Matrix3d> llt;
+          if (!SolvePixel(p, j, g, ct.data(), st.data(), &c, &ssr, &llt)) continue;
           const double wq = wts[q], om = 2 * kPi * freq[j];
           const float* I = samples.data() + static_cast<size_t>(j) * nk;
           F.setZero();
-          Eigen::Matrix3d Hcc = Eigen::Matrix3d::Zero();
           for (int k = 0; k < nk; ++k) {
             const Eigen::Vector3d D(g[k], g[k] * ct[k], g[k] * st[k]);
             const double m = c(0) + c(1) * ct[k] + c(2) * st[k];
             const double r = I[k] - g[k] * m;
-            Hcc += D * D.transpose();
             const double Jd = g[k] * om * (-c(1) * st[k] + c(2) * ct[k]);
             if (est_gain) {
               part.S(k, k) += wq * m * m;
@@ -306,8 +321,6 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
             }
           }
           // Schur complement of the pixel's block: S -= w F Hcc^-1 F^T = (sqrt(w) L^-1 F^T)^T (..).
-          Eigen::LLT<Eigen::Matrix3d> llt(Hcc);
-          if (llt.info() != Eigen::Success) continue;
           G.middleRows(3 * (q - q0), 3) =
               std::sqrt(wq) * llt.matrixL().solve(F.transpose());  // 3 x P
         }
@@ -600,7 +613,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
 
 FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::vector<int>& frames,
                                           const std::vector<uint32_t>& pixels,
-                                          const std::vector<float>& f_map,
+                                          const FrequencyAt& f_map,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
                                           const FrameCorrectionOptions& options,
@@ -613,12 +626,12 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
       reference->sigma.size() == pixels.size() &&
       reference->nuisance.size() == pixels.size() * std::max(0, reference->nuisance_per_pixel);
   if (with_ref) sub.nuisance_per_pixel = reference->nuisance_per_pixel;
-  std::vector<float> samples;
+  std::vector<uint32_t> used;  // the pixels taken
   std::vector<double> freq;
   for (size_t q = 0; q < pixels.size(); q += stride) {
     const uint32_t i = pixels[q];
-    freq.push_back(f_map[i]);
-    for (int k = 0; k < nk; ++k) samples.push_back(stack.Value(frames[k], i));
+    used.push_back(i);
+    freq.push_back(f_map(i));
     if (with_ref) {
       sub.phase.push_back(reference->phase[q]);
       sub.sigma.push_back(reference->sigma[q]);
@@ -628,6 +641,17 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
                             reference->nuisance.begin() + (q + 1) * m);
     }
   }
+  // The samples, pixel-major: gathered frame by frame (in parallel; one frame's samples at
+  // increasing pixels, not one cache miss per sample), then transposed.
+  const size_t n = used.size();
+  std::vector<float> by_frame(n * static_cast<size_t>(nk));
+  ParallelFor(nk, [&](int64_t k) {
+    float* dst = by_frame.data() + static_cast<size_t>(k) * n;
+    for (size_t q = 0; q < n; ++q) dst[q] = stack.Value(frames[k], used[q]);
+  });
+  std::vector<float> samples(n * static_cast<size_t>(nk));
+  for (size_t q = 0; q < n; ++q)
+    for (int k = 0; k < nk; ++k) samples[q * nk + k] = by_frame[static_cast<size_t>(k) * n + q];
   return EstimateFrameCorrections(samples, nk, freq, x, initial_gains, options,
                                   with_ref ? &sub : nullptr);
 }
@@ -657,7 +681,7 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
 
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
                                         const FirstPassFits& first,
-                                        const std::vector<float>& f_map, std::vector<double>* x,
+                                        const FrequencyAt& f_map, std::vector<double>* x,
                                         std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
                                         const PhaseReference* reference) {
@@ -670,10 +694,12 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
     const double centre = reference->ls_centre_px;
     for (size_t q = 0; q < reference->pixels.size(); ++q) {
       const uint32_t i = reference->pixels[q];
-      if (i >= f_map.size() || !std::isfinite(f_map[i])) continue;
+      if (i >= stack.pixels()) continue;
+      const float fi = f_map(i);
+      if (!std::isfinite(fi)) continue;
       pixels.push_back(i);
       // Shift 0: pi/2 - pi u (stage_combine.cc); the fit's x = 0 is the range's centre.
-      pc.phase.push_back(kPi / 2 - kPi * reference->u_px[q] + 2 * kPi * f_map[i] * centre);
+      pc.phase.push_back(kPi / 2 - kPi * reference->u_px[q] + 2 * kPi * fi * centre);
       pc.sigma.push_back(kPi * reference->sigma_u_px[q]);
       const int m = reference->nuisance_per_pixel;
       if (m > 0 && reference->nuisance.size() == reference->pixels.size() * m)
@@ -700,7 +726,7 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
   }
   std::vector<uint32_t> pixels, entries;  // and their entries in `first`
   for (size_t q = 0; q < first.pixels.size(); ++q)
-    if (first.pixels[q] < f_map.size() && std::isfinite(f_map[first.pixels[q]])) {
+    if (first.pixels[q] < stack.pixels() && std::isfinite(f_map(first.pixels[q]))) {
       pixels.push_back(first.pixels[q]);
       entries.push_back(static_cast<uint32_t>(q));
     }

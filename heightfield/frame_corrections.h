@@ -36,6 +36,7 @@
 // and the frequency map absorb it), so delta is returned orthogonal to {1, x}.
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -154,11 +155,15 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
                                           const FrameCorrectionOptions& options,
                                           const PhaseConstraint* reference = nullptr);
 
+// The per-pixel frequency of stack pixel i (e.g. the smoothed frequency map evaluated there,
+// NaN: none), asked for at the pixels used only.
+using FrequencyAt = std::function<float(uint32_t)>;
+
 // The same on frames `frames` (stack indices) of `stack` at stack pixels `pixels`, with the
-// per-pixel frequency f_map[pixel].
+// per-pixel frequency f_map(pixel).
 FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::vector<int>& frames,
                                           const std::vector<uint32_t>& pixels,
-                                          const std::vector<float>& f_map,
+                                          const FrequencyAt& f_map,
                                           const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
                                           const FrameCorrectionOptions& options,
@@ -191,7 +196,7 @@ struct FirstPassFits {
 // where the view's residual stripe allows, else the given gains kept.
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
                                         const FirstPassFits& first,
-                                        const std::vector<float>& f_map, std::vector<double>* x,
+                                        const FrequencyAt& f_map, std::vector<double>* x,
                                         std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
                                         const PhaseReference* reference = nullptr);

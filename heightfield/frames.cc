@@ -38,14 +38,14 @@ struct DecodedFrame {
   bool is_float = false;
   bool eight_bit = false;
   bool direct = false;        // decoded into the caller's buffer (u16 left empty)
-  std::vector<uint16_t> u16;  // interleaved
+  FrameSamples u16;           // interleaved
   std::vector<float> f32;     // interleaved
 };
 
 // Decodes a frame. `direct` (optional): where a single-channel integer frame is stored as it is
 // (resized to width x height); d.direct tells whether it was used.
 DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
-                    std::vector<uint16_t>* direct = nullptr) {
+                    FrameSamples* direct = nullptr) {
   if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (capture/raw_frame.h)
     CheckRegularFile(path, label);
     ImageU16 grey = ReadRawGrey(path, label);
@@ -53,7 +53,7 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     d.width = grey.width();
     d.height = grey.height();
     d.channels = 1;
-    d.u16 = std::move(grey.data());
+    d.u16.assign(grey.data().begin(), grey.data().end());  // (camera raw files: a copy)
     return d;
   }
   auto in = OpenImageInput(path, label);  // regular file, extension's reader, size vs header
@@ -71,7 +71,7 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     d.f32.resize(n);
     ok = ReadPixels(*in, OIIO::TypeFloat, d.f32.data());
   } else {
-    std::vector<uint16_t>& dst = d.direct ? *direct : d.u16;
+    FrameSamples& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
     // A grey 8- or 16-bit PNG (every frame the rig writes): the fast path (core/png_gray16.h);
     // anything it does not take is decoded (or refused) by OIIO.
@@ -93,6 +93,25 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
 MESOSCAN_SIMD_CLONES
 void AffineToFloat(const uint16_t* src, size_t n, double scale, double offset, float* out) {
   for (size_t i = 0; i < n; ++i) out[i] = static_cast<float>(src[i] * scale + offset);
+}
+
+// Marks (mark(i)) the samples src[i] >= code of src[0..n): blocks of 256 are screened first by
+// a branch-free OR (vectorised; every block of a well exposed frame passes at once).
+MESOSCAN_SIMD_CLONES
+bool AnyAtLeast(const uint16_t* src, size_t n, uint16_t code) {
+  unsigned any = 0;
+  for (size_t i = 0; i < n; ++i) any |= src[i] >= code;
+  return any != 0;
+}
+template <class Mark>
+void MarkAtLeast(const uint16_t* src, size_t n, uint16_t code, Mark&& mark) {
+  constexpr size_t kBlock = 256;
+  for (size_t b = 0; b < n; b += kBlock) {
+    const size_t m = std::min(kBlock, n - b);
+    if (!AnyAtLeast(src + b, m, code)) continue;
+    for (size_t i = b; i < b + m; ++i)
+      if (src[i] >= code) mark(i);
+  }
 }
 
 // Colour channels averaged (an alpha channel, 2nd of 2 or 4th of 4, ignored).
@@ -197,7 +216,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
       const auto path = session.FramePath(f);
       const std::string label = path.string() + ": frames[" + std::to_string(f) + "]";
       // A grey integer frame covering the whole ROI decodes straight into the stack (no copy).
-      std::vector<uint16_t>* direct =
+      FrameSamples* direct =
           (!any_float && s.roi_.x == 0 && s.roi_.y == 0 && s.roi_.w == cam.width &&
            s.roi_.h == cam.height)
               ? &s.raw_[k]
@@ -211,9 +230,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
         MESOSCAN_BAD_INPUT(label << ": a floating-point image in a file named .png");
       if (d.eight_bit) eight_bit.fetch_add(1);
       if (d.direct) {
-        const uint16_t* src = s.raw_[k].data();
-        for (size_t i = 0; i < np; ++i)
-          if (src[i] >= sat_code) mark_saturated(i);
+        MarkAtLeast(s.raw_[k].data(), np, sat_code, mark_saturated);
         progress.Advance();
         return;
       }
@@ -318,8 +335,16 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
     for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
   const size_t n = pixels.size();
   Eigen::MatrixXd I(nk, n);  // samples, frame-major
-  for (int k = 0; k < nk; ++k)
-    for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], pixels[j]);
+  {
+    // Gathered frame by frame in parallel (a frame's samples at increasing pixels), then copied.
+    std::vector<float> by_frame(static_cast<size_t>(nk) * n);
+    ParallelFor(nk, [&](int64_t k) {
+      float* dst = by_frame.data() + static_cast<size_t>(k) * n;
+      for (size_t j = 0; j < n; ++j) dst[j] = stack.Value(model.frames[k], pixels[j]);
+    });
+    for (size_t j = 0; j < n; ++j)
+      for (int k = 0; k < nk; ++k) I(k, j) = by_frame[static_cast<size_t>(k) * n + j];
+  }
   std::vector<uint8_t> use(n, 1);
   for (int it = 0; it < iterations; ++it) {
     Eigen::MatrixXd Mg = M;

@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <numbers>
 #include <numeric>
@@ -177,23 +179,13 @@ WrappedPhaseSolver::WrappedPhaseSolver(std::vector<double> deltas) : deltas_(std
   cov_cs_ = inv(1, 2);
 }
 
-WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int stride) const {
-  const int k = num_samples();
-  Result result;
-  double a = 0.0, c = 0.0, s = 0.0;
-  for (int i = 0; i < k; ++i) {
-    const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
-    if (!std::isfinite(v)) return result;  // valid == false, all fields 0
-    a += pinv_[i] * v;
-    c += pinv_[k + i] * v;
-    s += pinv_[2 * k + i] * v;
-  }
-  double ssr = 0.0;
-  for (int i = 0; i < k; ++i) {
-    const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
-    const double r = v - (a + c * cos_[i] - s * sin_[i]);
-    ssr += r * r;
-  }
+namespace {
+
+// Solve's result from its sums: A = a, (B cos theta, B sin theta) = (c, s), the sum of squared
+// residuals ssr and fast = FastAtan2(s, c) (one code for Solve and SolveMany's lanes).
+WrappedPhaseSolver::Result FinishSolve(double a, double c, double s, double ssr, double fast,
+                                       int k) {
+  WrappedPhaseSolver::Result result;
   // theta is stored as a float: FastAtan2 (~2 ulp) gives the float std::atan2 (correctly
   // rounded) would, unless theta lies within 1e-13 rad of a float rounding boundary or of 0
   // (where the sign picks the branch); there std::atan2 decides. Same floats, 3-4x faster.
@@ -201,7 +193,6 @@ WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int s
     if (theta < 0.0) theta += kTwoPi;
     return theta;
   };
-  const double fast = FastAtan2(s, c);
   double theta = to_0_2pi(fast);
   if (!(std::abs(fast) > 1e-13) ||
       static_cast<float>(theta - 1e-13) != static_cast<float>(theta + 1e-13))
@@ -215,6 +206,111 @@ WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int s
   result.residual_rms = static_cast<float>(std::sqrt(ssr / k));
   result.valid = true;
   return result;
+}
+
+}  // namespace
+
+WrappedPhaseSolver::Result WrappedPhaseSolver::Solve(const float* samples, int stride) const {
+  const int k = num_samples();
+  double a = 0.0, c = 0.0, s = 0.0;
+  for (int i = 0; i < k; ++i) {
+    const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
+    if (!std::isfinite(v)) return Result();  // valid == false, all fields 0
+    a += pinv_[i] * v;
+    c += pinv_[k + i] * v;
+    s += pinv_[2 * k + i] * v;
+  }
+  double ssr = 0.0;
+  for (int i = 0; i < k; ++i) {
+    const double v = samples[static_cast<std::ptrdiff_t>(i) * stride];
+    const double r = v - (a + c * cos_[i] - s * sin_[i]);
+    ssr += r * r;
+  }
+  return FinishSolve(a, c, s, ssr, FastAtan2(s, c), k);
+}
+
+namespace {
+
+// SolveMany's pixels per call of its vector kernel.
+constexpr int kSolveChunk = 64;
+
+// The sums of Solve (a, c, s, ssr) and FastAtan2(s, c) of n pixels (a multiple of 4, at most
+// kSolveChunk), four per vector, each lane with Solve's operations in Solve's order; out[q * n
+// + j] for q = a, c, s, ssr, fast. ssr is NaN where a sample is not finite (Solve then decides).
+#if defined(__GNUC__) && !defined(__clang__)
+typedef float V4f __attribute__((vector_size(16)));
+MESOSCAN_SIMD_CLONES
+void SolveLanes(const double* pinv, const double* cosd, const double* sind, int k,
+                const float* samples, size_t stride, int n, double* out) {
+  const V4d zero = {0.0, 0.0, 0.0, 0.0};
+  const V4l sign = {INT64_MIN, INT64_MIN, INT64_MIN, INT64_MIN};
+  for (int j = 0; j < n; j += 4) {
+    V4d a = zero, c = zero, s = zero, finite = zero;
+    for (int i = 0; i < k; ++i) {
+      V4f vf;
+      std::memcpy(&vf, samples + static_cast<size_t>(i) * stride + j, sizeof vf);
+      const V4d v = __builtin_convertvector(vf, V4d);
+      finite += v - v;  // NaN where a sample is NaN or infinite
+      a += pinv[i] * v;
+      c += pinv[k + i] * v;
+      s += pinv[2 * k + i] * v;
+    }
+    V4d ssr = zero;
+    for (int i = 0; i < k; ++i) {
+      V4f vf;
+      std::memcpy(&vf, samples + static_cast<size_t>(i) * stride + j, sizeof vf);
+      const V4d v = __builtin_convertvector(vf, V4d);
+      const V4d r = v - (a + c * cosd[i] - s * sind[i]);
+      ssr += r * r;
+    }
+    ssr += finite;
+    // FastAtan2(s, c), step by step (fast_atan.h); |.| by the sign bit as std::abs.
+    const V4d ay = reinterpret_cast<V4d>(reinterpret_cast<V4l>(s) & ~sign);
+    const V4d ax = reinterpret_cast<V4d>(reinterpret_cast<V4l>(c) & ~sign);
+    const V4d hi = ay < ax ? ax : ay;  // std::max(ay, ax)
+    const V4d lo = ax < ay ? ax : ay;  // std::min(ay, ax)
+    const V4d t = hi > 0.0 ? lo / hi : zero;
+    const auto big = t > kTanPi8;
+    const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
+    V4d at;
+    AtanReduced(u, &at);
+    at = big ? at + 0.25 * kPi : at;
+    at = ay > ax ? 0.5 * kPi - at : at;
+    at = c < 0.0 ? kPi - at : at;
+    at = s < 0.0 ? -at : at;
+    std::memcpy(out + j, &a, sizeof a);
+    std::memcpy(out + n + j, &c, sizeof c);
+    std::memcpy(out + 2 * n + j, &s, sizeof s);
+    std::memcpy(out + 3 * n + j, &ssr, sizeof ssr);
+    std::memcpy(out + 4 * n + j, &at, sizeof at);
+  }
+}
+#endif
+
+}  // namespace
+
+void WrappedPhaseSolver::SolveMany(const float* samples, size_t stride, int n,
+                                   Result* out) const {
+  const int k = num_samples();
+  int j0 = 0;
+#if defined(__GNUC__) && !defined(__clang__)
+  double sums[5 * kSolveChunk];
+  for (; j0 + 4 <= n; j0 += kSolveChunk) {
+    const int m = std::min(kSolveChunk, (n - j0) / 4 * 4);
+    SolveLanes(pinv_.data(), cos_.data(), sin_.data(), k, samples + j0, stride, m, sums);
+    for (int j = 0; j < m; ++j) {
+      const double a = sums[j], c = sums[m + j], s = sums[2 * m + j], ssr = sums[3 * m + j];
+      out[j0 + j] = std::isfinite(ssr) && std::isfinite(c) && std::isfinite(s)
+                        ? FinishSolve(a, c, s, ssr, sums[4 * m + j], k)
+                        : Solve(samples + j0 + j, static_cast<int>(stride));
+    }
+    if (m < kSolveChunk) {
+      j0 += m;
+      break;
+    }
+  }
+#endif
+  for (; j0 < n; ++j0) out[j0] = Solve(samples + j0, static_cast<int>(stride));
 }
 
 double WrappedPhaseSolver::ThetaVarianceAt(double sigma, double modulation, double theta) const {

@@ -7,6 +7,7 @@
 // theta = 2 pi u / period (mod 2 pi). WrappedPhaseSolver recovers theta per period;
 // TemporalUnwrapper combines the wrapped phases of several periods into the absolute u.
 
+#include <cstddef>
 #include <vector>
 
 namespace mesoscan {
@@ -31,6 +32,12 @@ class WrappedPhaseSolver {
 
   // samples[k * stride], k in [0, K).
   Result Solve(const float* samples, int stride = 1) const;
+  // Solve for n pixels at once: pixel j's samples are samples[k * stride + j] (a frame-major
+  // tile), its result out[j]. The same results as Solve, bit for bit: four pixels in the lanes
+  // of one vector do Solve's operations in Solve's order (no FMA; core/simd_clones.h), and a
+  // lane outside the common case (a non-finite sample or sum, an atan2 within 1e-13 of a float
+  // rounding boundary) is redone by Solve. The phase-shift stage decodes every pixel through it.
+  void SolveMany(const float* samples, size_t stride, int n, Result* out) const;
 
   // var(theta) (rad^2) for white noise sigma per sample and modulation B, at a given theta
   // (unequal steps make it depend on theta) and averaged over theta. Equal steps: 2 sigma^2 /

@@ -77,6 +77,55 @@ TEST(WrappedPhaseSolver, StridedSamplesAndBadInput) {
   EXPECT_THROW(WrappedPhaseSolver({0.0, 1.0, std::nan("")}), Error);
 }
 
+// SolveMany promises Solve's results bit for bit (the phase-shift stage's output must not
+// depend on which is used): every field compared by its bits, over random tiles with non-finite
+// samples, zero modulation, phases at 0 and at the quadrant boundaries, n not a multiple of 4.
+TEST(WrappedPhaseSolver, SolveManyMatchesSolveBitForBit) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  const std::vector<std::vector<double>> sets = {EqualSteps(3), EqualSteps(4), EqualSteps(5),
+                                                 {0.0, 1.1, 2.9, 4.4}};
+  auto bits = [](float v) {
+    uint32_t b;
+    std::memcpy(&b, &v, sizeof b);
+    return b;
+  };
+  int64_t compared = 0, fallback_lanes = 0;
+  for (const auto& deltas : sets) {
+    const WrappedPhaseSolver solver(deltas);
+    const int k = static_cast<int>(deltas.size());
+    for (int n : {1, 3, 4, 63, 64, 65, 200, 1027}) {
+      const size_t stride = static_cast<size_t>(n) + 5;  // tile wider than the pixels solved
+      std::vector<float> tile(static_cast<size_t>(k) * stride, 0.0f);
+      for (int j = 0; j < n; ++j) {
+        const int kind = static_cast<int>(uni(rng) * 10);
+        const double theta = kind == 0   ? 0.0
+                             : kind == 1 ? std::numbers::pi / 2 * static_cast<int>(uni(rng) * 4)
+                                         : kTwoPi * uni(rng);
+        const double b = kind == 2 ? 0.0 : 0.5 * uni(rng);
+        std::vector<float> f = Frames(deltas, 0.5, b, theta, kind == 3 ? 0.0 : 1e-3, &rng);
+        if (kind == 4) f[static_cast<size_t>(uni(rng) * k)] = std::numeric_limits<float>::quiet_NaN();
+        if (kind == 5) f[0] = std::numeric_limits<float>::infinity();
+        for (int i = 0; i < k; ++i) tile[static_cast<size_t>(i) * stride + j] = f[i];
+      }
+      std::vector<WrappedPhaseSolver::Result> many(n);
+      solver.SolveMany(tile.data(), stride, n, many.data());
+      for (int j = 0; j < n; ++j) {
+        const auto r = solver.Solve(tile.data() + j, static_cast<int>(stride));
+        fallback_lanes += !r.valid;
+        EXPECT_EQ(r.valid, many[j].valid) << "k " << k << " n " << n << " j " << j;
+        EXPECT_EQ(bits(r.theta), bits(many[j].theta)) << "k " << k << " n " << n << " j " << j;
+        EXPECT_EQ(bits(r.modulation), bits(many[j].modulation)) << "k " << k << " j " << j;
+        EXPECT_EQ(bits(r.offset), bits(many[j].offset)) << "k " << k << " j " << j;
+        EXPECT_EQ(bits(r.residual_rms), bits(many[j].residual_rms)) << "k " << k << " j " << j;
+        ++compared;
+      }
+    }
+  }
+  EXPECT_GT(compared, 5000);
+  EXPECT_GT(fallback_lanes, 50);  // the non-finite lanes were exercised
+}
+
 TEST(WrappedPhaseSolver, NoiseVarianceMatchesTheory) {
   // Equal steps: var(theta) = 2 sigma^2 / (K B^2). Unequal steps: the first-order propagation
   // through (M^T M)^-1, which depends on theta. 20000 draws: the sample variance has a relative

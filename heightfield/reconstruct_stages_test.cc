@@ -5,12 +5,17 @@
 
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <random>
+#include <string>
 
 #include "core/error.h"
+#include "core/image_io.h"
 #include "core/numbers.h"
 #include "core/stage_timer.h"
 #include "heightfield/pixel_buffers.h"
@@ -67,6 +72,47 @@ TEST(StageStream, ReleaseAndMergeJoinComplementaryStacks) {
   EXPECT_EQ(a.saturated(), (std::vector<uint8_t>{0, 1}));  // saturation of both halves
   FrameStack c = FrameStack::FromLinear(1, 2, {{1, 2}, {3, 4}, {5, 6}});
   EXPECT_THROW(a.Merge(std::move(c)), Error);  // another size: refused
+}
+
+// Decoding marks a pixel saturated where any of its frames reaches the saturation code; the scan
+// screens blocks of 256 samples before looking at single samples, so the marks are placed at and
+// around block boundaries, and one sample just below the code must stay unmarked. The samples
+// are stored as decoded (the storage is not zero-filled first; every sample is written).
+TEST(StageStream, DecodedFramesMarkSaturationAtEverySample) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() /
+                       ("mesoscan_stages_sat_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "frames");
+  const int w = 300, h = 5;  // 1500 pixels: six blocks, the last one partial
+  Session s;
+  s.root = dir;
+  s.rig.camera.width = w;
+  s.rig.camera.height = h;
+  const uint16_t sat = static_cast<uint16_t>(std::floor(0.999 * 65535.0));
+  const std::vector<std::vector<size_t>> marks = {{0, 255, 256, 777, 1499}, {511, 1000}};
+  std::vector<ImageU16> images;
+  for (int k = 0; k < 2; ++k) {
+    ImageU16 img(w, h);
+    for (int i = 0; i < w * h; ++i) img(i % w, i / w) = static_cast<uint16_t>(1000 + 37 * i + k);
+    for (size_t i : marks[k]) img(static_cast<int>(i % w), static_cast<int>(i / w)) = sat;
+    img(1 + k, 3) = static_cast<uint16_t>(sat - 1);  // just below: not saturated
+    Frame f = StripesFrame(k);
+    f.file = "frames/f" + std::to_string(k) + ".png";
+    WritePng16(dir / f.file, img);
+    s.frames.push_back(f);
+    images.push_back(img);
+  }
+  const FrameStack stack = LoadFrames(s, {0, 1}, FrameLoadOptions());
+  std::vector<uint8_t> expected(static_cast<size_t>(w) * h, 0);
+  for (const auto& m : marks)
+    for (size_t i : m) expected[i] = 1;
+  EXPECT_EQ(stack.saturated(), expected);
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < w * h; ++i)
+      ASSERT_FLOAT_EQ(stack.Value(k, static_cast<size_t>(i)), images[k](i % w, i / w) / 65535.0f)
+          << "frame " << k << " pixel " << i;
+  fs::remove_all(dir);
 }
 
 TEST(StagePlan, GroupsSineSetsSortsLensShiftAndFindsWhiteBlack) {

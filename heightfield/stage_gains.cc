@@ -2,12 +2,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <optional>
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
 
 #include "core/error.h"
 #include "core/numbers.h"
+#include "core/parallel.h"
 #include "heightfield/phase_shift.h"
 
 namespace mesoscan {
@@ -53,16 +57,35 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
         return false;
     return true;
   };
-  size_t n_usable = 0;
-  for (size_t i = 0; i < np; ++i) n_usable += usable(i);
+  // Counted in parallel (a pass over eight arrays of every pixel).
+  const size_t n_usable = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, np, 1 << 16), size_t{0},
+      [&](const tbb::blocked_range<size_t>& r, size_t n) {
+        for (size_t i = r.begin(); i < r.end(); ++i) n += usable(i);
+        return n;
+      },
+      std::plus<size_t>());
   if (n_usable == 0) return ref;
   // About 1 in `stride` of the usable pixels, scattered by a multiplicative hash of the index (a
   // regular stride could fall on the same few columns of every row, i.e. the same few stripe
   // phases).
   const uint64_t stride = std::max<uint64_t>(1, (n_usable + max_pixels - 1) / std::max(1, max_pixels));
+  // The sample (a 64-bit division per pixel and the usable test) in parallel over fixed chunks,
+  // kept in pixel order; the rest per sample pixel as before.
+  constexpr size_t kChunk = 1 << 16;
+  const size_t n_chunks = (np + kChunk - 1) / kChunk;
+  std::vector<std::vector<uint32_t>> chunk_pixels(n_chunks);
+  ParallelFor(static_cast<int64_t>(n_chunks), [&](int64_t c) {
+    const size_t end = std::min(np, (static_cast<size_t>(c) + 1) * kChunk);
+    for (size_t i = static_cast<size_t>(c) * kChunk; i < end; ++i)
+      if ((static_cast<uint64_t>(i) * 2654435761ull >> 7) % stride == 0 && usable(i))
+        chunk_pixels[c].push_back(static_cast<uint32_t>(i));
+  });
+  std::vector<uint32_t> sample;
+  for (const std::vector<uint32_t>& chunk : chunk_pixels)
+    sample.insert(sample.end(), chunk.begin(), chunk.end());
   std::vector<double> th(nper), wt(nper);
-  for (size_t i = 0; i < np; ++i) {
-    if ((static_cast<uint64_t>(i) * 2654435761ull >> 7) % stride != 0 || !usable(i)) continue;
+  for (const uint32_t i : sample) {
     const double sigma = 0.01 * ps.level[i];
     double info = 0;
     for (int p = 0; p < nper; ++p) {
@@ -127,9 +150,15 @@ void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
   size_t n_active = 0;
   for (size_t i = 0; i < np; ++i) n_active += state[i] == PixelState::kActive;
   const size_t stride = std::max<size_t>(1, n_active / 20000);
-  for (size_t i = 0, c = 0; i < np; ++i)
-    if (state[i] == PixelState::kActive && (c++ % stride) == 0)
+  // Every stride-th active pixel (a countdown: no division per pixel).
+  for (size_t i = 0, left = 0; i < np; ++i) {
+    if (state[i] != PixelState::kActive) continue;
+    if (left == 0) {
       sample.push_back(static_cast<uint32_t>(i));
+      left = stride;
+    }
+    --left;
+  }
   auto apply = [&](const GainModel& m, const std::vector<double>& gains) {
     for (size_t k = 0; k < m.frames.size(); ++k) {
       g.inv_gain[m.frames[k]] = static_cast<float>(1.0 / gains[k]);

@@ -45,6 +45,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   auto& level = out.level;
   ParallelForRows(h, [&](int y0, int y1) {
     std::vector<float> buf;
+    std::vector<WrappedPhaseSolver::Result> solved;  // SolveMany's (without gamma)
     const size_t i0 = static_cast<size_t>(y0) * w, n = static_cast<size_t>(y1 - y0) * w;
     for (int p = 0; p < nper; ++p) {
       const int K = static_cast<int>(periods[p].stack_frames.size());
@@ -55,7 +56,12 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
         const float g = inv_gain[sk];
         for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
       }
+      constexpr size_t kTile = 256;  // SolveMany's results per tile (they stay in L1)
+      solved.resize(kTile);
       for (size_t j = 0; j < n; ++j) {
+        if (!linearize_gamma && j % kTile == 0)  // every pixel (a few not kActive: solved anyway)
+          solvers[p].SolveMany(buf.data() + j, n, static_cast<int>(std::min(kTile, n - j)),
+                               solved.data());
         const size_t i = i0 + j;
         if (state[i] != PixelState::kActive) continue;
         if (linearize_gamma) {
@@ -67,7 +73,8 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
             s = static_cast<float>(std::pow(v, 1.0 / proj_gamma) * wl);
           }
         }
-        const auto r = solvers[p].Solve(buf.data() + j, static_cast<int>(n));
+        const auto r = linearize_gamma ? solvers[p].Solve(buf.data() + j, static_cast<int>(n))
+                                       : solved[j % kTile];
         if (!r.valid) continue;
         theta[p][i] = r.theta;
         modulation[p][i] = r.modulation;
