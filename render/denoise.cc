@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/ximgproc.hpp>
@@ -86,26 +87,48 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const double eps = o.eps;
   auto score = [&](const cv::Mat& fa, const cv::Mat& fb) {
     cv::Mat s = LumDiff2(fa, half[1]) + LumDiff2(fb, half[0]);
+    if (o.half_variance_correction) s -= 0.5 * LumDiff2(fa, fb);
     cv::Mat sb;
     cv::blur(s, sb, cv::Size(2 * win + 1, 2 * win + 1));
     return sb;
   };
-  cv::Mat best = score(half[0], half[1]);
-  cv::Mat out = full.clone();
-  for (int rad = 1; rad <= o.max_radius; rad *= 2) {
-    cv::Mat fa, fb;
-    cv::ximgproc::guidedFilter(guide, half[0], fa, rad, eps);
-    cv::ximgproc::guidedFilter(guide, half[1], fb, rad, eps);
-    const cv::Mat s = score(fa, fb);
-    // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
-    // the output for the mean of the halves.
-    const cv::Mat ff = 0.5 * (fa + fb);
+  // Candidate 0: the raw pixel; then the guided filters, radius by radius (and, with
+  // eps_low > 0, a second regularisation per radius).
+  std::vector<cv::Mat> cand = {full};
+  std::vector<cv::Mat> scores = {score(half[0], half[1])};
+  for (int rad = 1; rad <= o.max_radius; rad *= 2)
+    for (const double e : {eps, o.eps_low}) {
+      if (!(e > 0)) continue;
+      cv::Mat fa, fb;
+      cv::ximgproc::guidedFilter(guide, half[0], fa, rad, e);
+      cv::ximgproc::guidedFilter(guide, half[1], fb, rad, e);
+      scores.push_back(score(fa, fb));
+      // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
+      // the output for the mean of the halves.
+      cand.push_back(0.5 * (fa + fb));
+    }
+  cv::Mat choice(h, w, CV_8U, cv::Scalar(0));
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float b = scores[0].at<float>(y, x);
+      for (size_t k = 1; k < cand.size(); ++k)
+        if (scores[k].at<float>(y, x) < b) b = scores[k].at<float>(y, x), choice.at<uchar>(y, x) = static_cast<uchar>(k);
+    }
+  cv::Mat out(h, w, CV_32FC3, cv::Scalar(0, 0, 0));
+  if (o.blend <= 0) {
     for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x)
-        if (s.at<float>(y, x) < best.at<float>(y, x)) {
-          best.at<float>(y, x) = s.at<float>(y, x);
-          out.at<cv::Vec3f>(y, x) = ff.at<cv::Vec3f>(y, x);
-        }
+      for (int x = 0; x < w; ++x) out.at<cv::Vec3f>(y, x) = cand[choice.at<uchar>(y, x)].at<cv::Vec3f>(y, x);
+  } else {
+    // Soft selection: each candidate weighted by the share of the (2 blend + 1)^2 neighbours
+    // that chose it (the per-pixel choice is itself noisy).
+    for (size_t k = 0; k < cand.size(); ++k) {
+      cv::Mat ind;
+      cv::compare(choice, static_cast<double>(k), ind, cv::CMP_EQ);
+      ind.convertTo(ind, CV_32F, 1.0 / 255);
+      cv::blur(ind, ind, cv::Size(2 * o.blend + 1, 2 * o.blend + 1));
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) out.at<cv::Vec3f>(y, x) += ind.at<float>(y, x) * cand[k].at<cv::Vec3f>(y, x);
+    }
   }
   ImageF res(w, h, 3);
   for (int y = 0; y < h; ++y) {

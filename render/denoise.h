@@ -30,6 +30,9 @@ struct DenoiseOptions {
   int window = 3;       // radius of the window the cross-validation error is averaged over, >= 0
   double eps = 1e-2;    // regularisation of the affine fit (guide units squared), > 0; tuned on
                         // the demo at 16 spp: 5e-3 to 1e-2 best, 1e-3 and 3e-2 worse
+  double eps_low = 0;   // > 0: also candidates with this regularisation at every radius
+  bool half_variance_correction = true;  // see DenoisePreview
+  int blend = 0;        // > 0: soft selection over (2 blend + 1)^2 neighbours' choices
 };
 
 // The seconds of a `--time` budget to leave for DenoisePreview() at this image size: about
