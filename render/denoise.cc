@@ -51,13 +51,14 @@ cv::Mat LumDiff2(const cv::Mat& a, const cv::Mat& b) {
 }  // namespace
 
 double DenoiseTimeReserve(int width, int height, double time_budget_s) {
-  return std::min(0.25 * time_budget_s, 1.5e-6 * width * height);
+  return std::min(0.25 * time_budget_s, 2.2e-6 * width * height);
 }
 
 ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const ImageF& L = r.radiance;
   const int w = L.width(), h = L.height();
-  MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0);
+  MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0 && o.bilateral >= 0 && o.bilateral <= 4 &&
+                 o.bilateral_sigma > 0 && o.blend >= 0);
   MESOSCAN_CHECK(r.normal.width() == w && r.depth.width() == w && r.albedo.width() == w &&
                  r.sample_mask.width() == w && r.half[0].width() == w && r.half[1].width() == w);
   cv::Mat full = Demodulate(L, r.albedo);
@@ -77,12 +78,9 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
                         static_cast<float>((r.depth(x, y, 0) - dmin) * dscale +
                                            kMountOffset * (1.0 - r.sample_mask(x, y, 0))));
   }
-  // Candidates: the raw pixel and guided filters of growing radius. Each is judged by
-  // cross-validation on the two half-buffers (even / odd samples, independent noise): the
-  // candidate filtered from one half is compared with the other half, both ways; the expected
-  // squared difference is the candidate's error plus the other half's variance, the same for
-  // every candidate, so the smallest (averaged over a small window) wins per pixel and the
-  // candidate filtered from the whole buffer is output.
+  // Each candidate's score (render/denoise.h): the cross-validation on the two half-buffers,
+  // corrected for the candidate's own variance, averaged over a small window; the candidate
+  // filtered from the whole buffer (the mean of the halves' outputs) is output.
   const int win = o.window;
   const double eps = o.eps;
   auto score = [&](const cv::Mat& fa, const cv::Mat& fb) {
@@ -92,21 +90,31 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
     cv::blur(s, sb, cv::Size(2 * win + 1, 2 * win + 1));
     return sb;
   };
-  // Candidate 0: the raw pixel; then the guided filters, radius by radius (and, with
-  // eps_low > 0, a second regularisation per radius).
+  // Candidate 0: the raw pixel; then the guided filters, radius by radius.
   std::vector<cv::Mat> cand = {full};
   std::vector<cv::Mat> scores = {score(half[0], half[1])};
   for (int rad = 1; rad <= o.max_radius; rad *= 2)
-    for (const double e : {eps, o.eps_low}) {
-      if (!(e > 0)) continue;
+    {
       cv::Mat fa, fb;
-      cv::ximgproc::guidedFilter(guide, half[0], fa, rad, e);
-      cv::ximgproc::guidedFilter(guide, half[1], fb, rad, e);
+      cv::ximgproc::guidedFilter(guide, half[0], fa, rad, eps);
+      cv::ximgproc::guidedFilter(guide, half[1], fb, rad, eps);
       scores.push_back(score(fa, fb));
       // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
       // the output for the mean of the halves.
       cand.push_back(0.5 * (fa + fb));
     }
+  // Joint (cross) bilateral filters on the same guide: they average the pixels whose features
+  // match (the same reeding phase along the coin's rim), where an affine fit over a window
+  // cannot follow the glossy response to the normal. Linear in the input for a fixed guide.
+  for (int b = 0; b < o.bilateral; ++b) {
+    const double sigma_space = 2.0 * (1 << b);
+    const int d = 2 * static_cast<int>(std::ceil(2 * sigma_space)) + 1;
+    cv::Mat fa, fb;
+    cv::ximgproc::jointBilateralFilter(guide, half[0], fa, d, o.bilateral_sigma, sigma_space);
+    cv::ximgproc::jointBilateralFilter(guide, half[1], fb, d, o.bilateral_sigma, sigma_space);
+    scores.push_back(score(fa, fb));
+    cand.push_back(0.5 * (fa + fb));
+  }
   cv::Mat choice(h, w, CV_8U, cv::Scalar(0));
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
