@@ -369,6 +369,113 @@ void DemoPreview(const fs::path& dir) {
                 o.allocate_pilot_spp, o.allocate_radius, o.allocate_floor, by_cost);
   }
   const int default_pilot = o.allocate_pilot_spp;
+  // MESOSCAN_BENCH_DEMO_SPLIT=N: where the error of the demo's budget is. Two renders with
+  // independent seeds at N spp allocated as under `--time` (reproducible, the load does not
+  // enter), each denoised; per region (the mount; the height field by its first-hit normal's
+  // tilt: the flat faces, the slopes, the coin's rim), the share of the image's relMSE of the
+  // raw and of the denoised render, the denoised render's variance (from the two seeds'
+  // difference) and its squared bias (the rest), and the raw variance the half-buffers predict.
+  if (const char* split = std::getenv("MESOSCAN_BENCH_DEMO_SPLIT")) {
+    RenderOptions so = o;
+    so.time_limit_s = 0;
+    so.noise = 0;
+    so.allocate_spp = std::atof(split);
+
+    so.min_spp = 1;
+    so.max_spp = 1 << 16;
+    RenderResult rr[2];
+    for (int k = 0; k < 2; ++k) {
+      so.seed = 500 + k;
+      c0 = CpuNow(), t0 = Now();
+      rr[k] = Render(hf, brdf, env, so);
+      std::printf("demo split: seed %d, %.1f spp, render %.2f s wall, %.2f CPU s, load %s\n",
+                  static_cast<int>(so.seed), rr[k].summary.mean_spp, Now() - t0, CpuNow() - c0,
+                  LoadAvg().c_str());
+    }
+    auto lum = [](const ImageF& im, size_t i) {
+      return Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
+    };
+    double mean_ref = 0;
+    for (size_t i = 0; i < ref.pixels(); ++i) mean_ref += lum(ref, i) / ref.pixels();
+    const double norm = 1.0 / (mean_ref * mean_ref * ref.pixels());
+    const char* names[] = {"mount", "tilt <5", "tilt 5-15", "tilt 15-30", "tilt 30-60", "tilt >60"};
+    constexpr int kRegions = 6;
+    std::vector<int> region(ref.pixels(), 0);
+    for (size_t i = 0; i < ref.pixels(); ++i) {
+      if (!(mask.data()[i] > 0.5f)) continue;
+      const ImageF& nrm = rr[0].normal;
+      const double nx = nrm.channel(0)[i], ny = nrm.channel(1)[i], nz = nrm.channel(2)[i];
+      const double t = std::acos(std::clamp(std::abs(nz) / std::max(1e-12, std::sqrt(nx * nx + ny * ny + nz * nz)), 0.0, 1.0)) * 180 / M_PI;
+      region[i] = t < 5 ? 1 : t < 15 ? 2 : t < 30 ? 3 : t < 60 ? 4 : 5;
+    }
+    double npx[kRegions] = {}, raw[kRegions] = {}, hvar[kRegions] = {};
+    for (size_t i = 0; i < ref.pixels(); ++i) {
+      const int g = region[i];
+      const double yr = lum(ref, i);
+      const double rv = 0.25 * std::pow(lum(refs[0], i) - lum(refs[1], i), 2);
+      npx[g] += 1;
+      for (int k = 0; k < 2; ++k) {
+        raw[g] += 0.5 * (std::pow(lum(rr[k].radiance, i) - yr, 2) - rv) * norm;
+        hvar[g] += 0.5 * 0.25 * std::pow(lum(rr[k].half[0], i) - lum(rr[k].half[1], i), 2) * norm;
+      }
+    }
+    double traw = 0;
+    for (int g = 0; g < kRegions; ++g) traw += raw[g];
+    std::printf("demo split: raw relRMSE (corrected) %.4f; per region: pixels, raw relMSE x 1e4 "
+                "(share), the half-buffers' variance estimate x 1e4\n", std::sqrt(std::max(0.0, traw)));
+    for (int g = 0; g < kRegions; ++g)
+      std::printf("demo split:   %-11s %6.2f%% raw %8.2f (%5.1f%%) half-var %8.2f\n", names[g],
+                  100 * npx[g] / ref.pixels(), 1e4 * raw[g], 100 * raw[g] / traw, 1e4 * hvar[g]);
+    // Denoiser variants: MESOSCAN_BENCH_DENOISE_VARIANTS="radius=16,window=3,eps=0.01;..."
+    std::vector<std::string> variants = {""};
+    if (const char* v = std::getenv("MESOSCAN_BENCH_DENOISE_VARIANTS")) {
+      variants.clear();
+      std::stringstream ss(v);
+      for (std::string item; std::getline(ss, item, ';');) variants.push_back(item);
+    }
+    for (const std::string& var : variants) {
+      DenoiseOptions dopt;
+      std::stringstream ss(var);
+      for (std::string kv; std::getline(ss, kv, ',');) {
+        const size_t eq = kv.find('=');
+        if (eq == std::string::npos) continue;
+        const std::string k = kv.substr(0, eq);
+        const double val = std::atof(kv.c_str() + eq + 1);
+        if (k == "radius") dopt.max_radius = static_cast<int>(val);
+        else if (k == "window") dopt.window = static_cast<int>(val);
+        else if (k == "eps") dopt.eps = val;
+        else if (k == "blend") dopt.blend = static_cast<int>(val);
+        else if (k == "jbf") dopt.bilateral = static_cast<int>(val);
+        else if (k == "jbfsigma") dopt.bilateral_sigma = val;
+        else if (k == "correct") dopt.half_variance_correction = val != 0;
+        else std::printf("demo split: unknown denoiser option %s\n", k.c_str());
+      }
+      ImageF dd[2];
+      double ts = 1e30, cs = 0;
+      for (int k = 0; k < 2; ++k) {
+        t0 = Now(), c0 = CpuNow();
+        dd[k] = DenoisePreview(rr[k], dopt);
+        ts = std::min(ts, Now() - t0);
+        cs += 0.5 * (CpuNow() - c0);
+      }
+      double dn[kRegions] = {}, dvar[kRegions] = {};
+      for (size_t i = 0; i < ref.pixels(); ++i) {
+        const int g = region[i];
+        const double yr = lum(ref, i);
+        const double rv = 0.25 * std::pow(lum(refs[0], i) - lum(refs[1], i), 2);
+        for (int k = 0; k < 2; ++k) dn[g] += 0.5 * (std::pow(lum(dd[k], i) - yr, 2) - rv) * norm;
+        dvar[g] += 0.5 * std::pow(lum(dd[0], i) - lum(dd[1], i), 2) * norm;
+      }
+      double tdn = 0, tvar = 0;
+      for (int g = 0; g < kRegions; ++g) tdn += dn[g], tvar += dvar[g];
+      std::printf("demo split: denoiser [%s] %.3f s wall (the faster of two), %.3f CPU s: relRMSE (corrected) %.4f = variance %.2f + "
+                  "bias^2 %.2f (x 1e4); per region dn (var, bias^2):", var.c_str(), ts, cs,
+                  std::sqrt(std::max(0.0, tdn)), 1e4 * tvar, 1e4 * (tdn - tvar));
+      for (int g = 0; g < kRegions; ++g)
+        std::printf(" %s %.2f (%.2f, %.2f);", names[g], 1e4 * dn[g], 1e4 * dvar[g], 1e4 * (dn[g] - dvar[g]));
+      std::printf("\n");
+    }
+  }
   for (const Run& run : runs) {
     o.mirror_guide = run.name != "no-guide";
     o.resample_candidates = run.name == "no-resample" ? 0 : RenderOptions{}.resample_candidates;

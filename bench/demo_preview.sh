@@ -7,7 +7,11 @@
 # noise, which the "corrected" figures subtract), fixed 8/16/32/64 spp, the same spp with
 # error-driven allocation, and the demo's own `--time 3`, each with its relative RMSE (linear
 # luminance, whole image / sample / mount, and in display space), CPU seconds per spp, wall
-# seconds and the load average. MESOSCAN_BENCH_DEMO_RUNS="16,alloc8,denoise" picks runs.
+# seconds and the load average. MESOSCAN_BENCH_DEMO_RUNS="16,alloc8,denoise" picks runs
+# ("none": none). MESOSCAN_BENCH_DEMO_SPLIT=9 adds the error split: two seeds at 9 spp allocated,
+# raw / denoised / denoised variance / denoised bias^2 per region (mount, first-hit tilt), for
+# each denoiser setting in MESOSCAN_BENCH_DENOISE_VARIANTS="window=2,jbf=1;blend=0;..."
+# (keys window, eps, radius, jbf, jbfsigma, blend, correct).
 #   bench/demo_preview.sh [BUILD]     (DEMO_OUT=demo by default)
 set -euo pipefail
 BUILD=${1:-build}

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/ximgproc.hpp>
@@ -50,13 +51,14 @@ cv::Mat LumDiff2(const cv::Mat& a, const cv::Mat& b) {
 }  // namespace
 
 double DenoiseTimeReserve(int width, int height, double time_budget_s) {
-  return std::min(0.25 * time_budget_s, 1.5e-6 * width * height);
+  return std::min(0.25 * time_budget_s, 2.2e-6 * width * height);
 }
 
 ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const ImageF& L = r.radiance;
   const int w = L.width(), h = L.height();
-  MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0);
+  MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0 && o.bilateral >= 0 && o.bilateral <= 4 &&
+                 o.bilateral_sigma > 0 && o.blend >= 0);
   MESOSCAN_CHECK(r.normal.width() == w && r.depth.width() == w && r.albedo.width() == w &&
                  r.sample_mask.width() == w && r.half[0].width() == w && r.half[1].width() == w);
   cv::Mat full = Demodulate(L, r.albedo);
@@ -76,36 +78,65 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
                         static_cast<float>((r.depth(x, y, 0) - dmin) * dscale +
                                            kMountOffset * (1.0 - r.sample_mask(x, y, 0))));
   }
-  // Candidates: the raw pixel and guided filters of growing radius. Each is judged by
-  // cross-validation on the two half-buffers (even / odd samples, independent noise): the
-  // candidate filtered from one half is compared with the other half, both ways; the expected
-  // squared difference is the candidate's error plus the other half's variance, the same for
-  // every candidate, so the smallest (averaged over a small window) wins per pixel and the
-  // candidate filtered from the whole buffer is output.
+  // Each candidate's score (render/denoise.h): the cross-validation on the two half-buffers,
+  // corrected for the candidate's own variance, averaged over a small window; the candidate
+  // filtered from the whole buffer (the mean of the halves' outputs) is output.
   const int win = o.window;
   const double eps = o.eps;
   auto score = [&](const cv::Mat& fa, const cv::Mat& fb) {
     cv::Mat s = LumDiff2(fa, half[1]) + LumDiff2(fb, half[0]);
+    if (o.half_variance_correction) s -= 0.5 * LumDiff2(fa, fb);
     cv::Mat sb;
     cv::blur(s, sb, cv::Size(2 * win + 1, 2 * win + 1));
     return sb;
   };
-  cv::Mat best = score(half[0], half[1]);
-  cv::Mat out = full.clone();
-  for (int rad = 1; rad <= o.max_radius; rad *= 2) {
+  // Candidate 0: the raw pixel; then the guided filters, radius by radius.
+  std::vector<cv::Mat> cand = {full};
+  std::vector<cv::Mat> scores = {score(half[0], half[1])};
+  for (int rad = 1; rad <= o.max_radius; rad *= 2)
+    {
+      cv::Mat fa, fb;
+      cv::ximgproc::guidedFilter(guide, half[0], fa, rad, eps);
+      cv::ximgproc::guidedFilter(guide, half[1], fb, rad, eps);
+      scores.push_back(score(fa, fb));
+      // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
+      // the output for the mean of the halves.
+      cand.push_back(0.5 * (fa + fb));
+    }
+  // Joint (cross) bilateral filters on the same guide: they average the pixels whose features
+  // match (the same reeding phase along the coin's rim), where an affine fit over a window
+  // cannot follow the glossy response to the normal. Linear in the input for a fixed guide.
+  for (int b = 0; b < o.bilateral; ++b) {
+    const double sigma_space = 2.0 * (1 << b);
+    const int d = 2 * static_cast<int>(std::ceil(2 * sigma_space)) + 1;
     cv::Mat fa, fb;
-    cv::ximgproc::guidedFilter(guide, half[0], fa, rad, eps);
-    cv::ximgproc::guidedFilter(guide, half[1], fb, rad, eps);
-    const cv::Mat s = score(fa, fb);
-    // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
-    // the output for the mean of the halves.
-    const cv::Mat ff = 0.5 * (fa + fb);
+    cv::ximgproc::jointBilateralFilter(guide, half[0], fa, d, o.bilateral_sigma, sigma_space);
+    cv::ximgproc::jointBilateralFilter(guide, half[1], fb, d, o.bilateral_sigma, sigma_space);
+    scores.push_back(score(fa, fb));
+    cand.push_back(0.5 * (fa + fb));
+  }
+  cv::Mat choice(h, w, CV_8U, cv::Scalar(0));
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float b = scores[0].at<float>(y, x);
+      for (size_t k = 1; k < cand.size(); ++k)
+        if (scores[k].at<float>(y, x) < b) b = scores[k].at<float>(y, x), choice.at<uchar>(y, x) = static_cast<uchar>(k);
+    }
+  cv::Mat out(h, w, CV_32FC3, cv::Scalar(0, 0, 0));
+  if (o.blend <= 0) {
     for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x)
-        if (s.at<float>(y, x) < best.at<float>(y, x)) {
-          best.at<float>(y, x) = s.at<float>(y, x);
-          out.at<cv::Vec3f>(y, x) = ff.at<cv::Vec3f>(y, x);
-        }
+      for (int x = 0; x < w; ++x) out.at<cv::Vec3f>(y, x) = cand[choice.at<uchar>(y, x)].at<cv::Vec3f>(y, x);
+  } else {
+    // Soft selection: each candidate weighted by the share of the (2 blend + 1)^2 neighbours
+    // that chose it (the per-pixel choice is itself noisy).
+    for (size_t k = 0; k < cand.size(); ++k) {
+      cv::Mat ind;
+      cv::compare(choice, static_cast<double>(k), ind, cv::CMP_EQ);
+      ind.convertTo(ind, CV_32F, 1.0 / 255);
+      cv::blur(ind, ind, cv::Size(2 * o.blend + 1, 2 * o.blend + 1));
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) out.at<cv::Vec3f>(y, x) += ind.at<float>(y, x) * cand[k].at<cv::Vec3f>(y, x);
+    }
   }
   ImageF res(w, h, 3);
   for (int y = 0; y < h; ++y) {

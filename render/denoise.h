@@ -8,17 +8,28 @@
 // written next to it (preview.exr/png), and every figure of the renderer's accuracy (the bench's
 // Cycles comparison, the unbiasedness tests) is measured on the raw render, never on this.
 //
-// Method: candidates are the raw pixel and OpenCV's guided filter (He et al. 2013,
-// cv::ximgproc::guidedFilter) at radii 1, 2, 4, ... max_radius: within each window the
-// demodulated radiance (radiance / base colour) is fitted as an affine function of the guide
-// (normal x, normal y, depth scaled to [0, 1] plus 3 where the camera rays missed the height
-// field, so the sample and the mount are never fitted together), so shading that follows the relief survives
-// while the noise averages out. Each pixel takes the candidate with the least squared error,
-// estimated by cross-validation on the renderer's two half-buffers (even / odd samples, whose
-// noise is independent: a candidate filtered from one half is compared with the other half,
-// both ways, averaged over a (2 window + 1)^2 neighbourhood; Rousselle et al. 2012 use the
-// same dual-buffer idea). Where a filter would blur real detail (an edge, the coin's reeding)
-// the raw pixel or a smaller window wins; a noise-free render comes back unchanged.
+// Method: candidates are the raw pixel, OpenCV's guided filter (He et al. 2013,
+// cv::ximgproc::guidedFilter) at radii 1, 2, 4, ... max_radius, and joint bilateral filters
+// (cv::ximgproc::jointBilateralFilter) at spatial sigmas 2, 4, .... All are guided by the
+// first-hit features (normal x, normal y, depth scaled to [0, 1] plus 3 where the camera rays
+// missed the height field, so the sample and the mount are never fitted together) and run on
+// the demodulated radiance (radiance / base colour). The guided filter fits the radiance as an
+// affine function of the guide within each window, so shading that follows the relief survives
+// while the noise averages out; the bilateral filter averages the pixels whose features match,
+// which follows the glossy rim (the same reeding phase has the same normal) where an affine fit
+// cannot. Each candidate is linear in its input for a fixed guide.
+// Selection: each pixel takes the candidate with the least squared error, estimated by
+// cross-validation on the renderer's two half-buffers A and B (even / odd samples, independent
+// noise; Rousselle et al. 2012 use the same dual-buffer idea): with F(A) the candidate filtered
+// from A, E[(F(A) - B)^2] = bias^2 + var F(A) + var B, while the output F((A + B) / 2) has error
+// bias^2 + var F(A) / 2; var B is the same for every candidate and var F(A) is estimated by
+// (F(A) - F(B))^2 / 2, so the score is (F(A) - B)^2 + (F(B) - A)^2 - (F(A) - F(B))^2 / 2
+// (luminance), averaged over a (2 window + 1)^2 neighbourhood. Without the last term the score
+// weighs the candidates' noise twice as heavily as the output carries it and picks biased
+// filters (on the demo's rim the denoised error exceeded the raw one). The per-pixel choices
+// are then blended over a small neighbourhood. Where a filter would blur real detail (an edge,
+// the coin's reeding) the raw pixel or a smaller filter wins; a noise-free render comes back
+// unchanged.
 
 #include "core/image.h"
 #include "render/path_tracer.h"
@@ -27,13 +38,27 @@ namespace mesoscan {
 
 struct DenoiseOptions {
   int max_radius = 16;  // largest guided-filter radius tried, pixels, >= 1
-  int window = 3;       // radius of the window the cross-validation error is averaged over, >= 0
+  int window = 2;       // radius of the window the cross-validation error is averaged over, >= 0
+                        // (demo, 9 spp allocated: 2 beat 3 and 5)
   double eps = 1e-2;    // regularisation of the affine fit (guide units squared), > 0; tuned on
                         // the demo at 16 spp: 5e-3 to 1e-2 best, 1e-3 and 3e-2 worse
+  // Joint bilateral candidates with spatial sigma 2, 4, ... pixels (their cost grows with the
+  // square of the sigma) and range sigma `bilateral_sigma` (guide units; demo: 0.03 beat 0.1,
+  // 0.3, 0.015 and 0.007). 0: none. Demo, 9 spp: none 4.13%, one 3.52% (0.27 CPU s for the
+  // whole denoiser), two 3.42% (0.59 CPU s): at equal CPU the second is a tie, so one.
+  int bilateral = 1;
+  double bilateral_sigma = 0.03;
+  // Each pixel's output mixes the candidates chosen over its (2 blend + 1)^2 neighbourhood, in
+  // proportion to how many chose each (the per-pixel choice is itself noisy). 0: its own choice.
+  int blend = 2;
+  // The cross-validation score minus half the squared difference of the candidate's two
+  // filtered halves (see DenoisePreview). false: the plain dual-buffer score (the before).
+  bool half_variance_correction = true;
 };
 
 // The seconds of a `--time` budget to leave for DenoisePreview() at this image size: about
-// 1.5 us per pixel (measured on the demo, 480x360, 2 cores), at most a quarter of the budget.
+// 2.2 us per pixel (the guided filters alone took 1.5 us idle on the demo, 480x360, 2 cores;
+// the bilateral candidate and the blend add half again in CPU), at most a quarter of the budget.
 double DenoiseTimeReserve(int width, int height, double time_budget_s);
 
 // Linear RGB, the same size as r.radiance. Needs r's feature buffers (Render() fills them).

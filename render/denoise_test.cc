@@ -82,5 +82,48 @@ TEST(Denoise, KeepsAnEdgeTheGuideCannotSee) {
   EXPECT_LT(Rmse(d, Step, 0, 24), Rmse(r.radiance, Step, 0, 24) / 2);
 }
 
+// The denoiser may blur, but on a flat image with pure noise it must not move the mean: the
+// denoised image's mean stays within 4 standard errors of the truth over six seeds (the
+// standard error of the raw image's mean, sigma / sqrt(2 N); the filters average, so theirs is
+// no larger).
+TEST(Denoise, KeepsTheMeanOfFlatNoise) {
+  const int w = 64, h = 64;
+  const double sigma = 0.3, se = sigma / std::sqrt(2.0 * w * h);
+  for (uint64_t seed = 10; seed < 16; ++seed) {
+    const RenderResult r = Synthetic(w, h, sigma, Flat, seed);
+    const ImageF d = DenoisePreview(r);
+    double m = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) m += d(x, y, 1) / (w * h);
+    EXPECT_LT(std::abs(m - 1.0), 4 * se) << "seed " << seed;
+  }
+}
+
+// A response to the normal that no affine fit follows (the glossy rim's reeding: the radiance
+// is 1 where the normal leans left or right and 3 where it faces the camera, in 2-pixel
+// stripes): the bilateral candidate averages the pixels of the same normal. The denoised error
+// is below 0.4 of the raw one (measured 0.32); with the guided filters alone (bilateral = 0) it
+// is not (measured 0.59).
+RenderResult Reeded(double sigma, uint64_t seed) {
+  RenderResult r = Synthetic(64, 64, sigma, [](int x, int) { return (x / 2) % 3 == 1 ? 3.0 : 1.0; }, seed);
+  for (int y = 0; y < 64; ++y)
+    for (int x = 0; x < 64; ++x) {
+      const int phase = (x / 2) % 3;
+      r.normal(x, y, 0) = phase == 0 ? -0.5f : phase == 1 ? 0.0f : 0.5f;
+      r.normal(x, y, 2) = phase == 1 ? 1.0f : 0.866f;
+    }
+  return r;
+}
+double ReededTruth(int x, int) { return (x / 2) % 3 == 1 ? 3.0 : 1.0; }
+
+TEST(Denoise, FollowsAResponseTheAffineFitCannot) {
+  const RenderResult r = Reeded(0.3, 20);
+  const double raw = Rmse(r.radiance, ReededTruth, 0, 64);
+  EXPECT_LT(Rmse(DenoisePreview(r), ReededTruth, 0, 64), raw / 2.5);
+  DenoiseOptions gf_only;
+  gf_only.bilateral = 0;
+  EXPECT_GT(Rmse(DenoisePreview(r, gf_only), ReededTruth, 0, 64), raw / 2.5);
+}
+
 }  // namespace
 }  // namespace mesoscan
