@@ -32,6 +32,20 @@ inline __attribute__((always_inline)) void AtanReduced(const T& u, T* at) {
   *at = u + u * z * p;
 }
 
+// atan2(ay, ax) for ay, ax >= 0 from t = min / max of the two in [0, 1] (0 when both are 0):
+// atan(t) through the reduced range, then reflected about the diagonal when ay > ax. The part of
+// atan2 every form shares (FastAtan2, the phase-shift solver's and the lens-shift fitters'
+// lanes); each forms t and applies the quadrant signs itself, as its scalar counterpart does.
+template <class T>
+inline __attribute__((always_inline)) void AtanOfRatio(const T& t, const T& ay, const T& ax,
+                                                       T* at) {
+  const auto big = t > kTanPi8;
+  const T u = big ? (t - 1.0) / (t + 1.0) : t;
+  AtanReduced(u, at);
+  *at = big ? *at + 0.25 * kPi : *at;
+  *at = ay > ax ? 0.5 * kPi - *at : *at;
+}
+
 // atan2(y, x) in [-pi, pi] to ~2 ulp (the same steps as FitBlock's lanes; glibc's atan2 is
 // correctly rounded and several times slower). atan2(0, 0) = 0; NaN in, NaN out.
 inline double FastAtan2(double y, double x) {
@@ -39,12 +53,8 @@ inline double FastAtan2(double y, double x) {
   const double ay = std::abs(y), ax = std::abs(x);
   const double hi = std::max(ay, ax), lo = std::min(ay, ax);
   const double t = hi > 0.0 ? lo / hi : 0.0;
-  const bool big = t > kTanPi8;
-  const double u = big ? (t - 1.0) / (t + 1.0) : t;
   double at;
-  AtanReduced(u, &at);
-  if (big) at += 0.25 * kPi;
-  if (ay > ax) at = 0.5 * kPi - at;
+  AtanOfRatio(t, ay, ax, &at);
   if (x < 0) at = kPi - at;
   return y < 0 ? -at : at;
 }

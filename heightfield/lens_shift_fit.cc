@@ -1081,12 +1081,8 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     const V4d ay = MESOSCAN_LANE_ABS(cc), ax = MESOSCAN_LANE_ABS(cs);
     const V4d hi = ay > ax ? ay : ax, lo = ay > ax ? ax : ay;
     const V4d t = hi > 0 ? lo / (hi > 0 ? hi : zero + 1.0) : zero;
-    const V4l big = t > kTanPi8;
-    const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
     V4d at;
-    AtanReduced(u, &at);
-    at = big ? at + 0.25 * kPi : at;
-    at = ay > ax ? 0.5 * kPi - at : at;
+    AtanOfRatio(t, ay, ax, &at);
     at = cs < 0 ? kPi - at : at;
     at = cc < 0 ? -at : at;
     at = at <= -kPi ? zero + kPi : at;  // WrapPhase: (-pi, pi]
@@ -1595,12 +1591,8 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, const flo
   const V4d ay = cc < 0 ? -cc : cc, ax = cs < 0 ? -cs : cs;
   const V4d hi = ay > ax ? ay : ax, lo = ay > ax ? ax : ay;
   const V4d t = hi > 0 ? lo / hi : zero;
-  const V4l big = t > kTanPi8;
-  const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
   V4d at;
-  AtanReduced(u, &at);
-  at = big ? at + 0.25 * kPi : at;
-  at = ay > ax ? 0.5 * kPi - at : at;
+  AtanOfRatio(t, ay, ax, &at);
   at = cs < 0 ? kPi - at : at;
   at = cc < 0 ? -at : at;  // cc == -0.0 with cs < 0 gives pi, not -pi: (-pi, pi] as WrapPhase
   std::memcpy(r->phase, &at, sizeof at);

@@ -270,12 +270,8 @@ void SolveLanes(const double* pinv, const double* cosd, const double* sind, int 
     const V4d hi = ay < ax ? ax : ay;  // std::max(ay, ax)
     const V4d lo = ax < ay ? ax : ay;  // std::min(ay, ax)
     const V4d t = hi > 0.0 ? lo / hi : zero;
-    const auto big = t > kTanPi8;
-    const V4d u = big ? (t - 1.0) / (t + 1.0) : t;
     V4d at;
-    AtanReduced(u, &at);
-    at = big ? at + 0.25 * kPi : at;
-    at = ay > ax ? 0.5 * kPi - at : at;
+    AtanOfRatio(t, ay, ax, &at);
     at = c < 0.0 ? kPi - at : at;
     at = s < 0.0 ? -at : at;
     std::memcpy(out + j, &a, sizeof a);
