@@ -5,8 +5,6 @@
 
 #include <gtest/gtest.h>
 
-#include <unistd.h>
-
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -18,6 +16,7 @@
 #include "core/image_io.h"
 #include "core/numbers.h"
 #include "core/stage_timer.h"
+#include "core/test_temp_dir.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_classify.h"
 #include "heightfield/stage_combine.h"
@@ -80,9 +79,7 @@ TEST(StageStream, ReleaseAndMergeJoinComplementaryStacks) {
 // are stored as decoded (the storage is not zero-filled first; every sample is written).
 TEST(StageStream, DecodedFramesMarkSaturationAtEverySample) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() /
-                       ("mesoscan_stages_sat_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
+  const fs::path dir = TestTempDir("stages_test", "sat");
   fs::create_directories(dir / "frames");
   const int w = 300, h = 5;  // 1500 pixels: six blocks, the last one partial
   Session s;
@@ -112,7 +109,6 @@ TEST(StageStream, DecodedFramesMarkSaturationAtEverySample) {
     for (int i = 0; i < w * h; ++i)
       ASSERT_FLOAT_EQ(stack.Value(k, static_cast<size_t>(i)), images[k](i % w, i / w) / 65535.0f)
           << "frame " << k << " pixel " << i;
-  fs::remove_all(dir);
 }
 
 TEST(StagePlan, GroupsSineSetsSortsLensShiftAndFindsWhiteBlack) {
