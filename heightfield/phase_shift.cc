@@ -317,11 +317,6 @@ double WrappedPhaseSolver::ThetaVarianceAt(double sigma, double modulation, doub
   return sigma * sigma * q / (modulation * modulation);
 }
 
-double WrappedPhaseSolver::ThetaVariance(double sigma, double modulation) const {
-  // The theta average of sin^2 and cos^2 is 1/2, of sin cos 0.
-  return sigma * sigma * 0.5 * (cov_cc_ + cov_ss_) / (modulation * modulation);
-}
-
 // ---------------------------------------------------------------------------------------------
 // TemporalUnwrapper
 

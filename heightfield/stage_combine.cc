@@ -113,14 +113,26 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
           if (cnt) sigma = std::sqrt(s2 / cnt);
         }
         sigma = std::max(sigma, 1e-4 * level[i]);
-        for (int p = 0; p < nper; ++p) {
-          th.push_back(theta[p][i]);
-          const double var = solvers[p].ThetaVariance(sigma, modulation[p][i]) +
-                             std::pow(options.systematic_phase_noise, 2);
-          wt.push_back(1.0 / var);
-        }
         sigmas.push_back(sigma);
         active.push_back(i);
+      }
+      // The unwrapper's inputs, pixel-major (th[a * nper + p]): per period a loop over the
+      // block's active pixels (the divisions in vector lanes).
+      const size_t na = active.size();
+      th.resize(na * nper), wt.resize(na * nper);
+      const double sys2 = std::pow(options.systematic_phase_noise, 2);
+      for (int p = 0; p < nper; ++p) {
+        const WrappedPhaseSolver& solver = solvers[p];
+        const float* th_p = theta[p].data();
+        const float* mod_p = modulation[p].data();
+        double* th_out = th.data() + p;
+        double* wt_out = wt.data() + p;
+        for (size_t a = 0; a < na; ++a) {
+          const size_t i = active[a];
+          th_out[a * nper] = th_p[i];
+          const double var = solver.ThetaVariance(sigmas[a], mod_p[i]) + sys2;
+          wt_out[a * nper] = 1.0 / var;
+        }
       }
       unwrapped.resize(active.size());
       unwrapper.UnwrapMany(th.data(), wt.data(), static_cast<int>(active.size()), unwrapped.data());
