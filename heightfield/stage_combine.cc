@@ -204,16 +204,35 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   });
   if (use_ls && options.reference_positions_to_phase_shift &&
       PositionsEstimated(ls.frame_corrections)) {
-    std::vector<float> d;
-    for (size_t i = 0; i < np; ++i)
-      if (out.source[i] == 0 && std::isfinite(out.u[i]) && std::isfinite(out.u_coarse[i]))
-        d.push_back(out.u_coarse[i] - out.u[i]);
+    // The differences gathered in parallel (counted per block, then written at the blocks'
+    // offsets); their median does not depend on the order.
+    auto use = [&](size_t i) {
+      return out.source[i] == 0 && std::isfinite(out.u[i]) && std::isfinite(out.u_coarse[i]);
+    };
+    std::vector<size_t> count(static_cast<size_t>(blocks) + 1, 0);
+    ParallelFor(blocks, [&](int64_t b) {
+      const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+      size_t n = 0;
+      for (size_t i = static_cast<size_t>(b) * kBlock; i < i_end; ++i) n += use(i);
+      count[static_cast<size_t>(b) + 1] = n;
+    });
+    for (int b = 0; b < blocks; ++b) count[b + 1] += count[b];
+    std::vector<float> d(count[blocks]);
+    ParallelFor(blocks, [&](int64_t b) {
+      const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+      size_t k = count[b];
+      for (size_t i = static_cast<size_t>(b) * kBlock; i < i_end; ++i)
+        if (use(i)) d[k++] = out.u_coarse[i] - out.u[i];
+    });
     if (d.size() >= 1000) {
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
       out.ls_offset_px = d[d.size() / 2];
-      for (size_t i = 0; i < np; ++i)
-        if (out.source[i] == 0 && std::isfinite(out.u[i]))
-          out.u[i] = static_cast<float>(out.u[i] + out.ls_offset_px);
+      ParallelForRows(blocks, [&](int b0, int b1) {
+        const size_t i_end = std::min(np, static_cast<size_t>(b1) * kBlock);
+        for (size_t i = static_cast<size_t>(b0) * kBlock; i < i_end; ++i)
+          if (out.source[i] == 0 && std::isfinite(out.u[i]))
+            out.u[i] = static_cast<float>(out.u[i] + out.ls_offset_px);
+      });
     }
   }
   return out;
