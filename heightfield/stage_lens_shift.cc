@@ -219,11 +219,12 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     const bool many = !box && !f_map;
     ParallelForRows(h, [&](int y0, int y1) {
       const size_t n = static_cast<size_t>(w);
-      std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
-      std::vector<float> packed;
+      // (Sized where first needed: the sparse pass with FitMany reads no full rows, and these
+      // were ~80 MB of zero fills over the pass's tasks.)
+      std::vector<float> buf, prof(static_cast<size_t>(nx)), packed;
+      if (!many) buf.resize(static_cast<size_t>(nls) * n);
       std::vector<uint32_t> cols;
       std::vector<LensShiftFit> fits;
-      if (many) packed.resize(static_cast<size_t>(nls) * n);
       for (int y = y0; y < y1; ++y) {
         if (!subset.Row(y)) continue;
         const size_t i0 = static_cast<size_t>(y) * w;
@@ -236,6 +237,8 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
               cols.push_back(static_cast<uint32_t>(j));
           const size_t m = cols.size();
           if (m == 0) continue;
+          const size_t need = static_cast<size_t>(nls) * m;
+          if (packed.size() < need) packed.resize(need);
           if (subset.stride > 1 && !subset.complement) {
             for (int k = 0; k < nls; ++k) {
               const float g = inv_gain[ls_stack[k]];
@@ -243,6 +246,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
               for (size_t p = 0; p < m; ++p) to[p] = stack.Value(ls_stack[k], i0 + cols[p]) * g;
             }
           } else {
+            if (buf.empty()) buf.resize(static_cast<size_t>(nls) * n);
             for (int k = 0; k < nls; ++k) {
               stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
               const float g = inv_gain[ls_stack[k]];
