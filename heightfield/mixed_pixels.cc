@@ -45,6 +45,8 @@ struct MixedPixelJudge {
     };
     const double z = in.z[i];
     const double s2p = s2[i];
+    // The outlier test's threshold, the same for every side (one square root per pixel).
+    const double outlier_at = std::max(outlier_floor, 8.0 * std::sqrt(s2p));
     bool mixed = false;
     for (int axis = 0; axis < 2 && !mixed; ++axis) {
       const int dx = axis == 0, dy = axis == 1;
@@ -69,9 +71,7 @@ struct MixedPixelJudge {
         line[k] = 2.0 * z1 - z2;
         slope[k] = std::abs(static_cast<double>(z1) - z2);
         deviation[k] = d;
-        if (options.outlier_footprints > 0 &&
-            std::abs(d) > std::max(outlier_floor, 8.0 * std::sqrt(s2p)))
-          ++outlier_sides;
+        if (options.outlier_footprints > 0 && std::abs(d) > outlier_at) ++outlier_sides;
       }
       // Step: strictly between the two sides' extrapolations, far from both.
       if (above == 1 && below == 1) mixed = true;

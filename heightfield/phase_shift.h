@@ -43,7 +43,10 @@ class WrappedPhaseSolver {
   // (unequal steps make it depend on theta) and averaged over theta. Equal steps: 2 sigma^2 /
   // (K B^2) for every theta.
   double ThetaVarianceAt(double sigma, double modulation, double theta) const;
-  double ThetaVariance(double sigma, double modulation) const;
+  double ThetaVariance(double sigma, double modulation) const {
+    // The theta average of sin^2 and cos^2 is 1/2, of sin cos 0.
+    return sigma * sigma * 0.5 * (cov_cc_ + cov_ss_) / (modulation * modulation);
+  }
 
   int num_samples() const { return static_cast<int>(deltas_.size()); }
   const std::vector<double>& deltas() const { return deltas_; }

@@ -113,8 +113,10 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   const int gw = static_cast<int>(gw_d);
   const int gh = static_cast<int>(gh_d);
   MESOSCAN_CHECK(gw > 0 && gh > 0);
-  hf.z = ImageF(gw, gh, 1, kNaN);
-  hf.confidence = ImageF(gw, gh, 1, 0.0f);
+  ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
+    if (a == 0) hf.z = ImageF(gw, gh, 1, kNaN);
+    else hf.confidence = ImageF(gw, gh, 1, 0.0f);
+  });
   const double max_edge2 = std::pow(options.max_edge_footprints * footprint, 2);
 
   auto vertex = [&](int x, int y, GridVertex* v) {

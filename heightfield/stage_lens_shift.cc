@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
 #include <utility>
@@ -213,12 +214,55 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
   auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
                       const PixelSubset& subset, const char* label, const Target& to) {
     Progress progress(label, h);
+    // Without the box filter and a fixed frequency, the row's pixels of the subset are fitted
+    // together (FitMany: four profiles per vector, Fit's results to rounding).
+    const bool many = !box && !f_map;
     ParallelForRows(h, [&](int y0, int y1) {
       const size_t n = static_cast<size_t>(w);
-      std::vector<float> buf(static_cast<size_t>(nls) * n), prof(static_cast<size_t>(nx));
+      // (Sized where first needed: the sparse pass with FitMany reads no full rows, and these
+      // were ~80 MB of zero fills over the pass's tasks.)
+      std::vector<float> buf, prof(static_cast<size_t>(nx)), packed;
+      if (!many) buf.resize(static_cast<size_t>(nls) * n);
+      std::vector<uint32_t> cols;
+      std::vector<LensShiftFit> fits;
       for (int y = y0; y < y1; ++y) {
         if (!subset.Row(y)) continue;
         const size_t i0 = static_cast<size_t>(y) * w;
+        if (many) {
+          // The subset's active pixels of the row, their profiles packed frame-major
+          // (packed[k * m + p]: profile p's sample k).
+          cols.clear();
+          for (size_t j = 0; j < n; ++j)
+            if (state[i0 + j] == PixelState::kActive && subset.Has(static_cast<int>(j), y))
+              cols.push_back(static_cast<uint32_t>(j));
+          const size_t m = cols.size();
+          if (m == 0) continue;
+          const size_t need = static_cast<size_t>(nls) * m;
+          if (packed.size() < need) packed.resize(need);
+          if (subset.stride > 1 && !subset.complement) {
+            for (int k = 0; k < nls; ++k) {
+              const float g = inv_gain[ls_stack[k]];
+              float* to = packed.data() + k * m;
+              for (size_t p = 0; p < m; ++p) to[p] = stack.Value(ls_stack[k], i0 + cols[p]) * g;
+            }
+          } else {
+            if (buf.empty()) buf.resize(static_cast<size_t>(nls) * n);
+            for (int k = 0; k < nls; ++k) {
+              stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+              const float g = inv_gain[ls_stack[k]];
+              const float* from = buf.data() + k * n;
+              float* to = packed.data() + k * m;
+              for (size_t p = 0; p < m; ++p) to[p] = from[cols[p]] * g;
+            }
+          }
+          fits.resize(m);
+          fitter.FitMany(packed.data(), 1, static_cast<int>(m), static_cast<int>(m), fits.data());
+          for (size_t p = 0; p < m; ++p) {
+            const size_t j = cols[p];
+            store(*to.px, to.stride == 1 ? i0 + j : to.At(j, y), i0 + j, fits[p]);
+          }
+          continue;
+        }
         if (subset.stride > 1 && !subset.complement) {
           // A sparse subset (the frequency pass: 1 pixel in stride^2): only its samples.
           for (int k = 0; k < nls; ++k) {

@@ -16,8 +16,12 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
   const int w = grid.width;
   const size_t np = grid.pixels();
   const PixelRect& roi = grid.roi;
-  std::vector<float> z(np, kNaN);
-  std::vector<uint8_t> unlit(np, 0);
+  std::vector<float> z;
+  std::vector<uint8_t> unlit;
+  ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
+    if (a == 0) z.assign(np, kNaN);
+    else unlit.assign(np, 0);
+  });
   ParallelForRows(grid.height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < w; ++x) {
