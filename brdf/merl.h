@@ -94,7 +94,7 @@ class MerlBrdf {
   Rgb RawF(const Vec3& wo, const Vec3& wi) const;
 
   MerlOptions options_;
-  std::vector<float> rgb_;  // [channel][theta_h][theta_d][phi_d], 1/sr
+  std::vector<float> rgb_;  // [theta_h][theta_d][phi_d][channel] (RGB interleaved), 1/sr
   size_t invalid_entries_ = 0;
   Warp2D sampling_;  // density over (u_theta_m, u_phi_m) per wo elevation
   EnergyClamp energy_;
