@@ -117,6 +117,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlO
     MESOSCAN_LOG(kWarning) << path.string() << ": " << brdf->invalid_entries_
                            << " unmeasured entries read as 0";
   }
+  brdf->BuildProxy();
   brdf->BuildSamplingTable();
   brdf->BuildEnergyClamp(path.string());
   return brdf;
@@ -152,6 +153,7 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Tabulate(
       }
     }
   });
+  brdf->BuildProxy();
   brdf->BuildSamplingTable();
   brdf->BuildEnergyClamp("tabulated model");
   return brdf;
@@ -203,6 +205,30 @@ Rgb MerlBrdf::Lookup(double theta_h, double theta_d, double phi_d) const {
       for (int c = 0; c < 3; ++c) v[c] += w * (fp0 * n0[c] + fp1 * n1[c]);
     }
   return Rgb(v[0], v[1], v[2]);
+}
+
+void MerlBrdf::BuildProxy() {
+  constexpr int kD = kThetaD / 2, kP = kPhiD / 2;
+  proxy_.assign(static_cast<size_t>(kThetaH) * kD * kP, 0.0f);
+  for (int ih = 0; ih < kThetaH; ++ih)
+    for (int id = 0; id < kD; ++id)
+      for (int ip = 0; ip < kP; ++ip) {
+        double sum = 0;
+        for (int a = 0; a < 2; ++a)
+          for (int b = 0; b < 2; ++b) sum += Luminance(Node(ih, 2 * id + a, 2 * ip + b));
+        proxy_[(static_cast<size_t>(ih) * kD + id) * kP + ip] = static_cast<float>(std::max(0.0, 0.25 * sum));
+      }
+}
+
+double MerlBrdf::ProxyLuminance(const Vec3& wo, const Vec3& wi) const {
+  if (!SameHemisphereUp(wo, wi)) return 0.0;
+  double theta_h, theta_d, phi_d;
+  HalfDiffAngles(wi, wo, &theta_h, &theta_d, &phi_d);
+  constexpr int kD = kThetaD / 2, kP = kPhiD / 2;
+  const int ih = std::clamp(static_cast<int>(ThetaHCoord(theta_h)), 0, kThetaH - 1);
+  const int id = std::clamp(static_cast<int>(0.5 * ThetaDCoord(theta_d)), 0, kD - 1);
+  const int ip = std::clamp(static_cast<int>(0.5 * PhiDCoord(phi_d)), 0, kP - 1);
+  return proxy_[(static_cast<size_t>(ih) * kD + id) * kP + ip];
 }
 
 Rgb MerlBrdf::RawF(const Vec3& wo, const Vec3& wi) const {
