@@ -8,6 +8,7 @@
 #include "core/fs.h"
 #include "core/log.h"
 #include "core/parallel.h"
+#include "heightfield/fast_atan.h"
 
 namespace mesoscan {
 namespace {
@@ -54,17 +55,19 @@ void MerlOptions::Check() const {
 void HalfDiffAngles(const Vec3& wi, const Vec3& wo, double* theta_h, double* theta_d,
                     double* phi_d) {
   const Vec3 h = (wi + wo).normalized();
-  *theta_h = Elevation(h);
+  // The angles by FastAtan2 (~2 ulp, several times faster than glibc's asin/acos/atan2, which
+  // were a tenth of the demo's render): theta = atan2(|xy|, z) is accurate at every elevation.
+  const double r = std::sqrt(h.x() * h.x() + h.y() * h.y());
+  *theta_h = FastAtan2(r, h.z());
   // Rotate wi by -phi_h about the normal, then by -theta_h about the binormal (y). The cosines
   // and sines come from h itself (h is a unit vector: cos theta_h = h.z, sin theta_h = |h.xy|),
   // without the trigonometric calls (phi_h = atan2(h.y, h.x) = 0 when h is the normal).
-  const double r = std::sqrt(h.x() * h.x() + h.y() * h.y());
   const double cp = r > 0 ? h.x() / r : 1.0, sp = r > 0 ? h.y() / r : 0.0;
   const Vec3 t(wi.x() * cp + wi.y() * sp, -wi.x() * sp + wi.y() * cp, wi.z());
   const double ct = h.z(), st = r;
   const Vec3 d(t.x() * ct - t.z() * st, t.y(), t.x() * st + t.z() * ct);
-  *theta_d = std::acos(std::clamp(d.z(), -1.0, 1.0));
-  *phi_d = std::atan2(d.y(), d.x());
+  *theta_d = FastAtan2(std::sqrt(d.x() * d.x() + d.y() * d.y()), d.z());
+  *phi_d = FastAtan2(d.y(), d.x());
 }
 
 std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlOptions& options) {
@@ -300,7 +303,7 @@ void MerlBrdf::BuildSamplingTable() {
 
 std::optional<BrdfSample> MerlBrdf::Sample(const Vec3& wo, const Vec2& u) const {
   if (wo.z() <= 0) return std::nullopt;
-  const double theta_o = Elevation(wo), phi_o = std::atan2(wo.y(), wo.x());
+  const double theta_o = Elevation(wo), phi_o = FastAtan2(wo.y(), wo.x());
   const auto [u_wm, pdf_u] = sampling_.Sample(u, &theta_o);
   const double theta_m = U2Theta(u_wm.x());
   const Vec3 wm = SphericalDirection(theta_m, U2Phi(u_wm.y()) + phi_o);
@@ -317,8 +320,8 @@ double MerlBrdf::Pdf(const Vec3& wo, const Vec3& wi) const {
   const Vec3 wm = (wo + wi).normalized();
   const double wo_dot_wm = wo.dot(wm);
   if (wo_dot_wm <= 0) return 0.0;
-  const double theta_o = Elevation(wo), phi_o = std::atan2(wo.y(), wo.x());
-  const double theta_m = Elevation(wm), phi_m = std::atan2(wm.y(), wm.x());
+  const double theta_o = Elevation(wo), phi_o = FastAtan2(wo.y(), wo.x());
+  const double theta_m = Elevation(wm), phi_m = FastAtan2(wm.y(), wm.x());
   Vec2 u_wm(Theta2U(theta_m), Phi2U(phi_m - phi_o));
   u_wm.y() -= std::floor(u_wm.y());
   const double sin_theta_m = std::sqrt(wm.x() * wm.x() + wm.y() * wm.y());
