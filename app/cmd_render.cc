@@ -352,7 +352,7 @@ void Run(const RenderArgs& args) {
   if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
   // --denoise within --time: the denoiser's share comes out of the budget.
   if (a.denoise && o.time_limit_s > 0)
-    o.time_limit_s -= DenoiseTimeReserve(o.width, o.height, o.time_limit_s);
+    o.time_limit_s -= MeasureDenoiseTimeReserve(o.width, o.height, o.time_limit_s);
   // --spp below the default --min-spp lowers it (an explicit --min-spp above --spp stays an error).
   if (!a.min_spp_given) o.min_spp = std::min(o.min_spp, o.max_spp);
   if (a.turntable < 0 || a.turntable > 720)

@@ -76,6 +76,12 @@ class MerlBrdf {
   std::optional<BrdfSample> Sample(const Vec3& wo, const Vec2& u) const;
   double Pdf(const Vec3& wo, const Vec3& wi) const;
 
+  // A cheap stand-in for Luminance(f(wo, wi)) where only the shape matters (a sampler's proposal
+  // weights, e.g. MirrorGuide::Prepare): the nearest node of a luminance table at half the
+  // resolution in theta_d and phi_d (1.5 MB, so it stays in a core's cache, where the full RGB
+  // table's 17.5 MB does not), without the energy clamp. >= 0; 0 below the horizon.
+  double ProxyLuminance(const Vec3& wo, const Vec3& wi) const;
+
   // Table value at half/difference angles (radians), with the configured interpolation.
   Rgb Lookup(double theta_h, double theta_d, double phi_d) const;
   // Raw node value (unscaled units: 1/sr).
@@ -88,14 +94,16 @@ class MerlBrdf {
  private:
   MerlBrdf() = default;
   void BuildSamplingTable();
+  void BuildProxy();
   // Estimates the albedo on a grid of elevations and sets energy_ (logs when it exceeds 1;
   // `source` names the file or "tabulated model").
   void BuildEnergyClamp(const std::string& source);
   Rgb RawF(const Vec3& wo, const Vec3& wi) const;
 
   MerlOptions options_;
-  std::vector<float> rgb_;  // [channel][theta_h][theta_d][phi_d], 1/sr
+  std::vector<float> rgb_;  // [theta_h][theta_d][phi_d][channel] (RGB interleaved), 1/sr
   size_t invalid_entries_ = 0;
+  std::vector<float> proxy_;  // [theta_h][theta_d / 2][phi_d / 2]: mean luminance of 4 nodes
   Warp2D sampling_;  // density over (u_theta_m, u_phi_m) per wo elevation
   EnergyClamp energy_;
 };

@@ -1,6 +1,8 @@
 #include "render/denoise.h"
 
 #include <algorithm>
+#include <chrono>
+#include <cstdint>
 #include <cmath>
 #include <vector>
 #include <opencv2/core.hpp>
@@ -52,6 +54,49 @@ cv::Mat LumDiff2(const cv::Mat& a, const cv::Mat& b) {
 
 double DenoiseTimeReserve(int width, int height, double time_budget_s) {
   return std::min(0.25 * time_budget_s, 2.2e-6 * width * height);
+}
+
+double MeasureDenoiseTimeReserve(int width, int height, double time_budget_s,
+                                 const DenoiseOptions& options) {
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  // A quarter of each side (a sixteenth of the pixels), at least 64 x 48: the filters' cost per
+  // pixel is flat above that, and the small image's fixed costs only add margin.
+  const int cw = std::max(std::min(width, 64), width / 4), ch = std::max(std::min(height, 48), height / 4);
+  RenderResult r;
+  r.radiance = ImageF(cw, ch, 3);
+  r.half[0] = ImageF(cw, ch, 3);
+  r.half[1] = ImageF(cw, ch, 3);
+  r.normal = ImageF(cw, ch, 3);
+  r.albedo = ImageF(cw, ch, 3, 1.0f);
+  r.depth = ImageF(cw, ch, 1);
+  r.sample_mask = ImageF(cw, ch, 1);
+  r.spp = ImageF(cw, ch, 1, 8.0f);
+  uint32_t state = 12345;  // noise-like content (the filters' cost does not depend on it)
+  auto rnd = [&state] {
+    state = state * 1664525u + 1013904223u;
+    return static_cast<float>(state >> 8) * (1.0f / 16777216.0f);
+  };
+  for (int y = 0; y < ch; ++y)
+    for (int x = 0; x < cw; ++x) {
+      const bool sample = (x - cw / 2) * (x - cw / 2) + (y - ch / 2) * (y - ch / 2) < ch * ch / 5;
+      r.sample_mask(x, y) = sample ? 1.0f : 0.0f;
+      r.depth(x, y) = 1.0f + 0.01f * rnd();
+      const float nx = sample ? 0.3f * (rnd() - 0.5f) : 0.0f, ny = sample ? 0.3f * (rnd() - 0.5f) : 0.0f;
+      r.normal(x, y, 0) = nx, r.normal(x, y, 1) = ny, r.normal(x, y, 2) = std::sqrt(1 - nx * nx - ny * ny);
+      for (int c = 0; c < 3; ++c) {
+        r.half[0](x, y, c) = rnd(), r.half[1](x, y, c) = rnd();
+        r.radiance(x, y, c) = 0.5f * (r.half[0](x, y, c) + r.half[1](x, y, c));
+      }
+    }
+  const auto t1 = Clock::now();
+  (void)DenoisePreview(r, options);
+  const auto t2 = Clock::now();
+  const double per_pixel = std::chrono::duration<double>(t2 - t1).count() / (static_cast<double>(cw) * ch);
+  const double spent = std::chrono::duration<double>(t2 - t0).count();
+  // 1.25x the predicted time (the load may change before the render ends), plus what the
+  // measurement itself took (it comes out of the same budget).
+  return std::min(0.25 * time_budget_s, 1.25 * per_pixel * width * height + spent);
 }
 
 ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {

@@ -125,5 +125,16 @@ TEST(Denoise, FollowsAResponseTheAffineFitCannot) {
   EXPECT_GT(Rmse(DenoisePreview(r, gf_only), ReededTruth, 0, 64), raw / 2.5);
 }
 
+// The measured reserve is a time (machine- and load-dependent, so only its bounds are asserted
+// here; bench/demo_preview.sh reports it against the denoiser's actual time): positive, finite,
+// and never more than a quarter of the budget.
+TEST(Denoise, MeasuredTimeReserveIsBoundedByAQuarterOfTheBudget) {
+  const double r = MeasureDenoiseTimeReserve(480, 360, 3.0);
+  EXPECT_TRUE(std::isfinite(r));
+  EXPECT_GT(r, 0.0);
+  EXPECT_LE(r, 0.75);
+  EXPECT_DOUBLE_EQ(MeasureDenoiseTimeReserve(480, 360, 1e-6), 0.25e-6);
+}
+
 }  // namespace
 }  // namespace mesoscan

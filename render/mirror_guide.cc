@@ -145,6 +145,10 @@ int MirrorGuide::Block(int cell) const {
 bool MirrorGuide::Prepare(const Brdf& brdf, const Vec3& s, const Vec3& t, const Vec3& n,
                           const Vec3& wo, Local* local) const {
   local->cdf[0] = 0;
+  // A measured table's cheap stand-in for the lobe (MerlBrdf::ProxyLuminance): these weights
+  // only shape the proposal (Sample and Pdf use the same ones), so any non-negative stand-in
+  // keeps the estimate unbiased; the full lookups here were most of the vertex's table reads.
+  const MerlBrdf* merl = brdf.Get<MerlBrdf>();
   for (int b = 0; b < kCoarse; ++b) {
     const Vec3& w = block_centre_[b];
     const Vec3 wi(w.dot(s), w.dot(t), w.dot(n));
@@ -152,7 +156,7 @@ bool MirrorGuide::Prepare(const Brdf& brdf, const Vec3& s, const Vec3& t, const 
     // Blocks holding little of the table (under an even share) are left to BRDF
     // sampling: fewer BRDF evaluations per vertex.
     if (wi.z() > 0 && block_mass_[b] > 1.0 / kCoarse) {
-      const double y = Luminance(brdf.f(wo, wi)) * wi.z();
+      const double y = (merl ? merl->ProxyLuminance(wo, wi) : Luminance(brdf.f(wo, wi))) * wi.z();
       if (y > 0 && std::isfinite(y)) q = block_mass_[b] * y;
     }
     local->cdf[b + 1] = local->cdf[b] + q;
