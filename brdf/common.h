@@ -13,7 +13,7 @@
 #include <optional>
 
 #include "core/numbers.h"  // kPi
-#include "heightfield/fast_atan.h"
+#include "core/fast_atan.h"
 
 namespace mesoscan {
 

@@ -8,7 +8,7 @@
 #include "core/fs.h"
 #include "core/log.h"
 #include "core/parallel.h"
-#include "heightfield/fast_atan.h"
+#include "core/fast_atan.h"
 
 namespace mesoscan {
 namespace {

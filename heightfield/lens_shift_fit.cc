@@ -22,7 +22,7 @@
 #include "core/error.h"
 #include "core/numbers.h"
 #include "core/simd_clones.h"
-#include "heightfield/fast_atan.h"
+#include "core/fast_atan.h"
 
 namespace mesoscan {
 namespace {

@@ -14,7 +14,7 @@
 
 #include "core/error.h"
 #include "core/simd_clones.h"
-#include "heightfield/fast_atan.h"
+#include "core/fast_atan.h"
 
 namespace mesoscan {
 namespace {
