@@ -37,7 +37,7 @@ struct ReconstructArgs {
 };
 
 void Run(const ReconstructArgs& a) {
-  MapLargeBuffersSeparately();  // freed frames and per-pixel arrays leave the RSS at once
+  TuneAllocatorForReconstruction();  // core/malloc_tuning.h: large blocks reused across stages
   const Stopwatch t0;
   const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;

@@ -343,7 +343,7 @@ void FullResolution(const fs::path& work, const fs::path& out) {
 // much less), the peak RSS of the reconstruction and writing (before the ground-truth
 // comparison, which is not part of the timed work), then every stage's wall and CPU time.
 int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs::path& result) {
-  MapLargeBuffersSeparately();  // as `mesoscan reconstruct` does
+  TuneAllocatorForReconstruction();  // as `mesoscan reconstruct` does
   double decode = 0, cpu_decode = 0;
   {
     const Session s = ReadSession(dir);

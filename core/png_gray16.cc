@@ -5,7 +5,6 @@
 #include <emmintrin.h>
 #endif
 #include <libdeflate.h>
-#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -17,17 +16,20 @@
 #include <utility>
 #include <vector>
 
+#include "core/large_block_cache.h"
+
 namespace mesoscan {
 namespace {
 
 // The buffers of a decode: the file (its IDAT payloads gathered at its start) and the inflated
-// rows, ~10 MB at full resolution. Mapped with mmap (unmapped when freed: malloc keeps freed
-// buffers in its per-thread arenas, +8 MB of the CLI's peak RSS), and pooled while decodes
-// overlap: fresh pages for every frame cost 4 ms a frame (26.0 against 21.9 ms; with
-// MAP_POPULATE 24.9), while buffers kept per thread for good stayed resident through the
-// reconstruction's peak (+39 MB). The pool is emptied whenever no decode is running, so once a
-// session's frames are read it holds nothing. Under AddressSanitizer (the fuzzers, CI's unit
-// tests) each decode gets exact-size buffers from new[], whose bounds it checks.
+// rows, ~10 MB at full resolution. Mapped alone (LargeBlockAllocate: unmapped when freed, or kept
+// for the next large allocation where the process enables the large block cache,
+// core/large_block_cache.h; malloc keeps freed buffers in its per-thread arenas, +8 MB of the
+// CLI's peak RSS), and pooled while decodes overlap: fresh pages for every frame cost 4 ms a frame
+// (26.0 against 21.9 ms; with MAP_POPULATE 24.9), while buffers kept per thread for good stayed
+// resident through the reconstruction's peak (+39 MB). The pool is emptied whenever no decode is
+// running, so once a session's frames are read it holds nothing. Under AddressSanitizer (the
+// fuzzers, CI's unit tests) each decode gets exact-size buffers from new[], whose bounds it checks.
 #if defined(__SANITIZE_ADDRESS__)
 #define MESOSCAN_PNG_EXACT_BUFFERS 1
 #elif defined(__has_feature)
@@ -54,8 +56,7 @@ class Buffer {
 #ifdef MESOSCAN_PNG_EXACT_BUFFERS
     data_ = new (std::nothrow) uint8_t[n];
 #else
-    void* p = ::mmap(nullptr, n, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-    data_ = p == MAP_FAILED ? nullptr : static_cast<uint8_t*>(p);
+    data_ = static_cast<uint8_t*>(LargeBlockAllocate(n));
 #endif
     capacity_ = data_ ? n : 0;
     return data_;
@@ -66,7 +67,7 @@ class Buffer {
 #ifdef MESOSCAN_PNG_EXACT_BUFFERS
     delete[] data_;
 #else
-    if (data_) ::munmap(data_, capacity_);
+    LargeBlockFree(data_, capacity_);
 #endif
     data_ = nullptr;
     capacity_ = 0;
@@ -334,8 +335,8 @@ PngGrayStatus DecodeInPlace(Scratch& scratch, size_t size, int width, int height
   uint8_t* raw = scratch.raw.Reserve(raw_size);
   if (!raw) return Fail(S::kUnsupported, why, "out of memory");
   size_t in_used = 0, out_used = 0;
-  const libdeflate_result r = libdeflate_zlib_decompress_ex(
-      decompressor.d, file, idat_end, raw, raw_size, &in_used, &out_used);
+  const libdeflate_result r = libdeflate_zlib_decompress_ex(decompressor.d, file, idat_end, raw,
+                                                            raw_size, &in_used, &out_used);
   if (r != LIBDEFLATE_SUCCESS)
     return Fail(S::kDamaged, why,
                 r == LIBDEFLATE_INSUFFICIENT_SPACE ? "more image data than the rows hold"
@@ -365,8 +366,8 @@ PngGrayStatus DecodeInPlace(Scratch& scratch, size_t size, int width, int height
 
 }  // namespace
 
-PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int height,
-                            uint16_t* out, std::string* why) {
+PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int height, uint16_t* out,
+                            std::string* why) {
   ScratchLease scratch;
   uint8_t* copy = (*scratch).file.Reserve(size);
   if (!copy) return Fail(PngGrayStatus::kUnsupported, why, "out of memory");
