@@ -19,7 +19,10 @@ namespace fs = std::filesystem;
 
 // The file's samples as libpng decodes them, planar; empty if it cannot be read.
 ImageU8 DecodeWithLibpng(const fs::path& path) {
-  auto in = OIIO::ImageInput::open(path.string());
+  // Alpha as stored (OIIO otherwise premultiplies it on reading).
+  OIIO::ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1);
+  auto in = OIIO::ImageInput::open(path.string(), &config);
   if (!in) return {};
   const OIIO::ImageSpec& s = in->spec();
   std::vector<uint8_t> inter(static_cast<size_t>(s.width) * s.height * s.nchannels);
