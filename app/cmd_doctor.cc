@@ -21,6 +21,8 @@
 #include "capture/projector_window.h"
 #include "capture/raw_frame.h"
 #include "core/error.h"
+#include "core/module.h"
+#include "core/oiio_module.h"
 #include "render/embree_scene.h"
 
 namespace mesoscan {
@@ -66,6 +68,11 @@ void AddDoctorCommand(CLI::App* app) {
         << "  CLI11 " << CLI11_VERSION << "\n"
         << "  OpenCV " << CV_VERSION << "\n"
         << "  Embree " << EmbreeVersion() << "\n";
+    Probe(out, "  OpenImageIO module", [&] {
+      const std::string version = Oiio().Version();
+      out << "  OpenImageIO " << version << " (runtime, module " << LoadedModulePath("oiio")
+          << ")\n";
+    });
     Probe(out, "  LibRaw", [&] {
       const std::string libraw = LibRawVersion();
       out << "  LibRaw " << (libraw.empty() ? "missing: OpenImageIO has no raw plugin" : libraw)

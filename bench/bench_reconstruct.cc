@@ -353,9 +353,9 @@ int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs:
     // pipeline keeps the frames as 16-bit integers too), two at a time.
     ParallelFor(static_cast<int64_t>(s.frames.size()), [&](int64_t i) {
       auto in = OpenImageInput(s.FramePath(i), s.FramePath(i).string());
-      const OIIO::ImageSpec& spec = in->spec();
-      std::vector<uint16_t> samples(static_cast<size_t>(spec.width) * spec.height * spec.nchannels);
-      if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT16, samples.data()))
+      const ImageHeader& spec = in->header();
+      std::vector<uint16_t> samples(static_cast<size_t>(spec.width) * spec.height * spec.channels);
+      if (!in->ReadWhole(PixelType::kUInt16, samples.data()))
         std::printf("full resolution: cannot decode %s\n", s.FramePath(i).c_str());
     });
     decode = Since(t);

@@ -1,6 +1,5 @@
 #include "capture/raw_frame.h"
 
-#include <OpenImageIO/imageio.h>
 #include <tiffio.h>
 
 #include <algorithm>
@@ -9,6 +8,7 @@
 
 #include "core/error.h"
 #include "core/fs.h"
+#include "core/oiio_module.h"
 
 namespace mesoscan {
 namespace {
@@ -103,22 +103,21 @@ RawLevels ReadRawLevels(const std::filesystem::path& path) {
 
 ImageU16 ReadRawMosaic(const std::filesystem::path& path, const std::string& label) {
   const std::string who = label.empty() ? path.string() : label;
-  OIIO::ImageSpec config;
-  config.attribute("raw:Demosaic", "none");
   // The raw plugin explicitly: a DNG is also a valid TIFF, and OIIO's TIFF reader would claim it.
-  auto in = OIIO::ImageInput::create("raw");
-  if (!in)
+  std::string err;
+  bool no_reader = false;
+  auto in = Oiio().Open(path.string(), "raw", {ImageAttribute::String("raw:Demosaic", "none")}, &err, &no_reader);
+  if (no_reader)
     MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (OpenImageIO has no raw plugin: "
-                           << OneLine(OIIO::geterror()) << ")");
-  OIIO::ImageSpec spec;
-  if (!in->open(path.string(), spec, config))
-    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(in->geterror()) << ")");
-  if (spec.nchannels != 1)
-    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (LibRaw returned " << spec.nchannels
+                           << OneLine(err) << ")");
+  if (!in) MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(err) << ")");
+  const ImageHeader& spec = in->header();
+  if (spec.channels != 1)
+    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (LibRaw returned " << spec.channels
                            << " channels, expected the 1-channel sensor mosaic)");
   ImageU16 mosaic(spec.width, spec.height);
-  if (!in->read_image(0, 0, 0, 1, OIIO::TypeDesc::UINT16, mosaic.data().data()))
-    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(in->geterror()) << ")");
+  if (!in->ReadWhole(PixelType::kUInt16, mosaic.data().data()))
+    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(in->error()) << ")");
   return mosaic;
 }
 
@@ -201,8 +200,7 @@ void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic, cons
 
 std::string LibRawVersion() {
   // OIIO lists it as "raw:libraw 0.20.2-Release".
-  std::string list;
-  OIIO::getattribute("library_list", list);
+  const std::string list = Oiio().GlobalAttribute("library_list");
   // "name:version;name:version ..."; the raw plugin's entry is "raw:LibRaw 0.20.2".
   for (size_t start = 0; start < list.size();) {
     size_t end = list.find(';', start);

@@ -320,7 +320,7 @@ Json ResponseToJson(const Response& r) {
 
 bool IsRawExtension(const fs::path& p) { return IsCameraRawPath(p); }
 
-// ReadImageInfo with the message's absolute path replaced by the path as written in the session.
+// ReadImageLayout with the message's absolute path replaced by the path as written in the session.
 // Also refuses a file that resolves (through symlinks) outside the session folder `root`, and
 // a symlink loop, naming the key.
 ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const std::string& key,
@@ -334,7 +334,7 @@ ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const
                              << ", outside the session folder (a symlink leaving it) (" << key << ")");
   if (!fs::exists(path)) MESOSCAN_BAD_INPUT(label << ": file not found (" << key << ")");
   try {
-    return ReadImageInfo(path);
+    return ReadImageLayout(path);
   } catch (const Error& e) {
     std::string msg = e.what();
     const std::string prefix = path.string() + ": ";

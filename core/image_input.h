@@ -6,11 +6,11 @@
 // budget (core/budget.h) before anything is decoded. Errors throw Error(kBadInput) starting
 // with `label` (default: the path).
 
-#include <OpenImageIO/imageio.h>
-
 #include <filesystem>
 #include <memory>
 #include <string>
+
+#include "core/oiio_module.h"
 
 namespace mesoscan {
 
@@ -18,15 +18,12 @@ namespace mesoscan {
 // or a folder is named in the message.
 void CheckRegularFile(const std::filesystem::path& path, const std::string& label = "");
 
-std::unique_ptr<OIIO::ImageInput> OpenImageInput(const std::filesystem::path& path,
-                                                 const std::string& label = "");
+// Opens through OpenImageIO (core/oiio_module.h: the module is loaded on the first call).
+std::unique_ptr<ImageReader> OpenImageInput(const std::filesystem::path& path,
+                                            const std::string& label = "");
 
-// Reads every pixel of the open image's first subimage as `type`, interleaved, into `data`
-// (width x height x nchannels values). OpenImageIO's read_image converts types through a buffer
-// of 256 scan lines whatever the image's height (1.6 GB for a 6-line EXR 524,296 pixels wide,
-// found by fuzz_scan_folder): here a scan-line file of the requested type is read straight into
-// `data`, and another type is converted in strips of at most 64 MB. Returns false with the
-// reader's error set, as read_image does.
-bool ReadPixels(OIIO::ImageInput& in, OIIO::TypeDesc type, void* data);
+// Every pixel of the open image's first subimage as `type`, interleaved (ImageReader::Read:
+// no 256-line buffer). Returns false with the reader's error set.
+inline bool ReadPixels(ImageReader& in, PixelType type, void* data) { return in.Read(type, data); }
 
 }  // namespace mesoscan

@@ -9,45 +9,44 @@
 #include <OpenEXR/ImfThreading.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/openexr.h>
-#include <OpenImageIO/imageio.h>
+
+#include <zlib.h>
 
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <memory>
 #include <limits>
 
 #include "core/budget.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/fs.h"
+#include "core/module.h"
+#include "core/png_write.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
-namespace oiio = OIIO;
 
 namespace {
 
-ImageInfo InfoFromSpec(const oiio::ImageSpec& spec) {
+ImageInfo InfoFromHeader(const ImageHeader& h) {
   ImageInfo info;
-  info.width = spec.width;
-  info.height = spec.height;
-  info.channels = spec.nchannels;
-  info.bits_per_sample = static_cast<int>(spec.format.size() * 8);
-  info.is_float = spec.format.is_floating_point();
-  info.channel_names = spec.channelnames;
-  for (const auto& p : spec.extra_attribs) {
-    const oiio::TypeDesc t = p.type();
-    if (t == oiio::TypeFloat || t == oiio::TypeInt || t == oiio::TypeDesc::DOUBLE) {
-      info.float_attributes[p.name().string()] = p.get_float();
-    }
-  }
+  info.width = h.width;
+  info.height = h.height;
+  info.channels = h.channels;
+  info.bits_per_sample = h.format_bytes * 8;
+  info.is_float = h.is_float;
+  info.channel_names = h.channel_names;
+  info.float_attributes = h.numeric_attributes;
   // The PNG/TIFF "oiio:BitsPerSample" hint (e.g. 12 bits in 16) is reported if present.
-  const int bps = spec.get_int_attribute("oiio:BitsPerSample", 0);
-  if (bps > 0) info.bits_per_sample = bps;
+  if (h.bits_per_sample_hint > 0) info.bits_per_sample = h.bits_per_sample_hint;
   return info;
 }
 
-std::unique_ptr<oiio::ImageInput> OpenInput(const fs::path& path) { return OpenImageInput(path); }
+std::unique_ptr<ImageReader> OpenInput(const fs::path& path) { return OpenImageInput(path); }
 
 // Interleaved -> planar.
 void Deinterleave(const std::vector<float>& inter, ImageF* out) {
@@ -71,20 +70,20 @@ std::vector<T> Interleave(const Image<T>& im) {
   return inter;
 }
 
-void WriteWithOiio(const fs::path& path, const oiio::ImageSpec& spec, oiio::TypeDesc type,
-                   const void* data) {
+void WriteWithOiio(const fs::path& path, ImageToWrite image) {
   WriteAtomically(path, [&](const fs::path& tmp) {
-    auto out = oiio::ImageOutput::create(tmp.string());
-    if (!out) MESOSCAN_BAD_INPUT(path.string() << ": no writer for this format");
-    if (!out->open(tmp.string(), spec) || !out->write_image(type, data) || !out->close()) {
-      std::string err = out->geterror();
-      std::replace(err.begin(), err.end(), '\n', ' ');
+    std::string err;
+    if (!Oiio().Write(tmp.string(), "", {image}, &err))
       MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
-    }
   });
 }
 
 }  // namespace
+
+const OiioModule& Oiio() {
+  static const OiioModule* const module = static_cast<const OiioModule*>(LoadModule("oiio"));
+  return *module;
+}
 
 // Only regular files are opened (a FIFO or a device would block or never end), with the reader
 // the file's extension names (OIIO's open() otherwise tries every format in turn, e.g. DICOM
@@ -153,7 +152,7 @@ void CheckExrHeader(const fs::path& path, const std::string& label) {
                              << size << " bytes)");
 }
 
-std::unique_ptr<oiio::ImageInput> OpenImageInput(const fs::path& path, const std::string& label_in) {
+std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::string& label_in) {
   const std::string label = label_in.empty() ? path.string() : label_in;
   CheckRegularFile(path, label);
   std::error_code ec;
@@ -161,81 +160,139 @@ std::unique_ptr<oiio::ImageInput> OpenImageInput(const fs::path& path, const std
   if (!ext.empty()) ext = ext.substr(1);
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   if (ext == "exr") CheckExrHeader(path, label);
-  auto in = ext.empty() ? nullptr : oiio::ImageInput::create(ext);
-  if (!in) {
-    oiio::geterror();  // clear
+  std::string err;
+  bool no_reader = false;
+  auto in = Oiio().Open(path.string(), ext, {}, &err, &no_reader);
+  if (no_reader)
     MESOSCAN_BAD_INPUT(label << ": cannot read image (no reader for the extension '."
                                      << ext << "')");
-  }
-  oiio::ImageSpec spec;
-  if (!in->open(path.string(), spec)) {
-    std::string err = in->geterror();
-    if (err.empty()) err = oiio::geterror();
+  if (!in) {
     if (err.empty()) err = "not a valid ." + ext + " file";
-    std::replace(err.begin(), err.end(), '\n', ' ');
     MESOSCAN_BAD_INPUT(label << ": cannot read image (" << err << ")");
   }
-  const oiio::ImageSpec& h = in->spec();
-  if (h.width <= 0 || h.height <= 0 || h.nchannels <= 0)
+  const ImageHeader& h = in->header();
+  if (h.width <= 0 || h.height <= 0 || h.channels <= 0)
     MESOSCAN_BAD_INPUT(label << ": header declares " << h.width << "x" << h.height << "x"
-                                     << h.nchannels << " pixels");
-  const double values = static_cast<double>(h.width) * h.height * h.nchannels;
+                                     << h.channels << " pixels");
+  const double values = static_cast<double>(h.width) * h.height * h.channels;
   // Decoded as float, interleaved then planar: 8 bytes per value.
   CheckMemoryBudget(label + ": a " + std::to_string(h.width) + "x" +
-                        std::to_string(h.height) + "x" + std::to_string(h.nchannels) + " image",
+                        std::to_string(h.height) + "x" + std::to_string(h.channels) + " image",
                     values * 8.0);
   // No format we read stores more than ~2x its raw pixel size plus headers (EXR offset tables,
   // PNG filter bytes and chunks): a bigger file does not hold what its header says.
-  const double raw = values * static_cast<double>(h.format.size());
+  const double raw = values * static_cast<double>(h.format_bytes);
   const auto size = fs::file_size(path, ec);
   if (!ec && static_cast<double>(size) > 2.0 * raw + (1 << 20))
     MESOSCAN_BAD_INPUT(label << ": file is " << size << " bytes, more than its "
-                                     << h.width << "x" << h.height << "x" << h.nchannels
+                                     << h.width << "x" << h.height << "x" << h.channels
                                      << " header allows");
   return in;
 }
 
-bool ReadPixels(oiio::ImageInput& in, oiio::TypeDesc type, void* data) {
-  const oiio::ImageSpec& spec = in.spec();
-  const int nc = spec.nchannels;
-  // Tiles: the buffer is one tile, whose size OpenEXR and libtiff bound. Per-channel formats:
-  // OpenImageIO's own conversion (rare in what we read; its buffer is 256 lines).
-  if (spec.tile_width > 0 || !spec.channelformats.empty())
-    return in.read_image(0, 0, 0, nc, type, data);
-  // The file's own type: straight into `data`, no buffer.
-  if (type == spec.format)
-    return in.read_scanlines(0, 0, spec.y, spec.y + spec.height, spec.z, 0, nc,
-                             oiio::TypeDesc::UNKNOWN, data);
-  // Another type: strips of native scan lines converted into `data`.
-  const size_t values = static_cast<size_t>(spec.width) * nc;
-  const size_t native_line = values * spec.format.size();
-  const int strip = static_cast<int>(
-      std::clamp<size_t>((size_t{64} << 20) / std::max<size_t>(native_line, 1), 1, 256));
-  std::vector<unsigned char> buf(std::min(strip, spec.height) * native_line);
-  auto* out = static_cast<unsigned char*>(data);
-  for (int y = 0; y < spec.height; y += strip) {
-    const int rows = std::min(strip, spec.height - y);
-    if (!in.read_native_scanlines(0, 0, spec.y + y, spec.y + y + rows, spec.z, buf.data()) ||
-        !oiio::convert_pixel_values(spec.format, buf.data(), type,
-                                    out + static_cast<size_t>(y) * values * type.size(),
-                                    static_cast<int>(rows * values)))
-      return false;
+ImageInfo ReadImageInfo(const fs::path& path) { return InfoFromHeader(OpenInput(path)->header()); }
+
+namespace {
+
+// The checks OpenImageInput makes on a header, for the layouts read without it; false if the
+// file is larger than its header allows (OpenImageInput then refuses it with its message).
+bool LayoutFits(const fs::path& path, const ImageInfo& info) {
+  const double values = static_cast<double>(info.width) * info.height * info.channels;
+  CheckMemoryBudget(path.string() + ": a " + std::to_string(info.width) + "x" +
+                        std::to_string(info.height) + "x" + std::to_string(info.channels) +
+                        " image",
+                    values * 8.0);
+  std::error_code ec;
+  const auto size = fs::file_size(path, ec);
+  return !ec && static_cast<double>(size) <= 2.0 * values * (info.bits_per_sample / 8) + (1 << 20);
+}
+
+bool ReadPngLayout(const fs::path& path, ImageInfo* info) {
+  uint8_t head[33];
+  {
+    std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+    if (!f || std::fread(head, 1, sizeof head, f.get()) != sizeof head) return false;
   }
+  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  const auto be32 = [](const uint8_t* p) {
+    return uint32_t{p[0]} << 24 | uint32_t{p[1]} << 16 | uint32_t{p[2]} << 8 | p[3];
+  };
+  if (std::memcmp(head, kSignature, 8) != 0 || be32(head + 8) != 13 ||
+      std::memcmp(head + 12, "IHDR", 4) != 0 || ::crc32(0, head + 12, 17) != be32(head + 29))
+    return false;
+  const uint32_t w = be32(head + 16), h = be32(head + 20);
+  const int depth = head[24], colour = head[25];
+  static const char* const kNames[7][4] = {{"Y"}, {}, {"R", "G", "B"}, {}, {"Y", "A"}, {}, {"R", "G", "B", "A"}};
+  static const int kChannels[7] = {1, 0, 3, 0, 2, 0, 4};
+  if (w == 0 || h == 0 || w > 0x7fffffffu || h > 0x7fffffffu || (depth != 8 && depth != 16) ||
+      colour > 6 || kChannels[colour] == 0)
+    return false;
+  info->width = static_cast<int>(w);
+  info->height = static_cast<int>(h);
+  info->channels = kChannels[colour];
+  info->bits_per_sample = depth;
+  info->is_float = false;
+  info->channel_names.assign(kNames[colour], kNames[colour] + info->channels);
   return true;
 }
 
-ImageInfo ReadImageInfo(const fs::path& path) { return InfoFromSpec(OpenInput(path)->spec()); }
+bool ReadExrLayout(const fs::path& path, ImageInfo* info) {
+  exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+  init.error_handler_fn = [](exr_const_context_t, exr_result_t, const char*) {};
+  exr_context_t ctx = nullptr;
+  bool ok = exr_start_read(&ctx, path.c_str(), &init) == EXR_ERR_SUCCESS;
+  int parts = 0;
+  exr_attr_box2i_t dw{};
+  const exr_attr_chlist_t* channels = nullptr;
+  ok = ok && exr_get_count(ctx, &parts) == EXR_ERR_SUCCESS && parts == 1 &&
+       exr_get_data_window(ctx, 0, &dw) == EXR_ERR_SUCCESS &&
+       exr_get_channels(ctx, 0, &channels) == EXR_ERR_SUCCESS && channels &&
+       channels->num_channels > 0;
+  int bits = 16;
+  if (ok) {
+    info->channel_names.clear();
+    for (int c = 0; c < channels->num_channels; ++c) {
+      const exr_attr_chlist_entry_t& e = channels->entries[c];
+      ok = ok && e.x_sampling == 1 && e.y_sampling == 1 &&
+           (e.pixel_type == EXR_PIXEL_HALF || e.pixel_type == EXR_PIXEL_FLOAT);
+      if (e.pixel_type == EXR_PIXEL_FLOAT) bits = 32;
+      info->channel_names.emplace_back(e.name.str, static_cast<size_t>(e.name.length));
+    }
+  }
+  exr_finish(&ctx);
+  const int64_t w = int64_t{dw.max.x} - dw.min.x + 1, h = int64_t{dw.max.y} - dw.min.y + 1;
+  if (!ok || w <= 0 || h <= 0 || w > 0x7fffffff || h > 0x7fffffff) return false;
+  info->width = static_cast<int>(w);
+  info->height = static_cast<int>(h);
+  info->channels = channels ? static_cast<int>(info->channel_names.size()) : 0;
+  info->bits_per_sample = bits;
+  info->is_float = true;
+  return true;
+}
+
+}  // namespace
+
+ImageInfo ReadImageLayout(const fs::path& path) {
+  CheckRegularFile(path, path.string());
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  ImageInfo info;
+  if (ext == ".png" && ReadPngLayout(path, &info) && LayoutFits(path, info)) return info;
+  if (ext == ".exr") {
+    CheckExrHeader(path, path.string());
+    if (ReadExrLayout(path, &info) && LayoutFits(path, info)) return info;
+  }
+  return ReadImageInfo(path);
+}
 
 ImageF ReadImage(const fs::path& path, ImageInfo* info) {
   auto in = OpenInput(path);
-  const oiio::ImageSpec& spec = in->spec();
-  if (info) *info = InfoFromSpec(spec);
-  ImageF out(spec.width, spec.height, spec.nchannels);
-  std::vector<float> inter(out.pixels() * spec.nchannels);
-  if (!ReadPixels(*in, oiio::TypeFloat, inter.data())) {
-    std::string err = in->geterror();
-    std::replace(err.begin(), err.end(), '\n', ' ');
-    MESOSCAN_BAD_INPUT(path.string() << ": cannot decode image (" << err << ")");
+  const ImageHeader& h = in->header();
+  if (info) *info = InfoFromHeader(h);
+  ImageF out(h.width, h.height, h.channels);
+  std::vector<float> inter(out.pixels() * h.channels);
+  if (!in->Read(PixelType::kFloat, inter.data())) {
+    MESOSCAN_BAD_INPUT(path.string() << ": cannot decode image (" << in->error() << ")");
   }
   Deinterleave(inter, &out);
   return out;
@@ -332,14 +389,17 @@ void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::
               const std::map<std::string, std::string>& string_attributes,
               const std::string& compression) {
   MESOSCAN_CHECK_EQ(static_cast<int>(names.size()), image.channels());
-  oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeFloat);
-  spec.channelnames = names;
-  spec.alpha_channel = -1;
-  spec.attribute("compression", compression);
-  for (const auto& [k, v] : float_attributes) spec.attribute(k, static_cast<float>(v));
-  for (const auto& [k, v] : string_attributes) spec.attribute(k, v);
+  ImageToWrite w(image.width(), image.height(), image.channels(), PixelType::kFloat);
+  w.channel_names = names;
+  w.no_alpha = true;
+  w.attributes.push_back(ImageAttribute::String("compression", compression));
+  for (const auto& [k, v] : float_attributes)
+    w.attributes.push_back(ImageAttribute::Float(k, v));
+  for (const auto& [k, v] : string_attributes)
+    w.attributes.push_back(ImageAttribute::String(k, v));
   const std::vector<float> inter = Interleave(image);
-  WriteWithOiio(path, spec, oiio::TypeFloat, inter.data());
+  w.data = inter.data();
+  WriteWithOiio(path, std::move(w));
 }
 
 void WriteExrPlanes(const fs::path& path, const std::vector<ExrPlane>& planes,
@@ -376,20 +436,25 @@ void WriteExrPlanes(const fs::path& path, const std::vector<ExrPlane>& planes,
 }
 
 void WritePng16(const fs::path& path, const ImageU16& image, int compression_level) {
-  oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt16);
-  if (compression_level >= 0) spec.attribute("png:compressionLevel", std::min(compression_level, 9));
+  ImageToWrite w(image.width(), image.height(), image.channels(), PixelType::kUInt16);
+  if (compression_level >= 0)
+    w.attributes.push_back(
+ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
   const std::vector<uint16_t> inter = Interleave(image);
-  WriteWithOiio(path, spec, oiio::TypeUInt16, inter.data());
+  w.data = inter.data();
+  WriteWithOiio(path, std::move(w));
 }
 
 void WritePng8(const fs::path& path, const ImageU8& image, int compression_level,
                bool filter_rows) {
-  oiio::ImageSpec spec(image.width(), image.height(), image.channels(), oiio::TypeUInt8);
+  if (!filter_rows) return WritePng8Unfiltered(path, image, compression_level < 0 ? 6 : compression_level);
+  ImageToWrite w(image.width(), image.height(), image.channels(), PixelType::kUInt8);
   if (compression_level >= 0)
-    spec.attribute("png:compressionLevel", std::min(compression_level, 9));
-  if (!filter_rows) spec.attribute("png:filter", 0x08);  // PNG_FILTER_NONE
+    w.attributes.push_back(
+ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
   const std::vector<uint8_t> inter = Interleave(image);
-  WriteWithOiio(path, spec, oiio::TypeUInt8, inter.data());
+  w.data = inter.data();
+  WriteWithOiio(path, std::move(w));
 }
 
 ImageU16 QuantizeU16(const ImageF& image) {

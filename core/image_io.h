@@ -22,6 +22,13 @@ struct ImageInfo {
 // Reads only the header. Throws Error(kBadInput) naming the file if unreadable.
 ImageInfo ReadImageInfo(const std::filesystem::path& path);
 
+// The header's size, channel count and names, and sample type only (float_attributes empty),
+// with the checks ReadImageInfo makes; a grey, grey-alpha, RGB or RGBA 8- or 16-bit PNG (its
+// IHDR) and a single-part OpenEXR file (its header, through OpenEXR's core) without OpenImageIO
+// (core/oiio_module.h), other files through ReadImageInfo. An EXR's channel names are in the
+// file's (alphabetical) order. For checking a session's files before reading them.
+ImageInfo ReadImageLayout(const std::filesystem::path& path);
+
 // Reads any format OIIO knows as float. Integer formats are normalised to [0, 1] (uint16 / 65535,
 // uint8 / 255); float formats are returned as stored. All channels, planar.
 ImageF ReadImage(const std::filesystem::path& path, ImageInfo* info = nullptr);
@@ -69,9 +76,10 @@ void WriteExrPlanes(const std::filesystem::path& path, const std::vector<ExrPlan
 void WritePng16(const std::filesystem::path& path, const ImageU16& image,
                 int compression_level = -1);
 // 8-bit PNG (1, 3 or 4 channels); compression_level as for WritePng16. filter_rows = false
-// writes every row unfiltered (libpng's PNG_FILTER_NONE) instead of libpng's adaptive per-row
-// choice: for noisy false-colour images (error maps) at level 1 about 2x faster and smaller
-// (full-resolution coin error map: 0.40 -> 0.18 s, 8.6 -> 5.0 MB).
+// writes every row unfiltered instead of libpng's adaptive per-row choice, through
+// core/png_write.h (deflated in parallel pieces, no OpenImageIO): for noisy false-colour images
+// (error maps) at level 1 about 2x faster and smaller than libpng's filters (full-resolution
+// coin error map: 0.40 -> 0.18 s, 8.6 -> 5.0 MB), and the pieces share the cores.
 void WritePng8(const std::filesystem::path& path, const ImageU8& image, int compression_level = -1,
                bool filter_rows = true);
 

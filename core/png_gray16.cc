@@ -10,6 +10,7 @@
 
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <new>
@@ -377,13 +378,26 @@ PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int hei
 
 bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uint16_t* out) {
   if (width <= 0 || height <= 0) return false;
+  return ReadPngGray16(path, [&](int w, int h, int) { return w == width && h == height ? out : nullptr; });
+}
+
+bool ReadPngGray16(const std::filesystem::path& path,
+                   const std::function<uint16_t*(int width, int height, int bit_depth)>& alloc) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return false;
   struct stat st {};
+  uint8_t head[25];
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size < 33 ||
+      ::pread(fd, head, sizeof head, 0) != static_cast<ssize_t>(sizeof head)) {
+    ::close(fd);
+    return false;
+  }
+  // The size from IHDR (checked again, with its CRC, by the decode).
+  const uint32_t w = Be32(head + 16), h = Be32(head + 20);
   // A regular file no larger than twice its 16-bit samples plus 1 MB (as OpenImageInput checks).
-  const double limit = 4.0 * width * static_cast<double>(height) + (1 << 20);
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size <= 0 ||
-      static_cast<double>(st.st_size) > limit) {
+  const double limit = 4.0 * w * static_cast<double>(h) + (1 << 20);
+  if (std::memcmp(head + 12, "IHDR", 4) != 0 || w == 0 || h == 0 || w > (1u << 24) ||
+      h > (1u << 24) || static_cast<double>(st.st_size) > limit) {
     ::close(fd);
     return false;
   }
@@ -402,6 +416,9 @@ bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uin
   }
   ::close(fd);
   if (got != size) return false;
+  const int width = static_cast<int>(w), height = static_cast<int>(h);
+  uint16_t* out = alloc(width, height, head[24]);
+  if (!out) return false;
   return DecodeInPlace(*scratch, size, width, height, out, nullptr) == PngGrayStatus::kDecoded;
 }
 

@@ -16,6 +16,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 
 namespace mesoscan {
@@ -23,6 +24,13 @@ namespace mesoscan {
 // Decodes `path` into out[0 .. width * height) if it is a PNG this fast path takes (above) of
 // exactly width x height pixels; returns false otherwise (out may then have been written).
 bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uint16_t* out);
+
+// The same at the size the file's IHDR declares: alloc(width, height, bit_depth) is called once
+// the file is read and returns where the width x height samples go (nullptr: not decoded here). So a
+// frame is decoded without opening it through OpenImageIO first (whose module is then never
+// loaded, core/oiio_module.h).
+bool ReadPngGray16(const std::filesystem::path& path,
+                   const std::function<uint16_t*(int width, int height, int bit_depth)>& alloc);
 
 // The same on a PNG file held in memory, with the reason (for tests and the fuzzer).
 enum class PngGrayStatus {

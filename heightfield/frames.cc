@@ -1,7 +1,5 @@
 #include "heightfield/frames.h"
 
-#include <OpenImageIO/imageio.h>
-
 #include <Eigen/Dense>
 #include <algorithm>
 #include <atomic>
@@ -11,6 +9,7 @@
 #include <string_view>
 
 #include "capture/raw_frame.h"
+#include "core/budget.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
@@ -56,36 +55,50 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     d.u16.assign(grey.data().begin(), grey.data().end());  // (camera raw files: a copy)
     return d;
   }
-  auto in = OpenImageInput(path, label);  // regular file, extension's reader, size vs header
-  const OIIO::ImageSpec& spec = in->spec();
   DecodedFrame d;
+  // A grey 8- or 16-bit PNG (every frame the rig writes): the fast path (core/png_gray16.h),
+  // without opening the file through OpenImageIO (whose module then never loads); anything it
+  // does not take is decoded (or refused) by OIIO below.
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (ext == ".png") {
+    const bool fast = ReadPngGray16(path, [&](int w, int h, int bits) -> uint16_t* {
+      // As OpenImageInput checks before decoding.
+      CheckMemoryBudget(label + ": a " + std::to_string(w) + "x" + std::to_string(h) +
+                            "x1 image",
+                        static_cast<double>(w) * h * 8.0);
+      d.width = w;
+      d.height = h;
+      d.channels = 1;
+      d.eight_bit = bits == 8;
+      d.direct = direct != nullptr;
+      FrameSamples& dst = d.direct ? *direct : d.u16;
+      dst.resize(static_cast<size_t>(w) * h);
+      return dst.data();
+    });
+    if (fast) return d;
+    d = DecodedFrame();
+  }
+  auto in = OpenImageInput(path, label);  // regular file, extension's reader, size vs header
+  const ImageHeader& spec = in->header();
   d.width = spec.width;
   d.height = spec.height;
-  d.channels = spec.nchannels;
-  d.is_float = spec.format.is_floating_point();
-  d.eight_bit = spec.format.size() == 1;
+  d.channels = spec.channels;
+  d.is_float = spec.is_float;
+  d.eight_bit = spec.format_bytes == 1;
   const size_t n = static_cast<size_t>(d.width) * d.height * d.channels;
   d.direct = direct && !d.is_float && d.channels == 1;
   bool ok;
   if (d.is_float) {
     d.f32.resize(n);
-    ok = ReadPixels(*in, OIIO::TypeFloat, d.f32.data());
+    ok = in->Read(PixelType::kFloat, d.f32.data());
   } else {
     FrameSamples& dst = d.direct ? *direct : d.u16;
     dst.resize(n);
-    // A grey 8- or 16-bit PNG (every frame the rig writes): the fast path (core/png_gray16.h);
-    // anything it does not take is decoded (or refused) by OIIO.
-    ok = (d.channels == 1 &&
-          (spec.format == OIIO::TypeDesc::UINT16 || spec.format == OIIO::TypeDesc::UINT8) &&
-          std::string_view(in->format_name()) == "png" &&
-          ReadPngGray16(path, d.width, d.height, dst.data())) ||
-         ReadPixels(*in, OIIO::TypeDesc::UINT16, dst.data());
+    ok = in->Read(PixelType::kUInt16, dst.data());
   }
-  if (!ok) {
-    std::string err = in->geterror();
-    std::replace(err.begin(), err.end(), '\n', ' ');
-    MESOSCAN_BAD_INPUT(label << ": cannot decode image (" << err << ")");
-  }
+  if (!ok) MESOSCAN_BAD_INPUT(label << ": cannot decode image (" << in->error() << ")");
   return d;
 }
 
@@ -188,7 +201,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
                    [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
     if (ext == ".png") continue;
     auto in = OpenImageInput(path, path.string() + ": frames[" + std::to_string(f) + "]");
-    any_float |= in->spec().format.is_floating_point();
+    any_float |= in->header().is_float;
   }
   s.is_float_ = any_float;
   // Allocated by the decoding tasks (in parallel; a direct decode fills its frame itself).

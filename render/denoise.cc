@@ -7,11 +7,18 @@
 #include <vector>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/ximgproc.hpp>
 
 #include "core/error.h"
+#include "core/module.h"
+#include "render/ximgproc_module.h"
 
 namespace mesoscan {
+
+const XimgprocModule& Ximgproc() {
+  static const XimgprocModule* const module =
+      static_cast<const XimgprocModule*>(LoadModule("ximgproc"));
+  return *module;
+}
 
 namespace {
 
@@ -141,8 +148,8 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   for (int rad = 1; rad <= o.max_radius; rad *= 2)
     {
       cv::Mat fa, fb;
-      cv::ximgproc::guidedFilter(guide, half[0], fa, rad, eps);
-      cv::ximgproc::guidedFilter(guide, half[1], fb, rad, eps);
+      Ximgproc().GuidedFilter(guide, half[0], fa, rad, eps);
+      Ximgproc().GuidedFilter(guide, half[1], fb, rad, eps);
       scores.push_back(score(fa, fb));
       // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
       // the output for the mean of the halves.
@@ -155,8 +162,8 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
     const double sigma_space = 2.0 * (1 << b);
     const int d = 2 * static_cast<int>(std::ceil(2 * sigma_space)) + 1;
     cv::Mat fa, fb;
-    cv::ximgproc::jointBilateralFilter(guide, half[0], fa, d, o.bilateral_sigma, sigma_space);
-    cv::ximgproc::jointBilateralFilter(guide, half[1], fb, d, o.bilateral_sigma, sigma_space);
+    Ximgproc().JointBilateralFilter(guide, half[0], fa, d, o.bilateral_sigma, sigma_space);
+    Ximgproc().JointBilateralFilter(guide, half[1], fb, d, o.bilateral_sigma, sigma_space);
     scores.push_back(score(fa, fb));
     cand.push_back(0.5 * (fa + fb));
   }

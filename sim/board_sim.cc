@@ -1,6 +1,5 @@
 #include "sim/board_sim.h"
 
-#include <OpenImageIO/imageio.h>
 
 #include <atomic>
 #include <cmath>
@@ -390,14 +389,9 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
         WritePng16(path, image, 1);
         return;
       }
-      std::vector<uint8_t> bytes(images[f].begin(), images[f].end());
-      auto out = OIIO::ImageOutput::create(path.string());
-      if (!out) MESOSCAN_THROW(ErrorKind::kInternal, path.string() << ": no image writer");
-      OIIO::ImageSpec spec(W, H, 1, OIIO::TypeDesc::UINT8);
-      if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::UINT8, bytes.data()) ||
-          !out->close())
-        MESOSCAN_THROW(ErrorKind::kInternal, path.string() << ": cannot write (" << out->geterror()
-                                                           << ")");
+      ImageU8 image(W, H, 1);
+      std::copy(images[f].begin(), images[f].end(), image.channel(0));
+      WritePng8(path, image);
     });
     Session s;
     s.root = dir;
