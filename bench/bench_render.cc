@@ -448,6 +448,7 @@ void DemoPreview(const fs::path& dir) {
         else if (k == "jbf") dopt.bilateral = static_cast<int>(val);
         else if (k == "jbfsigma") dopt.bilateral_sigma = val;
         else if (k == "correct") dopt.half_variance_correction = val != 0;
+        else if (k == "c") dopt.correction = val;
         else std::printf("demo split: unknown denoiser option %s\n", k.c_str());
       }
       ImageF dd[2];

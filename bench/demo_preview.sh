@@ -11,7 +11,7 @@
 # ("none": none). MESOSCAN_BENCH_DEMO_SPLIT=9 adds the error split: two seeds at 9 spp allocated,
 # raw / denoised / denoised variance / denoised bias^2 per region (mount, first-hit tilt), for
 # each denoiser setting in MESOSCAN_BENCH_DENOISE_VARIANTS="window=2,jbf=1;blend=0;..."
-# (keys window, eps, radius, jbf, jbfsigma, blend, correct).
+# (keys window, eps, radius, jbf, jbfsigma, blend, correct, c: the correction factor).
 #   bench/demo_preview.sh [BUILD]     (DEMO_OUT=demo by default)
 set -euo pipefail
 BUILD=${1:-build}

@@ -113,7 +113,7 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const ImageF& L = r.radiance;
   const int w = L.width(), h = L.height();
   MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0 && o.bilateral >= 0 && o.bilateral <= 4 &&
-                 o.bilateral_sigma > 0 && o.blend >= 0);
+                 o.bilateral_sigma > 0 && o.blend >= 0 && o.correction >= 0 && o.correction < 1);
   MESOSCAN_CHECK(r.normal.width() == w && r.depth.width() == w && r.albedo.width() == w &&
                  r.sample_mask.width() == w && r.half[0].width() == w && r.half[1].width() == w);
   cv::Mat full = Demodulate(L, r.albedo);
@@ -140,7 +140,7 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const double eps = o.eps;
   auto score = [&](const cv::Mat& fa, const cv::Mat& fb) {
     cv::Mat s = LumDiff2(fa, half[1]) + LumDiff2(fb, half[0]);
-    if (o.half_variance_correction) s -= 0.5 * LumDiff2(fa, fb);
+    if (o.half_variance_correction) s -= o.correction * LumDiff2(fa, fb);
     cv::Mat sb;
     cv::blur(s, sb, cv::Size(2 * win + 1, 2 * win + 1));
     return sb;
