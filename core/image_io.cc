@@ -27,6 +27,8 @@
 #include "core/module.h"
 #include "core/png_write.h"
 
+MESOSCAN_DECLARE_MODULE(oiio);
+
 namespace mesoscan {
 namespace fs = std::filesystem;
 
@@ -81,7 +83,7 @@ void WriteWithOiio(const fs::path& path, ImageToWrite image) {
 }  // namespace
 
 const OiioModule& Oiio() {
-  static const OiioModule* const module = static_cast<const OiioModule*>(LoadModule("oiio"));
+  static const OiioModule* const module = static_cast<const OiioModule*>(MESOSCAN_MODULE(oiio));
   return *module;
 }
 

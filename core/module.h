@@ -23,3 +23,14 @@ const void* LoadModule(const std::string& name);
 std::string LoadedModulePath(const std::string& name);
 
 }  // namespace mesoscan
+
+// How the owner of a module reaches it: MESOSCAN_DECLARE_MODULE(name); at file scope, then
+// MESOSCAN_MODULE(name) for its interface object. Sanitizer and fuzz builds link the module's
+// code into its owner (MESOSCAN_LINKED_MODULES, see mesoscan_add_module in CMakeLists.txt) and
+// call its entry directly; every other build loads it with LoadModule.
+#define MESOSCAN_DECLARE_MODULE(name) extern "C" const void* mesoscan_module_##name()
+#ifdef MESOSCAN_LINKED_MODULES
+#define MESOSCAN_MODULE(name) (mesoscan_module_##name())
+#else
+#define MESOSCAN_MODULE(name) (::mesoscan::LoadModule(#name))
+#endif

@@ -12,11 +12,13 @@
 #include "core/module.h"
 #include "render/ximgproc_module.h"
 
+MESOSCAN_DECLARE_MODULE(ximgproc);
+
 namespace mesoscan {
 
 const XimgprocModule& Ximgproc() {
   static const XimgprocModule* const module =
-      static_cast<const XimgprocModule*>(LoadModule("ximgproc"));
+      static_cast<const XimgprocModule*>(MESOSCAN_MODULE(ximgproc));
   return *module;
 }
 
