@@ -18,6 +18,10 @@ namespace mesoscan {
 // or a folder is named in the message.
 void CheckRegularFile(const std::filesystem::path& path, const std::string& label = "");
 
+// Throws unless decoding a width x height x channels image (as float, interleaved then planar:
+// 8 bytes per value) fits the memory budget (core/budget.h); the message starts with `label`.
+void CheckImageBudget(const std::string& label, int width, int height, int channels);
+
 // Opens through OpenImageIO (core/oiio_module.h: the module is loaded on the first call).
 std::unique_ptr<ImageReader> OpenImageInput(const std::filesystem::path& path,
                                             const std::string& label = "");

@@ -10,8 +10,6 @@
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/openexr.h>
 
-#include <zlib.h>
-
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -25,6 +23,7 @@
 #include "core/image_input.h"
 #include "core/fs.h"
 #include "core/module.h"
+#include "core/png_gray16.h"
 #include "core/png_write.h"
 
 MESOSCAN_DECLARE_MODULE(oiio);
@@ -154,6 +153,12 @@ void CheckExrHeader(const fs::path& path, const std::string& label) {
                              << size << " bytes)");
 }
 
+void CheckImageBudget(const std::string& label, int width, int height, int channels) {
+  CheckMemoryBudget(label + ": a " + std::to_string(width) + "x" + std::to_string(height) + "x" +
+                        std::to_string(channels) + " image",
+                    static_cast<double>(width) * height * channels * 8.0);
+}
+
 std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::string& label_in) {
   const std::string label = label_in.empty() ? path.string() : label_in;
   CheckRegularFile(path, label);
@@ -177,10 +182,7 @@ std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::str
     MESOSCAN_BAD_INPUT(label << ": header declares " << h.width << "x" << h.height << "x"
                                      << h.channels << " pixels");
   const double values = static_cast<double>(h.width) * h.height * h.channels;
-  // Decoded as float, interleaved then planar: 8 bytes per value.
-  CheckMemoryBudget(label + ": a " + std::to_string(h.width) + "x" +
-                        std::to_string(h.height) + "x" + std::to_string(h.channels) + " image",
-                    values * 8.0);
+  CheckImageBudget(label, h.width, h.height, h.channels);
   // No format we read stores more than ~2x its raw pixel size plus headers (EXR offset tables,
   // PNG filter bytes and chunks): a bigger file does not hold what its header says.
   const double raw = values * static_cast<double>(h.format_bytes);
@@ -200,30 +202,22 @@ namespace {
 // file is larger than its header allows (OpenImageInput then refuses it with its message).
 bool LayoutFits(const fs::path& path, const ImageInfo& info) {
   const double values = static_cast<double>(info.width) * info.height * info.channels;
-  CheckMemoryBudget(path.string() + ": a " + std::to_string(info.width) + "x" +
-                        std::to_string(info.height) + "x" + std::to_string(info.channels) +
-                        " image",
-                    values * 8.0);
+  CheckImageBudget(path.string(), info.width, info.height, info.channels);
   std::error_code ec;
   const auto size = fs::file_size(path, ec);
   return !ec && static_cast<double>(size) <= 2.0 * values * (info.bits_per_sample / 8) + (1 << 20);
 }
 
 bool ReadPngLayout(const fs::path& path, ImageInfo* info) {
-  uint8_t head[33];
+  uint8_t head[kPngHeaderBytes];
   {
     std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
     if (!f || std::fread(head, 1, sizeof head, f.get()) != sizeof head) return false;
   }
-  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  const auto be32 = [](const uint8_t* p) {
-    return uint32_t{p[0]} << 24 | uint32_t{p[1]} << 16 | uint32_t{p[2]} << 8 | p[3];
-  };
-  if (std::memcmp(head, kSignature, 8) != 0 || be32(head + 8) != 13 ||
-      std::memcmp(head + 12, "IHDR", 4) != 0 || ::crc32(0, head + 12, 17) != be32(head + 29))
-    return false;
-  const uint32_t w = be32(head + 16), h = be32(head + 20);
-  const int depth = head[24], colour = head[25];
+  PngHeader header;
+  if (!ParsePngHeader(head, &header)) return false;
+  const uint32_t w = header.width, h = header.height;
+  const int depth = header.bit_depth, colour = header.colour_type;
   static const char* const kNames[7][4] = {{"Y"}, {}, {"R", "G", "B"}, {}, {"Y", "A"}, {}, {"R", "G", "B", "A"}};
   static const int kChannels[7] = {1, 0, 3, 0, 2, 0, 4};
   if (w == 0 || h == 0 || w > 0x7fffffffu || h > 0x7fffffffu || (depth != 8 && depth != 16) ||
@@ -441,7 +435,7 @@ void WritePng16(const fs::path& path, const ImageU16& image, int compression_lev
   ImageToWrite w(image.width(), image.height(), image.channels(), PixelType::kUInt16);
   if (compression_level >= 0)
     w.attributes.push_back(
-ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
+        ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
   const std::vector<uint16_t> inter = Interleave(image);
   w.data = inter.data();
   WriteWithOiio(path, std::move(w));
@@ -449,11 +443,12 @@ ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
 
 void WritePng8(const fs::path& path, const ImageU8& image, int compression_level,
                bool filter_rows) {
-  if (!filter_rows) return WritePng8Unfiltered(path, image, compression_level < 0 ? 6 : compression_level);
+  if (!filter_rows)
+    return WritePng8Unfiltered(path, image, compression_level < 0 ? 6 : compression_level);
   ImageToWrite w(image.width(), image.height(), image.channels(), PixelType::kUInt8);
   if (compression_level >= 0)
     w.attributes.push_back(
-ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
+        ImageAttribute::Int("png:compressionLevel", std::min(compression_level, 9)));
   const std::vector<uint8_t> inter = Interleave(image);
   w.data = inter.data();
   WriteWithOiio(path, std::move(w));

@@ -128,6 +128,8 @@ uint32_t Be32(const uint8_t* p) {
   return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | p[3];
 }
 
+const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+
 bool IsLetter(uint8_t c) { return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z'); }
 
 // Ancillary chunks that OpenImageIO or libpng may let change the samples or add a channel: left
@@ -270,7 +272,6 @@ PngGrayStatus DecodeInPlace(Scratch& scratch, size_t size, int width, int height
                             std::string* why) {
   uint8_t* const file = scratch.file.Reserve(size);
   using S = PngGrayStatus;
-  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
   if (width <= 0 || height <= 0) return Fail(S::kUnsupported, why, "no expected size");
   if (size < 8 || std::memcmp(file, kSignature, 8) != 0)
     return Fail(S::kUnsupported, why, "not a PNG signature");
@@ -366,6 +367,17 @@ PngGrayStatus DecodeInPlace(Scratch& scratch, size_t size, int width, int height
 }
 
 }  // namespace
+
+bool ParsePngHeader(const uint8_t* p, PngHeader* header) {
+  if (std::memcmp(p, kSignature, 8) != 0 || Be32(p + 8) != 13 ||
+      std::memcmp(p + 12, "IHDR", 4) != 0 || libdeflate_crc32(0, p + 12, 17) != Be32(p + 29))
+    return false;
+  header->width = Be32(p + 16);
+  header->height = Be32(p + 20);
+  header->bit_depth = p[24];
+  header->colour_type = p[25];
+  return true;
+}
 
 PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int height, uint16_t* out,
                             std::string* why) {

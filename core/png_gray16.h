@@ -32,6 +32,15 @@ bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uin
 bool ReadPngGray16(const std::filesystem::path& path,
                    const std::function<uint16_t*(int width, int height, int bit_depth)>& alloc);
 
+// A PNG's header from the file's first 33 bytes: the signature, then a 13-byte IHDR chunk whose
+// CRC matches. False if they are not that (nothing else of the header is checked).
+struct PngHeader {
+  uint32_t width = 0, height = 0;
+  int bit_depth = 0, colour_type = 0;
+};
+constexpr size_t kPngHeaderBytes = 33;
+bool ParsePngHeader(const uint8_t* first_bytes, PngHeader* header);
+
 // The same on a PNG file held in memory, with the reason (for tests and the fuzzer).
 enum class PngGrayStatus {
   kDecoded,

@@ -9,7 +9,6 @@
 #include <string_view>
 
 #include "capture/raw_frame.h"
-#include "core/budget.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
@@ -64,10 +63,7 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
                  [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   if (ext == ".png") {
     const bool fast = ReadPngGray16(path, [&](int w, int h, int bits) -> uint16_t* {
-      // As OpenImageInput checks before decoding.
-      CheckMemoryBudget(label + ": a " + std::to_string(w) + "x" + std::to_string(h) +
-                            "x1 image",
-                        static_cast<double>(w) * h * 8.0);
+      CheckImageBudget(label, w, h, 1);  // as OpenImageInput checks before decoding
       d.width = w;
       d.height = h;
       d.channels = 1;
