@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <future>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -30,6 +31,7 @@
 #include "render/denoise.h"
 #include "render/env_map.h"
 #include "render/path_tracer.h"
+#include "render/ximgproc_module.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -234,17 +236,26 @@ ImageU8 SideBySide(const ImageU8& left, const ImageU8& right) {
 }
 
 void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentMap& env,
-                  const RenderOptions& o, const fs::path& out, const CompareScan* other_scan) {
+                  const RenderOptions& options, const fs::path& out,
+                  const CompareScan* other_scan) {
   MESOSCAN_LOG(kInfo) << "render: progressive preview while sampling: "
                       << (out / "preview.png").string();
   const Brdf brdf = MakeBrdf(a.brdf, out);
+  RenderOptions o = options;
+  // --denoise within --time: the denoiser's share comes out of the budget, measured right before
+  // the render (Run() loads the filters' module in the background meanwhile).
+  if (a.denoise && o.time_limit_s > 0)
+    o.time_limit_s -= MeasureDenoiseTimeReserve(o.width, o.height, o.time_limit_s);
 
   // Progressive output: preview.exr/png rewritten (atomically) after a round when at least 2 s
-  // have passed since the last write.
+  // have passed since the last write and more than 2 s of a --time budget are left.
   auto last_write = std::chrono::steady_clock::now();
   const RenderResult result = Render(hf, brdf, env, o, [&](const RenderResult& r) {
     const auto now = std::chrono::steady_clock::now();
     if (std::chrono::duration<double>(now - last_write).count() < 2.0) return;
+    // Not when the final preview follows within 2 s anyway (a --time budget about to run out):
+    // the write would come out of the budget (~0.05 s at 480 x 360).
+    if (o.time_limit_s > 0 && o.time_limit_s - r.summary.seconds < 2.0) return;
     WritePreview(out, r);
     last_write = now;
   });
@@ -350,9 +361,6 @@ void Run(const RenderArgs& args) {
   if (!a.camera.empty()) ParseCamera(a.camera, &o);
   // A time budget without an explicit sample cap renders until the time is up.
   if (o.time_limit_s > 0 && !a.spp_given) o.max_spp = 1 << 16;
-  // --denoise within --time: the denoiser's share comes out of the budget.
-  if (a.denoise && o.time_limit_s > 0)
-    o.time_limit_s -= MeasureDenoiseTimeReserve(o.width, o.height, o.time_limit_s);
   // --spp below the default --min-spp lowers it (an explicit --min-spp above --spp stays an error).
   if (!a.min_spp_given) o.min_spp = std::min(o.min_spp, o.max_spp);
   if (a.turntable < 0 || a.turntable > 720)
@@ -374,6 +382,10 @@ void Run(const RenderArgs& args) {
                              env_file ? a.env : "", a.compare_scan},
                             a.force, {"preview.exr", "preview.png"}};
   CheckOutputFolder(out_spec);
+  // --denoise: the filters' module (OpenCV's ximgproc, ~0.12-0.16 s to load) is loaded on
+  // another thread while the scan is read and the BRDF tabulated, not inside the time budget.
+  std::future<void> denoiser_loaded;
+  if (a.denoise) denoiser_loaded = std::async(std::launch::async, [] { (void)Ximgproc(); });
   // The height field to preview: the scan's height.exr with its bounded holes filled
   // (heightfield/maps_fill.h, as the artist-ready maps fill them) unless --fill none, so a
   // shadowed rim is not previewed as a trench; large holes and the outside stay open.

@@ -21,14 +21,15 @@
 // Environment: MESOSCAN_BENCH_RENDER_SIZE=WxH (default 320x240); Blender from PATH (skipped with
 // a note if missing). Results: bench-results/render.csv and the images.
 
+#include <sys/resource.h>
 #include <time.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -547,6 +548,68 @@ void DemoPreview(const fs::path& dir) {
         << ed << "," << cpu << "," << wall << "," << cpu / spp << "," << LoadAvg() << "," << dn_e
         << "," << dn_corrected << "," << dn_ed << "," << dn_s << "\n";
     WritePng8(dir / (png_stem + ".png"), ToneMapForDisplay(r.radiance, r.tone));
+  }
+  // "cli": what `make demo` shows, measured as it runs: scripts/demo's render command (without the
+  // turntable) as a process of its own, seed 2 (seed 1 is a reference's: its first samples are
+  // the reference's own), preview.exr and preview_denoised.exr read back and measured against
+  // the reference; the process's wall and CPU time (scan read, hole filling, the MERL table,
+  // module loads, the denoiser's reserve, render, denoise, writing) and the render's own figures
+  // from its log. In MESOSCAN_BENCH_DEMO_RUNS as "cli" (on by default); MESOSCAN_BENCH_DEMO_CLI
+  // names another build's binary.
+  const char* keep = std::getenv("MESOSCAN_BENCH_DEMO_RUNS");
+  if (!keep || (std::string(",") + keep + ",").find(",cli,") != std::string::npos) {
+    // MESOSCAN_BENCH_DEMO_CLI: another build's mesoscan (an A/B in one run).
+    const char* other = std::getenv("MESOSCAN_BENCH_DEMO_CLI");
+    const fs::path mesoscan =
+        other ? fs::path(other)
+              : fs::read_symlink("/proc/self/exe").parent_path().parent_path() / "app" / "mesoscan";
+    const fs::path out = dir / "demo_cli_render", log = dir / "demo_cli_render.log";
+    const std::string cmd = "'" + mesoscan.string() + "' render '" + scan + "' --out '" +
+                            out.string() + "' --brdf ggx-merl --env sky --size 480x360 --time 3 " +
+                            "--denoise --seed 2 > '" + log.string() + "' 2>&1";
+    struct rusage ru0, ru1;
+    getrusage(RUSAGE_CHILDREN, &ru0);
+    t0 = Now();
+    const int status = std::system(cmd.c_str());
+    const double wall = Now() - t0;
+    getrusage(RUSAGE_CHILDREN, &ru1);
+    auto secs = [](const timeval& a, const timeval& b) {
+      return (b.tv_sec - a.tv_sec) + 1e-6 * (b.tv_usec - a.tv_usec);
+    };
+    const double cpu = secs(ru0.ru_utime, ru1.ru_utime) + secs(ru0.ru_stime, ru1.ru_stime);
+    if (status != 0) {
+      std::printf("demo preview: cli      failed (status %d), see %s\n", status, log.c_str());
+      return;
+    }
+    // The render's own line: "render: N paths in S s (M spp on average, ...", and the denoiser's.
+    std::ifstream in(log);
+    std::string line;
+    double spp = 0, render_s = 0, denoise_s = 0;
+    while (std::getline(in, line)) {
+      size_t at = line.find(" paths in ");
+      if (line.rfind("render: ", 0) == 0 && at != std::string::npos)
+        std::sscanf(line.c_str() + at, " paths in %lf s (%lf spp", &render_s, &spp);
+      at = line.find("render: denoised in ");
+      if (at != std::string::npos)
+        std::sscanf(line.c_str() + at, "render: denoised in %lf", &denoise_s);
+    }
+    const ImageF raw = ReadImage(out / "preview.exr"), dn = ReadImage(out / "preview_denoised.exr");
+    const double e = RelRmseMasked(raw, ref, mask, 0), dn_e = RelRmseMasked(dn, ref, mask, 0);
+    const double corrected = std::sqrt(std::max(0.0, e * e - ref_mse));
+    const double dn_corrected = std::sqrt(std::max(0.0, dn_e * dn_e - ref_mse));
+    std::printf(
+        "demo preview: cli      %6.1f spp: denoised relRMSE %.4f (%.4f without the "
+        "reference's noise; sample %.4f, mount %.4f), raw %.4f (%.4f), display %.4f / %.4f; "
+        "render %.2f s + denoise and its writes %.2f s; the process %.2f s wall, %.2f CPU s, "
+        "load %s\n",
+        spp, dn_e, dn_corrected, RelRmseMasked(dn, ref, mask, 1), RelRmseMasked(dn, ref, mask, 2),
+        e, corrected, DisplayRelRmse(raw, ref, ref_tone), DisplayRelRmse(dn, ref, ref_tone),
+        render_s, denoise_s, wall, cpu, LoadAvg().c_str());
+    csv << "cli," << spp << "," << e << "," << RelRmseMasked(raw, ref, mask, 1) << ","
+        << RelRmseMasked(raw, ref, mask, 2) << "," << corrected << ","
+        << DisplayRelRmse(raw, ref, ref_tone) << "," << cpu << "," << wall << ","
+        << cpu / std::max(spp, 1e-9) << "," << LoadAvg() << "," << dn_e << "," << dn_corrected
+        << "," << DisplayRelRmse(dn, ref, ref_tone) << "," << denoise_s << "\n";
   }
 }
 

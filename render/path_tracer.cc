@@ -371,18 +371,20 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
                      double budget, double total_final, int round, std::vector<int>* goal) {
   const size_t n = px.size();
   std::vector<double> v(n), c(n), cost(n), count(n);
-  for (size_t i = 0; i < n; ++i) {
-    const PixelState& p = px[i];
-    cost[i] = p.cost;
-    count[i] = p.n;
-    const int na = (p.n + 1) / 2, nb = p.n / 2;
-    if (na == 0 || nb == 0) continue;
-    const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
-                     Luminance(Rgb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb));
-    v[i] = 0.25 * d * d * p.n;
-    c[i] = 1;
-  }
-  // Box sums through summed-area tables.
+  ParallelForRows(H, [&](int ya, int yb) {
+    for (size_t i = static_cast<size_t>(ya) * W; i < static_cast<size_t>(yb) * W; ++i) {
+      const PixelState& p = px[i];
+      cost[i] = p.cost;
+      count[i] = p.n;
+      const int na = (p.n + 1) / 2, nb = p.n / 2;
+      if (na == 0 || nb == 0) continue;
+      const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
+                       Luminance(Rgb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb));
+      v[i] = 0.25 * d * d * p.n;
+      c[i] = 1;
+    }
+  });
+  // Box sums through summed-area tables (the four at once on the pool).
   auto integral = [&](const std::vector<double>& a) {
     std::vector<double> s(static_cast<size_t>(W + 1) * (H + 1), 0.0);
     for (int y = 0; y < H; ++y)
@@ -392,29 +394,38 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
             s[static_cast<size_t>(y) * (W + 1) + x];
     return s;
   };
-  const std::vector<double> sv = integral(v), sc = integral(c), scost = integral(cost),
-                            scount = integral(count);
+  std::vector<double> sv, sc, scost, scount;
+  {
+    const std::vector<double>* from[4] = {&v, &c, &cost, &count};
+    std::vector<double>* to[4] = {&sv, &sc, &scost, &scount};
+    ParallelFor(4, [&](int64_t k) { *to[k] = integral(*from[k]); });
+  }
   const int r = o.allocate_radius;
   std::vector<double> w(n, 0.0), cps(n, 0.0);  // deviation; cost per sample (seconds)
-  double wsum = 0;
-  int64_t active = 0;
-  for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x) {
-      const size_t i = static_cast<size_t>(y) * W + x;
-      const int x0 = std::max(0, x - r), x1 = std::min(W, x + r + 1);
-      const int y0 = std::max(0, y - r), y1 = std::min(H, y + r + 1);
-      auto box = [&](const std::vector<double>& s) {
-        return s[static_cast<size_t>(y1) * (W + 1) + x1] - s[static_cast<size_t>(y0) * (W + 1) + x1] -
-               s[static_cast<size_t>(y1) * (W + 1) + x0] + s[static_cast<size_t>(y0) * (W + 1) + x0];
-      };
-      const double cnt = box(sc) - c[i];
-      w[i] = cnt > 0 ? std::sqrt(std::max(0.0, box(sv) - v[i]) / cnt) : 0.0;
-      const double samples = box(scount) - count[i];
-      cps[i] = samples > 0 ? (box(scost) - cost[i]) / samples : 0.0;
-      if (!px[i].done) {
-        wsum += w[i];
-        ++active;
+  ParallelForRows(H, [&](int ya, int yb) {
+    for (int y = ya; y < yb; ++y)
+      for (int x = 0; x < W; ++x) {
+        const size_t i = static_cast<size_t>(y) * W + x;
+        const int x0 = std::max(0, x - r), x1 = std::min(W, x + r + 1);
+        const int y0 = std::max(0, y - r), y1 = std::min(H, y + r + 1);
+        auto box = [&](const std::vector<double>& s) {
+          return s[static_cast<size_t>(y1) * (W + 1) + x1] -
+                 s[static_cast<size_t>(y0) * (W + 1) + x1] -
+                 s[static_cast<size_t>(y1) * (W + 1) + x0] +
+                 s[static_cast<size_t>(y0) * (W + 1) + x0];
+        };
+        const double cnt = box(sc) - c[i];
+        w[i] = cnt > 0 ? std::sqrt(std::max(0.0, box(sv) - v[i]) / cnt) : 0.0;
+        const double samples = box(scount) - count[i];
+        cps[i] = samples > 0 ? (box(scost) - cost[i]) / samples : 0.0;
       }
+  });
+  double wsum = 0;  // in pixel order, as before
+  int64_t active = 0;
+  for (size_t i = 0; i < n; ++i)
+    if (!px[i].done) {
+      wsum += w[i];
+      ++active;
     }
   const double floor = o.allocate_floor * (active ? wsum / active : 0.0);
   // At a fixed cost the optimum is sigma / sqrt(cost per sample) (the sunlit rim's paths cost
@@ -527,26 +538,29 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   std::atomic<int64_t> samples{0};
   std::vector<float> var(px.size()), var_s(px.size());
 
+  // The images from the pixels' sums, on the pool (between rounds the other core would idle).
   auto update_images = [&] {
-    for (size_t i = 0; i < px.size(); ++i) {
-      const PixelState& p = px[i];
-      const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
-      for (int c = 0; c < 3; ++c)
-        result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
-      result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
-      result.spp(x, y, 0) = static_cast<float>(p.n);
-      const double inv = p.n ? 1.0 / p.n : 0.0;
-      for (int c = 0; c < 3; ++c) {
-        result.normal(x, y, c) = static_cast<float>(p.normal[c] * inv);
-        result.albedo(x, y, c) = static_cast<float>(p.albedo[c] * inv);
+    ParallelForRows(H, [&](int y0, int y1) {
+      for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
+        const PixelState& p = px[i];
+        const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
+        for (int c = 0; c < 3; ++c)
+          result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
+        result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
+        result.spp(x, y, 0) = static_cast<float>(p.n);
+        const double inv = p.n ? 1.0 / p.n : 0.0;
+        for (int c = 0; c < 3; ++c) {
+          result.normal(x, y, c) = static_cast<float>(p.normal[c] * inv);
+          result.albedo(x, y, c) = static_cast<float>(p.albedo[c] * inv);
+        }
+        result.depth(x, y, 0) = static_cast<float>(p.depth * inv);
+        const int na = (p.n + 1) / 2, nb = p.n / 2;
+        for (int c = 0; c < 3; ++c) {
+          result.half[0](x, y, c) = na ? static_cast<float>(p.a[c] / na) : 0.0f;
+          result.half[1](x, y, c) = nb ? static_cast<float>(p.b[c] / nb) : result.half[0](x, y, c);
+        }
       }
-      result.depth(x, y, 0) = static_cast<float>(p.depth * inv);
-      const int na = (p.n + 1) / 2, nb = p.n / 2;
-      for (int c = 0; c < 3; ++c) {
-        result.half[0](x, y, c) = na ? static_cast<float>(p.a[c] / na) : 0.0f;
-        result.half[1](x, y, c) = nb ? static_cast<float>(p.b[c] / nb) : result.half[0](x, y, c);
-      }
-    }
+    });
     result.tone = MeterExposure(result.radiance, &result.sample_mask);
   };
 
@@ -654,31 +668,36 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     });
     update_images();
     // Error per pixel: (mean_a - mean_b)^2 / 4 estimates the variance of the pixel mean.
-    for (size_t i = 0; i < px.size(); ++i) {
-      const PixelState& p = px[i];
-      const int na = (p.n + 1) / 2, nb = p.n / 2;
-      if (na == 0 || nb == 0) {
-        var[i] = 0;
-        continue;
+    ParallelForRows(H, [&](int y0, int y1) {
+      for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
+        const PixelState& p = px[i];
+        const int na = (p.n + 1) / 2, nb = p.n / 2;
+        if (na == 0 || nb == 0) {
+          var[i] = 0;
+          continue;
+        }
+        const Rgb ma(p.a[0] / na, p.a[1] / na, p.a[2] / na),
+            mb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb);
+        const double d = Luminance(ma) - Luminance(mb);
+        var[i] = static_cast<float>(0.25 * d * d);
       }
-      const Rgb ma(p.a[0] / na, p.a[1] / na, p.a[2] / na), mb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb);
-      const double d = Luminance(ma) - Luminance(mb);
-      var[i] = static_cast<float>(0.25 * d * d);
-    }
+    });
     // 3x3 mean of the estimates (the single-pixel estimate has one degree of freedom).
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        int k = 0;
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int xx = x + dx, yy = y + dy;
-            if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
-            s += var[static_cast<size_t>(yy) * W + xx];
-            ++k;
-          }
-        var_s[static_cast<size_t>(y) * W + x] = static_cast<float>(s / k);
-      }
+    ParallelForRows(H, [&](int ya, int yb) {
+      for (int y = ya; y < yb; ++y)
+        for (int x = 0; x < W; ++x) {
+          double s = 0;
+          int k = 0;
+          for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) {
+              const int xx = x + dx, yy = y + dy;
+              if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+              s += var[static_cast<size_t>(yy) * W + xx];
+              ++k;
+            }
+          var_s[static_cast<size_t>(y) * W + x] = static_cast<float>(s / k);
+        }
+    });
     const int was_active = active;
     active = 0;
     for (size_t i = 0; i < px.size(); ++i) {
