@@ -22,6 +22,8 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   out.gains = UnitGains(plan, session.frames.size());
   FrameStack ls_frames;
   PixelStates classified;  // the classify stage's states: the gains' pixel sample
+  PhaseReference early_reference;
+  size_t newly_saturated = 0;  // pixels saturated in a lens-shift frame only
   double decoded_s = 0.0, ls_decoded_s = 0.0;
   auto sine_frames = [&] {
     out.stack = LoadFrames(session, plan.frames, options.load, overlap ? &not_ls : nullptr);
@@ -33,6 +35,10 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
                            &out.gains);
     out.ps = DecodePhaseShift(out.stack, plan, out.gains, out.classes, options.phase_shift,
                               &out.classes.state);
+    // The lens-shift frames' phase reference (phase shifting alone) while they still decode; it
+    // is kept below if no pixel turns out saturated in a lens-shift frame only (the pixels it
+    // samples are then the same: ps.level is the white level at every classified-kActive pixel).
+    if (overlap) early_reference = MakePhaseReference(plan, out.ps, classified);
     if (overlap)  // only the lens-shift frames are read from here on
       for (int k = 0; k < out.stack.num_frames(); ++k)
         if (!is_ls[k]) out.stack.Release(k);
@@ -58,6 +64,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
           classified[i] == PixelState::kSaturated)
         continue;
       classified[i] = state[i] = PixelState::kSaturated;  // classify checks saturation first
+      ++newly_saturated;
       c.white_level[i] = std::numeric_limits<float>::quiet_NaN();
       c.black_value[i] = 0.0f;
       ++c.pixels_saturated;
@@ -68,8 +75,12 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     out.ps.level = std::move(out.classes.white_level);
     out.classes.white_level = {};
   }
+  // The lens-shift frames' gains after the last frame; their phase reference too unless the
+  // early one holds (~45 ms serial, at full resolution, off the time after the last frame).
+  const bool early = overlap && newly_saturated == 0;
   EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
-                         &out.gains, &out.ps);
+                         &out.gains, early ? nullptr : &out.ps);
+  if (early) out.gains.phase_reference = std::move(early_reference);
   return out;
 }
 

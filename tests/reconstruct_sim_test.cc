@@ -18,9 +18,12 @@
 #include "core/numbers.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
-#include "heightfield/lens_shift_fit.h"
 #include "heightfield/ground_truth.h"
+#include "heightfield/lens_shift_fit.h"
 #include "heightfield/reconstruct.h"
+#include "heightfield/stage_classify.h"
+#include "heightfield/stage_gains.h"
+#include "heightfield/stage_stream.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {
@@ -195,6 +198,52 @@ TEST(ReconstructSim, CoinWithoutGrossErrors) {
   const ObjectFigures f = RunObject("coin", {888, 517, 400, 400}, 7);
   EXPECT_LT(static_cast<double>(f.gross) / f.scored, 1e-4);
   EXPECT_GE(f.e.coverage_single, 0.99);
+}
+
+// The streaming front end makes the lens-shift frames' phase reference from phase shifting while
+// those frames still decode (issue 12), and keeps it only if no pixel is saturated in a
+// lens-shift frame alone; either way it must equal the reference made after the last frame from
+// every frame's classification (MakePhaseReference on the classify stage's states over all
+// frames). Checked as simulated, then with a sampled pixel saturated in one lens-shift frame
+// (the early reference sampled it: it must be recomputed without it).
+TEST(ReconstructSim, StreamedPhaseReferenceIsTheOneFromEveryFrame) {
+  Progress::SetEnabled(false);
+  const fs::path dir = TempDir("stream_ref");
+  Simulate(PlaneOptions(96, 72), dir);
+  const ReconstructOptions ro;
+  auto check = [&](const char* what) {
+    const Session s = ReadSession(dir);
+    const ReconstructPlan plan = MakeReconstructPlan(s, ro.Plan());
+    const StreamedFrames f =
+        DecodeAndPhaseShift(s, plan, {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(s.rig)});
+    const FrameStack all = LoadFrames(s, plan.frames, ro.Load());
+    const PixelClasses classes =
+        ClassifyPixels(all, plan, s.rig.camera.width, s.rig.camera.height, ro.Classify());
+    const PhaseReference want = MakePhaseReference(plan, f.ps, classes.state);
+    const PhaseReference& got = f.gains.phase_reference;
+    EXPECT_GT(want.pixels.size(), 1000u) << what;
+    EXPECT_EQ(got.pixels, want.pixels) << what;
+    EXPECT_EQ(got.u_px, want.u_px) << what;
+    EXPECT_EQ(got.sigma_u_px, want.sigma_u_px) << what;
+    EXPECT_EQ(got.nuisance, want.nuisance) << what;
+    return got;
+  };
+  const PhaseReference before = check("as simulated");
+  // Saturate the first sampled pixel in one lens-shift frame.
+  const Session s = ReadSession(dir);
+  const ReconstructPlan plan = MakeReconstructPlan(s, ro.Plan());
+  ASSERT_FALSE(before.pixels.empty());
+  ASSERT_FALSE(plan.ls_stack.empty());
+  const uint32_t i = before.pixels.front();
+  const fs::path file =
+      s.root / s.frames[plan.frames[plan.ls_stack[plan.ls_stack.size() / 2]]].file;
+  ImageU16 frame = QuantizeU16(ReadImage(file));
+  const int w = frame.width();
+  frame(static_cast<int>(i % w), static_cast<int>(i / w)) = 65535;
+  WritePng16(file, frame);
+  const PhaseReference after = check("one pixel saturated in a lens-shift frame");
+  EXPECT_TRUE(std::find(after.pixels.begin(), after.pixels.end(), i) == after.pixels.end());
+  fs::remove_all(dir);
 }
 
 }  // namespace
