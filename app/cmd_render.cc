@@ -246,11 +246,15 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
   // the render (Run() loads the filters' module in the background meanwhile).
   if (a.denoise && o.time_limit_s > 0)
     o.time_limit_s -= MeasureDenoiseTimeReserve(o.width, o.height, o.time_limit_s);
+  // The preview, if denoised, spends fewer samples where the denoiser averages many pixels
+  // (the turntable's and side by side's frames are not denoised).
+  RenderOptions preview = o;
+  preview.allocate_for_denoiser = a.denoise;
 
   // Progressive output: preview.exr/png rewritten (atomically) after a round when at least 2 s
   // have passed since the last write and more than 2 s of a --time budget are left.
   auto last_write = std::chrono::steady_clock::now();
-  const RenderResult result = Render(hf, brdf, env, o, [&](const RenderResult& r) {
+  const RenderResult result = Render(hf, brdf, env, preview, [&](const RenderResult& r) {
     const auto now = std::chrono::steady_clock::now();
     if (std::chrono::duration<double>(now - last_write).count() < 2.0) return;
     // Not when the final preview follows within 2 s anyway (a --time budget about to run out):

@@ -369,7 +369,17 @@ void DemoPreview(const fs::path& dir) {
     std::printf("demo preview: allocation pilot %d spp, radius %d, floor %g, by cost %d\n",
                 o.allocate_pilot_spp, o.allocate_radius, o.allocate_floor, by_cost);
   }
+  // MESOSCAN_BENCH_DEMO_DENOISE_ALLOC="tau,max": the denoiser-aware share
+  // (RenderOptions::allocate_for_denoiser, allocate_denoise_*) in every allocated run (for
+  // tuning; the "denoise" run, as `render --denoise`, always has it).
+  if (const char* a = std::getenv("MESOSCAN_BENCH_DEMO_DENOISE_ALLOC")) {
+    o.allocate_for_denoiser = true;
+    std::sscanf(a, "%lf,%lf", &o.allocate_denoise_tau, &o.allocate_denoise_max);
+    std::printf("demo preview: denoiser-aware allocation tau %g, max %g\n", o.allocate_denoise_tau,
+                o.allocate_denoise_max);
+  }
   const int default_pilot = o.allocate_pilot_spp;
+  const bool denoiser_alloc = o.allocate_for_denoiser;
   // MESOSCAN_BENCH_DEMO_SPLIT=N: where the error of the demo's budget is. Two renders with
   // independent seeds at N spp allocated as under `--time` (reproducible, the load does not
   // enter), each denoised; per region (the mount; the height field by its first-hit normal's
@@ -484,6 +494,7 @@ void DemoPreview(const fs::path& dir) {
     if (o.mirror_guide && run.name != "alloc" && run.name != "no-resample") o.seed = seed++;
     o.allocate_spp = run.name == "alloc" ? run.spp : 0;
     o.allocate_pilot_spp = run.name == "uniform" ? 0 : default_pilot;
+    o.allocate_for_denoiser = denoiser_alloc || run.name == "denoise";  // as render --denoise
     double reserve_wall = 0;  // measuring the denoiser's reserve (part of the run's wall time)
     if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap
       o.time_limit_s = run.time_s;

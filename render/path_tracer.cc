@@ -30,6 +30,9 @@ void RenderOptions::Check() const {
   if (allocate_pilot_spp < 0 || allocate_radius < 1 || !(allocate_floor > 0 && allocate_floor <= 1))
     MESOSCAN_BAD_INPUT("render: expected allocate_pilot_spp >= 0, allocate_radius >= 1, "
                        "allocate_floor in (0, 1]");
+  if (!(allocate_denoise_tau > 0) || !std::isfinite(allocate_denoise_tau) ||
+      !(allocate_denoise_max >= 1) || !std::isfinite(allocate_denoise_max))
+    MESOSCAN_BAD_INPUT("render: expected allocate_denoise_tau > 0 and allocate_denoise_max >= 1");
   if (resample_candidates < 0 || resample_candidates > 16)
     MESOSCAN_BAD_INPUT("render: resample_candidates must be in [0, 16]");
   if (!(elevation_deg > 0 && elevation_deg <= 90))
@@ -371,11 +374,25 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
                      double budget, double total_final, int round, std::vector<int>* goal) {
   const size_t n = px.size();
   std::vector<double> v(n), c(n), cost(n), count(n);
+  // The first-hit features' sums for the denoiser-aware share (allocate_denoise_tau > 0): the
+  // mean normal (3), its squared length, the hit fraction and its square.
+  const bool features = o.allocate_for_denoiser;
+  std::vector<std::vector<double>> f(features ? 6 : 0, std::vector<double>(n, 0.0));
   ParallelForRows(H, [&](int ya, int yb) {
     for (size_t i = static_cast<size_t>(ya) * W; i < static_cast<size_t>(yb) * W; ++i) {
       const PixelState& p = px[i];
       cost[i] = p.cost;
       count[i] = p.n;
+      if (features && p.n > 0) {
+        double nn = 0;
+        for (int k = 0; k < 3; ++k) {
+          f[k][i] = p.normal[k] / p.n;
+          nn += f[k][i] * f[k][i];
+        }
+        f[3][i] = nn;
+        f[4][i] = static_cast<double>(p.hits) / p.n;
+        f[5][i] = f[4][i] * f[4][i];
+      }
       const int na = (p.n + 1) / 2, nb = p.n / 2;
       if (na == 0 || nb == 0) continue;
       const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
@@ -395,11 +412,14 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
     return s;
   };
   std::vector<double> sv, sc, scost, scount;
+  std::vector<std::vector<double>> sf(f.size());
   {
-    const std::vector<double>* from[4] = {&v, &c, &cost, &count};
-    std::vector<double>* to[4] = {&sv, &sc, &scost, &scount};
-    ParallelFor(4, [&](int64_t k) { *to[k] = integral(*from[k]); });
+    std::vector<const std::vector<double>*> from = {&v, &c, &cost, &count};
+    std::vector<std::vector<double>*> to = {&sv, &sc, &scost, &scount};
+    for (size_t k = 0; k < f.size(); ++k) from.push_back(&f[k]), to.push_back(&sf[k]);
+    ParallelFor(static_cast<int64_t>(from.size()), [&](int64_t k) { *to[k] = integral(*from[k]); });
   }
+  const double tau2 = o.allocate_denoise_tau * o.allocate_denoise_tau;
   const int r = o.allocate_radius;
   std::vector<double> w(n, 0.0), cps(n, 0.0);  // deviation; cost per sample (seconds)
   ParallelForRows(H, [&](int ya, int yb) {
@@ -416,6 +436,18 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
         };
         const double cnt = box(sc) - c[i];
         w[i] = cnt > 0 ? std::sqrt(std::max(0.0, box(sv) - v[i]) / cnt) : 0.0;
+        if (features && cnt > 0) {
+          // The neighbours' feature variance: normal (trace of its covariance) and hit fraction.
+          double mean2 = 0;
+          for (int k = 0; k < 3; ++k) {
+            const double m = (box(sf[k]) - f[k][i]) / cnt;
+            mean2 += m * m;
+          }
+          const double hm = (box(sf[4]) - f[4][i]) / cnt;
+          const double var = std::max(0.0, (box(sf[3]) - f[3][i]) / cnt - mean2) +
+                             std::max(0.0, (box(sf[5]) - f[5][i]) / cnt - hm * hm);
+          w[i] *= std::sqrt(std::min(1.0 + var / tau2, o.allocate_denoise_max));
+        }
         const double samples = box(scount) - count[i];
         cps[i] = samples > 0 ? (box(scost) - cost[i]) / samples : 0.0;
       }

@@ -79,6 +79,17 @@ struct RenderOptions {
   // Divide each pixel's share by sqrt(its neighbourhood's measured seconds per sample): the
   // optimum at a fixed cost rather than at a fixed sample count.
   bool allocate_by_cost = false;
+  // For a render that will be denoised (render --denoise): the denoiser averages many pixels
+  // where the first-hit features (normal, sample or mount) are uniform and few where they vary
+  // (the rim, the slopes), so each pixel's share is also multiplied by sqrt(min(1 + v / tau^2,
+  // max)), v the variance of the mean first-hit normal and hit fraction over the pixel's
+  // neighbourhood (the pixel left out, as above): the optimum n ~ sigma / sqrt(m) for pixels
+  // whose noise the denoiser divides by about m. Off: the raw render's optimum. Demo, 10 spp
+  // allocated, two seeds: denoised relRMSE 3.20% -> 2.97% (tau 0.05-0.3 and max 9-100 alike,
+  // 2.95-2.98%; CPU per spp +0-7%: the slopes' paths cost more).
+  bool allocate_for_denoiser = false;
+  double allocate_denoise_tau = 0.1;
+  double allocate_denoise_max = 9;
   void Check() const;
 };
 
