@@ -675,6 +675,21 @@ TEST(PathTracer, FeatureBuffersDescribeTheFirstHit) {
 namespace mesoscan {
 namespace {
 
+// The allocation tests' view of the copper mesa: 32 x 24 pixels over the sunlit bevel and its
+// reflection in the field, no adaptive stopping.
+RenderOptions MesaBevelView(const HeightField& hf) {
+  RenderOptions o;
+  o.width = 32;
+  o.height = 24;
+  o.noise = 0;
+  o.fov_deg = 14;
+  const double az = 200 * kPi / 180;
+  const Vec3 centre(hf.X(31.5), hf.Y(31.5), 0);
+  const Vec3 target = centre + Vec3(1.7e-3 * std::cos(az), 1.7e-3 * std::sin(az), 0.3e-3);
+  o.camera = CameraSpec{target + 6e-3 * Vec3(0, -0.64, 0.77).normalized(), target};
+  return o;
+}
+
 // Error-driven sample allocation (RenderOptions::allocate_*) on the coin-like mesa of
 // MirrorGuideLeavesTheImageUnbiased (GGX copper, sun at 25 degrees, the sunlit bevel and its
 // reflection in the field carry the noise): at the same mean spp, (1) the budget is spent
@@ -687,15 +702,7 @@ TEST(PathTracer, ErrorDrivenAllocationIsUnbiasedAndHelps) {
   const HeightField hf = CopperMesa();
   const EnvironmentMap env = EnvironmentMap::Sky(25, 200, 128);
   const Brdf copper = MesaCopper();
-  RenderOptions o;
-  o.width = 32;
-  o.height = 24;
-  o.noise = 0;
-  o.fov_deg = 14;
-  const double az = 200 * kPi / 180;
-  const Vec3 centre(hf.X(31.5), hf.Y(31.5), 0);
-  const Vec3 target = centre + Vec3(1.7e-3 * std::cos(az), 1.7e-3 * std::sin(az), 0.3e-3);
-  o.camera = CameraSpec{target + 6e-3 * Vec3(0, -0.64, 0.77).normalized(), target};
+  RenderOptions o = MesaBevelView(hf);
   const int spp = 32;
   // Reference: uniform, 512 spp.
   o.min_spp = o.max_spp = 512;
@@ -762,15 +769,7 @@ TEST(PathTracer, DenoiserAwareAllocationShiftsSamplesToVaryingFeaturesUnbiased) 
   const HeightField hf = CopperMesa();
   const EnvironmentMap env = EnvironmentMap::Sky(25, 200, 128);
   const Brdf copper = MesaCopper();
-  RenderOptions o;
-  o.width = 32;
-  o.height = 24;
-  o.noise = 0;
-  o.fov_deg = 14;
-  const double az = 200 * kPi / 180;
-  const Vec3 centre(hf.X(31.5), hf.Y(31.5), 0);
-  const Vec3 target = centre + Vec3(1.7e-3 * std::cos(az), 1.7e-3 * std::sin(az), 0.3e-3);
-  o.camera = CameraSpec{target + 6e-3 * Vec3(0, -0.64, 0.77).normalized(), target};
+  RenderOptions o = MesaBevelView(hf);
   const int spp = 32;
   // The bevel: pixels whose 3x3 neighbourhood's mean first-hit normals vary (a 256-spp render).
   o.min_spp = o.max_spp = 256;
