@@ -31,8 +31,11 @@ void RenderOptions::Check() const {
     MESOSCAN_BAD_INPUT("render: expected allocate_pilot_spp >= 0, allocate_radius >= 1, "
                        "allocate_floor in (0, 1]");
   if (!(allocate_denoise_tau > 0) || !std::isfinite(allocate_denoise_tau) ||
-      !(allocate_denoise_max >= 1) || !std::isfinite(allocate_denoise_max))
-    MESOSCAN_BAD_INPUT("render: expected allocate_denoise_tau > 0 and allocate_denoise_max >= 1");
+      !(allocate_denoise_max >= 1) || !std::isfinite(allocate_denoise_max) ||
+      allocate_denoise_pilot_spp < 1)
+    MESOSCAN_BAD_INPUT(
+        "render: expected allocate_denoise_tau > 0, allocate_denoise_max >= 1 and "
+        "allocate_denoise_pilot_spp >= 1");
   if (resample_candidates < 0 || resample_candidates > 16)
     MESOSCAN_BAD_INPUT("render: resample_candidates must be in [0, 16]");
   if (!(elevation_deg > 0 && elevation_deg <= 90))
@@ -623,7 +626,9 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     if (allocate && round > 0) {
       int prev = 0;
       for (const auto& p : px) prev = std::max(prev, p.done ? 0 : p.n);
-      if (prev >= options.allocate_pilot_spp) allocating = true;
+      const int pilot = options.allocate_for_denoiser ? options.allocate_denoise_pilot_spp
+                                                      : options.allocate_pilot_spp;
+      if (prev >= pilot) allocating = true;
     }
     if (allocating) {
       // What is left to spend, in samples (by the time left and the paths/s so far, or by the
