@@ -72,11 +72,14 @@ struct DenoiseOptions {
 double DenoiseTimeReserve(int width, int height, double time_budget_s);
 
 // The same reserve measured on this machine now (its speed and its load): DenoisePreview() timed
-// (wall) on a synthetic image of a sixteenth of the pixels (at least 64 x 48), scaled to
-// width x height, x 1.25, plus the measurement's own time (it comes out of the same budget); at
-// most a quarter of the budget. Costs about a sixteenth of a denoise (idle demo: ~0.01 s). The
-// fixed figure above left the idle demo 0.23 s unused and overran under load (1.3 s wall
-// against 0.38 s reserved, session 10).
+// (wall) on a synthetic image of a sixteenth of the pixels (at least 64 x 48), after a warm-up
+// call on 32 x 24 pixels (the first call's one-time costs, scaled 16x, overstated the demo's
+// reserve by 1.3-1.6x), scaled to width x height, x 1.25, plus the measurement's own time (it
+// comes out of the same budget; it includes loading the filters' module unless that is loaded
+// already, as `render --denoise` does on another thread); at most a quarter of the budget.
+// Costs about a sixteenth of a denoise (idle demo: ~0.02 s). The fixed figure above left the
+// idle demo 0.23 s unused and overran under load (1.3 s wall against 0.38 s reserved, session
+// 10).
 double MeasureDenoiseTimeReserve(int width, int height, double time_budget_s,
                                  const DenoiseOptions& options = {});
 
