@@ -386,7 +386,13 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
       const PixelState& p = px[i];
       cost[i] = p.cost;
       count[i] = p.n;
-      if (features && p.n > 0) {
+      const int na = (p.n + 1) / 2, nb = p.n / 2;
+      if (na == 0 || nb == 0) continue;
+      const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
+                       Luminance(Rgb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb));
+      v[i] = 0.25 * d * d * p.n;
+      c[i] = 1;
+      if (features) {  // the same pixels as c counts
         double nn = 0;
         for (int k = 0; k < 3; ++k) {
           f[k][i] = p.normal[k] / p.n;
@@ -396,12 +402,6 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
         f[4][i] = static_cast<double>(p.hits) / p.n;
         f[5][i] = f[4][i] * f[4][i];
       }
-      const int na = (p.n + 1) / 2, nb = p.n / 2;
-      if (na == 0 || nb == 0) continue;
-      const double d = Luminance(Rgb(p.a[0] / na, p.a[1] / na, p.a[2] / na)) -
-                       Luminance(Rgb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb));
-      v[i] = 0.25 * d * d * p.n;
-      c[i] = 1;
     }
   });
   // Box sums through summed-area tables (the four at once on the pool).
