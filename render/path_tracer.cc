@@ -377,8 +377,8 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
                      double budget, double total_final, int round, std::vector<int>* goal) {
   const size_t n = px.size();
   std::vector<double> v(n), c(n), cost(n), count(n);
-  // The first-hit features' sums for the denoiser-aware share (allocate_denoise_tau > 0): the
-  // mean normal (3), its squared length, the hit fraction and its square.
+  // The first-hit features for the denoiser-aware share (allocate_for_denoiser): the mean
+  // normal (3), its squared length, the hit fraction and its square.
   const bool features = o.allocate_for_denoiser;
   std::vector<std::vector<double>> f(features ? 6 : 0, std::vector<double>(n, 0.0));
   ParallelForRows(H, [&](int ya, int yb) {
@@ -404,7 +404,7 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
       }
     }
   });
-  // Box sums through summed-area tables (the four at once on the pool).
+  // Box sums through summed-area tables (all of them at once on the pool).
   auto integral = [&](const std::vector<double>& a) {
     std::vector<double> s(static_cast<size_t>(W + 1) * (H + 1), 0.0);
     for (int y = 0; y < H; ++y)
