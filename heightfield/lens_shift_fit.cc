@@ -706,18 +706,23 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   // standard error of eps', sqrt(2 sigma^2 / -J'') with sigma^2 = (sum y^2 - J) / (n - 4).
   const double sigma_factor =
       options.frequency_tolerance_sigma > 0.0 && n > 4 ? 2.0 / (n - 4) : 0.0;
+  const double tol_sigma_sq_factor =
+      options.frequency_tolerance_sigma * options.frequency_tolerance_sigma * sigma_factor;
   while (!converged && iterations < options.max_iterations) {
     ++iterations;
     // Newton step on J'(eps') = 0 towards a maximum; uphill gradient step where J is not concave.
     double step = o.j2 < 0.0 ? -o.j1 / o.j2 : (o.j1 > 0.0 ? kMaxStep : -kMaxStep);
     step = std::clamp(step, -kMaxStep, kMaxStep);
-    double last_step = final_step;
-    if (sigma_factor > 0.0 && o.j2 < 0.0) {
-      const double var_eps = sigma_factor * std::max(y2 - o.j, 0.0) / -o.j2;
-      const double tol = options.frequency_tolerance_sigma * std::sqrt(var_eps);
-      if (tol > eps_tol) last_step = std::sqrt(tol / kQuadratic);
+    // The last step is below max(final_step, sqrt(tol / kQuadratic)), tol = tolerance_sigma
+    // sqrt(var_eps), var_eps = sigma_factor (sum y^2 - J) / -J'': squared twice and multiplied
+    // out, without a division or a square root (FitFourLanes decides the same way).
+    bool last = std::abs(step) < final_step;
+    if (!last && sigma_factor > 0.0 && o.j2 < 0.0) {
+      const double s2 = step * step;
+      last =
+          kQuadratic * kQuadratic * s2 * s2 * -o.j2 < tol_sigma_sq_factor * std::max(y2 - o.j, 0.0);
     }
-    if (o.j2 < 0.0 && std::abs(step) < last_step && std::abs(eps + step) <= kEvalRadius) {
+    if (o.j2 < 0.0 && last && std::abs(eps + step) <= kEvalRadius) {
       // Converged: the remaining error after this Newton step is below the tolerance; take it
       // without a line search, extrapolating the coefficients to first order (their error is
       // O(step^2), below 1e-7 relative) and J to second order.
@@ -785,8 +790,8 @@ struct LaneInput {
   int n = 0;
   bool symmetric = false;  // x_{n-1-k} = -x_k (Tables::symmetric)
   int max_iterations = 0;
-  double eps_tol = 0, final_step = 0, sigma_factor = 0, tol_sigma = 0;
-  double sqrt_2_over_n = 0;  // std::sqrt(2.0 / n), as Finalize computes it
+  double eps_tol = 0, final_step = 0, sigma_factor = 0, tol_sigma_sq_factor = 0;
+  double sqrt_2_over_n_minus_4 = 0;  // sigma_a / residual_rms = sqrt(n / (n - 4)) sqrt(2 / n)
 };
 
 struct LaneOutput {
@@ -796,8 +801,8 @@ struct LaneOutput {
   int64_t iterations[4];
   int64_t redo[4];       // != 0: the lane left the common case, FastFit alone decides it
   // Finalize's quantities: phi in (-pi, pi], a, sum y^2 - J, sqrt(max(SSR, 0) / n),
-  // sigma_a / a and a / sigma_a.
-  double phase[4], amplitude[4], ssr[4], residual_rms[4], phase_sigma[4], snr[4];
+  // sigma_a / a and sigma_a (the SNR a / sigma_a is tested as a >= min_snr sigma_a).
+  double phase[4], amplitude[4], ssr[4], residual_rms[4], phase_sigma[4], sigma_a[4];
 };
 
 struct LaneObjective {
@@ -1016,22 +1021,14 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
                           MESOSCAN_LANE_SELECT(o.j1 > 0, zero + kMaxStep, zero - kMaxStep));
     step = MESOSCAN_LANE_SELECT(step > kMaxStep, zero + kMaxStep, step);
     step = MESOSCAN_LANE_SELECT(step < -kMaxStep, zero - kMaxStep, step);
-    V4d last_step = zero + in->final_step;
+    // FastFit's last-step test, without a division or a square root.
+    V4l last = MESOSCAN_LANE_ABS(step) < in->final_step;
     if (in->sigma_factor > 0.0) {
-      const V4d ssr = in->sigma_factor * (o.j < y2 ? y2 - o.j : zero);
-      const V4d var_eps = ssr / MESOSCAN_LANE_SELECT(concave, -o.j2, zero + 1.0);
-      V4d tol;
-      LaneSqrt(var_eps, &tol);
-      tol = in->tol_sigma * tol;
-      const V4l loose = concave & (tol > in->eps_tol);
-      if (LaneAny(loose)) {
-        V4d ls;
-        LaneSqrt(tol / kQuadratic, &ls);
-        last_step = MESOSCAN_LANE_SELECT(loose, ls, last_step);
-      }
+      const V4d s2 = step * step;
+      const V4d ssr = o.j < y2 ? y2 - o.j : zero;
+      last |= concave & (kQuadratic * kQuadratic * s2 * s2 * -o.j2 < in->tol_sigma_sq_factor * ssr);
     }
-    const V4l finish = active & concave & (MESOSCAN_LANE_ABS(step) < last_step) &
-                       (MESOSCAN_LANE_ABS(eps + step) <= kEvalRadius);
+    const V4l finish = active & concave & last & (MESOSCAN_LANE_ABS(eps + step) <= kEvalRadius);
     if (LaneAny(finish)) {
       // FastFit's last step: coefficients to first order, J to second.
       eps = MESOSCAN_LANE_SELECT(finish, eps + step, eps);
@@ -1086,22 +1083,21 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     at = cs < 0 ? kPi - at : at;
     at = cc < 0 ? -at : at;
     at = at <= -kPi ? zero + kPi : at;  // WrapPhase: (-pi, pi]
-    V4d a, rms, sigma_hat;
+    V4d a, rms;
     LaneSqrt(cc * cc + cs * cs, &a);
     const V4d ssr0 = y2 - o.j;
     const V4d ssr = ssr0 > 0 ? ssr0 : zero;
     LaneSqrt(ssr / nd, &rms);
-    LaneSqrt(ssr / (nd - 4), &sigma_hat);
-    const V4d sigma_a = sigma_hat * in->sqrt_2_over_n;
+    // Finalize's sigma_a = sqrt(SSR / (n - 4)) sqrt(2 / n), from the rms (to rounding).
+    const V4d sigma_a = rms * in->sqrt_2_over_n_minus_4;
     const V4d inf = zero + std::numeric_limits<double>::infinity();
     const V4d phase_sigma = a > 0 ? sigma_a / (a > 0 ? a : zero + 1.0) : inf;
-    const V4d snr = sigma_a > 0 ? a / (sigma_a > 0 ? sigma_a : zero + 1.0) : inf;
     std::memcpy(out->phase, &at, sizeof at);
     std::memcpy(out->amplitude, &a, sizeof a);
     std::memcpy(out->ssr, &ssr0, sizeof ssr0);
     std::memcpy(out->residual_rms, &rms, sizeof rms);
     std::memcpy(out->phase_sigma, &phase_sigma, sizeof phase_sigma);
-    std::memcpy(out->snr, &snr, sizeof snr);
+    std::memcpy(out->sigma_a, &sigma_a, sizeof sigma_a);
   }
   std::memcpy(out->c[0], &o.c0, sizeof o.c0);
   std::memcpy(out->c[1], &o.c1, sizeof o.c1);
@@ -1375,8 +1371,9 @@ void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride
   in.eps_tol = options_.frequency_tolerance * two_pi_x;
   in.final_step = std::sqrt(in.eps_tol / 4.0);  // FastFit's kQuadratic
   in.sigma_factor = options_.frequency_tolerance_sigma > 0.0 ? 2.0 / (n - 4) : 0.0;
-  in.tol_sigma = options_.frequency_tolerance_sigma;
-  in.sqrt_2_over_n = std::sqrt(2.0 / n);
+  in.tol_sigma_sq_factor =
+      options_.frequency_tolerance_sigma * options_.frequency_tolerance_sigma * in.sigma_factor;
+  in.sqrt_2_over_n_minus_4 = std::sqrt(2.0 / (n - 4));
   const double max_df = options_.max_frequency_deviation * std::abs(f0_);
   alignas(32) float yb[4 * kStackSamples];
   int p0 = 0;
@@ -1467,8 +1464,8 @@ void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride
       fit.valid = std::isfinite(fit.phase) && std::isfinite(a) && std::isfinite(f) &&
                   std::isfinite(d) && std::isfinite(fit.residual_rms) &&
                   std::isfinite(fit.phase_sigma) && a > options_.min_amplitude &&
-                  a > kMinRelativeAmplitude * std::abs(d) && r.snr[l] >= options_.min_amplitude_snr &&
-                  std::abs(f - f0_) <= max_df;
+                  a > kMinRelativeAmplitude * std::abs(d) &&
+                  a >= options_.min_amplitude_snr * r.sigma_a[l] && std::abs(f - f0_) <= max_df;
       if (!fit.valid)
         fit = Finalize(fit.phase, a, f, d, r.ssr[l], n, iterations, true, f0_, options_);
     }
