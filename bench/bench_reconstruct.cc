@@ -1,15 +1,15 @@
 // Reconstruction benchmark (figures, not assertions):
 //  1. The paper's Table 1 rerun on the virtual rig (Ritz et al. 2012): PS 9, PS 21, and
 //     LS 15/25/50/100/200 (+ PS 9) with the fast, LM and Ceres fitters, on a crop of the tilted
-//     bar near the projector's focus. Per row: wall time of the reconstruction and of the lens-shift
-//     fit, depth RMS vs ground truth, repeatability D (paper Eq. 3: RMS of the difference of two
-//     scans of the same object with different noise seeds, divided by sqrt 2 so it is a per-scan
-//     figure) and the ratio of the RMS to the Cramer-Rao floor of the simulator's noise model.
-//     Written to table1.csv and plotted (error against run time) in table1.png.
+//     bar near the projector's focus. Per row: wall time of the reconstruction and of the
+//     lens-shift fit, depth RMS vs ground truth, repeatability D (paper Eq. 3: RMS of the
+//     difference of two scans of the same object with different noise seeds, divided by sqrt 2 so
+//     it is a per-scan figure) and the ratio of the RMS to the Cramer-Rao floor of the simulator's
+//     noise model. Written to table1.csv and plotted (error against run time) in table1.png.
 //  1b. Table 1 with the disturbances of real rigs (issue 13, Table1Disturbances): LS 50 + PS 9
-//     with gain jitter 0 / 0.02 (joint frame gains, the older alternating gains, frame means) and with
-//     lens-shifter position errors 0 / 0.02 px RMS (estimated, and nominal positions), each with
-//     the plain fixed-frequency least-squares decoder (tests/plain_ls_decoder.h) on the same
+//     with gain jitter 0 / 0.02 (joint frame gains, the older alternating gains, frame means) and
+//     with lens-shifter position errors 0 / 0.02 px RMS (estimated, and nominal positions), each
+//     with the plain fixed-frequency least-squares decoder (tests/plain_ls_decoder.h) on the same
 //     pixels; and jitter 0 / 0.02 on a 24x18 view (joint and alternating gains), where the
 //     phase-shift reference's in-band estimate is as noisy as the jitter it corrects. Written to
 //     table1_disturbances.csv. MESOSCAN_BENCH_TABLE1_DISTURBANCES_ONLY=1 runs only this part.
@@ -19,17 +19,21 @@
 //     process (this binary re-run with --fullres-child), with the wall time of every pipeline
 //     stage and of writing the scan folder, plus the CPU times (all threads) of the bare decode,
 //     the reconstruction and end to end, and the load average (the machine is shared: wall
-//     times depend on the load). Written to fullres.csv. Skipped with MESOSCAN_BENCH_QUICK=1;
-//     MESOSCAN_BENCH_FULLRES_ONLY=1 runs only this part.
+//     times depend on the load); then the mesoscan reconstruct process on the simulated session
+//     and on the same frames as a capture (no ground truth). MESOSCAN_BENCH_FULLRES_RUNS rounds
+//     (default 3), the goals as medians. Written to fullres.csv. Skipped with
+//     MESOSCAN_BENCH_QUICK=1; MESOSCAN_BENCH_FULLRES_ONLY=1 runs only this part.
 // Output folder: $MESOSCAN_BENCH_OUT (default: current folder).
 
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
 #include <numeric>
 #include <opencv2/imgproc.hpp>
 #include <string>
@@ -304,73 +308,127 @@ void FullResolution(const fs::path& work, const fs::path& out) {
       fs::create_hard_link(e.path(), capture / "frames" / e.path().filename());
     WriteJsonFile(capture / "session.json", session);
   }
-  const CliRun cli = RunCli(dir, work / "fullres_cli.scan", work / "fullres_cli.log");
-  const CliRun cli_capture =
-      RunCli(capture, work / "fullres_capture.scan", work / "fullres_capture.log");
-
+  // MESOSCAN_BENCH_FULLRES_RUNS (default 3) rounds of the three processes, one after the other
+  // (the machine's speed drifts by 10-15 % between minutes): each round printed, the goals from
+  // the medians over the rounds, every round a row of fullres.csv.
+  int runs = 3;
+  if (const char* e = std::getenv("MESOSCAN_BENCH_FULLRES_RUNS")) runs = std::max(1, std::atoi(e));
   // The measurement runs in a fresh process (this binary with --fullres-child): TBB's worker
-  // pool does not survive fork(), and a fresh process gives an honest peak RSS.
+  // pool does not survive fork(), and a fresh process gives an honest peak RSS. The binary's
+  // own path is resolved here (inside the shell of std::system, /proc/self/exe is the shell).
   const fs::path result = work / "fullres_child.txt";
-  // The binary's own path (resolved here: inside the shell of std::system, /proc/self/exe is
-  // the shell).
   const std::string self = fs::read_symlink("/proc/self/exe").string();
-  const std::string cmd = "'" + self + "' --fullres-child '" + dir.string() + "' '" +
-                          (work / "fullres_coin.scan").string() + "' '" + result.string() + "'";
-  const int status = std::system(cmd.c_str());
-  double cpu2 = 0, rss_max = 0;
-  ChildrenUsage(&cpu2, &rss_max);
-  if (status != 0) {
-    std::printf("full resolution: the measuring process failed (status %d)\n", status);
-    return;
+  const std::string child_cmd = "'" + self + "' --fullres-child '" + dir.string() + "' '" +
+                                (work / "fullres_coin.scan").string() + "' '" + result.string() +
+                                "'";
+  struct Round {
+    CliRun cli, capture;
+    double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0, cpu_decode = 0,
+           cpu_reconstruct = 0, cpu_e2e = 0, rss_mb = 0, load = 0;
+  };
+  std::vector<Round> rounds;
+  std::string csv =
+      "run,decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um,"
+      "cpu_decode_s,cpu_reconstruct_s,cpu_end_to_end_s,cpu_over_decode,cli_wall_s,cli_cpu_s,"
+      "cli_peak_rss_mb,capture_cli_wall_s,capture_cli_cpu_s,capture_cli_peak_rss_mb,"
+      "load_average\n";
+  for (int run = 1; run <= runs; ++run) {
+    Round r;
+    r.cli = RunCli(dir, work / "fullres_cli.scan", work / "fullres_cli.log");
+    r.capture = RunCli(capture, work / "fullres_capture.scan", work / "fullres_capture.log");
+    if (std::system(child_cmd.c_str()) != 0) {
+      std::printf("full resolution: the measuring process failed (round %d)\n", run);
+      return;
+    }
+    const std::string buf = ReadTextFile(result);
+    int stages_at = 0;
+    std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf %lf %lf %lf %lf%n", &r.decode, &r.compute, &r.e2e,
+                &r.total, &r.rms, &r.cpu_decode, &r.cpu_reconstruct, &r.cpu_e2e, &r.rss_mb,
+                &stages_at);
+    double load[3] = {0, 0, 0};
+    getloadavg(load, 3);
+    r.load = load[0];
+    std::printf("full resolution round %d of %d:\n", run, runs);
+    std::printf(
+        "  (2176x1434, 61 frames) bare PNG decode %.2f s; compute after the last frame %.2f s; "
+        "end-to-end (read session, reconstruct, write) %.2f s = %.2fx decode; peak RSS %.0f MB; "
+        "depth RMS %.2f um\n",
+        r.decode, r.compute, r.e2e, r.e2e / r.decode, r.rss_mb, r.rms * 1e6);
+    std::printf(
+        "  CPU (s, all threads): bare decode %.2f, reconstruct incl. its decode %.2f, "
+        "end to end %.2f = %.2fx the bare decode; load average %.2f\n",
+        r.cpu_decode, r.cpu_reconstruct, r.cpu_e2e, r.cpu_e2e / r.cpu_decode, r.load);
+    std::printf("  stages, wall | CPU (s):%s", buf.c_str() + stages_at);
+    std::printf(
+        "  the mesoscan reconstruct process (libraries, session, reconstruct, ground truth, "
+        "writing): %.2f s wall = %.2fx the bare decode, %.2f CPU-s = %.2fx, peak RSS %.0f MB; "
+        "the same frames as a capture (no ground truth, no error map): %.2f s wall = %.2fx, "
+        "%.2f CPU-s = %.2fx, peak RSS %.0f MB\n",
+        r.cli.wall, r.cli.wall / r.decode, r.cli.cpu, r.cli.cpu / r.cpu_decode, r.cli.rss_mb,
+        r.capture.wall, r.capture.wall / r.decode, r.capture.cpu, r.capture.cpu / r.cpu_decode,
+        r.capture.rss_mb);
+    std::fflush(stdout);
+    char row[512];
+    std::snprintf(row, sizeof row,
+                  "%d,%.4f,%.4f,%.4f,%.4f,%.1f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.1f,%.4f,%.4f,"
+                  "%.1f,%.2f\n",
+                  run, r.decode, r.compute, r.e2e, r.e2e / r.decode, r.rss_mb, r.rms * 1e6,
+                  r.cpu_decode, r.cpu_reconstruct, r.cpu_e2e, r.cpu_e2e / r.cpu_decode, r.cli.wall,
+                  r.cli.cpu, r.cli.rss_mb, r.capture.wall, r.capture.cpu, r.capture.rss_mb, r.load);
+    csv += row;
+    rounds.push_back(r);
   }
-  const std::string buf = ReadTextFile(result);
-  double decode = 0, compute = 0, e2e = 0, total = 0, rms = 0, cpu_decode = 0, cpu_reconstruct = 0,
-         cpu_e2e = 0, child_rss = 0;
-  int stages_at = 0;
-  std::sscanf(buf.c_str(), "%lf %lf %lf %lf %lf %lf %lf %lf %lf%n", &decode, &compute, &e2e, &total,
-              &rms, &cpu_decode, &cpu_reconstruct, &cpu_e2e, &child_rss, &stages_at);
-  const double rss_mb = child_rss;
-  double load[3] = {0, 0, 0};
-  getloadavg(load, 3);
-  std::printf(
-      "full resolution (2176x1434, 61 frames): bare PNG decode %.2f s; compute after the "
-      "last frame %.2f s; end-to-end (read session, reconstruct, write) %.2f s = %.2fx "
-      "decode; peak RSS %.0f MB; depth RMS %.2f um\n",
-      decode, compute, e2e, e2e / decode, rss_mb, rms * 1e6);
-  std::printf("full resolution CPU (s, all threads): bare decode %.2f, reconstruct incl. its "
-              "decode %.2f, end to end %.2f = %.2fx the bare decode; load average %.2f\n",
-              cpu_decode, cpu_reconstruct, cpu_e2e, cpu_e2e / cpu_decode, load[0]);
-  std::printf("full resolution stages, wall | CPU (s):%s", buf.c_str() + stages_at);
-  std::printf(
-      "full resolution, the mesoscan reconstruct process (libraries, session, reconstruct, "
-      "ground truth, writing): %.2f s wall = %.2fx the bare decode, %.2f CPU-s = %.2fx, "
-      "peak RSS %.0f MB; the same frames as a capture (no ground truth, no error map): %.2f s "
-      "wall = %.2fx, %.2f CPU-s = %.2fx, peak RSS %.0f MB\n",
-      cli.wall, cli.wall / decode, cli.cpu, cli.cpu / cpu_decode, cli.rss_mb, cli_capture.wall,
-      cli_capture.wall / decode, cli_capture.cpu, cli_capture.cpu / cpu_decode, cli_capture.rss_mb);
-  // Issue 12's goals, each next to its figure (the load average says how far to trust them).
-  std::printf(
-      "full resolution goals: end-to-end / bare decode %.2f wall, %.2f CPU (goal <= 1.25; "
-      "the CLI process %.2f wall, %.2f CPU; as a capture %.2f wall, %.2f CPU); compute after "
-      "the last frame %.2f s (goal <= 0.5); peak RSS %.0f MB (goal <= 600; the CLI %.0f MB); "
-      "load average %.2f %.2f %.2f\n",
-      e2e / decode, cpu_e2e / cpu_decode, cli.wall / decode, cli.cpu / cpu_decode,
-      cli_capture.wall / decode, cli_capture.cpu / cpu_decode, compute, rss_mb, cli.rss_mb, load[0],
-      load[1], load[2]);
-  WriteTextFile(out / "fullres.csv",
-                "decode_s,compute_s,end_to_end_s,end_to_end_over_decode,peak_rss_mb,depth_rms_um,"
-                "cpu_decode_s,cpu_reconstruct_s,cpu_end_to_end_s,cpu_over_decode,cli_wall_s,"
-                "cli_cpu_s,cli_peak_rss_mb,capture_cli_wall_s,capture_cli_cpu_s,"
-                "capture_cli_peak_rss_mb,load_average\n" +
-                    std::to_string(decode) + "," + std::to_string(compute) + "," +
-                    std::to_string(e2e) + "," + std::to_string(e2e / decode) + "," +
-                    std::to_string(rss_mb) + "," + std::to_string(rms * 1e6) + "," +
-                    std::to_string(cpu_decode) + "," + std::to_string(cpu_reconstruct) + "," +
-                    std::to_string(cpu_e2e) + "," + std::to_string(cpu_e2e / cpu_decode) + "," +
-                    std::to_string(cli.wall) + "," + std::to_string(cli.cpu) + "," +
-                    std::to_string(cli.rss_mb) + "," + std::to_string(cli_capture.wall) + "," +
-                    std::to_string(cli_capture.cpu) + "," + std::to_string(cli_capture.rss_mb) +
-                    "," + std::to_string(load[0]) + "\n");
+  WriteTextFile(out / "fullres.csv", csv);
+  // Issue 12's goals, each the median over the rounds (ratios per round, then the median), with
+  // the range.
+  auto median = [&](const std::function<double(const Round&)>& f, double* lo, double* hi) {
+    std::vector<double> v;
+    for (const Round& r : rounds) v.push_back(f(r));
+    std::sort(v.begin(), v.end());
+    *lo = v.front();
+    *hi = v.back();
+    const size_t n = v.size();
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+  };
+  std::string goals;
+  auto figure = [&](const char* what, const std::function<double(const Round&)>& f,
+                    const char* unit, const char* goal) {
+    double lo = 0, hi = 0;
+    const double m = median(f, &lo, &hi);
+    char buf[256];
+    std::snprintf(buf, sizeof buf, "  %-52s %7.2f%s (%.2f-%.2f)  %s\n", what, m, unit, lo, hi,
+                  goal);
+    goals += buf;
+  };
+  figure(
+      "end to end in process / bare decode, wall", [](const Round& r) { return r.e2e / r.decode; },
+      "x", "goal <= 1.25");
+  figure(
+      "end to end in process / bare decode, CPU",
+      [](const Round& r) { return r.cpu_e2e / r.cpu_decode; }, "x", "goal <= 1.25");
+  figure(
+      "CLI process (simulation) / bare decode, wall",
+      [](const Round& r) { return r.cli.wall / r.decode; }, "x", "goal <= 1.25");
+  figure(
+      "CLI process (simulation) / bare decode, CPU",
+      [](const Round& r) { return r.cli.cpu / r.cpu_decode; }, "x", "goal <= 1.25");
+  figure(
+      "CLI process (as a capture) / bare decode, wall",
+      [](const Round& r) { return r.capture.wall / r.decode; }, "x", "goal <= 1.25");
+  figure(
+      "CLI process (as a capture) / bare decode, CPU",
+      [](const Round& r) { return r.capture.cpu / r.cpu_decode; }, "x", "goal <= 1.25");
+  figure(
+      "compute after the last frame", [](const Round& r) { return r.compute; }, " s",
+      "goal <= 0.5 s");
+  figure(
+      "peak RSS in process", [](const Round& r) { return r.rss_mb; }, " MB", "goal <= 600 MB");
+  figure(
+      "peak RSS of the CLI process", [](const Round& r) { return r.cli.rss_mb; }, " MB",
+      "goal <= 600 MB");
+  figure(
+      "load average", [](const Round& r) { return r.load; }, "", "");
+  std::printf("full resolution goals, median over %d rounds (range):\n%s", runs, goals.c_str());
 }
 
 // The measuring process: decode, reconstruct, write; prints the figures into `result`: wall
