@@ -399,6 +399,9 @@ namespace {
 
 struct Objective {
   double j = 0, j1 = 0, j2 = 0;  // projected energy q^T G^-1 q and its eps' derivatives
+  // J''' where it was evaluated at eps' = 0 with derivatives (the start: Halley's first step),
+  // else NaN.
+  double j3 = std::numeric_limits<double>::quiet_NaN();
   double c[3] = {0, 0, 0};       // coefficients of (cos, sin, 1) at eps'
   double dc[3] = {0, 0, 0};      // their eps' derivatives (with `derivatives` only)
   bool ok = false;
@@ -439,6 +442,42 @@ void HornerWithDerivatives(const Cd* z_coef, int top_z, const double* e12, int t
   HornerVec<V2d>(z_coef, top_z, eps, z_out);
 }
 
+// J'''(0) for Halley's first step, from the third Taylor coefficients (z3 of the moments, e13 and
+// e23 of the Gram sums: derivatives 6 z3 etc.) and Evaluate's quantities at eps' = 0.
+// Differentiating J'' = 2 w''.c - c.M''c + 2 r.c' (r = w' - M'c, c' = M^-1 r) once more:
+//   J''' = 2 w'''.c + 2 w''.c' - c.M'''c - 2 c'.M''c + 2 r'.c' + 2 r.c'',
+//   r' = w'' - M''c - M'c',  c'' = M^-1 (r' - M'c').
+// Templated on the scalar or the four-lane vector type (FitFourLanes uses the same arithmetic).
+template <class T>
+struct ReIm {
+  T re, im;
+};
+// (Through a pointer: a vector returned by value would change the ABI between the AVX2 clone and
+// the default, see AtanReduced.)
+template <class T>
+inline __attribute__((always_inline)) void ThirdDerivativeAtZero(
+    const ReIm<T>& z3c, const ReIm<T>& e13c, const ReIm<T>& e23c, const T& C, const T& E,
+    const T& C1, const T& E1, const T& C2, const T& E2, const T& y0, double n, const T& a,
+    const T& b, const T& d, const T& inv_det, const T& a1, const T& b1, const T& d1, const T& a2,
+    const T& b2, const T& d2, const T& wu2, const T& wv2, const T& cc, const T& cs, const T& cc1,
+    const T& cs1, const T& ru, const T& rv, T* j3) {
+  const double inv_n = 1.0 / n;
+  const T z3r = 6.0 * z3c.re, z3i = 6.0 * z3c.im;
+  const T C3 = 6.0 * e13c.re, E3 = 6.0 * e13c.im, g23r = 6.0 * e23c.re, g23i = 6.0 * e23c.im;
+  const T a3 = 0.5 * g23r - 2.0 * (C * C3 + 3.0 * C1 * C2) * inv_n;
+  const T b3 = 0.5 * g23i - (C3 * E + 3.0 * C2 * E1 + 3.0 * C1 * E2 + C * E3) * inv_n;
+  const T d3 = -0.5 * g23r - 2.0 * (E * E3 + 3.0 * E1 * E2) * inv_n;
+  const T wu3 = z3r - C3 * y0 * inv_n, wv3 = z3i - E3 * y0 * inv_n;
+  const T m2u = a2 * cc + b2 * cs, m2v = b2 * cc + d2 * cs;      // M'' c
+  const T m1u = a1 * cc1 + b1 * cs1, m1v = b1 * cc1 + d1 * cs1;  // M' c'
+  const T rpu = wu2 - m2u - m1u, rpv = wv2 - m2v - m1v;          // r'
+  const T su = rpu - m1u, sv = rpv - m1v;
+  const T cc2 = (d * su - b * sv) * inv_det, cs2 = (a * sv - b * su) * inv_det;  // c''
+  const T m3c = cc * (a3 * cc + b3 * cs) + cs * (b3 * cc + d3 * cs);
+  *j3 = 2.0 * (wu3 * cc + wv3 * cs) + 2.0 * (wu2 * cc1 + wv2 * cs1) - m3c -
+        2.0 * (cc1 * m2u + cs1 * m2v) + 2.0 * (rpu * cc1 + rpv * cs1) + 2.0 * (ru * cc2 + rv * cs2);
+}
+
 // J(eps') = q^T G^-1 q (variable projection: sum y^2 - J is the residual of the best linear fit
 // at that frequency), with derivatives for Newton. G = [[A, B, C], [B, D, E], [C, E, n]] over
 // the basis (cos, sin, 1) and q = (u, v, y0); the constant column is eliminated by its Schur
@@ -450,7 +489,8 @@ Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
                    bool derivatives) {
   Objective o;
   Cd z, z1 = 0.0, z2 = 0.0, e1, e11 = 0.0, e12 = 0.0, e2, e21 = 0.0, e22 = 0.0;
-  if (derivatives && eps == 0.0) {
+  const bool at_zero = derivatives && eps == 0.0;
+  if (at_zero) {
     // The usual start (f = f0 on a grid point): the polynomials' low coefficients.
     z = z_coef[0], z1 = z_coef[1], z2 = 2.0 * z_coef[2];
     e1 = e1c[0], e11 = e1c[1], e12 = 2.0 * e1c[2];
@@ -520,6 +560,11 @@ Objective Evaluate(const std::array<Cd, kOrder + 1>& z_coef, double y0,
   o.j2 = 2.0 * (wu2 * cc + wv2 * cs) + 2.0 * (wu1 * cc1 + wv1 * cs1) -
          2.0 * (cc1 * mc_u + cs1 * mc_v) - m2c;
   o.ok = o.ok && std::isfinite(o.j1) && std::isfinite(o.j2);
+  if (at_zero)
+    ThirdDerivativeAtZero<double>({z_coef[3].real(), z_coef[3].imag()},
+                                  {e1c[3].real(), e1c[3].imag()}, {e2c[3].real(), e2c[3].imag()}, C,
+                                  E, C1, E1, C2, E2, y0, n, a, b, d, inv_det, a1, b1, d1, a2, b2,
+                                  d2, wu2, wv2, cc, cs, cc1, cs1, ru, rv, &o.j3);
   return o;
 }
 
@@ -712,6 +757,13 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
     ++iterations;
     // Newton step on J'(eps') = 0 towards a maximum; uphill gradient step where J is not concave.
     double step = o.j2 < 0.0 ? -o.j1 / o.j2 : (o.j1 > 0.0 ? kMaxStep : -kMaxStep);
+    // At the start (eps' = 0, J''' known): Halley's step, the Newton step divided by
+    // 1 - q, q = -step J''' / (2 J''), where |q| <= 0.5. Its error is third order in the step,
+    // so the Newton step that follows is usually already below the last-step bound.
+    if (iterations == 1 && o.j2 < 0.0 && std::isfinite(o.j3)) {
+      const double q = -0.5 * step * o.j3 / o.j2;
+      if (std::abs(q) <= 0.5) step /= 1.0 - q;
+    }
     step = std::clamp(step, -kMaxStep, kMaxStep);
     // The last step is below max(final_step, sqrt(tol / kQuadratic)), tol = tolerance_sigma
     // sqrt(var_eps), var_eps = sigma_factor (sum y^2 - J) / -J'': squared twice and multiplied
@@ -777,8 +829,9 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
 // The 4-parameter kFast fit of four profiles at once (LensShiftBatchFitter::FitMany): FastFit's
 // steps with the four profiles in the lanes of one vector, so that its fixed work per profile
 // (the Taylor evaluations of the variable-projection objective with their divisions, the
-// stopping rule's square roots) runs once per four profiles. Every lane starts at f0 (grid
-// point 0, eps' = 0) and takes FastFit's Newton steps with its stopping rules; a lane that
+// stopping rule's arithmetic) runs once per four profiles. Every lane starts at f0 (grid
+// point 0, eps' = 0) and takes FastFit's steps (Halley's first, then Newton's) with its stopping
+// rules; the group costs as many evaluations as its slowest lane needs. A lane that
 // leaves the common case (a rejected step that would need halving, a step beyond the grid
 // radius that would re-centre the moments, a non-concave start, the iteration cap) is marked
 // and refitted by FastFit alone. Results equal FastFit's to rounding (the moments are summed in
@@ -806,7 +859,7 @@ struct LaneOutput {
 };
 
 struct LaneObjective {
-  V4d j, j1, j2, c0, c1, c2, dc0, dc1, dc2;
+  V4d j, j1, j2, j3, c0, c1, c2, dc0, dc1, dc2;  // j3: with EvaluateLanes' kThirdAtZero only
   V4l ok;
 };
 
@@ -821,9 +874,11 @@ struct LaneObjective {
 // kSymmetric (positions symmetric about 0): sum sin((w + eps) x) and sum sin(2 (w + eps) x) are
 // 0 for every eps, so their Horner chains are skipped (their table coefficients are 0 up to
 // rounding).
-template <bool kSymmetric>
-inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4d* zi,
-                                                         int top_z, const double* e12, int top_g,
+// kThirdAtZero (eps = 0 in every lane, top_z and top_g >= 2): also J'''(0) from the order-3
+// coefficients (ThirdDerivativeAtZero), for Halley's first step.
+template <bool kSymmetric, bool kThirdAtZero = false>
+inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4d* zi, int top_z,
+                                                         const double* e12, int top_g,
                                                          const V4d& eps, const V4d& y0, double n,
                                                          LaneObjective* o) {
   const V4d zero = {0, 0, 0, 0};
@@ -887,6 +942,14 @@ inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4
   o->j2 = 2.0 * (wu2 * cc + wv2 * cs) + 2.0 * (wu1 * cc1 + wv1 * cs1) -
           2.0 * (cc1 * mc_u + cs1 * mc_v) - m2c;
   o->ok = regular & MESOSCAN_LANE_FINITE(o->j) & MESOSCAN_LANE_FINITE(o->j1) & MESOSCAN_LANE_FINITE(o->j2);
+  if constexpr (kThirdAtZero) {
+    // The sine chains of the symmetric case are 0 (as above).
+    const double s1 = kSymmetric ? 0.0 : e12[13], s2 = kSymmetric ? 0.0 : e12[15];
+    ThirdDerivativeAtZero<V4d>({zr[3], zi[3]}, {zero + e12[12], zero + s1},
+                               {zero + e12[14], zero + s2}, C, E, C1, E1, C2, E2, y0, n, a, b, d,
+                               inv_det, a1, b1, d1, a2, b2, d2, wu2, wv2, cc, cs, cc1, cs1, ru, rv,
+                               &o->j3);
+  }
 }
 
 // Correctly rounded square roots of the lanes (as std::sqrt): SSE2 (baseline x86-64) halves.
@@ -1005,10 +1068,10 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
   V4d eps = zero;
   LaneObjective o;
   const bool sym = in->symmetric;
-  if (sym)  // at eps' = 0: orders 0..2 exactly
-    EvaluateLanes<true>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
+  if (sym)  // at eps' = 0: orders 0..2 exactly, and J''' from order 3
+    EvaluateLanes<true, true>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
   else
-    EvaluateLanes<false>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
+    EvaluateLanes<false, true>(zr, zi, 2, in->e12, 2, eps, y0, nd, &o);
   const V4l all = {-1, -1, -1, -1};
   V4l redo = ~o.ok & all;
   V4l active = o.ok;
@@ -1019,6 +1082,11 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     const V4l concave = o.j2 < 0;
     V4d step = MESOSCAN_LANE_SELECT(concave, -o.j1 / MESOSCAN_LANE_SELECT(concave, o.j2, zero - 1.0),
                           MESOSCAN_LANE_SELECT(o.j1 > 0, zero + kMaxStep, zero - kMaxStep));
+    if (it == 0) {  // FastFit's Halley step at the start
+      const V4d q = -0.5 * step * o.j3 / MESOSCAN_LANE_SELECT(concave, o.j2, zero - 1.0);
+      const V4l halley = concave & (MESOSCAN_LANE_ABS(q) <= 0.5);
+      step = MESOSCAN_LANE_SELECT(halley, step / (1.0 - q), step);
+    }
     step = MESOSCAN_LANE_SELECT(step > kMaxStep, zero + kMaxStep, step);
     step = MESOSCAN_LANE_SELECT(step < -kMaxStep, zero - kMaxStep, step);
     // FastFit's last-step test, without a division or a square root.

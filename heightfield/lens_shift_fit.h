@@ -13,7 +13,8 @@
 //  - kFast: variable projection. The linear part (a sin phi, a cos phi, d) is solved in closed
 //    form for a given f from per-pixel moments sum b x^m e^{i 2 pi f_j x} (Taylor in f around a
 //    grid frequency f_j near f0, shared tables precomputed once per batch), then a safeguarded
-//    1-D Newton on f maximises the projected energy without touching the data again.
+//    1-D Newton on f (its first step from f0 a Halley step: the third derivative there is free)
+//    maximises the projected energy without touching the data again.
 //  - kLm: the paper's two-step Levenberg-Marquardt (step 1: phase only, a = 1, f = f0 on the
 //    normalised profile; step 2: all four parameters), hand-written with fixed-size Eigen 4x4.
 //  - kCeres: the same 4-parameter least squares through Ceres with autodiff (the reference;
