@@ -390,44 +390,42 @@ void FullResolution(const fs::path& work, const fs::path& out) {
     const size_t n = v.size();
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
   };
-  std::string goals;
-  auto figure = [&](const char* what, const std::function<double(const Round&)>& f,
-                    const char* unit, const char* goal) {
-    double lo = 0, hi = 0;
-    const double m = median(f, &lo, &hi);
-    char buf[256];
-    std::snprintf(buf, sizeof buf, "  %-52s %7.2f%s (%.2f-%.2f)  %s\n", what, m, unit, lo, hi,
-                  goal);
-    goals += buf;
+  // Issue 12's goals: what, the figure of a round, its unit, the goal.
+  struct Figure {
+    const char* what;
+    double (*of)(const Round&);
+    const char* unit;
+    const char* goal;
   };
-  figure(
-      "end to end in process / bare decode, wall", [](const Round& r) { return r.e2e / r.decode; },
-      "x", "goal <= 1.25");
-  figure(
-      "end to end in process / bare decode, CPU",
-      [](const Round& r) { return r.cpu_e2e / r.cpu_decode; }, "x", "goal <= 1.25");
-  figure(
-      "CLI process (simulation) / bare decode, wall",
-      [](const Round& r) { return r.cli.wall / r.decode; }, "x", "goal <= 1.25");
-  figure(
-      "CLI process (simulation) / bare decode, CPU",
-      [](const Round& r) { return r.cli.cpu / r.cpu_decode; }, "x", "goal <= 1.25");
-  figure(
-      "CLI process (as a capture) / bare decode, wall",
-      [](const Round& r) { return r.capture.wall / r.decode; }, "x", "goal <= 1.25");
-  figure(
-      "CLI process (as a capture) / bare decode, CPU",
-      [](const Round& r) { return r.capture.cpu / r.cpu_decode; }, "x", "goal <= 1.25");
-  figure(
-      "compute after the last frame", [](const Round& r) { return r.compute; }, " s",
-      "goal <= 0.5 s");
-  figure(
-      "peak RSS in process", [](const Round& r) { return r.rss_mb; }, " MB", "goal <= 600 MB");
-  figure(
-      "peak RSS of the CLI process", [](const Round& r) { return r.cli.rss_mb; }, " MB",
-      "goal <= 600 MB");
-  figure(
-      "load average", [](const Round& r) { return r.load; }, "", "");
+  const Figure figures[] = {
+      {"end to end in process / bare decode, wall", [](const Round& r) { return r.e2e / r.decode; },
+       "x", "goal <= 1.25"},
+      {"end to end in process / bare decode, CPU",
+       [](const Round& r) { return r.cpu_e2e / r.cpu_decode; }, "x", "goal <= 1.25"},
+      {"CLI process (simulation) / bare decode, wall",
+       [](const Round& r) { return r.cli.wall / r.decode; }, "x", "goal <= 1.25"},
+      {"CLI process (simulation) / bare decode, CPU",
+       [](const Round& r) { return r.cli.cpu / r.cpu_decode; }, "x", "goal <= 1.25"},
+      {"CLI process (as a capture) / bare decode, wall",
+       [](const Round& r) { return r.capture.wall / r.decode; }, "x", "goal <= 1.25"},
+      {"CLI process (as a capture) / bare decode, CPU",
+       [](const Round& r) { return r.capture.cpu / r.cpu_decode; }, "x", "goal <= 1.25"},
+      {"compute after the last frame", [](const Round& r) { return r.compute; }, " s",
+       "goal <= 0.5 s"},
+      {"peak RSS in process", [](const Round& r) { return r.rss_mb; }, " MB", "goal <= 600 MB"},
+      {"peak RSS of the CLI process", [](const Round& r) { return r.cli.rss_mb; }, " MB",
+       "goal <= 600 MB"},
+      {"load average", [](const Round& r) { return r.load; }, "", ""},
+  };
+  std::string goals;
+  for (const Figure& fig : figures) {
+    double lo = 0, hi = 0;
+    const double m = median([&](const Round& r) { return fig.of(r); }, &lo, &hi);
+    char buf[256];
+    std::snprintf(buf, sizeof buf, "  %-52s %7.2f%s (%.2f-%.2f)  %s\n", fig.what, m, fig.unit, lo,
+                  hi, fig.goal);
+    goals += buf;
+  }
   std::printf("full resolution goals, median over %d rounds (range):\n%s", runs, goals.c_str());
 }
 
