@@ -1569,8 +1569,8 @@ struct BlockResult {
 // LensShiftBatchFitter, lane by lane, and phi = atan2(cc, cs) to 1e-16 rad. Straight-line vector
 // code: no vector-typed argument or return value (their ABI differs between the clones).
 MESOSCAN_SIMD_CLONES
-void FitBlock(const double* basis_km, const double* basis_sum, int nk, const float* b,
-              size_t stride, const float* gain, const double* eps_in, const Cd* e1c,
+void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symmetric,
+              const float* b, size_t stride, const float* gain, const double* eps_in, const Cd* e1c,
               const Cd* e2c, int top_g, BlockResult* r) {
   // Accumulated about the first sample, then moved to the mean (the moments are linear in the
   // samples: W_m(y - mu) = W_m(y) - mu sum_k B_mk), so that, as in FastFit, the moments scale
@@ -1583,7 +1583,38 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, const flo
   const V4d zero = {0, 0, 0, 0};
   V4d w0 = zero, w1 = zero, w2 = zero, w3 = zero, w4 = zero, w5 = zero, w6 = zero, w7 = zero,
       y0 = zero, y2 = zero;
-  for (int k = 0; k < nk; ++k) {
+  // Positions symmetric about 0 (Tables::symmetric): row 2m + c (t^m cos, t^m sin) has parity
+  // (-1)^(m + c), so the sample pair (k, nk-1-k) enters the even rows as its sum and the odd
+  // ones as its difference, half the products (as FitFourLanes); the middle sample of an odd
+  // count below with the rest.
+  int k = 0;
+  if (symmetric) {
+    const int half = nk / 2;
+    for (; k < half; ++k) {
+      const int kc = nk - 1 - k;
+      V4f va, vc;
+      std::memcpy(&va, b + k * stride, sizeof va);
+      std::memcpy(&vc, b + kc * stride, sizeof vc);
+      va *= gain[k];
+      vc *= gain[kc];
+      const V4d ya = __builtin_convertvector(va, V4d) - ref;
+      const V4d yc = __builtin_convertvector(vc, V4d) - ref;
+      const V4d sum = ya + yc, dif = ya - yc;
+      const double* bk = basis_km + static_cast<size_t>(k) * kFineMoments;
+      w0 += bk[0] * sum;
+      w1 += bk[1] * dif;
+      w2 += bk[2] * dif;
+      w3 += bk[3] * sum;
+      w4 += bk[4] * sum;
+      w5 += bk[5] * dif;
+      w6 += bk[6] * dif;
+      w7 += bk[7] * sum;
+      y0 += sum;
+      y2 += ya * ya + yc * yc;
+    }
+  }
+  const int k_end = symmetric ? (nk + 1) / 2 : nk;
+  for (; k < k_end; ++k) {
     V4f v;
     std::memcpy(&v, b + k * stride, sizeof v);
     v *= gain[k];
@@ -1743,9 +1774,8 @@ void LensShiftRowFitter::FitRow(const float* b, size_t stride, int n, const floa
     const int gi = g_block + t.grid_half;
     const int top_g = NeededOrder(2.0 * max_eps, kGramOrder);
     BlockResult r;
-    FitBlock(t.km[gi].data(),
-             basis_sum_.data() + static_cast<size_t>(gi) * kFineMoments, nk, b + j0, stride, gain,
-             eps, t.e1[gi].data(), t.e2[gi].data(), top_g, &r);
+    FitBlock(t.km[gi].data(), basis_sum_.data() + static_cast<size_t>(gi) * kFineMoments, nk,
+             t.symmetric, b + j0, stride, gain, eps, t.e1[gi].data(), t.e2[gi].data(), top_g, &r);
     for (int l = 0; l < kLanes; ++l) {
       if (!lane[l]) continue;
       const int j = j0 + l;

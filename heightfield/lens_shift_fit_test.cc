@@ -467,12 +467,15 @@ TEST(LensShiftFit, FloatAccumulationErrorIsFarBelowTheNoise) {
 // LensShiftBatchFitter::Fit on its gain-normalised profile to rounding, including the pixels it
 // hands to that path (NaN samples, a frequency off the tables or not finite, a 4-pixel block
 // that straddles two grid frequencies, the tail of a row whose width is not a multiple of 4),
-// and leaves unused pixels untouched.
+// and leaves unused pixels untouched. Positions symmetric about 0 (odd and even counts: the
+// kernel folds sample pairs) and jittered (n 40: it does not).
 TEST(LensShiftRowFit, MatchesThePerPixelFit) {
   std::mt19937_64 rng(51);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
-  for (int nk : {3, 15, 50}) {
-    const auto x = CentredPositions(nk);
+  for (int nk : {3, 15, 50, 40}) {
+    auto x = CentredPositions(nk);
+    if (nk == 40)
+      for (double& v : x) v += 0.01 * (uni(rng) - 0.5);
     LensShiftFitOptions o;
     o.fit_frequency = false;
     const LensShiftRowFitter row(x, kF0, o);
