@@ -979,6 +979,24 @@ inline __attribute__((always_inline)) bool LaneAny(const V4l& m) {
 
 // Four profiles: samples yb[k * 4 + l] (lane l, sample k), centring references mean[l]. Straight
 // vector code with pointer arguments only (the clones' ABI, as FitBlock).
+// Eight basis rows r of one sample (or sample pair) into the accumulators: acc[r] += bk[r] *
+// (r even-parity ? even : odd). With positions symmetric about 0, row 2m + c (t^m cos, t^m sin)
+// has parity (-1)^(m + c): rows 0, 3, 4, 7 of every group of 8 are even, so a sample pair
+// (k, n-1-k) enters them as its sum and the others as its difference. A single sample passes
+// itself as both.
+static_assert(kFineMoments == 8 && kMoments == 16, "AddParityRows takes groups of 8 rows");
+inline __attribute__((always_inline)) void AddParityRows(const double* bk, const V4d& even,
+                                                         const V4d& odd, V4d* acc) {
+  acc[0] += bk[0] * even;
+  acc[1] += bk[1] * odd;
+  acc[2] += bk[2] * odd;
+  acc[3] += bk[3] * even;
+  acc[4] += bk[4] * even;
+  acc[5] += bk[5] * odd;
+  acc[6] += bk[6] * odd;
+  acc[7] += bk[7] * even;
+}
+
 MESOSCAN_SIMD_CLONES
 void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, LaneOutput* out) {
   const int n = in->n;
@@ -1006,15 +1024,7 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         const V4d yc = __builtin_convertvector(vb, V4d) - mean;
         const V4d sum = ya + yc, dif = ya - yc;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
-        // Rows 8 half + r: parity even for r = 0, 3, 4, 7 (m even cos, m odd sin).
-        acc[0] += bk[0] * sum;
-        acc[1] += bk[1] * dif;
-        acc[2] += bk[2] * dif;
-        acc[3] += bk[3] * sum;
-        acc[4] += bk[4] * sum;
-        acc[5] += bk[5] * dif;
-        acc[6] += bk[6] * dif;
-        acc[7] += bk[7] * sum;
+        AddParityRows(bk, sum, dif, acc);  // rows 8 half + r
         if (half == 0) {
           y0 += sum;
           y2 += ya * ya + yc * yc;
@@ -1581,11 +1591,10 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
   v0 *= gain[0];
   V4d ref = __builtin_convertvector(v0, V4d);
   const V4d zero = {0, 0, 0, 0};
-  V4d w0 = zero, w1 = zero, w2 = zero, w3 = zero, w4 = zero, w5 = zero, w6 = zero, w7 = zero,
-      y0 = zero, y2 = zero;
-  // Positions symmetric about 0 (Tables::symmetric): row 2m + c (t^m cos, t^m sin) has parity
-  // (-1)^(m + c), so the sample pair (k, nk-1-k) enters the even rows as its sum and the odd
-  // ones as its difference, half the products (as FitFourLanes); the middle sample of an odd
+  V4d w[kFineMoments], y0 = zero, y2 = zero;
+  for (V4d& v : w) v = zero;
+  // Positions symmetric about 0 (Tables::symmetric): sample pairs (k, nk-1-k) fold into the
+  // rows as in FitFourLanes (AddParityRows), half the products; the middle sample of an odd
   // count below with the rest.
   int k = 0;
   if (symmetric) {
@@ -1600,15 +1609,7 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
       const V4d ya = __builtin_convertvector(va, V4d) - ref;
       const V4d yc = __builtin_convertvector(vc, V4d) - ref;
       const V4d sum = ya + yc, dif = ya - yc;
-      const double* bk = basis_km + static_cast<size_t>(k) * kFineMoments;
-      w0 += bk[0] * sum;
-      w1 += bk[1] * dif;
-      w2 += bk[2] * dif;
-      w3 += bk[3] * sum;
-      w4 += bk[4] * sum;
-      w5 += bk[5] * dif;
-      w6 += bk[6] * dif;
-      w7 += bk[7] * sum;
+      AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, sum, dif, w);
       y0 += sum;
       y2 += ya * ya + yc * yc;
     }
@@ -1619,15 +1620,7 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
     std::memcpy(&v, b + k * stride, sizeof v);
     v *= gain[k];
     const V4d y = __builtin_convertvector(v, V4d) - ref;
-    const double* bk = basis_km + static_cast<size_t>(k) * kFineMoments;
-    w0 += bk[0] * y;
-    w1 += bk[1] * y;
-    w2 += bk[2] * y;
-    w3 += bk[3] * y;
-    w4 += bk[4] * y;
-    w5 += bk[5] * y;
-    w6 += bk[6] * y;
-    w7 += bk[7] * y;
+    AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, y, y, w);
     y0 += y;
     y2 += y * y;
   }
@@ -1635,14 +1628,7 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
   {
     const double nd = nk;
     const V4d mu = y0 / nd;
-    w0 -= mu * basis_sum[0];
-    w1 -= mu * basis_sum[1];
-    w2 -= mu * basis_sum[2];
-    w3 -= mu * basis_sum[3];
-    w4 -= mu * basis_sum[4];
-    w5 -= mu * basis_sum[5];
-    w6 -= mu * basis_sum[6];
-    w7 -= mu * basis_sum[7];
+    for (int r = 0; r < kFineMoments; ++r) w[r] -= mu * basis_sum[r];
     y2 -= mu * y0;
     ref += mu;
     y0 = zero;
@@ -1651,13 +1637,13 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
   V4d eps;
   std::memcpy(&eps, eps_in, sizeof eps);
   const double inv2 = 0.5, inv6 = 0.5 / 3.0;
-  V4d zr = w7 * inv6, zi = -(w6 * inv6);  // m = 3: (im, -re)
-  zr = zr * eps + (-(w4 * inv2));         // m = 2: (-re, -im)
-  zi = zi * eps + (-(w5 * inv2));
-  zr = zr * eps + (-w3);                  // m = 1: (-im, re)
-  zi = zi * eps + w2;
-  zr = zr * eps + w0;                     // m = 0
-  zi = zi * eps + w1;
+  V4d zr = w[7] * inv6, zi = -(w[6] * inv6);  // m = 3: (im, -re)
+  zr = zr * eps + (-(w[4] * inv2));           // m = 2: (-re, -im)
+  zi = zi * eps + (-(w[5] * inv2));
+  zr = zr * eps + (-w[3]);  // m = 1: (-im, re)
+  zi = zi * eps + w[2];
+  zr = zr * eps + w[0];  // m = 0
+  zi = zi * eps + w[1];
   // Gram sums sum e^{i (w + eps) x} and sum e^{2 i (w + eps) x}.
   V4d g1r = zero + e1c[top_g].real(), g1i = zero + e1c[top_g].imag();
   V4d g2r = zero + e2c[top_g].real(), g2i = zero + e2c[top_g].imag();
