@@ -442,18 +442,20 @@ void HornerWithDerivatives(const Cd* z_coef, int top_z, const double* e12, int t
   HornerVec<V2d>(z_coef, top_z, eps, z_out);
 }
 
+// A complex number as two values of T (a scalar or four lanes).
+template <class T>
+struct ReIm {
+  T re, im;
+};
+
 // J'''(0) for Halley's first step, from the third Taylor coefficients (z3 of the moments, e13 and
 // e23 of the Gram sums: derivatives 6 z3 etc.) and Evaluate's quantities at eps' = 0.
 // Differentiating J'' = 2 w''.c - c.M''c + 2 r.c' (r = w' - M'c, c' = M^-1 r) once more:
 //   J''' = 2 w'''.c + 2 w''.c' - c.M'''c - 2 c'.M''c + 2 r'.c' + 2 r.c'',
 //   r' = w'' - M''c - M'c',  c'' = M^-1 (r' - M'c').
-// Templated on the scalar or the four-lane vector type (FitFourLanes uses the same arithmetic).
-template <class T>
-struct ReIm {
-  T re, im;
-};
-// (Through a pointer: a vector returned by value would change the ABI between the AVX2 clone and
-// the default, see AtanReduced.)
+// Templated on the scalar or the four-lane vector type (FitFourLanes uses the same arithmetic);
+// the result through a pointer (a vector returned by value would change the ABI between the AVX2
+// clone and the default, see AtanReduced).
 template <class T>
 inline __attribute__((always_inline)) void ThirdDerivativeAtZero(
     const ReIm<T>& z3c, const ReIm<T>& e13c, const ReIm<T>& e23c, const T& C, const T& E,
@@ -977,8 +979,6 @@ inline __attribute__((always_inline)) bool LaneAny(const V4l& m) {
   return (m[0] | m[1] | m[2] | m[3]) != 0;
 }
 
-// Four profiles: samples yb[k * 4 + l] (lane l, sample k), centring references mean[l]. Straight
-// vector code with pointer arguments only (the clones' ABI, as FitBlock).
 // Eight basis rows r of one sample (or sample pair) into the accumulators: acc[r] += bk[r] *
 // (r even-parity ? even : odd). With positions symmetric about 0, row 2m + c (t^m cos, t^m sin)
 // has parity (-1)^(m + c): rows 0, 3, 4, 7 of every group of 8 are even, so a sample pair
@@ -997,6 +997,8 @@ inline __attribute__((always_inline)) void AddParityRows(const double* bk, const
   acc[7] += bk[7] * even;
 }
 
+// Four profiles: samples yb[k * 4 + l] (lane l, sample k), centring references mean[l]. Straight
+// vector code with pointer arguments only (the clones' ABI, as FitBlock).
 MESOSCAN_SIMD_CLONES
 void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, LaneOutput* out) {
   const int n = in->n;
