@@ -33,7 +33,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <functional>
 #include <numeric>
 #include <opencv2/imgproc.hpp>
 #include <string>
@@ -250,10 +249,9 @@ void ChildrenUsage(double* cpu_s, double* max_rss_mb) {
 // waited-for children) and the peak RSS it reports itself (report.json peak_rss_mb; the
 // children's maximum from getrusage(RUSAGE_CHILDREN) also counts the shell that std::system
 // spawns, which is charged with this process's resident size when it starts: 1120 MB after the
-// simulation ran in this process, against the CLI's own ~500 MB). ok false if it failed.
+// simulation ran in this process, against the CLI's own ~500 MB). A failure is printed.
 struct CliRun {
   double wall = 0, cpu = 0, rss_mb = 0;
-  bool ok = false;
 };
 CliRun RunCli(const fs::path& session_dir, const fs::path& scan, const fs::path& log) {
   double cpu0 = 0, rss0 = 0;
@@ -269,8 +267,7 @@ CliRun RunCli(const fs::path& session_dir, const fs::path& scan, const fs::path&
   ChildrenUsage(&cpu1, &rss1);
   r.cpu = cpu1 - cpu0;
   r.rss_mb = rss1;
-  r.ok = status == 0;
-  if (!r.ok) {
+  if (status != 0) {
     std::printf("full resolution: mesoscan reconstruct %s failed (status %d, see %s)\n",
                 session_dir.c_str(), status, log.c_str());
   } else {
@@ -381,7 +378,7 @@ void FullResolution(const fs::path& work, const fs::path& out) {
   WriteTextFile(out / "fullres.csv", csv);
   // Issue 12's goals, each the median over the rounds (ratios per round, then the median), with
   // the range.
-  auto median = [&](const std::function<double(const Round&)>& f, double* lo, double* hi) {
+  auto median = [&](double (*f)(const Round&), double* lo, double* hi) {
     std::vector<double> v;
     for (const Round& r : rounds) v.push_back(f(r));
     std::sort(v.begin(), v.end());
@@ -420,7 +417,7 @@ void FullResolution(const fs::path& work, const fs::path& out) {
   std::string goals;
   for (const Figure& fig : figures) {
     double lo = 0, hi = 0;
-    const double m = median([&](const Round& r) { return fig.of(r); }, &lo, &hi);
+    const double m = median(fig.of, &lo, &hi);
     char buf[256];
     std::snprintf(buf, sizeof buf, "  %-52s %7.2f%s (%.2f-%.2f)  %s\n", fig.what, m, fig.unit, lo,
                   hi, fig.goal);

@@ -1037,7 +1037,7 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         std::memcpy(&v, yb + 4 * half_n, sizeof v);
         const V4d y = __builtin_convertvector(v, V4d) - mean;
         const double* bk = in->basis_km + static_cast<size_t>(half_n) * kMoments + 8 * half;
-        for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
+        AddParityRows(bk, y, y, acc);
         if (half == 0) {
           y0 += y;
           y2 += y * y;
@@ -1054,7 +1054,7 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         std::memcpy(&v, yb + 4 * k, sizeof v);
         const V4d y = __builtin_convertvector(v, V4d) - mean;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
-        for (int r = 0; r < 8; ++r) acc[r] += bk[r] * y;
+        AddParityRows(bk, y, y, acc);
         if (half == 0) {
           y0 += y;
           y2 += y * y;
