@@ -80,7 +80,8 @@ int main(int argc, char** argv) {
     const ReconstructPlan plan = MakeReconstructPlan(session, ro.Plan());
     Stopwatch decode_watch;
     StreamedFrames front = DecodeAndPhaseShift(
-        session, plan, {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(session.rig)});
+        session, plan,
+        {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(session.rig), ro.Combine()});
     std::printf("bench_lens_shift_stage: %s, %dx%d, %zu lens-shift frames decoded in %.2f s\n",
                 dir.c_str(), front.stack.width(), front.stack.height(), plan.ls_stack.size(),
                 decode_watch.Seconds());

@@ -1,6 +1,7 @@
 #include "heightfield/mixed_pixels.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstddef>
 #include <limits>
@@ -179,32 +180,33 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
   const int w = in.width, h = in.height;
   std::vector<uint8_t> fresh = reject, todo(z.size());
   for (int pass = 1; pass < options.passes; ++pass) {
-    std::fill(todo.begin(), todo.end(), 0);
+    // Per row on the pool: the fresh rejections leave z, and a pixel is judged again where one
+    // lies within 2 pixels along its row or column (each task writes its own rows only).
     ParallelForRows(h, [&](int y0, int y1) {
       for (int y = y0; y < y1; ++y)
         for (int x = 0; x < w; ++x) {
           const size_t i = static_cast<size_t>(y) * w + x;
-          if (!fresh[i]) continue;
-          z[i] = std::numeric_limits<float>::quiet_NaN();
+          if (fresh[i]) z[i] = std::numeric_limits<float>::quiet_NaN();
+          bool near = false;
           for (int d = -2; d <= 2; ++d) {
-            if (x + d >= 0 && x + d < w) todo[i + d] = 1;  // same row: this task's rows only
+            if (x + d >= 0 && x + d < w) near |= fresh[i + d] != 0;
+            if (y + d >= 0 && y + d < h) near |= fresh[i + static_cast<ptrdiff_t>(d) * w] != 0;
           }
+          todo[i] = near;
         }
     });
-    for (int y = 0; y < h; ++y)  // the column neighbours may be in another task's rows
-      for (int x = 0; x < w; ++x) {
-        const size_t i = static_cast<size_t>(y) * w + x;
-        if (!fresh[i]) continue;
-        for (int d = -2; d <= 2; ++d)
-          if (y + d >= 0 && y + d < h) todo[i + static_cast<ptrdiff_t>(d) * w] = 1;
-      }
     const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options, s2, &todo);
-    bool changed = false;
-    for (size_t i = 0; i < z.size(); ++i) {
-      fresh[i] = more[i] && !reject[i];
-      changed |= fresh[i];
-      reject[i] |= more[i];
-    }
+    std::atomic<bool> changed{false};
+    ParallelForRows(h, [&](int y0, int y1) {
+      bool any = false;
+      const size_t end = static_cast<size_t>(y1) * w;
+      for (size_t i = static_cast<size_t>(y0) * w; i < end; ++i) {
+        fresh[i] = more[i] && !reject[i];
+        any |= fresh[i] != 0;
+        reject[i] |= more[i];
+      }
+      if (any) changed = true;
+    });
     if (!changed) break;
   }
   return reject;

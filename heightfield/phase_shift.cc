@@ -646,6 +646,51 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   return result;
 }
 
+MESOSCAN_SIMD_CLONES
+UnwrapResult TemporalUnwrapper::UnwrapAt(const double* theta, const double* weight,
+                                         double u_hint) const {
+  // Unwrap()'s steps and checks in its order, without the candidates: the inputs, the anchor's
+  // margin, the orders at u_hint (Unwrap() takes them at its refined estimate, which differs
+  // from u_hint by noise, far from a half-cycle), then its last pass.
+  UnwrapResult result;
+  const int m = static_cast<int>(periods_.size());
+  constexpr int kMaxPeriods = 16;
+  if (m > kMaxPeriods || !std::isfinite(u_hint)) return result;
+  std::array<double, kMaxPeriods> t;
+  std::array<double, kMaxPeriods> w_px;
+  for (int i = 0; i < m; ++i) {
+    if (!std::isfinite(theta[i]) || !(weight[i] > 0.0) || !std::isfinite(weight[i])) return result;
+    const double c = theta[i] / kTwoPi;
+    t[i] = c - std::floor(c);
+    const double g = phase_rate_[i];
+    w_px[i] = weight[i] * g * g;
+  }
+  const double margin = 0.5 + 6.0 * std::sqrt(1.0 / w_px[anchor_]);
+  if (!(margin <= range_px_)) return result;
+  double sw_f = 0.0, swu = 0.0;
+  for (int i = 0; i < m; ++i) {
+    const double n_i = RoundNearest(u_hint / periods_[i] - t[i]);
+    sw_f += w_px[i];
+    swu += w_px[i] * periods_[i] * (t[i] + n_i);
+  }
+  const double u = swu / sw_f;
+  double chi2 = 0.0;
+  for (int i = 0; i < m; ++i) {
+    const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
+    chi2 += w_px[i] * r_px * r_px;
+  }
+  result.u = u;
+  result.residual = m > 1 ? std::sqrt(chi2 / (m - 1)) : 0.0;
+  result.valid = std::isfinite(result.u) && result.residual <= max_residual_ && result.u >= -1.0 &&
+                 result.u < range_px_;
+  if (edge_margin_px_ > 0.0 &&
+      (u < edge_margin_px_ - 0.5 || u > range_px_ - 0.5 - edge_margin_px_)) {
+    result.valid = false;
+    result.ambiguous_edge = true;
+  }
+  return result;
+}
+
 #if defined(__GNUC__) && !defined(__clang__)  // GCC's vector extensions (V4d, V4l)
 // UnwrapMany's lanes: Unwrap()'s steps for the common case (three periods, residual tables, the
 // best two among the smallest table entries), every step a loop over four pixels (the compiler
@@ -896,8 +941,96 @@ void TemporalUnwrapper::UnwrapFour(const double* theta, const double* weight, Un
     }
   }
 }
+
+// UnwrapAt()'s steps for three periods on four pixels in vector lanes (V4d), per lane the same
+// operations in the same order, but for the fringe orders: the hint times 1 / period rounds to
+// the same integer as the quotient unless within 1e-9 cycles of a half-integer (that lane is
+// left to UnwrapAt()). done[l] is false there and where lane l's inputs are not finite, its
+// anchor margin fails or a value leaves the fast rounding's range.
+MESOSCAN_SIMD_CLONES
+void TemporalUnwrapper::UnwrapAtFour(const double* theta, const double* weight,
+                                     const double* u_hint, UnwrapResult* result, bool* done) const {
+  constexpr int kM = 3;
+  constexpr double kMagic = 6755399441055744.0;  // RoundNearest's
+  constexpr double kRoundLimit = 2251799813685248.0;
+  const V4d magic = {kMagic, kMagic, kMagic, kMagic};
+  const V4d limit = {kRoundLimit, kRoundLimit, kRoundLimit, kRoundLimit};
+  const V4d zero = {0.0, 0.0, 0.0, 0.0};
+  const V4l sign = {INT64_MIN, INT64_MIN, INT64_MIN, INT64_MIN};
+  // |v| and "finite" (v - v is 0 for finite v, NaN otherwise) written out below: a lambda
+  // returning a V4d changes the ABI of the baseline clone (-Wpsabi).
+#define MESOSCAN_ABS4(v) reinterpret_cast<V4d>(reinterpret_cast<V4l>(v) & ~sign)
+#define MESOSCAN_FINITE4(v) (((v) - (v)) == zero)
+  const V4d hint = {u_hint[0], u_hint[1], u_hint[2], u_hint[3]};
+  auto ok = MESOSCAN_FINITE4(hint) & (MESOSCAN_ABS4(hint) < limit);
+  V4d t[kM], w_px[kM];
+  for (int i = 0; i < kM; ++i) {
+    const V4d th = {theta[i], theta[kM + i], theta[2 * kM + i], theta[3 * kM + i]};
+    const V4d w = {weight[i], weight[kM + i], weight[2 * kM + i], weight[3 * kM + i]};
+    ok &= MESOSCAN_FINITE4(th) & (w > zero) & MESOSCAN_FINITE4(w);
+    const V4d c = th / kTwoPi;
+    ok &= MESOSCAN_ABS4(c) < limit;
+    const V4d r = (c + magic) - magic;
+    t[i] = c - (r > c ? r - 1.0 : r);  // c - std::floor(c)
+    const double g = phase_rate_[i];
+    w_px[i] = w * g * g;
+  }
+  V4d sw_f = zero, swu = zero;
+  for (int i = 0; i < kM; ++i) {
+    const double p = periods_[i];
+    const V4d x = hint * inv_periods_[i] - t[i];
+    const V4d n_i = (x + magic) - magic;
+    ok &= MESOSCAN_ABS4(MESOSCAN_ABS4(x - n_i) - 0.5) > 1e-9 * (1.0 + MESOSCAN_ABS4(x));
+    sw_f += w_px[i];
+    swu += w_px[i] * p * (t[i] + n_i);
+  }
+  const V4d u = swu / sw_f;
+  V4d chi2 = zero;
+  for (int i = 0; i < kM; ++i) {
+    const double p = periods_[i];
+    const V4d y = u / p - t[i];
+    ok &= MESOSCAN_ABS4(y) < limit;
+    const V4d r_px = (y - ((y + magic) - magic)) * p;
+    chi2 += w_px[i] * r_px * r_px;
+  }
+#undef MESOSCAN_ABS4
+#undef MESOSCAN_FINITE4
+  for (int l = 0; l < 4; ++l) {
+    done[l] = ok[l] != 0 && 0.5 + 6.0 * std::sqrt(1.0 / w_px[anchor_][l]) <= range_px_;
+    if (!done[l]) continue;
+    UnwrapResult& res = result[l];
+    res = UnwrapResult();
+    res.u = u[l];
+    res.residual = std::sqrt(chi2[l] / (kM - 1));
+    res.valid =
+        std::isfinite(res.u) && res.residual <= max_residual_ && res.u >= -1.0 && res.u < range_px_;
+    if (edge_margin_px_ > 0.0 &&
+        (u[l] < edge_margin_px_ - 0.5 || u[l] > range_px_ - 0.5 - edge_margin_px_)) {
+      res.valid = false;
+      res.ambiguous_edge = true;
+    }
+  }
+}
 #endif
 #pragma GCC diagnostic pop
+
+void TemporalUnwrapper::UnwrapAtMany(const double* theta, const double* weight,
+                                     const double* u_hint, int n, UnwrapResult* result) const {
+  const int m = static_cast<int>(periods_.size());
+  int p = 0;
+#if defined(__GNUC__) && !defined(__clang__)
+  if (m == 3) {
+    bool done[4];
+    for (; p + 4 <= n; p += 4) {
+      UnwrapAtFour(theta + p * m, weight + p * m, u_hint + p, result + p, done);
+      for (int l = 0; l < 4; ++l)
+        if (!done[l])
+          result[p + l] = UnwrapAt(theta + (p + l) * m, weight + (p + l) * m, u_hint[p + l]);
+    }
+  }
+#endif
+  for (; p < n; ++p) result[p] = UnwrapAt(theta + p * m, weight + p * m, u_hint[p]);
+}
 
 void TemporalUnwrapper::UnwrapMany(const double* theta, const double* weight, int n,
                                    UnwrapResult* result) const {

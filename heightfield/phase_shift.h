@@ -101,6 +101,16 @@ class TemporalUnwrapper {
   // lane that leaves the common case (non-finite input, the full scan, a fringe order within
   // 1e-9 cycles of a half-integer) is redone by Unwrap().
   void UnwrapMany(const double* theta, const double* weight, int n, UnwrapResult* result) const;
+  // Unwrap()'s last pass alone: each period's fringe order at u_hint (e.g. Unwrap()'s u for the
+  // same phases with other weights), then the weighted mean of the per-period estimates and its
+  // residual with these weights, and the same checks. Where Unwrap() with these weights picks
+  // the orders that u_hint lies on (u_hint within a fraction of a cycle of its u in every period),
+  // the same result to the last bit, at a fraction of the cost (no candidate search).
+  UnwrapResult UnwrapAt(const double* theta, const double* weight, double u_hint) const;
+  // UnwrapAt() of n pixels (theta, weight as UnwrapMany(), u_hint[p]): the same results to the
+  // last bit; three periods four pixels at a time in lanes.
+  void UnwrapAtMany(const double* theta, const double* weight, const double* u_hint, int n,
+                    UnwrapResult* result) const;
 
   // The smallest code distance between two columns at least half the finest period apart:
   // min over such pairs of max over periods of the circular distance in cycles. Phase errors
@@ -139,6 +149,9 @@ class TemporalUnwrapper {
   // UnwrapMany's four pixels; false where a lane leaves the common case.
   void UnwrapFour(const double* theta, const double* weight, UnwrapResult* result,
                   bool* done) const;
+  // UnwrapAtMany's four pixels (three periods); false where a lane needs UnwrapAt() itself.
+  void UnwrapAtFour(const double* theta, const double* weight, const double* u_hint,
+                    UnwrapResult* result, bool* done) const;
 };
 
 }  // namespace mesoscan

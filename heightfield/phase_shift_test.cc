@@ -263,56 +263,130 @@ TEST(TemporalUnwrapper, ResidualTablesPickTheSameCandidatesAsTheFullScan) {
   }
 }
 
-// UnwrapMany (four pixels at a time in the common case) gives Unwrap()'s results to the last bit:
-// good, noisy and random phases, non-finite values, weights that are 0, negative, tiny or huge
-// (their sums overflow), phases on fringe-order boundaries; period sets with and without the
-// common case, and counts that are not a multiple of four.
+uint64_t Bits(double d) {
+  uint64_t b;
+  std::memcpy(&b, &d, sizeof(b));
+  return b;
+}
+
+// Pixels for the lane tests: good, noisy and random phases, non-finite values, weights that are
+// 0, negative, tiny or huge (their sums overflow), phases on fringe-order boundaries.
+void LaneTestPixels(const std::vector<double>& periods, double range, int n,
+                    std::vector<double>* theta, std::vector<double>* weight) {
+  const int m = static_cast<int>(periods.size());
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  theta->assign(static_cast<size_t>(n) * m, 0.0);
+  weight->assign(theta->size(), 0.0);
+  for (int p = 0; p < n; ++p) {
+    const double sigma = p % 3 == 0 ? 0.3 : p % 3 == 1 ? 0.03 : 0.001;
+    const double u = -0.5 + range * uni(rng);
+    const auto t = PhasesAt(p % 7 == 0 ? std::round(u * 2.0) / 2.0 : u, periods);
+    for (int i = 0; i < m; ++i) {
+      double& th = (*theta)[static_cast<size_t>(p) * m + i];
+      double& w = (*weight)[static_cast<size_t>(p) * m + i];
+      th = p % 10 == 0 ? kTwoPi * uni(rng) : p % 7 == 0 ? t[i] : t[i] + sigma * noise(rng);
+      w = (0.5 + uni(rng)) / (sigma * sigma);
+      const int kind = static_cast<int>(rng() % 400);
+      if (kind == 0) th = std::nan("");
+      if (kind == 1) th = std::numeric_limits<double>::infinity();
+      if (kind == 2) w = 0.0;
+      if (kind == 3) w = -1.0;
+      if (kind == 4) w = 1e-300;
+      if (kind == 5) w = 1e300;
+      if (kind == 6) th = -th - 40.0;
+    }
+  }
+}
+
+const std::pair<std::vector<double>, double> kLaneTestSets[] = {{{7, 11, 13}, 800.0},
+                                                                {{13, 7, 11}, 800.0},
+                                                                {{7, 11, 13}, 1001.0},
+                                                                {{12.5, 8, 9}, 1000.0},
+                                                                {{800, 20}, 800.0}};
+
+// Does u_a fall on the same fringe order as u_b in every period?
+bool SameOrders(double u_a, double u_b, const double* theta, const std::vector<double>& periods) {
+  for (size_t i = 0; i < periods.size(); ++i) {
+    const double t = theta[i] / kTwoPi - std::floor(theta[i] / kTwoPi);
+    if (std::nearbyint(u_a / periods[i] - t) != std::nearbyint(u_b / periods[i] - t)) return false;
+  }
+  return true;
+}
+
+void ExpectSameResult(const UnwrapResult& want, const UnwrapResult& got, int p) {
+  ASSERT_EQ(Bits(want.u), Bits(got.u)) << p;
+  ASSERT_EQ(Bits(want.residual), Bits(got.residual)) << p;
+  ASSERT_EQ(want.valid, got.valid) << p;
+  ASSERT_EQ(want.ambiguous_edge, got.ambiguous_edge) << p;
+}
+
+// UnwrapMany (four pixels at a time in the common case) gives Unwrap()'s results to the last bit
+// (LaneTestPixels), on period sets with and without the common case, and counts that are not a
+// multiple of four.
 TEST(TemporalUnwrapper, UnwrapManyMatchesUnwrapBitForBit) {
-  auto bits = [](double d) {
-    uint64_t b;
-    std::memcpy(&b, &d, sizeof(b));
-    return b;
-  };
-  for (const auto& [periods, range] : {std::pair{std::vector<double>{7, 11, 13}, 800.0},
-                                       std::pair{std::vector<double>{13, 7, 11}, 800.0},
-                                       std::pair{std::vector<double>{7, 11, 13}, 1001.0},
-                                       std::pair{std::vector<double>{12.5, 8, 9}, 1000.0},
-                                       std::pair{std::vector<double>{800, 20}, 800.0}}) {
+  for (const auto& [periods, range] : kLaneTestSets) {
     const TemporalUnwrapper unwrapper(periods, range);
     const int m = static_cast<int>(periods.size());
-    std::mt19937_64 rng(17);
-    std::uniform_real_distribution<double> uni(0.0, 1.0);
-    std::normal_distribution<double> noise(0.0, 1.0);
     const int n = 60003;
-    std::vector<double> theta(static_cast<size_t>(n) * m), weight(theta.size());
-    for (int p = 0; p < n; ++p) {
-      const double sigma = p % 3 == 0 ? 0.3 : p % 3 == 1 ? 0.03 : 0.001;
-      const double u = -0.5 + range * uni(rng);
-      const auto t = PhasesAt(p % 7 == 0 ? std::round(u * 2.0) / 2.0 : u, periods);
-      for (int i = 0; i < m; ++i) {
-        double& th = theta[static_cast<size_t>(p) * m + i];
-        double& w = weight[static_cast<size_t>(p) * m + i];
-        th = p % 10 == 0 ? kTwoPi * uni(rng) : p % 7 == 0 ? t[i] : t[i] + sigma * noise(rng);
-        w = (0.5 + uni(rng)) / (sigma * sigma);
-        const int kind = static_cast<int>(rng() % 400);
-        if (kind == 0) th = std::nan("");
-        if (kind == 1) th = std::numeric_limits<double>::infinity();
-        if (kind == 2) w = 0.0;
-        if (kind == 3) w = -1.0;
-        if (kind == 4) w = 1e-300;
-        if (kind == 5) w = 1e300;
-        if (kind == 6) th = -th - 40.0;
-      }
-    }
+    std::vector<double> theta, weight;
+    LaneTestPixels(periods, range, n, &theta, &weight);
     std::vector<UnwrapResult> many(n);
     unwrapper.UnwrapMany(theta.data(), weight.data(), n, many.data());
+    for (int p = 0; p < n; ++p)
+      ExpectSameResult(
+          unwrapper.Unwrap(&theta[static_cast<size_t>(p) * m], &weight[static_cast<size_t>(p) * m]),
+          many[p], p);
+  }
+}
+
+// UnwrapAt (the combine stage's fringe orders from phase shifting alone, the weights from the
+// lens-shift noise): at the u that Unwrap() finds with the same weights, Unwrap()'s result to
+// the last bit; at the u found with other weights (the noise scaled by 0.3-3 per pixel, as a
+// different noise estimate would), the same wherever both find the same orders (the common
+// case); and UnwrapAtMany's lanes give UnwrapAt()'s results to the last bit.
+TEST(TemporalUnwrapper, UnwrapAtMatchesUnwrapWhereTheOrdersAgree) {
+  for (const auto& [periods, range] : kLaneTestSets) {
+    const TemporalUnwrapper unwrapper(periods, range);
+    const int m = static_cast<int>(periods.size());
+    const int n = 30001;
+    std::vector<double> theta, weight;
+    LaneTestPixels(periods, range, n, &theta, &weight);
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> scale(0.3, 3.0);
+    std::vector<double> other(weight.size());
+    for (size_t q = 0; q < other.size(); ++q) other[q] = weight[q] * std::pow(scale(rng), -2);
+    std::vector<double> hint_same(n), hint_other(n);
+    std::vector<UnwrapResult> want(n);
+    int agree = 0, valid = 0;
     for (int p = 0; p < n; ++p) {
-      const UnwrapResult one =
-          unwrapper.Unwrap(&theta[static_cast<size_t>(p) * m], &weight[static_cast<size_t>(p) * m]);
-      ASSERT_EQ(bits(one.u), bits(many[p].u)) << p;
-      ASSERT_EQ(bits(one.residual), bits(many[p].residual)) << p;
-      ASSERT_EQ(one.valid, many[p].valid) << p;
-      ASSERT_EQ(one.ambiguous_edge, many[p].ambiguous_edge) << p;
+      const double* th = &theta[static_cast<size_t>(p) * m];
+      want[p] = unwrapper.Unwrap(th, &weight[static_cast<size_t>(p) * m]);
+      const UnwrapResult o = unwrapper.Unwrap(th, &other[static_cast<size_t>(p) * m]);
+      hint_same[p] = want[p].u;
+      hint_other[p] = o.valid ? o.u : std::nan("");
+      if (want[p].valid) {
+        ++valid;
+        ExpectSameResult(
+            want[p], unwrapper.UnwrapAt(th, &weight[static_cast<size_t>(p) * m], hint_same[p]), p);
+      }
+      if (want[p].valid && o.valid && SameOrders(o.u, want[p].u, th, periods)) {
+        ++agree;
+        ExpectSameResult(
+            want[p], unwrapper.UnwrapAt(th, &weight[static_cast<size_t>(p) * m], hint_other[p]), p);
+      }
+    }
+    std::printf("%zu periods: %d of %d valid pixels on the same orders\n", periods.size(), agree,
+                valid);
+    EXPECT_GT(agree, 0.95 * valid) << agree << " of " << valid;
+    for (const std::vector<double>* hints : {&hint_same, &hint_other}) {
+      std::vector<UnwrapResult> many(n);
+      unwrapper.UnwrapAtMany(theta.data(), weight.data(), hints->data(), n, many.data());
+      for (int p = 0; p < n; ++p)
+        ExpectSameResult(unwrapper.UnwrapAt(&theta[static_cast<size_t>(p) * m],
+                                            &weight[static_cast<size_t>(p) * m], (*hints)[p]),
+                         many[p], p);
     }
   }
 }

@@ -67,6 +67,9 @@ struct PhaseShiftPixels {
   // mixed pixels); without one 2 x the offset of the first period (kActive pixels, else NaN).
   std::vector<float> level;
   int64_t pixels_lit = 0;    // kActive after this stage: lit, unsaturated, modulated
+  // The column unwrapped from these phases alone (stage_combine.h UnwrapPhaseShift), px; NaN
+  // where it failed; empty if not made (the combine stage then searches the fringe orders).
+  std::vector<float> u_unwrapped;
 };
 
 // Lens-shift stage: the fitted profile (heightfield/lens_shift_fit.h) per pixel; empty arrays

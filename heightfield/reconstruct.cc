@@ -67,9 +67,9 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
   // Decode, classify, gains and phase shift as one stream (stage_stream.h); each frame is
   // released after the last stage that reads it, the per-period arrays after combining.
-  StreamedFrames front =
-      DecodeAndPhaseShift(session, plan, {options.Load(), options.Classify(), options.Gains(),
-                                          options.PhaseShift(rig)});
+  StreamedFrames front = DecodeAndPhaseShift(session, plan,
+                                             {options.Load(), options.Classify(), options.Gains(),
+                                              options.PhaseShift(rig), options.Combine()});
   FrameStack& stack = front.stack;
   PixelClasses& classes = front.classes;
   PixelStates& state = classes.state;

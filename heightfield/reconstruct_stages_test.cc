@@ -9,6 +9,8 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
 #include <random>
 #include <string>
 
@@ -472,6 +474,95 @@ TEST(StageCombine, LensShiftFinePhaseAndPeriodJumps) {
   // sigma_u = sqrt(2 sigma^2 / (N a^2)) / pi with sigma = rms sqrt(N / (N - 3)).
   const double sigma = 0.003 * std::sqrt(40.0 / 37.0);
   EXPECT_NEAR(c.sigma_u[0], std::sqrt(2 * sigma * sigma / (40 * 0.09)) / kPi, 1e-7);
+}
+
+// The combine stage with phase shifting's own fringe orders (UnwrapPhaseShift, made while the
+// lens-shift frames decode) gives the same bits as its own search, on noisy phases where the two
+// noise estimates differ (the lens-shift residual 0.3-3x the phase-shift floor); a pixel whose
+// hint is NaN or on the wrong orders is searched again.
+TEST(StageCombine, PhaseShiftFringeOrdersGiveTheSameResult) {
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> uni(5.0, 790.0), scale(0.3, 3.0);
+  std::normal_distribution<double> noise(0.0, 0.02);
+  std::vector<double> coarse(4000), fine(4000);
+  for (size_t i = 0; i < coarse.size(); ++i) {
+    fine[i] = uni(rng);
+    coarse[i] = fine[i] + (i % 50 == 0 ? 1.0 : 0.1 * noise(rng) / 0.02);
+  }
+  CombineInput in = MakeCombineInput(coarse, fine);
+  for (auto& th : in.ps.theta)
+    for (float& t : th) t = static_cast<float>(std::fmod(t + noise(rng) + 2 * kPi, 2 * kPi));
+  for (float& r : in.ls.residual_rms) r = static_cast<float>(0.008 * scale(rng));
+  PixelStates state(coarse.size(), PixelState::kActive);
+  const CombinedPixels want = CombinePhases(in.plan, in.ps, in.ls, {}, &state);
+  PixelStates state_hinted(coarse.size(), PixelState::kActive);
+  in.ps.u_unwrapped = UnwrapPhaseShift(in.plan, in.ps, state_hinted, {});
+  ASSERT_EQ(in.ps.u_unwrapped.size(), coarse.size());
+  in.ps.u_unwrapped[1] = std::numeric_limits<float>::quiet_NaN();
+  in.ps.u_unwrapped[2] += 7.0f;  // one fringe of period 7 off
+  const CombinedPixels got = CombinePhases(in.plan, in.ps, in.ls, {}, &state_hinted);
+  EXPECT_EQ(state, state_hinted);
+  auto same = [](const std::vector<float>& a, const std::vector<float>& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
+  };
+  EXPECT_TRUE(same(want.u, got.u));
+  EXPECT_TRUE(same(want.u_coarse, got.u_coarse));
+  EXPECT_TRUE(same(want.unwrap_residual, got.unwrap_residual));
+  EXPECT_TRUE(same(want.confidence, got.confidence));
+  EXPECT_TRUE(same(want.sigma_u, got.sigma_u));
+}
+
+// RejectIsolatedColumns runs OpenCV's speckle filter on bands of rows with margins: the same
+// verdicts as one call on the whole image (filterSpeckles itself, with the stage's fixed point),
+// with small regions, regions that cross the bands' edges and long thin ones that do.
+TEST(StageCombine, IsolatedColumnsInBandsAreTheWholeImagesSpeckles) {
+  const int w = 97, h = 1100;  // several bands of 256 rows
+  RoiGrid grid{{0, 0, w, h}, w, h};
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  CombinedPixels c;
+  c.u.assign(grid.pixels(), 0.0f);
+  c.confidence.assign(grid.pixels(), 1.0f);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float& u = c.u[static_cast<size_t>(y) * w + x];
+      u = static_cast<float>(x * 0.5 + 20.0 * std::floor(y / 40.0));  // 40-row strips
+      const double r = uni(rng);
+      if (r < 0.3)
+        u += static_cast<float>(5.0 + 100.0 * uni(rng));  // speckles of all sizes
+      else if (r < 0.35)
+        u = std::numeric_limits<float>::quiet_NaN();
+      if (x == 50) u = 900.0f + static_cast<float>(y % 300 < 20 ? 0.0 : 500.0);  // thin columns
+    }
+  CombineOptions options;
+  PixelStates state(grid.pixels(), PixelState::kActive);
+  // The reference: the stage's fixed point, then one filterSpeckles on the whole image.
+  float u_max = 0.0f;
+  for (float u : c.u)
+    if (std::isfinite(u)) u_max = std::max(u_max, std::abs(u));
+  const double scale = std::min(16.0, 32000.0 / std::max(1.0f, u_max));
+  constexpr int16_t kNone = std::numeric_limits<int16_t>::min();
+  cv::Mat fixed(h, w, CV_16SC1);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const float v = c.u[static_cast<size_t>(y) * w + x];
+      fixed.at<int16_t>(y, x) =
+          std::isfinite(v) ? static_cast<int16_t>(RoundHalfAway(v * scale)) : kNone;
+    }
+  cv::filterSpeckles(fixed, kNone, options.isolated_max_region_px,
+                     options.isolated_max_step_px * scale);
+  const std::vector<float> u_before = c.u;
+  RejectIsolatedColumns(grid, options, &c, &state);
+  int isolated = 0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const bool want = std::isfinite(u_before[i]) && fixed.at<int16_t>(y, x) == kNone;
+      ASSERT_EQ(state[i] == PixelState::kIsolated, want) << x << " " << y;
+      ASSERT_EQ(std::isnan(c.u[i]), want || std::isnan(u_before[i])) << x << " " << y;
+      isolated += want;
+    }
+  EXPECT_GT(isolated, 1000);
 }
 
 Rig SimpleRig(int w, int h) {

@@ -42,18 +42,26 @@ void ResampleOptions::Check() const {
 }
 
 double CameraFootprint(const ImageF& xyz) {
-  std::vector<float> d;
   const int w = xyz.width(), h = xyz.height();
   const int stride = std::max(1, h / 256);  // a few hundred rows are plenty for a median
-  for (int y = 0; y < h; y += stride) {
-    for (int x = 0; x + 1 < w; ++x) {
-      const float dx = xyz(x + 1, y, 0) - xyz(x, y, 0);
-      const float dy = xyz(x + 1, y, 1) - xyz(x, y, 1);
-      if (std::isfinite(dx) && std::isfinite(dy) && std::isfinite(xyz(x, y, 2)) &&
-          std::isfinite(xyz(x + 1, y, 2)))
-        d.push_back(std::sqrt(dx * dx + dy * dy));
+  // The sampled rows' distances in parallel, then joined (the median does not depend on the
+  // order).
+  const int rows = (h + stride - 1) / stride;
+  std::vector<std::vector<float>> per_row(std::max(rows, 0));
+  ParallelForRows(rows, [&](int r0, int r1) {
+    for (int r = r0; r < r1; ++r) {
+      const int y = r * stride;
+      for (int x = 0; x + 1 < w; ++x) {
+        const float dx = xyz(x + 1, y, 0) - xyz(x, y, 0);
+        const float dy = xyz(x + 1, y, 1) - xyz(x, y, 1);
+        if (std::isfinite(dx) && std::isfinite(dy) && std::isfinite(xyz(x, y, 2)) &&
+            std::isfinite(xyz(x + 1, y, 2)))
+          per_row[r].push_back(std::sqrt(dx * dx + dy * dy));
+      }
     }
-  }
+  });
+  std::vector<float> d;
+  for (const std::vector<float>& row : per_row) d.insert(d.end(), row.begin(), row.end());
   if (d.empty()) return 0.0;
   std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
   return d[d.size() / 2];

@@ -48,7 +48,88 @@ bool PositionsEstimated(const Json& fc) {
   return fc["model"].get<std::string>().find("positions") != std::string::npos;
 }
 
+// Per-sample noise of pixel i from phase shifting alone: the phase-shift residuals (periods of
+// K > 3 frames), else a floor of 1% of the white level.
+double PhaseShiftSigma(const ReconstructPlan& plan, const PhaseShiftPixels& ps, size_t i) {
+  double sigma = 0.01 * ps.level[i];
+  double s2 = 0;
+  int cnt = 0;
+  for (size_t p = 0; p < plan.periods.size(); ++p) {
+    const int K = static_cast<int>(plan.periods[p].stack_frames.size());
+    if (K > 3) {
+      s2 += ps.residual_rms[p][i] * ps.residual_rms[p][i] * K / (K - 3.0);
+      ++cnt;
+    }
+  }
+  if (cnt) sigma = std::sqrt(s2 / cnt);
+  return sigma;
+}
+
+// The unwrapper's inputs of one block's active pixels (sigmas[a], pixel active[a]), pixel-major
+// (th[a * nper + p]): per period a loop over the pixels (the divisions in vector lanes).
+void UnwrapInputs(const PhaseShiftPixels& ps, const std::vector<WrappedPhaseSolver>& solvers,
+                  double systematic_phase_noise, const std::vector<size_t>& active,
+                  const std::vector<double>& sigmas, std::vector<double>* th,
+                  std::vector<double>* wt) {
+  const size_t na = active.size();
+  const int nper = static_cast<int>(solvers.size());
+  th->resize(na * nper), wt->resize(na * nper);
+  const double sys2 = std::pow(systematic_phase_noise, 2);
+  for (int p = 0; p < nper; ++p) {
+    const WrappedPhaseSolver& solver = solvers[p];
+    const float* th_p = ps.theta[p].data();
+    const float* mod_p = ps.modulation[p].data();
+    double* th_out = th->data() + p;
+    double* wt_out = wt->data() + p;
+    for (size_t a = 0; a < na; ++a) {
+      const size_t i = active[a];
+      th_out[a * nper] = th_p[i];
+      const double var = solver.ThetaVariance(sigmas[a], mod_p[i]) + sys2;
+      wt_out[a * nper] = 1.0 / var;
+    }
+  }
+}
+
+std::vector<WrappedPhaseSolver> SolversOf(const ReconstructPlan& plan) {
+  std::vector<WrappedPhaseSolver> solvers;
+  for (const auto& p : plan.periods) solvers.emplace_back(p.deltas);
+  return solvers;
+}
+
 }  // namespace
+
+std::vector<float> UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                                    const PixelStates& state, const CombineOptions& options) {
+  const size_t np = state.size();
+  const int nper = static_cast<int>(plan.periods.size());
+  if (nper == 0 || static_cast<int>(ps.theta.size()) != nper || ps.level.size() != np) return {};
+  const TemporalUnwrapper unwrapper(plan.PeriodList(), plan.projector_width,
+                                    options.max_unwrap_residual);
+  const std::vector<WrappedPhaseSolver> solvers = SolversOf(plan);
+  std::vector<float> u(np, std::numeric_limits<float>::quiet_NaN());
+  constexpr int kBlock = 4096;
+  const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
+  ParallelForRows(blocks, [&](int b0, int b1) {
+    std::vector<double> th, wt, sigmas;
+    std::vector<size_t> active;
+    std::vector<UnwrapResult> unwrapped;
+    for (int b = b0; b < b1; ++b) {
+      const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+      sigmas.clear(), active.clear();
+      for (size_t i = static_cast<size_t>(b) * kBlock; i < i_end; ++i) {
+        if (state[i] != PixelState::kActive) continue;
+        sigmas.push_back(std::max(PhaseShiftSigma(plan, ps, i), 1e-4 * ps.level[i]));
+        active.push_back(i);
+      }
+      UnwrapInputs(ps, solvers, options.systematic_phase_noise, active, sigmas, &th, &wt);
+      unwrapped.resize(active.size());
+      unwrapper.UnwrapMany(th.data(), wt.data(), static_cast<int>(active.size()), unwrapped.data());
+      for (size_t a = 0; a < active.size(); ++a)
+        if (unwrapped[a].valid) u[active[a]] = static_cast<float>(unwrapped[a].u);
+    }
+  });
+  return u;
+}
 
 CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
                              const LensShiftPixels& ls, const CombineOptions& options,
@@ -61,9 +142,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   const bool use_ls = !ls.empty();
   const TemporalUnwrapper unwrapper(plan.PeriodList(), plan.projector_width,
                                     options.max_unwrap_residual);
-  std::vector<WrappedPhaseSolver> solvers;
-  for (const auto& p : periods) solvers.emplace_back(p.deltas);
-  const auto& theta = ps.theta;
+  const std::vector<WrappedPhaseSolver> solvers = SolversOf(plan);
   const auto& modulation = ps.modulation;
   const auto& ps_res = ps.residual_rms;
   const auto& level = ps.level;
@@ -82,13 +161,14 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
     }
   });
   const bool fallback = use_ls && options.phase_shift_fallback;
+  const bool hinted = ps.u_unwrapped.size() == np;
   // Rows of the ROI do not matter here: blocks of 4096 pixels.
   constexpr int kBlock = 4096;
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
   ParallelForRows(blocks, [&](int b0, int b1) {
     // Per block: the unwrapper's inputs of the active pixels first, then all of them unwrapped
     // at once (TemporalUnwrapper::UnwrapMany: four pixels at a time), then the rest per pixel.
-    std::vector<double> th, wt, sigmas;
+    std::vector<double> th, wt, sigmas, hint;
     std::vector<size_t> active;
     std::vector<UnwrapResult> unwrapped;
     for (int b = b0; b < b1; ++b) {
@@ -102,46 +182,31 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         // Per-sample noise: from the lens-shift residual (many samples) or the phase-shift
         // residuals (K > 3), else a floor of 1% of the white level; plus a systematic part
         // (model errors: harmonics, defocus, jitter) proportional to the modulation.
-        double sigma = 0.01 * level[i];
-        if (use_ls && ls.samples[i] > 4) {
-          sigma = ls.residual_rms[i] *
-                  std::sqrt(ls.samples[i] / (ls.samples[i] - (options.four_parameter_fit ? 4 : 3)));
-        } else {
-          double s2 = 0;
-          int cnt = 0;
-          for (int p = 0; p < nper; ++p) {
-            const int K = static_cast<int>(periods[p].stack_frames.size());
-            if (K > 3) {
-              s2 += ps_res[p][i] * ps_res[p][i] * K / (K - 3.0);
-              ++cnt;
-            }
-          }
-          if (cnt) sigma = std::sqrt(s2 / cnt);
-        }
-        sigma = std::max(sigma, 1e-4 * level[i]);
-        sigmas.push_back(sigma);
+        const double sigma =
+            use_ls && ls.samples[i] > 4
+                ? ls.residual_rms[i] *
+                      std::sqrt(ls.samples[i] /
+                                (ls.samples[i] - (options.four_parameter_fit ? 4 : 3)))
+                : PhaseShiftSigma(plan, ps, i);
+        sigmas.push_back(std::max(sigma, 1e-4 * level[i]));
         active.push_back(i);
       }
-      // The unwrapper's inputs, pixel-major (th[a * nper + p]): per period a loop over the
-      // block's active pixels (the divisions in vector lanes).
-      const size_t na = active.size();
-      th.resize(na * nper), wt.resize(na * nper);
-      const double sys2 = std::pow(options.systematic_phase_noise, 2);
-      for (int p = 0; p < nper; ++p) {
-        const WrappedPhaseSolver& solver = solvers[p];
-        const float* th_p = theta[p].data();
-        const float* mod_p = modulation[p].data();
-        double* th_out = th.data() + p;
-        double* wt_out = wt.data() + p;
-        for (size_t a = 0; a < na; ++a) {
-          const size_t i = active[a];
-          th_out[a * nper] = th_p[i];
-          const double var = solver.ThetaVariance(sigmas[a], mod_p[i]) + sys2;
-          wt_out[a * nper] = 1.0 / var;
-        }
-      }
+      UnwrapInputs(ps, solvers, options.systematic_phase_noise, active, sigmas, &th, &wt);
       unwrapped.resize(active.size());
-      unwrapper.UnwrapMany(th.data(), wt.data(), static_cast<int>(active.size()), unwrapped.data());
+      if (hinted) {
+        // The fringe orders phase shifting chose on its own (UnwrapPhaseShift), the mean and
+        // residual with these weights; the full search where that fails.
+        hint.resize(active.size());
+        for (size_t a = 0; a < active.size(); ++a) hint[a] = ps.u_unwrapped[active[a]];
+        unwrapper.UnwrapAtMany(th.data(), wt.data(), hint.data(), static_cast<int>(active.size()),
+                               unwrapped.data());
+        for (size_t a = 0; a < active.size(); ++a)
+          if (!unwrapped[a].valid)
+            unwrapped[a] = unwrapper.Unwrap(th.data() + a * nper, wt.data() + a * nper);
+      } else {
+        unwrapper.UnwrapMany(th.data(), wt.data(), static_cast<int>(active.size()),
+                             unwrapped.data());
+      }
       for (size_t a = 0; a < active.size(); ++a) {
         const size_t i = active[a];
         const double sigma = sigmas[a];
@@ -244,7 +309,6 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
   std::vector<float>& u = combined->u;
   // filterSpeckles takes 16-bit signed values: u in fixed point, as many fractional bits as the
   // projector's range allows (16ths of a pixel up to 2000 px).
-  // The conversions in and out run on the pool; filterSpeckles itself is serial.
   std::vector<float> row_max(grid.height, 0.0f);
   ParallelForRows(grid.height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
@@ -268,11 +332,24 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
       }
     }
   });
-  cv::filterSpeckles(fixed, kNone, options.isolated_max_region_px,
-                     std::max(1.0, options.isolated_max_step_px * scale));
-  ParallelForRows(grid.height, [&](int y0, int y1) {
+  // filterSpeckles (serial) on bands of rows in parallel, each with `margin` rows of its
+  // neighbours on either side, keeping its own rows' verdicts: the same as one call on the whole
+  // image. A region of at most S pixels spans at most S rows, so a band sees all of it; a larger
+  // region that leaves the band reaches any pixel of the band's own rows by a path of more than
+  // `margin` >= S pixels inside the band, so the band sees more than S of its pixels too.
+  const int max_region = options.isolated_max_region_px;
+  const int margin = max_region + 1;
+  const int band_rows = std::max(256, 8 * margin);
+  const int bands = (grid.height + band_rows - 1) / band_rows;
+  ParallelFor(bands, [&](int64_t band) {
+    const int y0 = static_cast<int>(band) * band_rows;
+    const int y1 = std::min(grid.height, y0 + band_rows);
+    const int m0 = std::max(0, y0 - margin), m1 = std::min(grid.height, y1 + margin);
+    cv::Mat part = fixed.rowRange(m0, m1).clone();
+    cv::filterSpeckles(part, kNone, max_region,
+                       std::max(1.0, options.isolated_max_step_px * scale));
     for (int y = y0; y < y1; ++y) {
-      const int16_t* row = fixed.ptr<int16_t>(y);
+      const int16_t* row = part.ptr<int16_t>(y - m0);
       for (int x = 0; x < grid.width; ++x) {
         const size_t i = static_cast<size_t>(y) * grid.width + x;
         if (row[x] != kNone || !std::isfinite(u[i])) continue;

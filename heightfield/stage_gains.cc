@@ -146,19 +146,35 @@ void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
                           const PixelStates& state, GainGroup group, FrameGains* gains) {
   FrameGains& g = *gains;
   const size_t np = state.size();
-  std::vector<uint32_t> sample;
-  size_t n_active = 0;
-  for (size_t i = 0; i < np; ++i) n_active += state[i] == PixelState::kActive;
-  const size_t stride = std::max<size_t>(1, n_active / 20000);
-  // Every stride-th active pixel (a countdown: no division per pixel).
-  for (size_t i = 0, left = 0; i < np; ++i) {
-    if (state[i] != PixelState::kActive) continue;
-    if (left == 0) {
-      sample.push_back(static_cast<uint32_t>(i));
-      left = stride;
+  // Every stride-th active pixel (the first, then a countdown), per block of pixels on the pool:
+  // the blocks' active counts, then each block's picks from its first active pixel's rank.
+  constexpr size_t kBlock = 1 << 16;
+  const size_t blocks = (np + kBlock - 1) / kBlock;
+  std::vector<size_t> active_before(blocks + 1, 0);
+  ParallelFor(static_cast<int64_t>(blocks), [&](int64_t b) {
+    const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+    size_t n = 0;
+    for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i)
+      n += state[i] == PixelState::kActive;
+    active_before[b + 1] = n;
+  });
+  for (size_t b = 0; b < blocks; ++b) active_before[b + 1] += active_before[b];
+  const size_t stride = std::max<size_t>(1, active_before[blocks] / 20000);
+  std::vector<std::vector<uint32_t>> picks(blocks);
+  ParallelFor(static_cast<int64_t>(blocks), [&](int64_t b) {
+    const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+    size_t left = (stride - active_before[b] % stride) % stride;  // actives until the next pick
+    for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i) {
+      if (state[i] != PixelState::kActive) continue;
+      if (left == 0) {
+        picks[b].push_back(static_cast<uint32_t>(i));
+        left = stride;
+      }
+      --left;
     }
-    --left;
-  }
+  });
+  std::vector<uint32_t> sample;
+  for (const std::vector<uint32_t>& p : picks) sample.insert(sample.end(), p.begin(), p.end());
   auto apply = [&](const GainModel& m, const std::vector<double>& gains) {
     for (size_t k = 0; k < m.frames.size(); ++k) {
       g.inv_gain[m.frames[k]] = static_cast<float>(1.0 / gains[k]);

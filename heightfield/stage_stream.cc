@@ -3,9 +3,12 @@
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <limits>
 #include <vector>
+
+#include "core/parallel.h"
 
 namespace mesoscan {
 
@@ -39,6 +42,10 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     // is kept below if no pixel turns out saturated in a lens-shift frame only (the pixels it
     // samples are then the same: ps.level is the white level at every classified-kActive pixel).
     if (overlap) early_reference = MakePhaseReference(plan, out.ps, classified);
+    // The fringe orders too (the combine stage's search, ~0.25 CPU-s at full resolution, off
+    // the time after the last frame); the lens-shift noise sets their weights there.
+    if (overlap)
+      out.ps.u_unwrapped = UnwrapPhaseShift(plan, out.ps, out.classes.state, options.combine);
     if (overlap)  // only the lens-shift frames are read from here on
       for (int k = 0; k < out.stack.num_frames(); ++k)
         if (!is_ls[k]) out.stack.Release(k);
@@ -59,17 +66,29 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     out.stack.Merge(std::move(ls_frames));
     PixelStates& state = out.classes.state;
     PixelClasses& c = out.classes;
-    for (size_t i = 0; i < state.size(); ++i) {
-      if (!out.stack.saturated()[i] || classified[i] == PixelState::kOutside ||
-          classified[i] == PixelState::kSaturated)
-        continue;
-      classified[i] = state[i] = PixelState::kSaturated;  // classify checks saturation first
-      ++newly_saturated;
-      c.white_level[i] = std::numeric_limits<float>::quiet_NaN();
-      c.black_value[i] = 0.0f;
-      ++c.pixels_saturated;
-    }
-    out.ps.pixels_lit = std::count(state.begin(), state.end(), PixelState::kActive);
+    // Per block of pixels on the pool (right after the last frame; the counts are sums).
+    constexpr size_t kBlock = 1 << 16;
+    const size_t np = state.size();
+    std::atomic<size_t> saturated{0}, lit{0};
+    ParallelFor(static_cast<int64_t>((np + kBlock - 1) / kBlock), [&](int64_t b) {
+      size_t n_sat = 0, n_lit = 0;
+      const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+      for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i) {
+        if (out.stack.saturated()[i] && classified[i] != PixelState::kOutside &&
+            classified[i] != PixelState::kSaturated) {
+          classified[i] = state[i] = PixelState::kSaturated;  // classify checks saturation first
+          ++n_sat;
+          c.white_level[i] = std::numeric_limits<float>::quiet_NaN();
+          c.black_value[i] = 0.0f;
+        }
+        n_lit += state[i] == PixelState::kActive;
+      }
+      saturated += n_sat;
+      lit += n_lit;
+    });
+    newly_saturated = saturated;
+    c.pixels_saturated += static_cast<int64_t>(saturated);
+    out.ps.pixels_lit = static_cast<int64_t>(lit);
   }
   if (plan.has_white()) {  // the same values where read (kActive pixels): one array, not two
     out.ps.level = std::move(out.classes.white_level);

@@ -15,6 +15,7 @@
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_classify.h"
+#include "heightfield/stage_combine.h"
 #include "heightfield/stage_gains.h"
 #include "heightfield/stage_phase_shift.h"
 #include "heightfield/stage_plan.h"
@@ -26,6 +27,7 @@ struct StreamStageOptions {
   ClassifyOptions classify;
   GainOptions gains;
   PhaseShiftStageOptions phase_shift;
+  CombineOptions combine;  // the unwrapping of the phase shift alone (ps.u_unwrapped)
 };
 
 struct StreamedFrames {

@@ -214,8 +214,8 @@ TEST(ReconstructSim, StreamedPhaseReferenceIsTheOneFromEveryFrame) {
   auto check = [&](const char* what) {
     const Session s = ReadSession(dir);
     const ReconstructPlan plan = MakeReconstructPlan(s, ro.Plan());
-    const StreamedFrames f =
-        DecodeAndPhaseShift(s, plan, {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(s.rig)});
+    const StreamedFrames f = DecodeAndPhaseShift(
+        s, plan, {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(s.rig), ro.Combine()});
     const FrameStack all = LoadFrames(s, plan.frames, ro.Load());
     const PixelClasses classes =
         ClassifyPixels(all, plan, s.rig.camera.width, s.rig.camera.height, ro.Classify());
