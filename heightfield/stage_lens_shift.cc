@@ -103,33 +103,44 @@ bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride
   const size_t step = std::max<size_t>(1, idx.size() / 50000);
   std::vector<size_t> sample;
   for (size_t k = 0; k < idx.size(); k += step) sample.push_back(idx[k]);
-  auto terms = [&](size_t i, double* t) {  // entry i of f
-    map->Terms(i % w * stride, i / w * stride, t);
-  };
-  std::vector<uint8_t> use(sample.size(), 1);
+  // The terms once per sample (6 doubles each); the normal equations' lower triangle in sample
+  // order (the products and sums of A += t t^T there, which LDLT reads alone), the residuals on
+  // the pool.
+  const size_t ns = sample.size();
+  std::vector<double> terms(ns * 6);
+  ParallelFor(static_cast<int64_t>((ns + 4095) / 4096), [&](int64_t blk) {
+    for (size_t k = static_cast<size_t>(blk) * 4096; k < std::min(ns, (blk + 1) * size_t{4096});
+         ++k)
+      map->Terms(sample[k] % w * stride, sample[k] / w * stride, terms.data() + 6 * k);
+  });
+  std::vector<uint8_t> use(ns, 1);
+  std::vector<double> r(ns);
   Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
   for (int round = 0; round < 3; ++round) {
     Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
     Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
-    for (size_t k = 0; k < sample.size(); ++k) {
+    for (size_t k = 0; k < ns; ++k) {
       if (!use[k]) continue;
-      Eigen::Matrix<double, 6, 1> t;
-      terms(sample[k], t.data());
-      A += t * t.transpose();
-      b += t * static_cast<double>(f[sample[k]]);
+      const double* t = terms.data() + 6 * k;
+      const double fk = static_cast<double>(f[sample[k]]);
+      for (int q = 0; q < 6; ++q) {
+        for (int p = q; p < 6; ++p) A(p, q) += t[p] * t[q];
+        b(q) += t[q] * fk;
+      }
     }
     c = A.ldlt().solve(b);
     if (!c.allFinite()) return false;
-    std::vector<double> r(sample.size());
-    for (size_t k = 0; k < sample.size(); ++k) {
-      Eigen::Matrix<double, 6, 1> t;
-      terms(sample[k], t.data());
-      r[k] = std::abs(f[sample[k]] - t.dot(c));
-    }
+    ParallelFor(static_cast<int64_t>((ns + 4095) / 4096), [&](int64_t blk) {
+      for (size_t k = static_cast<size_t>(blk) * 4096; k < std::min(ns, (blk + 1) * size_t{4096});
+           ++k) {
+        const Eigen::Map<const Eigen::Matrix<double, 6, 1>> t(terms.data() + 6 * k);
+        r[k] = std::abs(f[sample[k]] - t.dot(c));
+      }
+    });
     std::vector<double> sorted = r;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double mad = kMadToSigma * sorted[sorted.size() / 2];
-    for (size_t k = 0; k < sample.size(); ++k) use[k] = r[k] <= 4 * mad + 1e-12;
+    for (size_t k = 0; k < ns; ++k) use[k] = r[k] <= 4 * mad + 1e-12;
   }
   for (int q = 0; q < 6; ++q) map->c[q] = c(q);
   return true;
