@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -20,6 +21,7 @@
 #include "core/stage_timer.h"
 #include "core/test_temp_dir.h"
 #include "heightfield/pixel_buffers.h"
+#include "heightfield/resample.h"
 #include "heightfield/stage_classify.h"
 #include "heightfield/stage_combine.h"
 #include "heightfield/stage_gains.h"
@@ -701,6 +703,34 @@ TEST(StageMixedPixels, AStepPointBetweenTheSurfacesIsRemoved) {
   EXPECT_EQ(pts.confidence(6, 0), 0.0f);
   for (int x = 0; x < w; ++x)
     EXPECT_EQ(state[x], x == 6 ? PixelState::kDiscontinuity : PixelState::kOk) << x;
+}
+
+// The camera footprint's median, selected by a histogram of the floats' top bits on the pool:
+// the value std::nth_element gives, with ties, zeros, one crowded bucket and empty parts.
+TEST(StageHeightField, MedianOfNonNegativeIsNthElement) {
+  std::mt19937_64 rng(8);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (int trial = 0; trial < 40; ++trial) {
+    std::vector<std::vector<float>> parts(1 + trial % 13);
+    for (auto& p : parts) {
+      const int n = static_cast<int>(rng() % (trial < 5 ? 3 : 5000));
+      for (int k = 0; k < n; ++k) {
+        const int kind = static_cast<int>(rng() % 10);
+        p.push_back(kind == 0   ? 0.0f
+                    : kind < 3  ? 1e-4f * (1.0f + 1e-3f * uni(rng))  // one crowded bucket
+                    : kind == 3 ? 0.5f                               // ties
+                                : 10.0f * uni(rng));
+      }
+    }
+    std::vector<float> all;
+    for (const auto& p : parts) all.insert(all.end(), p.begin(), p.end());
+    if (all.empty()) {
+      EXPECT_EQ(MedianOfNonNegative(parts), 0.0f);
+      continue;
+    }
+    std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
+    EXPECT_EQ(MedianOfNonNegative(parts), all[all.size() / 2]) << trial;
+  }
 }
 
 TEST(StageHeightField, NoPointGivesAOneByOneUnknownGrid) {

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <vector>
@@ -41,6 +43,55 @@ void ResampleOptions::Check() const {
     MESOSCAN_BAD_INPUT("resample: max_edge_footprints: expected > 1, got " << max_edge_footprints);
 }
 
+float MedianOfNonNegative(const std::vector<std::vector<float>>& parts) {
+  // The value nth_element puts at position n / 2 of the parts joined, selected on the pool: the
+  // IEEE patterns of non-negative floats order like the values, so a histogram of their top 16
+  // bits (per part, then summed) finds the bucket holding that rank, and nth_element runs on
+  // that bucket's values alone.
+  size_t n = 0;
+  for (const std::vector<float>& p : parts) n += p.size();
+  if (n == 0) return 0.0f;
+  const size_t rank = n / 2;
+  auto bucket = [](float v) {
+    uint32_t b;
+    std::memcpy(&b, &v, sizeof b);
+    return b >> 16;
+  };
+  constexpr size_t kBuckets = 1 << 16;
+  const int64_t chunks = std::min<int64_t>(8, static_cast<int64_t>(parts.size()));
+  std::vector<std::vector<uint32_t>> hist(chunks, std::vector<uint32_t>(kBuckets, 0));
+  auto chunk_parts = [&](int64_t c) {
+    return std::pair<size_t, size_t>(parts.size() * c / chunks, parts.size() * (c + 1) / chunks);
+  };
+  ParallelFor(chunks, [&](int64_t c) {
+    const auto [p0, p1] = chunk_parts(c);
+    for (size_t p = p0; p < p1; ++p)
+      for (float v : parts[p]) ++hist[c][bucket(v)];
+  });
+  size_t below = 0;
+  uint32_t target = 0;
+  for (size_t b = 0; b < kBuckets; ++b) {
+    size_t count = 0;
+    for (int64_t c = 0; c < chunks; ++c) count += hist[c][b];
+    if (below + count > rank) {
+      target = static_cast<uint32_t>(b);
+      break;
+    }
+    below += count;
+  }
+  std::vector<std::vector<float>> in_bucket(chunks);
+  ParallelFor(chunks, [&](int64_t c) {
+    const auto [p0, p1] = chunk_parts(c);
+    for (size_t p = p0; p < p1; ++p)
+      for (float v : parts[p])
+        if (bucket(v) == target) in_bucket[c].push_back(v);
+  });
+  std::vector<float> values;
+  for (const std::vector<float>& v : in_bucket) values.insert(values.end(), v.begin(), v.end());
+  std::nth_element(values.begin(), values.begin() + (rank - below), values.end());
+  return values[rank - below];
+}
+
 double CameraFootprint(const ImageF& xyz) {
   const int w = xyz.width(), h = xyz.height();
   const int stride = std::max(1, h / 256);  // a few hundred rows are plenty for a median
@@ -60,11 +111,7 @@ double CameraFootprint(const ImageF& xyz) {
       }
     }
   });
-  std::vector<float> d;
-  for (const std::vector<float>& row : per_row) d.insert(d.end(), row.begin(), row.end());
-  if (d.empty()) return 0.0;
-  std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
-  return d[d.size() / 2];
+  return MedianOfNonNegative(per_row);
 }
 
 HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,

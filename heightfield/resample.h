@@ -5,6 +5,8 @@
 // surface where two overlap (the view from +z). Triangles that span a depth discontinuity (an edge
 // much longer than the camera footprint) are dropped, so holes stay NaN and nothing is invented.
 
+#include <vector>
+
 #include "core/height_field.h"
 #include "core/image.h"
 
@@ -23,6 +25,9 @@ struct ResampleOptions {
 // Median spacing (metres) of horizontally adjacent valid points of `xyz` (3 channels, NaN where
 // invalid); 0 if there are none.
 double CameraFootprint(const ImageF& xyz);
+// The element at position n / 2 of the parts joined, as std::nth_element puts it there (the
+// upper median); the values must be non-negative and finite. 0 if there are none.
+float MedianOfNonNegative(const std::vector<std::vector<float>>& parts);
 
 // `xyz`: camera-grid points (3 channels X, Y, Z, NaN = none); `confidence`: same grid, [0, 1].
 // Returns a grid covering the valid points' x-y bounding box. Empty (0x0) if no valid point.
