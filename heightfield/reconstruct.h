@@ -10,10 +10,13 @@
 //     saturation;
 //  2. classify (stage_classify.h): ROI, mask, saturation, lit from white/black frames;
 //  3. gains (stage_gains.h): per-frame luminance normalisation (Ritz et al. 2012, Sec. 5.1);
-//  4. phase shift (stage_phase_shift.h): wrapped phase and modulation per period;
+//  4. phase shift (stage_phase_shift.h): wrapped phase and modulation per period, and (with
+//     lens shift, while its frames still decode) the column unwrapped from them alone
+//     (stage_combine.h UnwrapPhaseShift), whose fringe orders the combine stage takes;
 //  5. lens shift (stage_lens_shift.h): the profile fit per pixel, positions referenced to the
 //     centre of the shift range -> u modulo 2 px (optional 5-sample box filter);
-//  6. combine (stage_combine.h): temporal or hierarchical unwrapping -> coarse column u_c,
+//  6. combine (stage_combine.h): temporal or hierarchical unwrapping -> coarse column u_c (with
+//     the lens-shift noise as weights, at the fringe orders of step 4 where they hold),
 //     combination (paper Eq. 2), confidence (paper Eq. 4) times modulation and unwrapping
 //     consistency;
 //  7. triangulate (stage_triangulate.h) with camera and projector distortion, then mixed pixels
