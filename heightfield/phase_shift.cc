@@ -422,6 +422,43 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
   }
 }
 
+template <class Order>
+double TemporalUnwrapper::LastPass(const double* t, const double* w_px, Order&& order,
+                                   double* sw_out, double* chi2_out) const {
+  const int m = static_cast<int>(periods_.size());
+  double sw = 0.0, swu = 0.0;
+  for (int i = 0; i < m; ++i) {
+    const double n_i = order(i);
+    sw += w_px[i];
+    swu += w_px[i] * periods_[i] * (t[i] + n_i);
+  }
+  const double u = swu / sw;
+  double chi2 = 0.0;
+  for (int i = 0; i < m; ++i) {
+    const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
+    chi2 += w_px[i] * r_px * r_px;
+  }
+  *sw_out = sw;
+  *chi2_out = chi2;
+  return u;
+}
+
+UnwrapResult TemporalUnwrapper::ResultAt(double u, double chi2) const {
+  const int m = static_cast<int>(periods_.size());
+  UnwrapResult result;
+  result.u = u;
+  result.residual = m > 1 ? std::sqrt(chi2 / (m - 1)) : 0.0;
+  result.valid = std::isfinite(result.u) && result.residual <= max_residual_ && result.u >= -1.0 &&
+                 result.u < range_px_;
+  // Columns in the ambiguous edge bands (see edge_margin_px()): the other edge's code is as close.
+  if (edge_margin_px_ > 0.0 &&
+      (u < edge_margin_px_ - 0.5 || u > range_px_ - 0.5 - edge_margin_px_)) {
+    result.valid = false;
+    result.ambiguous_edge = true;
+  }
+  return result;
+}
+
 // Runtime dispatch (core/simd_clones.h): the AVX2 clone has SSE4.1's inline floor and 4-lane
 // loops. GCC cannot see that anchor_ < m (the constructor's invariant) and would warn that the
 // per-period arrays, filled for i < m only, may be read uninitialised.
@@ -611,18 +648,10 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   double best_score_refined = std::numeric_limits<double>::infinity();
   double best_chi2 = 0.0, best_u = 0.0;
   for (int c = 0; c < nc; ++c) {
-    double sw_f = 0.0, swu = 0.0;
-    for (int i = 0; i < m; ++i) {
-      const double n_i = fringe_order(u_c[c], i, num_c[c], sw_prev);
-      sw_f += w_px[i];
-      swu += w_px[i] * periods_[i] * (t[i] + n_i);
-    }
-    const double u = swu / sw_f;
-    double chi2 = 0.0;
-    for (int i = 0; i < m; ++i) {
-      const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
-      chi2 += w_px[i] * r_px * r_px;
-    }
+    double sw_f, chi2;
+    const double u = LastPass(
+        t.data(), w_px.data(), [&](int i) { return fringe_order(u_c[c], i, num_c[c], sw_prev); },
+        &sw_f, &chi2);
     // Where the code repeats exactly at the projector width (e.g. 7/11/13 on 1001 px) the two
     // ends alias: prefer the estimate inside the domain, by its distance outside in sigma_u.
     const double out = std::max({0.0, -0.5 - u, u - (range_px_ - 0.5)});
@@ -633,17 +662,7 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
       best_u = u;
     }
   }
-  result.u = best_u;
-  result.residual = m > 1 ? std::sqrt(best_chi2 / (m - 1)) : 0.0;
-  result.valid = std::isfinite(result.u) && result.residual <= max_residual_ &&
-                 result.u >= -1.0 && result.u < range_px_;
-  // Columns in the ambiguous edge bands (see edge_margin_px()): the other edge's code is as close.
-  if (edge_margin_px_ > 0.0 &&
-      (best_u < edge_margin_px_ - 0.5 || best_u > range_px_ - 0.5 - edge_margin_px_)) {
-    result.valid = false;
-    result.ambiguous_edge = true;
-  }
-  return result;
+  return ResultAt(best_u, best_chi2);
 }
 
 MESOSCAN_SIMD_CLONES
@@ -667,28 +686,11 @@ UnwrapResult TemporalUnwrapper::UnwrapAt(const double* theta, const double* weig
   }
   const double margin = 0.5 + 6.0 * std::sqrt(1.0 / w_px[anchor_]);
   if (!(margin <= range_px_)) return result;
-  double sw_f = 0.0, swu = 0.0;
-  for (int i = 0; i < m; ++i) {
-    const double n_i = RoundNearest(u_hint / periods_[i] - t[i]);
-    sw_f += w_px[i];
-    swu += w_px[i] * periods_[i] * (t[i] + n_i);
-  }
-  const double u = swu / sw_f;
-  double chi2 = 0.0;
-  for (int i = 0; i < m; ++i) {
-    const double r_px = WrapCycles(u / periods_[i] - t[i]) * periods_[i];
-    chi2 += w_px[i] * r_px * r_px;
-  }
-  result.u = u;
-  result.residual = m > 1 ? std::sqrt(chi2 / (m - 1)) : 0.0;
-  result.valid = std::isfinite(result.u) && result.residual <= max_residual_ && result.u >= -1.0 &&
-                 result.u < range_px_;
-  if (edge_margin_px_ > 0.0 &&
-      (u < edge_margin_px_ - 0.5 || u > range_px_ - 0.5 - edge_margin_px_)) {
-    result.valid = false;
-    result.ambiguous_edge = true;
-  }
-  return result;
+  double sw_f, chi2;
+  const double u = LastPass(
+      t.data(), w_px.data(), [&](int i) { return RoundNearest(u_hint / periods_[i] - t[i]); },
+      &sw_f, &chi2);
+  return ResultAt(u, chi2);
 }
 
 #if defined(__GNUC__) && !defined(__clang__)  // GCC's vector extensions (V4d, V4l)
@@ -928,17 +930,7 @@ void TemporalUnwrapper::UnwrapFour(const double* theta, const double* weight, Un
         best_u = u;
       }
     }
-    UnwrapResult& res = result[l];
-    res = UnwrapResult();
-    res.u = best_u;
-    res.residual = std::sqrt(best_chi2 / (kM - 1));
-    res.valid =
-        std::isfinite(res.u) && res.residual <= max_residual_ && res.u >= -1.0 && res.u < range_px_;
-    if (edge_margin_px_ > 0.0 &&
-        (best_u < edge_margin_px_ - 0.5 || best_u > range_px_ - 0.5 - edge_margin_px_)) {
-      res.valid = false;
-      res.ambiguous_edge = true;
-    }
+    result[l] = ResultAt(best_u, best_chi2);
   }
 }
 
@@ -998,17 +990,7 @@ void TemporalUnwrapper::UnwrapAtFour(const double* theta, const double* weight,
   for (int l = 0; l < 4; ++l) {
     done[l] = ok[l] != 0 && 0.5 + 6.0 * std::sqrt(1.0 / w_px[anchor_][l]) <= range_px_;
     if (!done[l]) continue;
-    UnwrapResult& res = result[l];
-    res = UnwrapResult();
-    res.u = u[l];
-    res.residual = std::sqrt(chi2[l] / (kM - 1));
-    res.valid =
-        std::isfinite(res.u) && res.residual <= max_residual_ && res.u >= -1.0 && res.u < range_px_;
-    if (edge_margin_px_ > 0.0 &&
-        (u[l] < edge_margin_px_ - 0.5 || u[l] > range_px_ - 0.5 - edge_margin_px_)) {
-      res.valid = false;
-      res.ambiguous_edge = true;
-    }
+    result[l] = ResultAt(u[l], chi2[l]);
   }
 }
 #endif

@@ -149,6 +149,13 @@ class TemporalUnwrapper {
   // UnwrapMany's four pixels; false where a lane leaves the common case.
   void UnwrapFour(const double* theta, const double* weight, UnwrapResult* result,
                   bool* done) const;
+  // The result at u with chi^2 `chi2`: residual, validity and the edge bands (every path).
+  UnwrapResult ResultAt(double u, double chi2) const;
+  // Unwrap()'s last pass: with period i's fringe order order(i), the weighted mean of the
+  // per-period estimates (t: phases in cycles, w_px: weights in px^-2), its total weight and chi^2.
+  template <class Order>
+  double LastPass(const double* t, const double* w_px, Order&& order, double* sw_out,
+                  double* chi2_out) const;
   // UnwrapAtMany's four pixels (three periods); false where a lane needs UnwrapAt() itself.
   void UnwrapAtFour(const double* theta, const double* weight, const double* u_hint,
                     UnwrapResult* result, bool* done) const;
