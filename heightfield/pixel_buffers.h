@@ -4,7 +4,9 @@
 // origin), one struct per stage output, so that what a stage reads and writes is visible in its
 // signature. NaN marks a value that was not computed.
 
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "core/json.h"
@@ -57,6 +59,32 @@ struct PixelClasses {
 };
 
 // Phase-shift stage: per period p (plan order) the wrapped phase, modulation and residual.
+// A projector column per pixel in 16 bits, for fringe-order hints (UnwrapPhaseShift): they live
+// through the lens-shift fit, the stage with the memory peak, and need a fraction of a period
+// only. q = round((u + 1) scale) for u in [-1, range), scale = floor(65534 / (range + 2)) steps
+// per px (34 for a 1920-px projector: within 0.015 px); kNone where there is no column.
+struct ColumnHints {
+  static constexpr uint16_t kNone = 0xFFFF;
+  std::vector<uint16_t> q;
+  double scale = 0.0;
+  // Hints for n pixels (none set) of a projector `range_px` wide; empty if it is wider than
+  // 16 bits can hold at one step per px.
+  static ColumnHints For(size_t n, double range_px) {
+    ColumnHints h;
+    h.scale = std::floor(65534.0 / (range_px + 2.0));
+    if (h.scale >= 1.0) h.q.assign(n, kNone);
+    return h;
+  }
+  void Set(size_t i, double u) {
+    if (u >= -1.0 && (u + 1.0) * scale < 65534.0)
+      q[i] = static_cast<uint16_t>(std::lround((u + 1.0) * scale));
+  }
+  double At(size_t i) const {
+    return q[i] == kNone ? std::numeric_limits<double>::quiet_NaN() : q[i] / scale - 1.0;
+  }
+  size_t size() const { return q.size(); }
+};
+
 struct PhaseShiftPixels {
   std::vector<std::vector<float>> theta;         // [p][i], radians in [0, 2 pi)
   std::vector<std::vector<float>> modulation;    // [p][i], B, linear units
@@ -67,9 +95,9 @@ struct PhaseShiftPixels {
   // mixed pixels); without one 2 x the offset of the first period (kActive pixels, else NaN).
   std::vector<float> level;
   int64_t pixels_lit = 0;    // kActive after this stage: lit, unsaturated, modulated
-  // The column unwrapped from these phases alone (stage_combine.h UnwrapPhaseShift), px; NaN
-  // where it failed; empty if not made (the combine stage then searches the fringe orders).
-  std::vector<float> u_unwrapped;
+  // The column unwrapped from these phases alone (stage_combine.h UnwrapPhaseShift); empty if
+  // not made (the combine stage then searches the fringe orders).
+  ColumnHints u_unwrapped;
 };
 
 // Lens-shift stage: the fitted profile (heightfield/lens_shift_fit.h) per pixel; empty arrays

@@ -500,8 +500,11 @@ TEST(StageCombine, PhaseShiftFringeOrdersGiveTheSameResult) {
   PixelStates state_hinted(coarse.size(), PixelState::kActive);
   in.ps.u_unwrapped = UnwrapPhaseShift(in.plan, in.ps, state_hinted, {});
   ASSERT_EQ(in.ps.u_unwrapped.size(), coarse.size());
-  in.ps.u_unwrapped[1] = std::numeric_limits<float>::quiet_NaN();
-  in.ps.u_unwrapped[2] += 7.0f;  // one fringe of period 7 off
+  in.ps.u_unwrapped.q[1] = ColumnHints::kNone;
+  in.ps.u_unwrapped.Set(2, in.ps.u_unwrapped.At(2) + 7.0);  // one fringe of period 7 off
+  // The hints are within half a step of the column (they are 16 bits).
+  for (size_t i = 3; i < 50; ++i)  // (their phases' noise is ~0.02 px of u)
+    EXPECT_NEAR(in.ps.u_unwrapped.At(i), coarse[i], 0.5 / in.ps.u_unwrapped.scale + 0.1) << i;
   const CombinedPixels got = CombinePhases(in.plan, in.ps, in.ls, {}, &state_hinted);
   EXPECT_EQ(state, state_hinted);
   auto same = [](const std::vector<float>& a, const std::vector<float>& b) {

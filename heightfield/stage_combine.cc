@@ -98,15 +98,16 @@ std::vector<WrappedPhaseSolver> SolversOf(const ReconstructPlan& plan) {
 
 }  // namespace
 
-std::vector<float> UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
-                                    const PixelStates& state, const CombineOptions& options) {
+ColumnHints UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                             const PixelStates& state, const CombineOptions& options) {
   const size_t np = state.size();
   const int nper = static_cast<int>(plan.periods.size());
   if (nper == 0 || static_cast<int>(ps.theta.size()) != nper || ps.level.size() != np) return {};
   const TemporalUnwrapper unwrapper(plan.PeriodList(), plan.projector_width,
                                     options.max_unwrap_residual);
   const std::vector<WrappedPhaseSolver> solvers = SolversOf(plan);
-  std::vector<float> u(np, std::numeric_limits<float>::quiet_NaN());
+  ColumnHints u = ColumnHints::For(np, plan.projector_width);
+  if (u.size() != np) return {};
   constexpr int kBlock = 4096;
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
   ParallelForRows(blocks, [&](int b0, int b1) {
@@ -125,7 +126,7 @@ std::vector<float> UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShif
       unwrapped.resize(active.size());
       unwrapper.UnwrapMany(th.data(), wt.data(), static_cast<int>(active.size()), unwrapped.data());
       for (size_t a = 0; a < active.size(); ++a)
-        if (unwrapped[a].valid) u[active[a]] = static_cast<float>(unwrapped[a].u);
+        if (unwrapped[a].valid) u.Set(active[a], unwrapped[a].u);
     }
   });
   return u;
@@ -197,7 +198,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         // The fringe orders phase shifting chose on its own (UnwrapPhaseShift), the mean and
         // residual with these weights; the full search where that fails.
         hint.resize(active.size());
-        for (size_t a = 0; a < active.size(); ++a) hint[a] = ps.u_unwrapped[active[a]];
+        for (size_t a = 0; a < active.size(); ++a) hint[a] = ps.u_unwrapped.At(active[a]);
         unwrapper.UnwrapAtMany(th.data(), wt.data(), hint.data(), static_cast<int>(active.size()),
                                unwrapped.data());
         for (size_t a = 0; a < active.size(); ++a)

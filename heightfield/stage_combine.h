@@ -49,14 +49,15 @@ struct CombineOptions {
 };
 
 // Phase shifting's own absolute column (issue 12): u of every kActive pixel, unwrapped with the
-// noise the phase-shift frames show (their residuals, else 1% of the white level), NaN where the
-// unwrapping fails or elsewhere; empty if the plan has no periods. The stream stage runs it while
+// noise the phase-shift frames show (their residuals, else 1% of the white level), in 16 bits
+// (ColumnHints: a fraction of a period is all the fringe orders need), none where the unwrapping
+// fails or elsewhere; empty if the plan has no periods. The stream stage runs it while
 // the lens-shift frames still decode, and CombinePhases then takes each pixel's fringe orders
 // from it (PhaseShiftPixels::u_unwrapped) instead of searching them again: only the weighted
 // mean and its residual wait for the lens-shift noise. The same result wherever both noise
 // estimates pick the same orders; the full search where the orders fail with the final weights.
-std::vector<float> UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
-                                    const PixelStates& state, const CombineOptions& options);
+ColumnHints UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                             const PixelStates& state, const CombineOptions& options);
 
 // `ls` may be empty (phase shifting alone). With ps.u_unwrapped (UnwrapPhaseShift), the fringe
 // orders come from it.
