@@ -168,7 +168,8 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
   ParallelForRows(blocks, [&](int b0, int b1) {
     // Per block: the unwrapper's inputs of the active pixels first, then all of them unwrapped
-    // at once (TemporalUnwrapper::UnwrapMany: four pixels at a time), then the rest per pixel.
+    // at once (four pixels at a time: UnwrapAtMany at the hinted orders, else UnwrapMany), then
+    // the rest per pixel.
     std::vector<double> th, wt, sigmas, hint;
     std::vector<size_t> active;
     std::vector<UnwrapResult> unwrapped;
