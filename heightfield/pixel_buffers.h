@@ -58,7 +58,6 @@ struct PixelClasses {
   int64_t pixels_saturated = 0;
 };
 
-// Phase-shift stage: per period p (plan order) the wrapped phase, modulation and residual.
 // A projector column per pixel in 16 bits, for fringe-order hints (UnwrapPhaseShift): they live
 // through the lens-shift fit, the stage with the memory peak, and need a fraction of a period
 // only. q = round((u + 1) scale) for u in [-1, range), scale = floor(65534 / (range + 2)) steps
@@ -85,6 +84,7 @@ struct ColumnHints {
   size_t size() const { return q.size(); }
 };
 
+// Phase-shift stage: per period p (plan order) the wrapped phase, modulation and residual.
 struct PhaseShiftPixels {
   std::vector<std::vector<float>> theta;         // [p][i], radians in [0, 2 pi)
   std::vector<std::vector<float>> modulation;    // [p][i], B, linear units

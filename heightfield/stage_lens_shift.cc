@@ -108,11 +108,13 @@ bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride
   // the pool.
   const size_t ns = sample.size();
   std::vector<double> terms(ns * 6);
-  ParallelFor(static_cast<int64_t>((ns + 4095) / 4096), [&](int64_t blk) {
-    for (size_t k = static_cast<size_t>(blk) * 4096; k < std::min(ns, (blk + 1) * size_t{4096});
-         ++k)
-      map->Terms(sample[k] % w * stride, sample[k] / w * stride, terms.data() + 6 * k);
-  });
+  ParallelForRows(
+      static_cast<int>(ns),
+      [&](int k0, int k1) {
+        for (int k = k0; k < k1; ++k)
+          map->Terms(sample[k] % w * stride, sample[k] / w * stride, terms.data() + 6 * k);
+      },
+      4096);
   std::vector<uint8_t> use(ns, 1);
   std::vector<double> r(ns);
   Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
@@ -130,13 +132,15 @@ bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride
     }
     c = A.ldlt().solve(b);
     if (!c.allFinite()) return false;
-    ParallelFor(static_cast<int64_t>((ns + 4095) / 4096), [&](int64_t blk) {
-      for (size_t k = static_cast<size_t>(blk) * 4096; k < std::min(ns, (blk + 1) * size_t{4096});
-           ++k) {
-        const Eigen::Map<const Eigen::Matrix<double, 6, 1>> t(terms.data() + 6 * k);
-        r[k] = std::abs(f[sample[k]] - t.dot(c));
-      }
-    });
+    ParallelForRows(
+        static_cast<int>(ns),
+        [&](int k0, int k1) {
+          for (int k = k0; k < k1; ++k) {
+            const Eigen::Map<const Eigen::Matrix<double, 6, 1>> t(terms.data() + 6 * k);
+            r[k] = std::abs(f[sample[k]] - t.dot(c));
+          }
+        },
+        4096);
     std::vector<double> sorted = r;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double mad = kMadToSigma * sorted[sorted.size() / 2];
