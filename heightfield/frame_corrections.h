@@ -57,6 +57,10 @@ struct FrameCorrectionOptions {
   bool estimate_gains = true;
   bool estimate_positions = true;
   int iterations = 6;      // Gauss-Newton iterations, >= 1
+  // With gains: stop the position model after its first Gauss-Newton step where that step
+  // predicts a drop of the objective too small for the model to be chosen (a score test; the
+  // prediction is then FrameCorrections::position_chi2_gain). false: always solved in full.
+  bool stop_position_model_early = true;
   // Keep the gains' components in the band of the sinusoid (cos / sin of 2 pi f x over the
   // frames) at their start instead of estimating them (see the .cc).
   // Default: kept. Measured on the simulator (coin, 15 frames, 2% jitter, gain error RMS of the
@@ -128,8 +132,10 @@ struct FrameCorrections {
   // "gains" or "gains+positions" ("positions" if gains were not estimated): see the .cc on why
   // in-band gains and positions are not estimated together.
   std::string model;
+  // The drop of the weighted objective when positions are added (predicted by their first step
+  // where that stopped them, FrameCorrectionOptions::stop_position_model_early).
   double position_chi2_gain = 0.0;
-  double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe  // drop of the weighted objective when positions are added
+  double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe
   bool valid = false;  // false: the starting gains and zero positions are returned
   double position_rms_px = 0.0;
   // The in-band gain components set from the phase-shift reference (PhaseConstraint): the

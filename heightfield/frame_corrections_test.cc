@@ -181,6 +181,46 @@ TEST(FrameCorrections, NoPositionModelWithoutPositionErrors) {
   for (double d : fc.positions_px) EXPECT_EQ(d, 0.0);
 }
 
+// With a phase reference the position model starts from the gains' solution, and where its first
+// step predicts too small a drop for it to be chosen it stops there (a score test): the gains
+// and the model are those of solving it in full and rejecting it, in fewer iterations, and the
+// predicted drop is the one reached. With position errors it is solved and chosen.
+TEST(FrameCorrections, PositionModelStopsEarlyWhereItWouldBeRejected) {
+  for (const double position_error : {0.0, 0.02}) {
+    const Synthetic s = Make(0.02, position_error, 0.002, 6, 4000);
+    PhaseConstraint pc;
+    for (int j = 0; j < s.n; ++j) {
+      pc.phase.push_back(s.phase[j] + 0.7);
+      pc.sigma.push_back(0.1);
+    }
+    const std::vector<double> ones(s.nk, 1.0);
+    FrameCorrectionOptions o;
+    const FrameCorrections early =
+        EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o, &pc);
+    o.stop_position_model_early = false;
+    const FrameCorrections full =
+        EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o, &pc);
+    ASSERT_TRUE(early.valid);
+    ASSERT_TRUE(full.valid);
+    std::printf(
+        "position error %.2f px: model %s, drop %.2f (full %.2f), iterations %d (full %d)\n",
+        position_error, early.model.c_str(), early.position_chi2_gain, full.position_chi2_gain,
+        early.iterations, full.iterations);
+    EXPECT_EQ(early.model, full.model);
+    EXPECT_EQ(early.gains, full.gains);
+    EXPECT_EQ(early.positions_px, full.positions_px);
+    if (position_error == 0.0) {
+      EXPECT_EQ(full.model, "gains+reference");
+      EXPECT_LT(early.iterations, full.iterations);
+      EXPECT_NEAR(early.position_chi2_gain, full.position_chi2_gain,
+                  0.05 * std::abs(full.position_chi2_gain) + 0.5);
+    } else {
+      EXPECT_EQ(full.model, "gains+reference+positions");
+      EXPECT_EQ(early.iterations, full.iterations);
+    }
+  }
+}
+
 // The in-band gains from a phase reference (what phase shifting gives the pipeline): the true
 // phases plus a constant the estimate must absorb and noise 25x the lens-shift phases' own, from
 // gains 1 (which leave all of the jitter in place), the in-band part held otherwise.
