@@ -35,6 +35,9 @@ struct MixedPixelJudge {
   const double* s2;  // sigma_z squared per pixel; unknown sigma counts as 0 (see SquaredSigmas)
   bool shadow_test, dim_test;
   double outlier_floor;
+  // 0.99 times the square of the smaller sigma limit that a side's deviation is compared with
+  // (max_sigmas, and dim_sigmas with the dim test): below it neither comparison holds.
+  double near_limit2;
 
   // The four tests of pixel (x, y) (index i, finite z). kInterior: (x, y) is at least 2 pixels
   // from every edge, so no neighbour needs a bounds check (same arithmetic, same verdict).
@@ -64,9 +67,15 @@ struct MixedPixelJudge {
         if (!std::isfinite(z1) || !std::isfinite(z2)) continue;
         ++sides;
         const double d = z - (2.0 * z1 - z2);
-        const double sd = std::sqrt(s2p + 4.0 * s2[i1] + s2[i2]);
-        if (sd > 0 && std::abs(d) > options.max_sigmas * sd) (d > 0 ? above : below) += 1;
-        if (sd > 0) worst_sigmas = std::max(worst_sigmas, std::abs(d) / sd);
+        const double v = s2p + 4.0 * s2[i1] + s2[i2];
+        // Most sides lie well within both sigma limits: d^2 below 0.99 times the smaller limit
+        // squared times v decides that without the square root (rounding is ~1e-16 of it), so
+        // the counts and the dim test's comparison come out as below.
+        if (!(d * d < near_limit2 * v)) {
+          const double sd = std::sqrt(v);
+          if (sd > 0 && std::abs(d) > options.max_sigmas * sd) (d > 0 ? above : below) += 1;
+          if (sd > 0) worst_sigmas = std::max(worst_sigmas, std::abs(d) / sd);
+        }
         const int k = sgn > 0;
         has[k] = true;
         line[k] = 2.0 * z1 - z2;
@@ -115,6 +124,13 @@ struct MixedPixelJudge {
   }
 };
 
+// MixedPixelJudge::near_limit2.
+double NearLimit2(const MixedPixelInput& in, const MixedPixelOptions& options) {
+  const bool dim_test = options.dim_ratio > 0 && in.white;
+  const double k = dim_test ? std::min(options.max_sigmas, options.dim_sigmas) : options.max_sigmas;
+  return 0.99 * k * k;
+}
+
 // sigma_z squared per pixel, as the tests use it: unknown (NaN) or <= 0 counts as 0, so the step
 // test then needs the other terms to be known.
 std::vector<double> SquaredSigmas(const MixedPixelInput& in) {
@@ -144,7 +160,8 @@ std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
                               s2.data(),
                               options.shadow_edge_ratio > 0 && in.white && in.unlit,
                               options.dim_ratio > 0 && in.white,
-                              options.outlier_footprints * in.footprint_m};
+                              options.outlier_footprints * in.footprint_m,
+                              NearLimit2(in, options)};
   ParallelForRows(h, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const bool interior_row = y >= 2 && y + 2 < h;
