@@ -135,6 +135,7 @@ Json FrameCorrections::ToJson() const {
           {"model", model},
           {"view_residual_stripe", view_residual_stripe},
           {"position_chi2_gain", position_chi2_gain},
+          {"position_model_stopped", position_model_stopped},
           {"in_band_pixels", in_band_pixels},
           {"in_band_correction", {in_band_correction[0], in_band_correction[1]}},
           {"in_band_sigma", in_band_sigma},
@@ -200,19 +201,31 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     std::vector<int> keep;
     std::vector<double> rel, sig2;
     const std::vector<double> zero(nk, 0.0);
-    std::vector<double> ct(nk), st(nk);
-    for (int j : p.pix) {
-      Eigen::Vector3d c;
-      double ssr;
-      PixelTrig(p, j, zero, ct.data(), st.data(), true);
-      if (!SolvePixel(p, j, g_start, ct.data(), st.data(), &c, &ssr)) continue;
-      const double amp = std::hypot(c(1), c(2));
-      const double s2 = ssr / (nk - 3);
-      // Only profiles whose sinusoid stands out of the noise carry the frame parameters.
-      if (!(amp > 1e-5 * std::abs(c(0))) || !(amp > 2.0 * std::sqrt(s2 * 2.0 / nk))) continue;
-      keep.push_back(j);
-      rel.push_back(std::sqrt(s2) / amp);
-      sig2.push_back(s2);
+    // Per pixel on the pool (NaN: not kept), then collected in pixel order.
+    const int n_cand = static_cast<int>(p.pix.size());
+    std::vector<double> rel_of(n_cand, kNaN), s2_of(n_cand, kNaN);
+    ParallelFor((n_cand + kBlockPixels - 1) / kBlockPixels, [&](int64_t blk) {
+      std::vector<double> ct(nk), st(nk);
+      const int q_end = std::min(n_cand, static_cast<int>(blk + 1) * kBlockPixels);
+      for (int q = static_cast<int>(blk) * kBlockPixels; q < q_end; ++q) {
+        const int j = p.pix[q];
+        Eigen::Vector3d c;
+        double ssr;
+        PixelTrig(p, j, zero, ct.data(), st.data(), true);
+        if (!SolvePixel(p, j, g_start, ct.data(), st.data(), &c, &ssr)) continue;
+        const double amp = std::hypot(c(1), c(2));
+        const double s2 = ssr / (nk - 3);
+        // Only profiles whose sinusoid stands out of the noise carry the frame parameters.
+        if (!(amp > 1e-5 * std::abs(c(0))) || !(amp > 2.0 * std::sqrt(s2 * 2.0 / nk))) continue;
+        rel_of[q] = std::sqrt(s2) / amp;
+        s2_of[q] = s2;
+      }
+    });
+    for (int q = 0; q < n_cand; ++q) {
+      if (std::isnan(s2_of[q])) continue;
+      keep.push_back(p.pix[q]);
+      rel.push_back(rel_of[q]);
+      sig2.push_back(s2_of[q]);
     }
     if (keep.size() < 16) return out;
     const double med = Median(rel);
@@ -399,8 +412,11 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
           const double rel_change = (current - c2) / std::max(current, 1e-300);
           // The objective is a chi^2 (weights 1 / sigma_j^2): a drop below 0.5 is no
           // information, and Gauss-Newton crawls from there (measured: 0.4-0.6 per iteration
-          // after the first on the coin and the tilted bar).
-          converged = rel_change < 1e-9 || current - c2 < 0.5;
+          // after the first on the coin and the tilted bar). A full step whose drop the
+          // quadratic model predicted to within 0.5 leaves less than that to the next (on the
+          // coin: 4993.80 against 4993.51 predicted, then 1e-4 predicted for the next).
+          converged = rel_change < 1e-9 || current - c2 < 0.5 ||
+                      (tries == 0 && std::abs(current - c2 - drop) < 0.5);
           g = std::move(g2);
           delta = std::move(d2);
           current = c2;
@@ -603,6 +619,7 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     const double c_b = solve(est_g, true, est_g, &gb, &db, &it, use_reference ? c_a : kNaN,
                              stop ? c_a - needed : kNaN, &predicted);
     const bool stopped = !std::isnan(predicted);
+    out.position_model_stopped = stopped;
     out.position_chi2_gain = stopped ? c_a - predicted : std::isfinite(c_b) ? c_a - c_b : 0.0;
     double d2 = 0;
     for (double v : db) d2 += v * v;

@@ -135,6 +135,7 @@ struct FrameCorrections {
   // The drop of the weighted objective when positions are added (predicted by their first step
   // where that stopped them, FrameCorrectionOptions::stop_position_model_early).
   double position_chi2_gain = 0.0;
+  bool position_model_stopped = false;  // ... stopped after its first step (a score test)
   double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe
   bool valid = false;  // false: the starting gains and zero positions are returned
   double position_rms_px = 0.0;
