@@ -1573,7 +1573,16 @@ struct BlockResult {
   double ssr[kLanes];        // sum of squared residuals
   double y0[kLanes];         // sum of the samples about the first (not finite: a sample was not)
   int64_t ok[kLanes];        // != 0: the 3x3 system was regular
+  // Finalize's figures of the lanes, vectorised (LensShiftRowFitter::FitRow, nk > 3 for the
+  // last two): a = |(cc, cs)|, residual_rms, phase_sigma and the amplitude's SNR.
+  double amplitude[kLanes], residual_rms[kLanes], phase_sigma[kLanes], snr[kLanes];
 };
+
+// out[l] = sqrt(v[l]): correctly rounded like std::sqrt (lens_shift_fit.cc is compiled with
+// -fno-math-errno, so the four are one vector instruction).
+inline void SqrtLanes(const double* v, double* out) {
+  for (int l = 0; l < kLanes; ++l) out[l] = std::sqrt(v[l]);
+}
 
 // Four pixels (samples b[k * stride + l], l < 4, times gain[k]) at grid point with transposed
 // basis rows basis_km (nk x kFineMoments) and Gram Horner coefficients e1c, e2c (order top_g),
@@ -1583,7 +1592,7 @@ struct BlockResult {
 MESOSCAN_SIMD_CLONES
 void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symmetric,
               const float* b, size_t stride, const float* gain, const double* eps_in, const Cd* e1c,
-              const Cd* e2c, int top_g, BlockResult* r) {
+              const Cd* e2c, int top_g, double sqrt_2_over_n, BlockResult* r) {
   // Accumulated about the first sample, then moved to the mean (the moments are linear in the
   // samples: W_m(y - mu) = W_m(y) - mu sum_k B_mk), so that, as in FastFit, the moments scale
   // with the amplitude, not the offset, and the Taylor truncation stays relative to the
@@ -1686,6 +1695,26 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
   std::memcpy(r->ssr, &ssr, sizeof ssr);
   std::memcpy(r->y0, &sum_about_first, sizeof sum_about_first);
   std::memcpy(r->ok, &ok, sizeof ok);
+  // FitRow's Finalize figures, the same operations lane by lane: ssr clamped at 0 as
+  // std::max(ssr, 0.0) (NaN stays), a, ssr / n and, with nk > 3, sigma_a.
+  const V4d ssr0 = ssr < 0.0 ? zero : ssr;
+  const V4d a2 = cc * cc + cs * cs, ms = ssr0 / nd;
+  V4d amp, rms;
+  SqrtLanes(reinterpret_cast<const double*>(&a2), reinterpret_cast<double*>(&amp));
+  SqrtLanes(reinterpret_cast<const double*>(&ms), reinterpret_cast<double*>(&rms));
+  std::memcpy(r->amplitude, &amp, sizeof amp);
+  std::memcpy(r->residual_rms, &rms, sizeof rms);
+  if (nk > 3) {
+    const V4d v3 = ssr0 / static_cast<double>(nk - 3);
+    V4d s3;
+    SqrtLanes(reinterpret_cast<const double*>(&v3), reinterpret_cast<double*>(&s3));
+    const V4d sigma_a = s3 * sqrt_2_over_n;
+    const V4d inf = zero + std::numeric_limits<double>::infinity();
+    const V4d phase_sigma = amp > 0.0 ? sigma_a / amp : inf;
+    const V4d snr = sigma_a > 0.0 ? amp / sigma_a : inf;
+    std::memcpy(r->phase_sigma, &phase_sigma, sizeof phase_sigma);
+    std::memcpy(r->snr, &snr, sizeof snr);
+  }
 }
 
 }  // namespace
@@ -1763,7 +1792,8 @@ void LensShiftRowFitter::FitRow(const float* b, size_t stride, int n, const floa
     const int top_g = NeededOrder(2.0 * max_eps, kGramOrder);
     BlockResult r;
     FitBlock(t.km[gi].data(), basis_sum_.data() + static_cast<size_t>(gi) * kFineMoments, nk,
-             t.symmetric, b + j0, stride, gain, eps, t.e1[gi].data(), t.e2[gi].data(), top_g, &r);
+             t.symmetric, b + j0, stride, gain, eps, t.e1[gi].data(), t.e2[gi].data(), top_g,
+             sqrt_2_over_n, &r);
     for (int l = 0; l < kLanes; ++l) {
       if (!lane[l]) continue;
       const int j = j0 + l;
@@ -1777,9 +1807,10 @@ void LensShiftRowFitter::FitRow(const float* b, size_t stride, int n, const floa
       }
       // Finalize (fixed frequency, converged, phase already in (-pi, pi]) without its
       // remainder() and atan2.
+      // (a, the residual and the phase's sigma and SNR from FitBlock's lanes.)
       LensShiftFit& fit = out[j];
-      const double a = std::sqrt(r.cc[l] * r.cc[l] + r.cs[l] * r.cs[l]);
-      const double d = r.offset[l], ssr = std::max(r.ssr[l], 0.0);
+      const double a = r.amplitude[l];
+      const double d = r.offset[l];
       fit.phase = r.phase[l];
       fit.amplitude = a;
       fit.frequency = f_grid + eps[l] / two_pi_x;
@@ -1787,13 +1818,12 @@ void LensShiftRowFitter::FitRow(const float* b, size_t stride, int n, const floa
       fit.samples_used = nk;
       fit.iterations = 0;
       fit.converged = true;
-      fit.residual_rms = std::sqrt(ssr / nk);
+      fit.residual_rms = r.residual_rms[l];
       double snr = 0.0;
       fit.phase_sigma = 0.0;
       if (nk > 3) {
-        const double sigma_a = std::sqrt(ssr / (nk - 3)) * sqrt_2_over_n;
-        fit.phase_sigma = a > 0.0 ? sigma_a / a : std::numeric_limits<double>::infinity();
-        snr = sigma_a > 0.0 ? a / sigma_a : std::numeric_limits<double>::infinity();
+        fit.phase_sigma = r.phase_sigma[l];
+        snr = r.snr[l];
       }
       const bool finite = std::isfinite(fit.phase) && std::isfinite(a) &&
                           std::isfinite(fit.frequency) && std::isfinite(d) &&
