@@ -145,29 +145,54 @@ std::vector<double> SquaredSigmas(const MixedPixelInput& in) {
   return s2;
 }
 
-// One pass of the four tests over the points of `in`; only the pixels with todo[i] != 0 if
-// `todo` is given (the others are left 0). s2: SquaredSigmas(in).
+MixedPixelJudge MakeJudge(const MixedPixelInput& in, const MixedPixelOptions& options,
+                          const std::vector<double>& s2) {
+  return {in,
+          options,
+          s2.data(),
+          options.shadow_edge_ratio > 0 && in.white && in.unlit,
+          options.dim_ratio > 0 && in.white,
+          options.outlier_footprints * in.footprint_m,
+          NearLimit2(in, options)};
+}
+
+// The verdict on pixel i (0 where its z is not finite).
+bool Judge(const MixedPixelJudge& judge, size_t i, int w, int h) {
+  if (!std::isfinite(judge.in.z[i])) return false;
+  const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
+  return y >= 2 && y + 2 < h && x >= 2 && x + 2 < w ? judge.Mixed<true>(x, y, i)
+                                                    : judge.Mixed<false>(x, y, i);
+}
+
+// The pixels with reject[i] != 0, in increasing order (gathered per band of rows on the pool).
+std::vector<size_t> RejectedPixels(const std::vector<uint8_t>& reject, int w, int h) {
+  constexpr int kRows = 64;
+  const int bands = (h + kRows - 1) / kRows;
+  std::vector<std::vector<size_t>> per_band(std::max(bands, 0));
+  ParallelFor(bands, [&](int64_t b) {
+    const size_t end = static_cast<size_t>(std::min(h, static_cast<int>(b + 1) * kRows)) * w;
+    for (size_t i = static_cast<size_t>(b) * kRows * w; i < end; ++i)
+      if (reject[i]) per_band[b].push_back(i);
+  });
+  std::vector<size_t> out;
+  for (const std::vector<size_t>& p : per_band) out.insert(out.end(), p.begin(), p.end());
+  return out;
+}
+
+// One pass of the four tests over the points of `in`. s2: SquaredSigmas(in).
 std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
                                          const MixedPixelOptions& options,
-                                         const std::vector<double>& s2,
-                                         const std::vector<uint8_t>* todo = nullptr) {
+                                         const std::vector<double>& s2) {
   const int w = in.width, h = in.height;
   std::vector<uint8_t> reject(static_cast<size_t>(w) * h, 0);
   if (w <= 0 || h <= 0) return reject;
   MESOSCAN_CHECK(in.z != nullptr && in.sigma_z != nullptr);
-  const MixedPixelJudge judge{in,
-                              options,
-                              s2.data(),
-                              options.shadow_edge_ratio > 0 && in.white && in.unlit,
-                              options.dim_ratio > 0 && in.white,
-                              options.outlier_footprints * in.footprint_m,
-                              NearLimit2(in, options)};
+  const MixedPixelJudge judge = MakeJudge(in, options, s2);
   ParallelForRows(h, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const bool interior_row = y >= 2 && y + 2 < h;
       for (int x = 0; x < w; ++x) {
         const size_t i = static_cast<size_t>(y) * w + x;
-        if (todo && !(*todo)[i]) continue;
         if (!std::isfinite(in.z[i])) continue;
         reject[i] = interior_row && x >= 2 && x + 2 < w ? judge.Mixed<true>(x, y, i)
                                                         : judge.Mixed<false>(x, y, i);
@@ -191,40 +216,44 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
   std::vector<float> z(in.z, in.z + static_cast<size_t>(in.width) * in.height);
   MixedPixelInput cleaned = in;
   cleaned.z = z.data();
+  const MixedPixelJudge judge = MakeJudge(cleaned, options, s2);
   // A pixel's tests read z within 2 pixels along its row and column only: a later pass needs to
   // judge again only the pixels that close to a point rejected by the pass before (the others
-  // would repeat their verdict, already in `reject`).
+  // would repeat their verdict, already in `reject`). Those rejections are few: the pass works
+  // on their list, not on the image.
   const int w = in.width, h = in.height;
-  std::vector<uint8_t> fresh = reject, todo(z.size());
-  for (int pass = 1; pass < options.passes; ++pass) {
-    // Per row on the pool: the fresh rejections leave z, and a pixel is judged again where one
-    // lies within 2 pixels along its row or column (each task writes its own rows only).
-    ParallelForRows(h, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y)
-        for (int x = 0; x < w; ++x) {
-          const size_t i = static_cast<size_t>(y) * w + x;
-          if (fresh[i]) z[i] = std::numeric_limits<float>::quiet_NaN();
-          bool near = false;
-          for (int d = -2; d <= 2; ++d) {
-            if (x + d >= 0 && x + d < w) near |= fresh[i + d] != 0;
-            if (y + d >= 0 && y + d < h) near |= fresh[i + static_cast<ptrdiff_t>(d) * w] != 0;
-          }
-          todo[i] = near;
-        }
-    });
-    const std::vector<uint8_t> more = FindMixedPixelsOnce(cleaned, options, s2, &todo);
-    std::atomic<bool> changed{false};
-    ParallelForRows(h, [&](int y0, int y1) {
-      bool any = false;
-      const size_t end = static_cast<size_t>(y1) * w;
-      for (size_t i = static_cast<size_t>(y0) * w; i < end; ++i) {
-        fresh[i] = more[i] && !reject[i];
-        any |= fresh[i] != 0;
-        reject[i] |= more[i];
+  std::vector<size_t> fresh = RejectedPixels(reject, w, h);
+  std::vector<uint8_t> marked(z.size(), 0);
+  std::vector<size_t> todo;
+  std::vector<uint8_t> verdict;
+  for (int pass = 1; pass < options.passes && !fresh.empty(); ++pass) {
+    // The fresh rejections leave z; the pixels within 2 of one along its row or column, once
+    // each, in increasing order.
+    todo.clear();
+    for (size_t i : fresh) z[i] = std::numeric_limits<float>::quiet_NaN();
+    for (size_t i : fresh) {
+      const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
+      for (int d = -2; d <= 2; ++d) {
+        if (x + d >= 0 && x + d < w && !marked[i + d]) marked[i + d] = 1, todo.push_back(i + d);
+        const ptrdiff_t n = static_cast<ptrdiff_t>(i) + static_cast<ptrdiff_t>(d) * w;
+        if (y + d >= 0 && y + d < h && !marked[n]) marked[n] = 1, todo.push_back(n);
       }
-      if (any) changed = true;
-    });
-    if (!changed) break;
+    }
+    std::sort(todo.begin(), todo.end());
+    for (size_t i : todo) marked[i] = 0;
+    verdict.assign(todo.size(), 0);
+    ParallelForRows(
+        static_cast<int>(todo.size()),
+        [&](int q0, int q1) {
+          for (int q = q0; q < q1; ++q) verdict[q] = Judge(judge, todo[q], w, h);
+        },
+        1024);
+    fresh.clear();
+    for (size_t q = 0; q < todo.size(); ++q)
+      if (verdict[q] && !reject[todo[q]]) {
+        reject[todo[q]] = 1;
+        fresh.push_back(todo[q]);
+      }
   }
   return reject;
 }
