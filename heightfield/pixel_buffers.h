@@ -122,8 +122,10 @@ struct LensShiftPixels {
 // Combine stage: unwrapping, paper Eq. 2 and Eq. 4.
 struct CombinedPixels {
   std::vector<float> u;                // final projector column, px; NaN if rejected
-  std::vector<float> u_coarse;         // absolute column from phase shifting, px
-  std::vector<float> unwrap_residual;  // sigma units
+  // Absolute column from phase shifting, px, and the unwrapping residual, sigma units (empty
+  // without CombineOptions::keep_coarse unless the positions' reference needed them).
+  std::vector<float> u_coarse;
+  std::vector<float> unwrap_residual;
   std::vector<float> confidence;       // [0, 1]; 0 if rejected
   std::vector<float> sigma_u;          // predicted sigma of u, px
   // Which cue fixed u (points.exr `source`): 0 lens shift (phase shifting for the period),

@@ -123,6 +123,7 @@ CombineOptions ReconstructOptions::Combine() const {
   o.phase_shift_fallback_confidence = phase_shift_fallback_confidence;
   o.reference_positions_to_phase_shift = correct_positions;
   o.isolated_max_region_px = isolated_max_region_px;
+  o.keep_coarse = keep_diagnostics;
   return o;
 }
 

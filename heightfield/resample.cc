@@ -212,24 +212,18 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   };
   // Grid rows [j_lo, j_hi] that the quads of camera row pair (y, y + 1) can touch.
   // Per camera row the extreme J of its points, rounded once (ceil and floor are monotone: the
-  // same as rounding every point's J), then per row pair.
+  // same as rounding every point's J), then per row pair. J(y) = (y0 - y) / pixel_size is
+  // monotone in y (a correctly rounded subtraction and division), so the extremes are J of the
+  // row's extreme y, which the bounds above hold (of the same points: finite z).
   std::vector<int> row_lo(std::max(h, 0), std::numeric_limits<int>::max()),
       row_hi(std::max(h, 0), std::numeric_limits<int>::min());
-  ParallelForRows(h, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) {
-      double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-      for (int x = 0; x < w; ++x) {
-        if (!std::isfinite(xyz(x, y, 2))) continue;
-        const double j = hf.J(xyz(x, y, 1));
-        lo = std::min(lo, j);
-        hi = std::max(hi, j);
-      }
-      if (lo <= hi) {
-        row_lo[y] = CeilToInt(lo - 1e-9);
-        row_hi[y] = FloorToInt(hi + 1e-9);
-      }
+  for (int y = 0; y < h; ++y) {
+    const double lo = hf.J(row_bounds[y][3]), hi = hf.J(row_bounds[y][2]);
+    if (lo <= hi) {
+      row_lo[y] = CeilToInt(lo - 1e-9);
+      row_hi[y] = FloorToInt(hi + 1e-9);
     }
-  });
+  }
   std::vector<int> j_lo(std::max(h - 1, 0)), j_hi(std::max(h - 1, 0));
   for (int y = 0; y + 1 < h; ++y) {
     j_lo[y] = std::min(row_lo[y], row_lo[y + 1]);

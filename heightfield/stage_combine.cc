@@ -149,13 +149,20 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   const auto& level = ps.level;
 
   CombinedPixels out;
+  const bool reference_positions = use_ls && options.reference_positions_to_phase_shift &&
+                                   PositionsEstimated(ls.frame_corrections);
+  const bool coarse = options.keep_coarse || reference_positions;
   // One array per task (12.5 MB each at 3 Mpx: their page faults and fills were ~65 MB on
   // one core while the other waited).
   ParallelFor(6, [&](int64_t a) {
     switch (a) {
       case 0: out.u.assign(np, kNaN); break;
-      case 1: out.u_coarse.assign(np, kNaN); break;
-      case 2: out.unwrap_residual.assign(np, kNaN); break;
+      case 1:
+        if (coarse) out.u_coarse.assign(np, kNaN);
+        break;
+      case 2:
+        if (coarse) out.unwrap_residual.assign(np, kNaN);
+        break;
       case 3: out.confidence.assign(np, 0.0f); break;
       case 4: out.sigma_u.assign(np, kNaN); break;
       default: out.source.assign(np, use_ls ? 0 : 1); break;
@@ -213,8 +220,10 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         const size_t i = active[a];
         const double sigma = sigmas[a];
         const UnwrapResult& ur = unwrapped[a];
-        out.u_coarse[i] = static_cast<float>(ur.u);
-        out.unwrap_residual[i] = static_cast<float>(ur.residual);
+        if (coarse) {
+          out.u_coarse[i] = static_cast<float>(ur.u);
+          out.unwrap_residual[i] = static_cast<float>(ur.residual);
+        }
         if (!ur.valid) {
           state[i] = PixelState::kUnwrapFailed;
           continue;
@@ -269,8 +278,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
       }
     }
   });
-  if (use_ls && options.reference_positions_to_phase_shift &&
-      PositionsEstimated(ls.frame_corrections)) {
+  if (reference_positions) {
     // The differences gathered in parallel (counted per block, then written at the blocks'
     // offsets); their median does not depend on the order.
     auto use = [&](size_t i) {

@@ -46,6 +46,10 @@ struct CombineOptions {
   // by the camera is a region of many pixels. 0 turns it off; step in (0, smallest period / 2).
   int isolated_max_region_px = 16;
   double isolated_max_step_px = 3.0;
+  // Keep CombinedPixels::u_coarse and unwrap_residual (the diagnostics); false: left empty
+  // unless the positions' reference above needs u_coarse (2 arrays of 12.5 MB at 3 Mpx less to
+  // fill and write).
+  bool keep_coarse = true;
 };
 
 // Phase shifting's own absolute column (issue 12): u of every kActive pixel, unwrapped with the
