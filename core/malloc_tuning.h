@@ -14,13 +14,14 @@
 //   libraries that call malloc themselves): glibc raises it to the size of each mmapped block
 //   freed (up to 32 MB), and heap memory freed in the middle is not returned, so a run kept 100+
 //   MB of dead buffers resident (763 MB instead of 631 measured before the cache).
-// - glibc's trim threshold is raised to 2 MB: with the default 128 kB every free at the top of a
+// - glibc's trim threshold is raised to 32 MB: with the default 128 kB every free at the top of a
 //   heap gave its pages back (brk, or madvise in the worker threads' arenas) and the next
 //   allocation faulted them in again: ~1260 brk and ~350 madvise calls per full-resolution run,
 //   most of them the frame corrections' per-block matrices right after the last frame (~70 and 3
-//   at 4 MB). Compute after the last frame 0.64 -> 0.61 s (medians of alternated runs); each
-//   arena keeps up to the threshold, which the benchmark's child, 4 MB below its 600 MB goal,
-//   could not afford at 8 MB (+9 MB, 0.01 s faster) or 32 MB (+14 MB, 0.02 s faster).
+//   at 4 MB). Compute after the last frame 0.64 -> 0.61 s at 2 MB, then 0.531 -> 0.514 s at
+//   32 MB (medians of alternated CLI runs); each arena keeps up to the threshold: peak RSS +11 MB
+//   (CLI 493 -> 504 MB, the benchmark's child 478 -> 490 MB). (At 2 MB the child had measured
+//   the benchmark's own bare decode too, 110 MB of it, and stood 4 MB below its 600 MB goal.)
 // Call once, early in a process that reconstructs (the CLI, the benchmark's child).
 
 #include <malloc.h>
@@ -37,7 +38,7 @@ inline constexpr size_t kLargeBlockCacheLimit = size_t{192} << 20;
 inline void TuneAllocatorForReconstruction() {
 #ifdef M_MMAP_THRESHOLD
   mallopt(M_MMAP_THRESHOLD, 8 << 20);
-  mallopt(M_TRIM_THRESHOLD, 2 << 20);
+  mallopt(M_TRIM_THRESHOLD, 32 << 20);
 #endif
   EnableProcessLargeBlockCache(kLargeBlockCacheLimit);
 }
