@@ -240,6 +240,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
       if (d.eight_bit) eight_bit.fetch_add(1);
       if (d.direct) {
         MarkAtLeast(s.raw_[k].data(), np, sat_code, mark_saturated);
+        if (options.on_decoded) options.on_decoded(static_cast<int>(k), s.raw_[k].data());
         progress.Advance();
         return;
       }
@@ -273,6 +274,8 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
           if (saturated_sample) mark_saturated(dst_row + x);
         }
       }
+      if (!any_float && options.on_decoded)
+        options.on_decoded(static_cast<int>(k), s.raw_[k].data());
       progress.Advance();
     });
   }
@@ -339,18 +342,28 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
   if (nk == 0 || pixels.empty()) return gains;
   const int np = static_cast<int>(model.design[0].size());
   if (nk <= np) return gains;  // every gain pattern is absorbed by the per-pixel model
+  // Gathered frame by frame in parallel (a frame's samples at increasing pixels).
+  const size_t n = pixels.size();
+  std::vector<float> by_frame(static_cast<size_t>(nk) * n);
+  ParallelFor(nk, [&](int64_t k) {
+    float* dst = by_frame.data() + static_cast<size_t>(k) * n;
+    for (size_t j = 0; j < n; ++j) dst[j] = stack.Value(model.frames[k], pixels[j]);
+  });
+  return EstimateFrameGains(by_frame, n, model, iterations);
+}
+
+std::vector<double> EstimateFrameGains(const std::vector<float>& by_frame, size_t n,
+                                       const GainModel& model, int iterations) {
+  const int nk = static_cast<int>(model.frames.size());
+  std::vector<double> gains(nk, 1.0);
+  if (nk == 0 || n == 0 || by_frame.size() != static_cast<size_t>(nk) * n) return gains;
+  const int np = static_cast<int>(model.design[0].size());
+  if (nk <= np) return gains;  // every gain pattern is absorbed by the per-pixel model
   Eigen::MatrixXd M(nk, np);
   for (int k = 0; k < nk; ++k)
     for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
-  const size_t n = pixels.size();
   Eigen::MatrixXd I(nk, n);  // samples, frame-major
   {
-    // Gathered frame by frame in parallel (a frame's samples at increasing pixels), then copied.
-    std::vector<float> by_frame(static_cast<size_t>(nk) * n);
-    ParallelFor(nk, [&](int64_t k) {
-      float* dst = by_frame.data() + static_cast<size_t>(k) * n;
-      for (size_t j = 0; j < n; ++j) dst[j] = stack.Value(model.frames[k], pixels[j]);
-    });
     // Transposed in blocks of pixels (a frame's row of the block stays in cache).
     constexpr size_t kT = 64;
     for (size_t j0 = 0; j0 < n; j0 += kT)

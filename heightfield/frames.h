@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <new>
 #include <type_traits>
@@ -48,6 +49,10 @@ struct FrameLoadOptions {
   // A raw sample at or above this fraction of the format's full scale counts as saturated, in
   // (0, 1]. 16-bit: 65535 * 0.999; 8-bit frames are scaled to 16 bit first (255 -> 65535).
   double saturation_level = 0.999;
+  // If set, called by the decoding task of stack frame k with its 16-bit samples (the ROI,
+  // row-major) as soon as they are final; integer frames only. The samples stay where they are
+  // (in the returned stack) until the frame is released.
+  std::function<void(int k, const uint16_t* samples)> on_decoded;
   void Check() const;
 };
 
@@ -69,6 +74,9 @@ class FrameStack {
   float Value(int k, size_t i) const {
     return is_float_ ? raw_float_[k][i] - float_black_ : lut_[raw_[k][i]];
   }
+  // Value of a 16-bit sample `code` of an integer stack (is_float() false).
+  float Linear(uint16_t code) const { return lut_[code]; }
+  bool is_float() const { return is_float_; }
   // Frees the samples of frame k (the streaming driver releases each frame after the last stage
   // that reads it); Gather / Value must not be called for it afterwards.
   void Release(int k) {
@@ -136,6 +144,10 @@ struct GainModel {
 };
 std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,
                                        const std::vector<uint32_t>& pixels, int iterations = 3);
+// The same on samples gathered already: by_frame[k * n + j] the value of frame model.frames[k]
+// at the j-th of n pixels.
+std::vector<double> EstimateFrameGains(const std::vector<float>& by_frame, size_t n,
+                                       const GainModel& model, int iterations = 3);
 
 // The outlier limit of the gain fits' relative residuals: median + 4 robust sigmas (1.4826 MAD).
 // `values` must not be empty.

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -104,7 +105,24 @@ TEST(StageStream, DecodedFramesMarkSaturationAtEverySample) {
     s.frames.push_back(f);
     images.push_back(img);
   }
-  const FrameStack stack = LoadFrames(s, {0, 1}, FrameLoadOptions());
+  // The decoding tasks hand each frame's samples to on_decoded once (the stream stage gathers
+  // the lens-shift gains' samples from them): the stack's values, gathered at any pixels.
+  GatheredGainSamples gathered;
+  gathered.pixels = {0, 7, 256, 1499};
+  gathered.codes.resize(2);
+  std::atomic<int> calls{0};
+  FrameLoadOptions load;
+  load.on_decoded = [&](int k, const uint16_t* samples) {
+    ++calls;
+    gathered.Gather(k, samples);
+  };
+  EXPECT_FALSE(gathered.Complete({0, 1}));
+  const FrameStack stack = LoadFrames(s, {0, 1}, load);
+  EXPECT_EQ(calls.load(), 2);
+  ASSERT_TRUE(gathered.Complete({0, 1}));
+  for (int k = 0; k < 2; ++k)
+    for (size_t j = 0; j < gathered.pixels.size(); ++j)
+      EXPECT_EQ(stack.Linear(gathered.codes[k][j]), stack.Value(k, gathered.pixels[j]));
   std::vector<uint8_t> expected(static_cast<size_t>(w) * h, 0);
   for (const auto& m : marks)
     for (size_t i : m) expected[i] = 1;
@@ -258,6 +276,19 @@ TEST(StageGains, RecoversAPerFrameGain) {
     EXPECT_NEAR(g.inv_gain[k], 1.0 / g.session_gain[k], 1e-6);
   }
   EXPECT_LT(std::sqrt(after), 0.5 * std::sqrt(before));  // 0.32 measured
+  // The gains from samples gathered beforehand (the stream stage's lens-shift frames) are the
+  // same numbers.
+  GainModel model;
+  for (int k = 0; k < 10; ++k) {
+    model.frames.push_back(k);
+    model.design.push_back({1.0, std::cos(0.7 * k), std::sin(0.7 * k)});
+  }
+  const std::vector<uint32_t> sample = GainSample(state);
+  std::vector<float> by_frame;
+  for (int k = 0; k < 10; ++k)
+    for (uint32_t i : sample) by_frame.push_back(stack.Value(k, i));
+  EXPECT_EQ(EstimateFrameGains(by_frame, sample.size(), model),
+            EstimateFrameGains(stack, model, sample));
   GainOptions off;
   off.normalize_luminance = false;
   for (float v : EstimateLuminanceGains(stack, s.plan, state, 10, off).inv_gain) EXPECT_EQ(v, 1.0f);

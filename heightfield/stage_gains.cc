@@ -16,6 +16,20 @@
 
 namespace mesoscan {
 
+void GatheredGainSamples::Gather(int k, const uint16_t* samples) {
+  std::vector<uint16_t>& c = codes[k];
+  c.resize(pixels.size());
+  for (size_t j = 0; j < pixels.size(); ++j) c[j] = samples[pixels[j]];
+}
+
+bool GatheredGainSamples::Complete(const std::vector<int>& frames) const {
+  if (pixels.empty()) return false;
+  for (int k : frames)
+    if (k < 0 || static_cast<size_t>(k) >= codes.size() || codes[k].size() != pixels.size())
+      return false;
+  return true;
+}
+
 FrameGains UnitGains(const ReconstructPlan& plan, size_t session_frames) {
   FrameGains g;
   g.session_gain.assign(session_frames, 1.0);
@@ -119,18 +133,20 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
 namespace {
 // The frame gains of one group (EstimateLuminanceGains without the phase reference).
 void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
-                          const PixelStates& state, GainGroup group, FrameGains* gains);
+                          const PixelStates& state, GainGroup group, FrameGains* gains,
+                          const GatheredGainSamples* gathered);
 }  // namespace
 
 void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
                             const PixelStates& state, GainGroup group, const GainOptions& options,
-                            FrameGains* gains, const PhaseShiftPixels* ps) {
+                            FrameGains* gains, const PhaseShiftPixels* ps,
+                            const GatheredGainSamples* gathered) {
   FrameGains& g = *gains;
   // The lens-shift frames' phase reference and their gains are independent (different members
   // of g, read-only inputs): computed at once, on the otherwise idle second core right after the
   // last frame (~45 and ~80 ms at full resolution, both serial).
   const auto frame_gains = [&] {
-    if (options.normalize_luminance) EstimateGainsOfGroup(stack, plan, state, group, &g);
+    if (options.normalize_luminance) EstimateGainsOfGroup(stack, plan, state, group, &g, gathered);
   };
   if (group == GainGroup::kLensShift && ps) {
     tbb::parallel_invoke([&] { g.phase_reference = MakePhaseReference(plan, *ps, state); },
@@ -140,11 +156,7 @@ void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan
   }
 }
 
-namespace {
-
-void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
-                          const PixelStates& state, GainGroup group, FrameGains* gains) {
-  FrameGains& g = *gains;
+std::vector<uint32_t> GainSample(const PixelStates& state) {
   const size_t np = state.size();
   // Every stride-th active pixel (the first, then a countdown), per block of pixels on the pool:
   // the blocks' active counts, then each block's picks from its first active pixel's rank.
@@ -175,6 +187,18 @@ void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
   });
   std::vector<uint32_t> sample;
   for (const std::vector<uint32_t>& p : picks) sample.insert(sample.end(), p.begin(), p.end());
+  return sample;
+}
+
+namespace {
+
+void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
+                          const PixelStates& state, GainGroup group, FrameGains* gains,
+                          const GatheredGainSamples* gathered) {
+  FrameGains& g = *gains;
+  const bool use_gathered = gathered && group == GainGroup::kLensShift && !stack.is_float() &&
+                            gathered->Complete(plan.ls_stack);
+  const std::vector<uint32_t> sample = use_gathered ? std::vector<uint32_t>() : GainSample(state);
   auto apply = [&](const GainModel& m, const std::vector<double>& gains) {
     for (size_t k = 0; k < m.frames.size(); ++k) {
       g.inv_gain[m.frames[k]] = static_cast<float>(1.0 / gains[k]);
@@ -212,7 +236,19 @@ void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
       ls.design.push_back({1.0, std::cos(ph), std::sin(ph), x * std::cos(ph), x * std::sin(ph),
                            x * x * std::cos(ph), x * x * std::sin(ph)});
     }
-    apply(ls, EstimateFrameGains(stack, ls, sample));
+    if (use_gathered) {
+      // The samples gathered while the frames decoded, in the stack's units.
+      const size_t n = gathered->pixels.size();
+      std::vector<float> by_frame(ls.frames.size() * n);
+      ParallelFor(static_cast<int64_t>(ls.frames.size()), [&](int64_t k) {
+        const std::vector<uint16_t>& codes = gathered->codes[ls.frames[k]];
+        float* dst = by_frame.data() + static_cast<size_t>(k) * n;
+        for (size_t j = 0; j < n; ++j) dst[j] = stack.Linear(codes[j]);
+      });
+      apply(ls, EstimateFrameGains(by_frame, n, ls));
+    } else {
+      apply(ls, EstimateFrameGains(stack, ls, sample));
+    }
   }
 }
 

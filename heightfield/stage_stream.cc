@@ -6,6 +6,8 @@
 #include <atomic>
 #include <chrono>
 #include <limits>
+#include <mutex>
+#include <utility>
 #include <vector>
 
 #include "core/parallel.h"
@@ -27,6 +29,29 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   PixelStates classified;  // the classify stage's states: the gains' pixel sample
   PhaseReference early_reference;
   size_t newly_saturated = 0;  // pixels saturated in a lens-shift frame only
+  // The lens-shift gains' samples, gathered as each frame decodes (~10 ms of scattered reads
+  // off the time after the last frame): frames done before the sine branch has picked the
+  // pixels wait in `pending` until it has. Used if no pixel turns out saturated in a lens-shift
+  // frame only (the pixels picked are then the same).
+  GatheredGainSamples gathered;
+  std::mutex gather_mutex;
+  bool gather_ready = false;
+  std::vector<std::pair<int, const uint16_t*>> pending;
+  const bool gather = overlap && options.gains.normalize_luminance;
+  FrameLoadOptions ls_load = options.load;
+  if (gather) {
+    gathered.codes.resize(plan.frames.size());
+    ls_load.on_decoded = [&](int k, const uint16_t* samples) {
+      {
+        std::lock_guard<std::mutex> lock(gather_mutex);
+        if (!gather_ready) {
+          pending.emplace_back(k, samples);
+          return;
+        }
+      }
+      gathered.Gather(k, samples);
+    };
+  }
   double decoded_s = 0.0, ls_decoded_s = 0.0;
   auto sine_frames = [&] {
     out.stack = LoadFrames(session, plan.frames, options.load, overlap ? &not_ls : nullptr);
@@ -34,6 +59,16 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     out.classes = ClassifyPixels(out.stack, plan, rig.camera.width, rig.camera.height,
                                  options.classify);
     classified = out.classes.state;
+    if (gather) {
+      gathered.pixels = GainSample(classified);
+      std::vector<std::pair<int, const uint16_t*>> done;
+      {
+        std::lock_guard<std::mutex> lock(gather_mutex);
+        gather_ready = true;
+        done.swap(pending);
+      }
+      for (const auto& [k, samples] : done) gathered.Gather(k, samples);
+    }
     EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kPhaseShift, options.gains,
                            &out.gains);
     out.ps = DecodePhaseShift(out.stack, plan, out.gains, out.classes, options.phase_shift,
@@ -53,7 +88,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   if (overlap) {
     tbb::parallel_invoke(
         [&] {
-          ls_frames = LoadFrames(session, plan.frames, options.load, &is_ls);
+          ls_frames = LoadFrames(session, plan.frames, ls_load, &is_ls);
           ls_decoded_s = since();
         },
         sine_frames);
@@ -98,7 +133,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   // early one holds (~45 ms serial, at full resolution, off the time after the last frame).
   const bool early = overlap && newly_saturated == 0;
   EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
-                         &out.gains, early ? nullptr : &out.ps);
+                         &out.gains, early ? nullptr : &out.ps, early ? &gathered : nullptr);
   if (early) out.gains.phase_reference = std::move(early_reference);
   return out;
 }
