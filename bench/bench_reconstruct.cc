@@ -444,6 +444,7 @@ bool BareDecodeInChild(const fs::path& dir, double* wall, double* cpu) {
   if (pid < 0) return false;
   if (pid == 0) {
     close(fds[0]);
+    TuneAllocatorForReconstruction();  // the same allocator as the reconstruction's
     const Session s = ReadSession(dir);
     const auto t = Clock::now();
     const double c = ProcessCpuSeconds();
