@@ -655,13 +655,15 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
 
 FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::vector<int>& frames,
                                           const std::vector<uint32_t>& pixels,
-                                          const FrequencyAt& f_map,
-                                          const std::vector<double>& x,
+                                          const FrequencyAt& f_map, const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
                                           const FrameCorrectionOptions& options,
-                                          const PhaseConstraint* reference) {
+                                          const PhaseConstraint* reference,
+                                          const GatheredSamples* gathered) {
   const int nk = static_cast<int>(frames.size());
   const size_t stride = std::max<size_t>(1, pixels.size() / std::max(16, options.max_pixels));
+  if (gathered && (stack.is_float() || gathered->pixels != pixels || !gathered->Complete(frames)))
+    gathered = nullptr;
   PhaseConstraint sub;
   const bool with_ref =
       reference && reference->phase.size() == pixels.size() &&
@@ -669,10 +671,12 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
       reference->nuisance.size() == pixels.size() * std::max(0, reference->nuisance_per_pixel);
   if (with_ref) sub.nuisance_per_pixel = reference->nuisance_per_pixel;
   std::vector<uint32_t> used;  // the pixels taken
+  std::vector<size_t> from;    // and their entries in `pixels`
   std::vector<double> freq;
   for (size_t q = 0; q < pixels.size(); q += stride) {
     const uint32_t i = pixels[q];
     used.push_back(i);
+    from.push_back(q);
     freq.push_back(f_map(i));
     if (with_ref) {
       sub.phase.push_back(reference->phase[q]);
@@ -689,7 +693,12 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
   std::vector<float> by_frame(n * static_cast<size_t>(nk));
   ParallelFor(nk, [&](int64_t k) {
     float* dst = by_frame.data() + static_cast<size_t>(k) * n;
-    for (size_t q = 0; q < n; ++q) dst[q] = stack.Value(frames[k], used[q]);
+    if (gathered) {
+      const std::vector<uint16_t>& codes = gathered->codes[frames[k]];
+      for (size_t q = 0; q < n; ++q) dst[q] = stack.Linear(codes[from[q]]);
+    } else {
+      for (size_t q = 0; q < n; ++q) dst[q] = stack.Value(frames[k], used[q]);
+    }
   });
   std::vector<float> samples(n * static_cast<size_t>(nk));
   for (size_t q = 0; q < n; ++q)
@@ -755,7 +764,11 @@ FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vect
     if (pc.nuisance_per_pixel == 0) pc.nuisance.clear();
     std::vector<double> g0;
     for (int k : frames) g0.push_back(1.0 / (*inv_gain)[k]);
-    FrameCorrections fc = EstimateFrameCorrections(stack, frames, pixels, f_map, *x, g0, options, &pc);
+    // The samples the stream stage gathered, where every reference pixel is taken.
+    const GatheredSamples* gathered =
+        pixels.size() == reference->pixels.size() ? &reference->samples : nullptr;
+    FrameCorrections fc =
+        EstimateFrameCorrections(stack, frames, pixels, f_map, *x, g0, options, &pc, gathered);
     if (fc.in_band_pixels > 0) {  // else (too few reference pixels): as without a reference
       if (fc.valid) {
         for (size_t k = 0; k < frames.size(); ++k) {

@@ -41,10 +41,9 @@
 #include <vector>
 
 #include "core/json.h"
+#include "heightfield/frames.h"
 
 namespace mesoscan {
-
-class FrameStack;
 
 // How the pipeline sets the gains of the lens-shift frames: the joint estimate (default), the
 // alternating least squares of frames.h alone (the pre-issue-13 behaviour), or frame means over
@@ -111,6 +110,9 @@ struct PhaseReference {
   int nuisance_per_pixel = 0;
   std::vector<float> nuisance;
   double ls_centre_px = 0.0;     // the lens-shift positions' centre (the fit's x = 0), px
+  // The lens-shift frames' samples at `pixels`, if the stream stage gathered them while the
+  // frames decoded (else empty): CorrectLensShiftFrames reads them instead of the stack.
+  GatheredSamples samples;
   bool empty() const { return pixels.empty(); }
 };
 
@@ -167,14 +169,15 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
 using FrequencyAt = std::function<float(uint32_t)>;
 
 // The same on frames `frames` (stack indices) of `stack` at stack pixels `pixels`, with the
-// per-pixel frequency f_map(pixel).
+// per-pixel frequency f_map(pixel); the samples from `gathered` where it holds those pixels'
+// (in that order) for every one of the frames, of an integer stack.
 FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::vector<int>& frames,
                                           const std::vector<uint32_t>& pixels,
-                                          const FrequencyAt& f_map,
-                                          const std::vector<double>& x,
+                                          const FrequencyAt& f_map, const std::vector<double>& x,
                                           const std::vector<double>& initial_gains,
                                           const FrameCorrectionOptions& options,
-                                          const PhaseConstraint* reference = nullptr);
+                                          const PhaseConstraint* reference = nullptr,
+                                          const GatheredSamples* gathered = nullptr);
 
 }  // namespace mesoscan
 

@@ -167,6 +167,20 @@ void FrameStack::Merge(FrameStack&& o) {
   o = FrameStack();
 }
 
+void GatheredSamples::Gather(int k, const uint16_t* samples) {
+  std::vector<uint16_t>& c = codes[k];
+  c.resize(pixels.size());
+  for (size_t j = 0; j < pixels.size(); ++j) c[j] = samples[pixels[j]];
+}
+
+bool GatheredSamples::Complete(const std::vector<int>& frames) const {
+  if (pixels.empty()) return false;
+  for (int k : frames)
+    if (k < 0 || static_cast<size_t>(k) >= codes.size() || codes[k].size() != pixels.size())
+      return false;
+  return true;
+}
+
 FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indices,
                       const FrameLoadOptions& options, const std::vector<uint8_t>* decode_only) {
   options.Check();

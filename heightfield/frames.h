@@ -56,6 +56,15 @@ struct FrameLoadOptions {
   void Check() const;
 };
 
+// Some frames' 16-bit samples at a few pixels, gathered while the frames decode
+// (FrameLoadOptions::on_decoded; issue 12: scattered reads off the time after the last frame).
+struct GatheredSamples {
+  std::vector<uint32_t> pixels;                         // stack pixels
+  std::vector<std::vector<uint16_t>> codes;             // codes[k][j]: stack frame k at pixels[j]
+  void Gather(int k, const uint16_t* samples);          // frame k's (ROI, row-major) at `pixels`
+  bool Complete(const std::vector<int>& frames) const;  // every one of `frames` gathered
+};
+
 // The decoded frames of one session (a chosen subset, in the order asked for), cropped to the ROI.
 class FrameStack {
  public:

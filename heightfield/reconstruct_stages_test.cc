@@ -107,7 +107,7 @@ TEST(StageStream, DecodedFramesMarkSaturationAtEverySample) {
   }
   // The decoding tasks hand each frame's samples to on_decoded once (the stream stage gathers
   // the lens-shift gains' samples from them): the stack's values, gathered at any pixels.
-  GatheredGainSamples gathered;
+  GatheredSamples gathered;
   gathered.pixels = {0, 7, 256, 1499};
   gathered.codes.resize(2);
   std::atomic<int> calls{0};

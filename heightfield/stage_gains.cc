@@ -16,20 +16,6 @@
 
 namespace mesoscan {
 
-void GatheredGainSamples::Gather(int k, const uint16_t* samples) {
-  std::vector<uint16_t>& c = codes[k];
-  c.resize(pixels.size());
-  for (size_t j = 0; j < pixels.size(); ++j) c[j] = samples[pixels[j]];
-}
-
-bool GatheredGainSamples::Complete(const std::vector<int>& frames) const {
-  if (pixels.empty()) return false;
-  for (int k : frames)
-    if (k < 0 || static_cast<size_t>(k) >= codes.size() || codes[k].size() != pixels.size())
-      return false;
-  return true;
-}
-
 FrameGains UnitGains(const ReconstructPlan& plan, size_t session_frames) {
   FrameGains g;
   g.session_gain.assign(session_frames, 1.0);
@@ -134,13 +120,13 @@ namespace {
 // The frame gains of one group (EstimateLuminanceGains without the phase reference).
 void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
                           const PixelStates& state, GainGroup group, FrameGains* gains,
-                          const GatheredGainSamples* gathered);
+                          const GatheredSamples* gathered);
 }  // namespace
 
 void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
                             const PixelStates& state, GainGroup group, const GainOptions& options,
                             FrameGains* gains, const PhaseShiftPixels* ps,
-                            const GatheredGainSamples* gathered) {
+                            const GatheredSamples* gathered) {
   FrameGains& g = *gains;
   // The lens-shift frames' phase reference and their gains are independent (different members
   // of g, read-only inputs): computed at once, on the otherwise idle second core right after the
@@ -194,7 +180,7 @@ namespace {
 
 void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
                           const PixelStates& state, GainGroup group, FrameGains* gains,
-                          const GatheredGainSamples* gathered) {
+                          const GatheredSamples* gathered) {
   FrameGains& g = *gains;
   const bool use_gathered = gathered && group == GainGroup::kLensShift && !stack.is_float() &&
                             gathered->Complete(plan.ls_stack);

@@ -41,23 +41,15 @@ FrameGains UnitGains(const ReconstructPlan& plan, size_t session_frames);
 // The gains' pixel sample: every stride-th kActive pixel of `state` (about 20000), increasing.
 std::vector<uint32_t> GainSample(const PixelStates& state);
 
-// The lens-shift frames' samples at GainSample's pixels, gathered while the frames decode (the
-// stream stage, FrameLoadOptions::on_decoded): 16-bit codes per stack frame.
-struct GatheredGainSamples {
-  std::vector<uint32_t> pixels;
-  std::vector<std::vector<uint16_t>> codes;             // codes[k][j]: stack frame k at pixels[j]
-  void Gather(int k, const uint16_t* samples);          // frame k's (ROI, row-major) at `pixels`
-  bool Complete(const std::vector<int>& frames) const;  // every one of `frames` gathered
-};
-
 // With `ps` (the phase-shift stage's output) the lens-shift group also makes
-// gains->phase_reference from it. With `gathered` (complete for the lens-shift frames, of an
-// integer stack, and its pixels GainSample(state)) the lens-shift group reads those samples
-// instead of gathering them from the stack: the same gains.
+// gains->phase_reference from it. With `gathered` (the lens-shift frames' samples at
+// GainSample(state), collected while they decoded; used if complete and the stack holds integer
+// frames) the lens-shift group reads those instead of gathering them from the stack: the same
+// gains.
 void EstimateLuminanceGains(const FrameStack& stack, const ReconstructPlan& plan,
                             const PixelStates& state, GainGroup group, const GainOptions& options,
                             FrameGains* gains, const PhaseShiftPixels* ps = nullptr,
-                            const GatheredGainSamples* gathered = nullptr);
+                            const GatheredSamples* gathered = nullptr);
 
 // The projector coordinate decoded by phase shifting alone (temporal unwrapping as in the
 // combine stage, per-sample noise 1% of the pixel's level) at a scattered sample of about

@@ -13,6 +13,43 @@
 #include "core/parallel.h"
 
 namespace mesoscan {
+namespace {
+
+// Gathers frames' samples (GatheredSamples) at pixels that are chosen while the frames decode:
+// frames decoded before SetPixels wait until it is called. OnDecoded is called from the
+// decoding tasks; the frames' samples must stay in place until SetPixels has run.
+class LateGatherer {
+ public:
+  LateGatherer(GatheredSamples* out, size_t frames) : out_(out) { out->codes.resize(frames); }
+  void OnDecoded(int k, const uint16_t* samples) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!ready_) {
+        pending_.emplace_back(k, samples);
+        return;
+      }
+    }
+    out_->Gather(k, samples);
+  }
+  void SetPixels(std::vector<uint32_t> pixels) {
+    out_->pixels = std::move(pixels);
+    std::vector<std::pair<int, const uint16_t*>> done;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      ready_ = true;
+      done.swap(pending_);
+    }
+    for (const auto& [k, samples] : done) out_->Gather(k, samples);
+  }
+
+ private:
+  GatheredSamples* out_;
+  std::mutex mutex_;
+  bool ready_ = false;
+  std::vector<std::pair<int, const uint16_t*>> pending_;
+};
+
+}  // namespace
 
 StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan& plan,
                                    const StreamStageOptions& options) {
@@ -29,29 +66,20 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   PixelStates classified;  // the classify stage's states: the gains' pixel sample
   PhaseReference early_reference;
   size_t newly_saturated = 0;  // pixels saturated in a lens-shift frame only
-  // The lens-shift gains' samples, gathered as each frame decodes (~10 ms of scattered reads
-  // off the time after the last frame): frames done before the sine branch has picked the
-  // pixels wait in `pending` until it has. Used if no pixel turns out saturated in a lens-shift
-  // frame only (the pixels picked are then the same).
-  GatheredGainSamples gathered;
-  std::mutex gather_mutex;
-  bool gather_ready = false;
-  std::vector<std::pair<int, const uint16_t*>> pending;
-  const bool gather = overlap && options.gains.normalize_luminance;
+  // The lens-shift frames' samples that the gains (~20000 pixels) and the frame corrections'
+  // phase reference (~12000) read, gathered as each frame decodes (~15 ms of scattered reads off
+  // the time after the last frame); the sine branch picks both sets of pixels. Used if no pixel
+  // turns out saturated in a lens-shift frame only (the pixels are then the same).
+  GatheredSamples gain_samples, reference_samples;
+  LateGatherer gain_gatherer(&gain_samples, plan.frames.size()),
+      reference_gatherer(&reference_samples, plan.frames.size());
+  const bool gather = overlap;
   FrameLoadOptions ls_load = options.load;
-  if (gather) {
-    gathered.codes.resize(plan.frames.size());
+  if (gather)
     ls_load.on_decoded = [&](int k, const uint16_t* samples) {
-      {
-        std::lock_guard<std::mutex> lock(gather_mutex);
-        if (!gather_ready) {
-          pending.emplace_back(k, samples);
-          return;
-        }
-      }
-      gathered.Gather(k, samples);
+      gain_gatherer.OnDecoded(k, samples);
+      reference_gatherer.OnDecoded(k, samples);
     };
-  }
   double decoded_s = 0.0, ls_decoded_s = 0.0;
   auto sine_frames = [&] {
     out.stack = LoadFrames(session, plan.frames, options.load, overlap ? &not_ls : nullptr);
@@ -59,16 +87,8 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     out.classes = ClassifyPixels(out.stack, plan, rig.camera.width, rig.camera.height,
                                  options.classify);
     classified = out.classes.state;
-    if (gather) {
-      gathered.pixels = GainSample(classified);
-      std::vector<std::pair<int, const uint16_t*>> done;
-      {
-        std::lock_guard<std::mutex> lock(gather_mutex);
-        gather_ready = true;
-        done.swap(pending);
-      }
-      for (const auto& [k, samples] : done) gathered.Gather(k, samples);
-    }
+    if (gather && options.gains.normalize_luminance)
+      gain_gatherer.SetPixels(GainSample(classified));
     EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kPhaseShift, options.gains,
                            &out.gains);
     out.ps = DecodePhaseShift(out.stack, plan, out.gains, out.classes, options.phase_shift,
@@ -76,7 +96,10 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     // The lens-shift frames' phase reference (phase shifting alone) while they still decode; it
     // is kept below if no pixel turns out saturated in a lens-shift frame only (the pixels it
     // samples are then the same: ps.level is the white level at every classified-kActive pixel).
-    if (overlap) early_reference = MakePhaseReference(plan, out.ps, classified);
+    if (overlap) {
+      early_reference = MakePhaseReference(plan, out.ps, classified);
+      reference_gatherer.SetPixels(early_reference.pixels);
+    }
     // The fringe orders too (the combine stage's search, ~0.25 CPU-s at full resolution, off
     // the time after the last frame); the lens-shift noise sets their weights there.
     if (overlap)
@@ -133,8 +156,11 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   // early one holds (~45 ms serial, at full resolution, off the time after the last frame).
   const bool early = overlap && newly_saturated == 0;
   EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
-                         &out.gains, early ? nullptr : &out.ps, early ? &gathered : nullptr);
-  if (early) out.gains.phase_reference = std::move(early_reference);
+                         &out.gains, early ? nullptr : &out.ps, early ? &gain_samples : nullptr);
+  if (early) {
+    out.gains.phase_reference = std::move(early_reference);
+    out.gains.phase_reference.samples = std::move(reference_samples);
+  }
   return out;
 }
 

@@ -5,7 +5,7 @@
 // as soon as the phase shift is done, so that only the lens-shift frames stay for the stages
 // that need whole profiles (frequency map, frame corrections, per-pixel fit). The lens-shift
 // frames' gains follow once they are all in, from samples gathered as each of them decoded
-// (GatheredGainSamples: the sine branch picks the pixels). With lens shift, the sine branch also
+// (GatheredSamples: the sine branch picks the pixels). With lens shift, the sine branch also
 // unwraps the phase shift on its own (stage_combine.h UnwrapPhaseShift: the fringe orders, ~0.25
 // CPU-s at full resolution, moved off the time after the last frame) and makes the lens-shift
 // frames' phase reference. Equivalent to running decode, classify, gains and phase shift in turn,
