@@ -79,7 +79,8 @@ typedef int64_t V4l __attribute__((vector_size(32)));
 // Four floats as doubles (exact). Built element by element: GCC lowers __builtin_convertvector
 // of a 16-byte float vector into two 128-bit halves through memory, where this is one
 // vcvtps2pd in the AVX2 clone (FitBlock's loop ~10 % shorter).
-inline V4d Widen(V4f v) { return V4d{v[0], v[1], v[2], v[3]}; }
+// (Through a pointer: a function returning a 32-byte vector has another ABI with AVX.)
+inline void Widen(V4f v, V4d* out) { *out = V4d{v[0], v[1], v[2], v[3]}; }
 
 double WrapPhase(double phi) {
   // To (-pi, pi] (already there: atan2's range, but for -pi).
@@ -652,7 +653,9 @@ inline __attribute__((always_inline)) void AccumulateMomentsT(const double* basi
   for (k = 0; k + 3 < n; k += 4) {
     V4f f;
     std::memcpy(&f, b + k, sizeof f);
-    const V4d y = Widen(f) - mean;
+    V4d y;
+      Widen(f, &y);
+      y -= mean;
     s0 += y;
     s2 += y * y;
   }
@@ -1027,8 +1030,12 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         V4f va, vb;
         std::memcpy(&va, yb + 4 * k, sizeof va);
         std::memcpy(&vb, yb + 4 * (n - 1 - k), sizeof vb);
-        const V4d ya = Widen(va) - mean;
-        const V4d yc = Widen(vb) - mean;
+        V4d ya;
+      Widen(va, &ya);
+      ya -= mean;
+        V4d yc;
+      Widen(vb, &yc);
+      yc -= mean;
         const V4d sum = ya + yc, dif = ya - yc;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
         AddParityRows(bk, sum, dif, acc);  // rows 8 half + r
@@ -1040,7 +1047,9 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
       if (n % 2 != 0) {
         V4f v;
         std::memcpy(&v, yb + 4 * half_n, sizeof v);
-        const V4d y = Widen(v) - mean;
+        V4d y;
+      Widen(v, &y);
+      y -= mean;
         const double* bk = in->basis_km + static_cast<size_t>(half_n) * kMoments + 8 * half;
         AddParityRows(bk, y, y, acc);
         if (half == 0) {
@@ -1057,7 +1066,9 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
       for (int k = 0; k < n; ++k) {
         V4f v;
         std::memcpy(&v, yb + 4 * k, sizeof v);
-        const V4d y = Widen(v) - mean;
+        V4d y;
+      Widen(v, &y);
+      y -= mean;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
         AddParityRows(bk, y, y, acc);
         if (half == 0) {
@@ -1605,7 +1616,8 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
   V4f v0;
   std::memcpy(&v0, b, sizeof v0);
   v0 *= gain[0];
-  V4d ref = Widen(v0);
+  V4d ref;
+  Widen(v0, &ref);
   const V4d zero = {0, 0, 0, 0};
   V4d w[kFineMoments], y0 = zero, y2 = zero;
   for (V4d& v : w) v = zero;
@@ -1622,8 +1634,12 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
       std::memcpy(&vc, b + kc * stride, sizeof vc);
       va *= gain[k];
       vc *= gain[kc];
-      const V4d ya = Widen(va) - ref;
-      const V4d yc = Widen(vc) - ref;
+      V4d ya;
+      Widen(va, &ya);
+      ya -= ref;
+      V4d yc;
+      Widen(vc, &yc);
+      yc -= ref;
       const V4d sum = ya + yc, dif = ya - yc;
       AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, sum, dif, w);
       y0 += sum;
@@ -1635,7 +1651,9 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
     V4f v;
     std::memcpy(&v, b + k * stride, sizeof v);
     v *= gain[k];
-    const V4d y = Widen(v) - ref;
+    V4d y;
+      Widen(v, &y);
+      y -= ref;
     AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, y, y, w);
     y0 += y;
     y2 += y * y;

@@ -241,7 +241,8 @@ constexpr int kSolveChunk = 64;
 typedef float V4f __attribute__((vector_size(16)));
 // Four floats as doubles, element by element: one vcvtps2pd in the AVX2 clone, where GCC lowers
 // __builtin_convertvector to two halves through the stack (as lens_shift_fit.cc's Widen).
-inline V4d Widen(V4f v) { return V4d{v[0], v[1], v[2], v[3]}; }
+// (Through a pointer: a function returning a 32-byte vector has another ABI with AVX.)
+inline void Widen(V4f v, V4d* out) { *out = V4d{v[0], v[1], v[2], v[3]}; }
 MESOSCAN_SIMD_CLONES
 void SolveLanes(const double* pinv, const double* cosd, const double* sind, int k,
                 const float* samples, size_t stride, int n, double* out) {
@@ -252,7 +253,8 @@ void SolveLanes(const double* pinv, const double* cosd, const double* sind, int 
     for (int i = 0; i < k; ++i) {
       V4f vf;
       std::memcpy(&vf, samples + static_cast<size_t>(i) * stride + j, sizeof vf);
-      const V4d v = Widen(vf);
+      V4d v;
+      Widen(vf, &v);
       finite += v - v;  // NaN where a sample is NaN or infinite
       a += pinv[i] * v;
       c += pinv[k + i] * v;
@@ -262,7 +264,8 @@ void SolveLanes(const double* pinv, const double* cosd, const double* sind, int 
     for (int i = 0; i < k; ++i) {
       V4f vf;
       std::memcpy(&vf, samples + static_cast<size_t>(i) * stride + j, sizeof vf);
-      const V4d v = Widen(vf);
+      V4d v;
+      Widen(vf, &v);
       const V4d r = v - (a + c * cosd[i] - s * sind[i]);
       ssr += r * r;
     }
