@@ -85,6 +85,8 @@ class FrameStack {
   }
   // Value of a 16-bit sample `code` of an integer stack (is_float() false).
   float Linear(uint16_t code) const { return lut_[code]; }
+  // Frame k's 16-bit samples (ROI, row-major) of an integer stack.
+  const uint16_t* Samples16(int k) const { return raw_[k].data(); }
   bool is_float() const { return is_float_; }
   // Frees the samples of frame k (the streaming driver releases each frame after the last stage
   // that reads it); Gather / Value must not be called for it afterwards.

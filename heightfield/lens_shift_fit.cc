@@ -654,8 +654,8 @@ inline __attribute__((always_inline)) void AccumulateMomentsT(const double* basi
     V4f f;
     std::memcpy(&f, b + k, sizeof f);
     V4d y;
-      Widen(f, &y);
-      y -= mean;
+    Widen(f, &y);
+    y -= mean;
     s0 += y;
     s2 += y * y;
   }
@@ -1031,11 +1031,11 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         std::memcpy(&va, yb + 4 * k, sizeof va);
         std::memcpy(&vb, yb + 4 * (n - 1 - k), sizeof vb);
         V4d ya;
-      Widen(va, &ya);
-      ya -= mean;
+        Widen(va, &ya);
+        ya -= mean;
         V4d yc;
-      Widen(vb, &yc);
-      yc -= mean;
+        Widen(vb, &yc);
+        yc -= mean;
         const V4d sum = ya + yc, dif = ya - yc;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
         AddParityRows(bk, sum, dif, acc);  // rows 8 half + r
@@ -1048,8 +1048,8 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         V4f v;
         std::memcpy(&v, yb + 4 * half_n, sizeof v);
         V4d y;
-      Widen(v, &y);
-      y -= mean;
+        Widen(v, &y);
+        y -= mean;
         const double* bk = in->basis_km + static_cast<size_t>(half_n) * kMoments + 8 * half;
         AddParityRows(bk, y, y, acc);
         if (half == 0) {
@@ -1067,8 +1067,8 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         V4f v;
         std::memcpy(&v, yb + 4 * k, sizeof v);
         V4d y;
-      Widen(v, &y);
-      y -= mean;
+        Widen(v, &y);
+        y -= mean;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
         AddParityRows(bk, y, y, acc);
         if (half == 0) {
@@ -1652,8 +1652,8 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
     std::memcpy(&v, b + k * stride, sizeof v);
     v *= gain[k];
     V4d y;
-      Widen(v, &y);
-      y -= ref;
+    Widen(v, &y);
+    y -= ref;
     AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, y, y, w);
     y0 += y;
     y2 += y * y;

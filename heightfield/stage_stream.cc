@@ -15,9 +15,11 @@
 namespace mesoscan {
 namespace {
 
-// Gathers frames' samples (GatheredSamples) at pixels that are chosen while the frames decode:
-// frames decoded before SetPixels wait until it is called. OnDecoded is called from the
-// decoding tasks; the frames' samples must stay in place until SetPixels has run.
+// Gathers frames' samples (GatheredSamples) at pixels that are chosen while the frames decode.
+// A frame decoded after SetPixels is gathered by its decoding task (OnDecoded: its samples are
+// in place while that task runs); the frames decoded before are gathered by Finish, from the
+// stack once it is complete (not by SetPixels: if another frame's decode fails meanwhile, the
+// loader's frames are freed under it).
 class LateGatherer {
  public:
   LateGatherer(GatheredSamples* out, size_t frames) : out_(out) { out->codes.resize(frames); }
@@ -25,7 +27,7 @@ class LateGatherer {
     {
       std::lock_guard<std::mutex> lock(mutex_);
       if (!ready_) {
-        pending_.emplace_back(k, samples);
+        pending_.push_back(k);
         return;
       }
     }
@@ -33,20 +35,23 @@ class LateGatherer {
   }
   void SetPixels(std::vector<uint32_t> pixels) {
     out_->pixels = std::move(pixels);
-    std::vector<std::pair<int, const uint16_t*>> done;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      ready_ = true;
-      done.swap(pending_);
-    }
-    for (const auto& [k, samples] : done) out_->Gather(k, samples);
+    std::lock_guard<std::mutex> lock(mutex_);
+    ready_ = true;
+  }
+  // The frames decoded before SetPixels, from `stack` (integer frames; nothing if SetPixels
+  // was not called).
+  void Finish(const FrameStack& stack) {
+    if (!ready_ || stack.is_float()) return;
+    ParallelFor(static_cast<int64_t>(pending_.size()),
+                [&](int64_t q) { out_->Gather(pending_[q], stack.Samples16(pending_[q])); });
+    pending_.clear();
   }
 
  private:
   GatheredSamples* out_;
   std::mutex mutex_;
   bool ready_ = false;
-  std::vector<std::pair<int, const uint16_t*>> pending_;
+  std::vector<int> pending_;
 };
 
 }  // namespace
@@ -155,6 +160,10 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   // The lens-shift frames' gains after the last frame; their phase reference too unless the
   // early one holds (~45 ms serial, at full resolution, off the time after the last frame).
   const bool early = overlap && newly_saturated == 0;
+  if (early) {
+    gain_gatherer.Finish(out.stack);
+    reference_gatherer.Finish(out.stack);
+  }
   EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kLensShift, options.gains,
                          &out.gains, early ? nullptr : &out.ps, early ? &gain_samples : nullptr);
   if (early) {
