@@ -81,6 +81,11 @@ typedef int64_t V4l __attribute__((vector_size(32)));
 // vcvtps2pd in the AVX2 clone (FitBlock's loop ~10 % shorter).
 // (Through a pointer: a function returning a 32-byte vector has another ABI with AVX.)
 inline void Widen(V4f v, V4d* out) { *out = V4d{v[0], v[1], v[2], v[3]}; }
+// The samples v widened, minus `about` (the centring reference).
+inline void Centred(V4f v, const V4d& about, V4d* out) {
+  Widen(v, out);
+  *out -= about;
+}
 
 double WrapPhase(double phi) {
   // To (-pi, pi] (already there: atan2's range, but for -pi).
@@ -1031,11 +1036,9 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         std::memcpy(&va, yb + 4 * k, sizeof va);
         std::memcpy(&vb, yb + 4 * (n - 1 - k), sizeof vb);
         V4d ya;
-        Widen(va, &ya);
-        ya -= mean;
+        Centred(va, mean, &ya);
         V4d yc;
-        Widen(vb, &yc);
-        yc -= mean;
+        Centred(vb, mean, &yc);
         const V4d sum = ya + yc, dif = ya - yc;
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
         AddParityRows(bk, sum, dif, acc);  // rows 8 half + r
@@ -1048,8 +1051,7 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         V4f v;
         std::memcpy(&v, yb + 4 * half_n, sizeof v);
         V4d y;
-        Widen(v, &y);
-        y -= mean;
+        Centred(v, mean, &y);
         const double* bk = in->basis_km + static_cast<size_t>(half_n) * kMoments + 8 * half;
         AddParityRows(bk, y, y, acc);
         if (half == 0) {
@@ -1067,8 +1069,7 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
         V4f v;
         std::memcpy(&v, yb + 4 * k, sizeof v);
         V4d y;
-        Widen(v, &y);
-        y -= mean;
+        Centred(v, mean, &y);
         const double* bk = in->basis_km + static_cast<size_t>(k) * kMoments + 8 * half;
         AddParityRows(bk, y, y, acc);
         if (half == 0) {
@@ -1635,11 +1636,9 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
       va *= gain[k];
       vc *= gain[kc];
       V4d ya;
-      Widen(va, &ya);
-      ya -= ref;
+      Centred(va, ref, &ya);
       V4d yc;
-      Widen(vc, &yc);
-      yc -= ref;
+      Centred(vc, ref, &yc);
       const V4d sum = ya + yc, dif = ya - yc;
       AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, sum, dif, w);
       y0 += sum;
@@ -1652,8 +1651,7 @@ void FitBlock(const double* basis_km, const double* basis_sum, int nk, bool symm
     std::memcpy(&v, b + k * stride, sizeof v);
     v *= gain[k];
     V4d y;
-    Widen(v, &y);
-    y -= ref;
+    Centred(v, ref, &y);
     AddParityRows(basis_km + static_cast<size_t>(k) * kFineMoments, y, y, w);
     y0 += y;
     y2 += y * y;
