@@ -78,9 +78,8 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   GatheredSamples gain_samples, reference_samples;
   LateGatherer gain_gatherer(&gain_samples, plan.frames.size()),
       reference_gatherer(&reference_samples, plan.frames.size());
-  const bool gather = overlap;
   FrameLoadOptions ls_load = options.load;
-  if (gather)
+  if (overlap)
     ls_load.on_decoded = [&](int k, const uint16_t* samples) {
       gain_gatherer.OnDecoded(k, samples);
       reference_gatherer.OnDecoded(k, samples);
@@ -92,7 +91,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     out.classes = ClassifyPixels(out.stack, plan, rig.camera.width, rig.camera.height,
                                  options.classify);
     classified = out.classes.state;
-    if (gather && options.gains.normalize_luminance)
+    if (overlap && options.gains.normalize_luminance)
       gain_gatherer.SetPixels(GainSample(classified));
     EstimateLuminanceGains(out.stack, plan, classified, GainGroup::kPhaseShift, options.gains,
                            &out.gains);
