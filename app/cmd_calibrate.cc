@@ -1,6 +1,6 @@
 // mesoscan calibrate SESSION... --board checker:COLSxROWS:SQUARE_MM | charuco:COLSxROWS:SQUARE_MM:
 // MARKER_MM:DICT --out RIG.json: the rig from calibration sessions of a printed board
-// (heightfield/calibrate.h).
+// (calibration/calibrate.h).
 
 #include <algorithm>
 #include <cmath>
@@ -9,13 +9,13 @@
 #include <sstream>
 
 #include "app/commands.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/error.h"
 #include "core/json.h"
 #include "core/log.h"
-#include "heightfield/calibrate.h"
-#include "heightfield/calibrate_mount.h"
-#include "heightfield/calibrate_shifter.h"
+#include "calibration/calibrate.h"
+#include "calibration/calibrate_mount.h"
+#include "calibration/calibrate_shifter.h"
 
 namespace fs = std::filesystem;
 

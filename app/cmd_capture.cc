@@ -12,10 +12,10 @@
 #include "app/commands.h"
 #include "app/rehearsal.h"
 #include "capture/lens_shifter.h"
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "capture/projector_window.h"
 #include "capture/sequencer.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/error.h"
 #include "core/log.h"
 
@@ -34,7 +34,7 @@ struct Args {
   SequencerOptions seq;
 };
 
-// The frames to capture (capture/patterns.h, the generator `simulate` uses too): a scan (sines
+// The frames to capture (session/patterns.h, the generator `simulate` uses too): a scan (sines
 // along the shifter's axis, lens shift over its range, white, black) or a calibration plan (sines
 // along both projector axes, white, black; no lens shift).
 FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {

@@ -12,7 +12,7 @@
 
 #include "app/commands.h"
 #include "app/session_checks.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/error.h"
 #include "core/scan_folder.h"
 

@@ -19,7 +19,7 @@
 #include "capture/gphoto2_camera.h"
 #include "capture/lens_shifter.h"
 #include "capture/projector_window.h"
-#include "capture/raw_frame.h"
+#include "session/raw_frame.h"
 #include "core/error.h"
 #include "core/module.h"
 #include "core/oiio_module.h"

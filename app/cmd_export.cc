@@ -1,4 +1,4 @@
-// mesoscan export SCAN --out DIR: the scan's DCC exports (heightfield/export.h).
+// mesoscan export SCAN --out DIR: the scan's DCC exports (maps/export.h).
 
 #include <algorithm>
 #include <cmath>
@@ -17,7 +17,7 @@
 #include "core/log.h"
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
-#include "heightfield/export.h"
+#include "maps/export.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;

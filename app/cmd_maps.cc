@@ -1,4 +1,4 @@
-// mesoscan maps SCAN --out DIR: an artist-ready material map set (heightfield/maps.h): holes
+// mesoscan maps SCAN --out DIR: an artist-ready material map set (maps/maps.h): holes
 // filled, the sample's shape removed, tileable at a physical size, with AO and curvature.
 // The same options on `export` and `reconstruct --export` (AddMapOptions).
 
@@ -12,7 +12,7 @@
 #include "core/image_io.h"
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
-#include "heightfield/maps.h"
+#include "maps/maps.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;

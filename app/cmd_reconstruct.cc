@@ -10,7 +10,7 @@
 #include "app/commands.h"
 #include "app/map_options.h"
 #include "app/session_checks.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/json.h"
@@ -19,9 +19,9 @@
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
-#include "heightfield/error_map_png.h"
-#include "heightfield/export.h"
-#include "heightfield/ground_truth.h"
+#include "sim/error_map_png.h"
+#include "maps/export.h"
+#include "sim/ground_truth.h"
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {

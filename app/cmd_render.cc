@@ -25,8 +25,8 @@
 #include "core/parallel.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
-#include "heightfield/export.h"
-#include "heightfield/maps_fill.h"
+#include "maps/export.h"
+#include "maps/maps_fill.h"
 #include "render/animation.h"
 #include "render/denoise.h"
 #include "render/env_map.h"
@@ -391,7 +391,7 @@ void Run(const RenderArgs& args) {
   std::future<void> denoiser_loaded;
   if (a.denoise) denoiser_loaded = std::async(std::launch::async, [] { (void)Ximgproc(); });
   // The height field to preview: the scan's height.exr with its bounded holes filled
-  // (heightfield/maps_fill.h, as the artist-ready maps fill them) unless --fill none, so a
+  // (maps/maps_fill.h, as the artist-ready maps fill them) unless --fill none, so a
   // shadowed rim is not previewed as a trench; large holes and the outside stay open.
   const HeightField hf = PreviewHeightField(a, a.scan, o);
   std::optional<CompareScan> other;

@@ -4,7 +4,7 @@
 #include <filesystem>
 
 #include "app/commands.h"
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "core/rect.h"
@@ -126,7 +126,7 @@ void AddSimulateCommand(CLI::App* app) {
       opt.crop.reset();
       if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "--crop");
       const Rig rig = ResolveRig(opt);
-      // The calibration plan of `capture --plan calibration` (capture/patterns.h), periods as
+      // The calibration plan of `capture --plan calibration` (session/patterns.h), periods as
       // given.
       const FramePlanOptions plan = CalibrationPlan(rig.projector.width, rig.projector.height);
       opt.ps_periods_px = cmd->count("--ps-periods") == 0

@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <string>
 
-#include "heightfield/maps.h"
+#include "maps/maps.h"
 
 namespace mesoscan {
 

@@ -2,7 +2,7 @@
 // What `reconstruct` would refuse, for `check` too (issue 10 item 6), and errors of the
 // pipeline that name no file given the session's session.json (item 8).
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/scan_folder.h"
 #include "heightfield/reconstruct.h"
 

@@ -16,10 +16,10 @@
 #include <fstream>
 #include <numbers>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/log.h"
 #include "core/progress.h"
-#include "heightfield/calibrate.h"
+#include "calibration/calibrate.h"
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 

@@ -13,7 +13,7 @@
 
 #include "core/log.h"
 #include "core/scan_folder.h"
-#include "heightfield/export.h"
+#include "maps/export.h"
 
 namespace mesoscan {
 namespace {

@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/stage_timer.h"

@@ -21,7 +21,7 @@
 
 #include "core/log.h"
 #include "core/scan_folder.h"
-#include "heightfield/maps.h"
+#include "maps/maps.h"
 
 namespace mesoscan {
 namespace {

@@ -41,7 +41,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/fs.h"
 #include "core/image_input.h"
 #include "core/image_io.h"
@@ -50,7 +50,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
-#include "heightfield/ground_truth.h"
+#include "sim/ground_truth.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/reconstruct.h"
 #include "sim/virtual_rig.h"

@@ -43,7 +43,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
-#include "heightfield/maps_fill.h"
+#include "maps/maps_fill.h"
 #include "render/denoise.h"
 #include "render/embree_scene.h"
 #include "render/env_map.h"

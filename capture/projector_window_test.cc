@@ -12,7 +12,7 @@
 #include <filesystem>
 #include <thread>
 
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/error.h"
 

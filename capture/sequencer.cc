@@ -16,9 +16,9 @@
 
 #include "capture/gphoto2_camera.h"
 #include "capture/lens_shifter.h"
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "capture/projector_window.h"
-#include "capture/raw_frame.h"
+#include "session/raw_frame.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"

@@ -21,7 +21,7 @@
 #include <memory>
 #include <string>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image.h"
 
 namespace mesoscan {

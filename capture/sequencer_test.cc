@@ -7,9 +7,9 @@
 
 #include "capture/lens_shifter.h"
 #include "capture/lens_shifter_sim.h"
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "capture/projector_window.h"
-#include "capture/raw_frame.h"
+#include "session/raw_frame.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/error.h"
 #include "core/image_io.h"

@@ -15,7 +15,7 @@
 #include <thread>
 
 #include "capture/projector_window.h"
-#include "capture/session.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

@@ -1,5 +1,5 @@
-// libFuzzer: the session parser (capture/session.h ReadSession) on arbitrary session.json bytes.
-#include "capture/session.h"
+// libFuzzer: the session parser (session/session.h ReadSession) on arbitrary session.json bytes.
+#include "session/session.h"
 #include "fuzz/fuzz_util.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {

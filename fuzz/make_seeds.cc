@@ -5,8 +5,8 @@
 #include <fstream>
 #include <string>
 
-#include "capture/patterns.h"
-#include "capture/session.h"
+#include "session/patterns.h"
+#include "session/session.h"
 #include "core/json.h"
 
 namespace fs = std::filesystem;

@@ -8,7 +8,7 @@
 #include <cstring>
 #include <string_view>
 
-#include "capture/raw_frame.h"
+#include "session/raw_frame.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
@@ -44,7 +44,7 @@ struct DecodedFrame {
 // (resized to width x height); d.direct tells whether it was used.
 DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
                     FrameSamples* direct = nullptr) {
-  if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (capture/raw_frame.h)
+  if (IsCameraRawPath(path)) {  // 2x2 Bayer cells averaged, black subtracted (session/raw_frame.h)
     CheckRegularFile(path, label);
     ImageU16 grey = ReadRawGrey(path, label);
     DecodedFrame d;

@@ -14,7 +14,7 @@
 #include <utility>
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image.h"
 #include "core/rect.h"
 

@@ -24,13 +24,13 @@
 //  8. height field (stage_height_field.h) on a regular world grid, normals; report.json figures
 //     (reconstruct_summary.cc).
 // Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted. Ground-truth
-// evaluation is in heightfield/ground_truth.h, the error map in heightfield/error_map_png.h.
+// evaluation is in sim/ground_truth.h, the error map in sim/error_map_png.h.
 
 #include <functional>
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
@@ -198,7 +198,7 @@ struct ReconstructSummary {
 // Runs the pipeline on a session already read by ReadSession. Throws Error for bad input (a mask
 // of the wrong size, a session whose patterns cannot decode); never for data (a pixel that cannot
 // be reconstructed is NaN with confidence 0). The returned Scan's report holds the summary and
-// options; the caller adds the session path and ground-truth figures (heightfield/ground_truth.h).
+// options; the caller adds the session path and ground-truth figures (sim/ground_truth.h).
 Scan Reconstruct(const Session& session, const ReconstructOptions& options,
                  ReconstructSummary* summary = nullptr);
 

@@ -15,14 +15,14 @@
 #include <functional>
 #include <random>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image_io.h"
 #include "core/numbers.h"
 #include "core/scan_folder.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
 #include "heightfield/frames.h"
-#include "heightfield/ground_truth.h"
+#include "sim/ground_truth.h"
 #include "heightfield/resample.h"
 #include "heightfield/triangulate.h"
 

@@ -6,7 +6,7 @@
 
 #include <string>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_plan.h"

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

@@ -14,7 +14,7 @@
 
 #include <cstddef>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_classify.h"

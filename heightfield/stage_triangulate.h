@@ -7,7 +7,7 @@
 
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image.h"
 #include "core/scan_folder.h"
 #include "heightfield/pixel_buffers.h"

@@ -7,7 +7,7 @@
 #include <optional>
 #include <sstream>
 
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -180,7 +180,7 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   if (n_world.dot(cam_centre - b0) <= 0)
     BOARD_USAGE("--pose: the camera sees the back of the board at this pose");
 
-  // ---- frame plan (capture/patterns.h, as `capture --plan calibration`): sines along x then
+  // ---- frame plan (session/patterns.h, as `capture --plan calibration`): sines along x then
   // y (every period, phases 2 pi k / N), white, black ----
   FramePlanOptions plan;
   plan.periods_px = o.ps_periods_px;

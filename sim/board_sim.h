@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "heightfield/calibrate_board.h"
+#include "calibration/calibrate_board.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {

@@ -12,7 +12,7 @@
 #include <Eigen/Dense>
 
 #include "assets/objects.h"
-#include "capture/patterns.h"
+#include "session/patterns.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"

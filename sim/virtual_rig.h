@@ -13,8 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "capture/patterns.h"
-#include "capture/session.h"
+#include "session/patterns.h"
+#include "session/session.h"
 #include "core/json.h"
 #include "core/rect.h"
 
@@ -128,7 +128,7 @@ PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& crop);
 double ShifterGain(const SimulateOptions& options, const PinholeCamera& projector, double u,
                    double v);
 
-// The frame plan the options ask for (capture/patterns.h: sines along x, lens shift over the rig's
+// The frame plan the options ask for (session/patterns.h: sines along x, lens shift over the rig's
 // shifter range, white, black); throws Error(kUsage) naming --ls-frames when the rig cannot do it.
 FramePlanOptions SimulationFramePlan(const SimulateOptions& options, const Rig& rig);
 // MakeStandardFrames of that plan: files frames/*.png.

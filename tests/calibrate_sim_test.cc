@@ -1,4 +1,4 @@
-// Calibration round trips through the virtual rig (heightfield/calibrate.h, sim/board_sim.h):
+// Calibration round trips through the virtual rig (calibration/calibrate.h, sim/board_sim.h):
 // boards at known poses in front of a rig with distortion on both devices, calibrated, compared
 // with the truth; then the coin and the empty mount reconstructed with the calibrated rig.
 
@@ -14,15 +14,15 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
-#include "heightfield/calibrate.h"
-#include "heightfield/calibrate_mount.h"
-#include "heightfield/calibrate_shifter.h"
+#include "calibration/calibrate.h"
+#include "calibration/calibrate_mount.h"
+#include "calibration/calibrate_shifter.h"
 #include "heightfield/reconstruct.h"
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
@@ -108,7 +108,7 @@ struct Fixture : public ::testing::Test {
     SimulateOptions so = BoardSimBase(*rig_file_);
     so.ps_periods_px = {800, 50};
     // Default noise, including the per-frame gain jitter (0.5%): the sine frames' gains are
-    // estimated jointly with every pixel's phase (heightfield/calibrate.cc JointFrameGains).
+    // estimated jointly with every pixel's phase (calibration/calibrate.cc JointFrameGains).
     BoardSimOptions bo;
     bo.board = Board();
     bo.ps_periods_y_px = {600, 37.5};

@@ -7,10 +7,10 @@
 #include <random>
 
 #include "capture/lens_shifter_sim.h"
-#include "capture/patterns.h"
-#include "capture/raw_frame.h"
+#include "session/patterns.h"
+#include "session/raw_frame.h"
 #include "capture/sequencer.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/image_io.h"
 #include "heightfield/frames.h"
@@ -192,7 +192,7 @@ TEST_F(CaptureCommand, RawCameraSessionPassesCheck) {
 // Issue 11 item 7: `capture --plan calibration` shows sines along both projector axes, white and
 // black (no lens shift, so no shifter needed) on a rig that holds device sizes only; the session
 // is a calibration session, and `simulate --object board:...` of the same rig lists the same
-// frames (one generator, capture/patterns.h).
+// frames (one generator, session/patterns.h).
 TEST_F(CaptureCommand, CalibrationPlanCapturesBothAxesAndMatchesTheBoardSimulation) {
   Session sized;
   sized.rig = SmallTestRig(32, 24, 64, 48, false);

@@ -10,8 +10,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "capture/patterns.h"
-#include "capture/session.h"
+#include "session/patterns.h"
+#include "session/session.h"
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/scan_folder.h"

@@ -171,7 +171,7 @@ inline Json RunBlenderChecks(const std::string& blender, const fs::path& dir, Js
   return r;
 }
 
-// The samples of the lossless GLB mesh (heightfield/export_mesh.h): a sample is a vertex iff
+// The samples of the lossless GLB mesh (maps/export_mesh.h): a sample is a vertex iff
 // it is a corner of a unit triangle (half a grid cell, split along the 4-8 mesh diagonal)
 // whose three corners are all valid. Computed here from that definition, independently of
 // the exporter. Also the vertices' bounding box (world metres, z up).

@@ -24,8 +24,8 @@
 #include "core/image_io.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
-#include "heightfield/maps_flatten.h"
-#include "heightfield/maps_tile.h"
+#include "maps/maps_flatten.h"
+#include "maps/maps_tile.h"
 #include "tests/export_consumers.h"
 
 namespace mesoscan {

@@ -15,7 +15,7 @@
 #include <numeric>
 #include <vector>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/scan_folder.h"
 #include "heightfield/frames.h"
 #include "heightfield/triangulate.h"

@@ -13,12 +13,12 @@
 #include <numeric>
 
 #include "assets/objects.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image_io.h"
 #include "core/numbers.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
-#include "heightfield/ground_truth.h"
+#include "sim/ground_truth.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/reconstruct.h"
 #include "heightfield/stage_classify.h"

@@ -12,13 +12,13 @@
 #include <fstream>
 #include <limits>
 
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image_io.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
-#include "heightfield/export.h"
+#include "maps/export.h"
 #include "heightfield/lens_shift_fit.h"
-#include "heightfield/ground_truth.h"
+#include "sim/ground_truth.h"
 #include "heightfield/reconstruct.h"
 #include "sim/virtual_rig.h"
 #include "tests/plain_ls_decoder.h"

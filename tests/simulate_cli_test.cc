@@ -11,7 +11,7 @@
 #include <string>
 
 #include "tests/cli_util.h"
-#include "capture/session.h"
+#include "session/session.h"
 #include "core/image_io.h"
 #include "core/scan_folder.h"
 

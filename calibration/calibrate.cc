@@ -1,0 +1,1087 @@
+#include "calibration/calibrate.h"
+
+#include <ceres/ceres.h>
+#include <ceres/covariance.h>
+#include <ceres/rotation.h>
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <numeric>
+#include <opencv2/aruco/charuco.hpp>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+#include <sstream>
+
+#include "core/camera.h"
+#include "core/error.h"
+#include "core/fs.h"
+#include "core/image_io.h"
+#include "core/log.h"
+#include "core/parallel.h"
+#include "heightfield/frame_corrections.h"
+#include "heightfield/frames.h"
+#include "heightfield/phase_shift.h"
+
+namespace fs = std::filesystem;
+
+namespace mesoscan {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// The sine frames of one (axis, period) and their phase offsets, as stack frame indices.
+struct PeriodFrames {
+  double period = 0;
+  std::vector<int> stack;
+  std::vector<double> deltas;
+};
+
+struct AxisDecoder {
+  std::vector<PeriodFrames> periods;
+  std::vector<WrappedPhaseSolver> solvers;
+  std::optional<TemporalUnwrapper> unwrapper;
+};
+
+// The frames a view needs: every sine frame, plus the first white frame (texture).
+struct ViewFrames {
+  std::vector<int> session_frames;
+  AxisDecoder axis[2];  // x, y
+  int white = -1;       // stack index, -1 if none
+  std::vector<int> texture_set;  // stack indices of the phase set averaged for the texture
+};
+
+ViewFrames PlanView(const Session& session) {
+  const FramePlan plan = MakeFramePlan(session.frames);
+  ViewFrames v;
+  for (const auto& set : plan.sine) {
+    PeriodFrames pf;
+    pf.period = set.period_px;
+    for (size_t f : set.frames) {
+      if (session.frames[f].shift_steps != 0) continue;
+      pf.stack.push_back(static_cast<int>(v.session_frames.size()));
+      pf.deltas.push_back(session.frames[f].pattern.phase);
+      v.session_frames.push_back(static_cast<int>(f));
+    }
+    if (pf.stack.size() < 3) continue;
+    v.axis[set.axis == 'x' ? 0 : 1].periods.push_back(std::move(pf));
+  }
+  const std::string where = session.root.string() + "/session.json";
+  for (int a = 0; a < 2; ++a) {
+    if (v.axis[a].periods.empty())
+      MESOSCAN_BAD_INPUT(where << ": frames: no sine pattern along " << (a ? "y" : "x")
+                               << " with >= 3 phases at shift_steps 0, expected sines along both "
+                                  "axes for calibration");
+    std::vector<double> list;
+    for (const auto& p : v.axis[a].periods) {
+      list.push_back(p.period);
+      v.axis[a].solvers.emplace_back(p.deltas);
+    }
+    const double range = a == 0 ? session.rig.projector.width : session.rig.projector.height;
+    try {
+      v.axis[a].unwrapper.emplace(list, range, 4.0);
+    } catch (const Error& e) {
+      MESOSCAN_BAD_INPUT(where << ": frames (axis " << (a ? "y" : "x") << "): " << e.what());
+    }
+  }
+  if (!plan.white.empty()) {
+    v.white = static_cast<int>(v.session_frames.size());
+    v.session_frames.push_back(static_cast<int>(plan.white.front()));
+  }
+  // Texture without a white frame: the mean of the phase set with the most equal-step phases
+  // (the mean of N >= 3 equally spaced phases is the offset A exactly). Prefer the finest period.
+  const PeriodFrames* best = nullptr;
+  for (int a = 0; a < 2; ++a)
+    for (const auto& p : v.axis[a].periods)
+      if (!best || p.stack.size() > best->stack.size() ||
+          (p.stack.size() == best->stack.size() && p.period < best->period))
+        best = &p;
+  v.texture_set = best->stack;
+  return v;
+}
+
+// The sine frames' design for a per-frame gain estimate: one per-pixel model over every sine
+// frame of both axes, the offset A shared (the same surface point under the same mean light) and
+// (B cos, B sin) per period set.
+GainModel SineGainModel(const ViewFrames& vf) {
+  GainModel model;
+  int sets = 0;
+  for (int a = 0; a < 2; ++a) sets += static_cast<int>(vf.axis[a].periods.size());
+  int s = 0;
+  for (int a = 0; a < 2; ++a)
+    for (const auto& p : vf.axis[a].periods) {
+      for (size_t k = 0; k < p.stack.size(); ++k) {
+        std::vector<double> row(1 + 2 * sets, 0.0);
+        row[0] = 1.0;
+        row[1 + 2 * s] = std::cos(p.deltas[k]);
+        row[2 + 2 * s] = -std::sin(p.deltas[k]);
+        model.frames.push_back(p.stack[k]);
+        model.design.push_back(row);
+      }
+      ++s;
+    }
+  return model;
+}
+
+// Joint least squares of the frame gains g and every pixel's coefficients c_j of
+//   I_kj = g_k (M c_j)_k + noise
+// (variable projection: Gauss-Newton on g with the c_j eliminated exactly). A gain pattern that
+// lies in the band of one period set (a cosine / sine over its phases) moves each pixel's
+// decoded phase by ~ (A / B) g and is absorbed by that set's (B cos, B sin): it is identifiable
+// only through the shared offset A, whose per-set estimates it shifts by ~ (B / 2) g with the
+// pixel's own phase. Over thousands of pixels at different phases that is plenty, but alternating
+// least squares moves along such weak directions by a factor ~ B^2 / 4 A^2 per step and leaves
+// them at their start (frames.h EstimateFrameGains); Gauss-Newton takes them in one step.
+// Since G and M are shared by all pixels, so is the projection P = I - G M (M' G^2 M)^-1 M' G,
+// and the Gauss-Newton normal matrix is P .* sum_j m_j m_j' (m_j = M c_j). Gauge: the mean gain
+// is 1. Pixels with a saturated sample or a relative residual beyond median + 4 MAD are dropped.
+std::vector<double> JointFrameGains(const FrameStack& stack, const GainModel& model,
+                                    const std::vector<uint32_t>& pixels, int iterations) {
+  const int nk = static_cast<int>(model.frames.size());
+  std::vector<double> gains(nk, 1.0);
+  if (nk == 0 || pixels.size() < 16) return gains;
+  const int np = static_cast<int>(model.design[0].size());
+  if (nk <= np) return gains;
+  Eigen::MatrixXd M(nk, np);
+  for (int k = 0; k < nk; ++k)
+    for (int p = 0; p < np; ++p) M(k, p) = model.design[k][p];
+  std::vector<uint32_t> px;
+  const auto& sat = stack.saturated();
+  for (uint32_t i : pixels)
+    if (sat.empty() || !sat[i]) px.push_back(i);
+  const size_t n = px.size();
+  if (n < 16) return gains;
+  Eigen::MatrixXd I(nk, n);
+  for (int k = 0; k < nk; ++k)
+    for (size_t j = 0; j < n; ++j) I(k, j) = stack.Value(model.frames[k], px[j]);
+  Eigen::VectorXd g = Eigen::VectorXd::Ones(nk);
+  std::vector<uint8_t> use(n, 1);
+  for (int it = 0; it < iterations; ++it) {
+    const Eigen::MatrixXd GM = g.asDiagonal() * M;
+    const Eigen::MatrixXd pinv = (GM.transpose() * GM).ldlt().solve(GM.transpose());
+    const Eigen::MatrixXd C = pinv * I;             // np x n
+    const Eigen::MatrixXd Mc = M * C;               // ungained model, nk x n
+    const Eigen::MatrixXd R = I - g.asDiagonal() * Mc;  // residuals
+    const Eigen::MatrixXd P = Eigen::MatrixXd::Identity(nk, nk) - GM * pinv;
+    std::vector<double> rel(n);
+    for (size_t j = 0; j < n; ++j) {
+      const double m2 = Mc.col(j).squaredNorm();
+      rel[j] = m2 > 0 ? std::sqrt(R.col(j).squaredNorm() / m2)
+                      : std::numeric_limits<double>::infinity();
+    }
+    const double limit = OutlierLimit(rel);
+    Eigen::MatrixXd S = Eigen::MatrixXd::Zero(nk, nk);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(nk);
+    for (size_t j = 0; j < n; ++j) {
+      use[j] = std::isfinite(rel[j]) && rel[j] <= limit;
+      if (!use[j]) continue;
+      S.noalias() += Mc.col(j) * Mc.col(j).transpose();
+      b += Mc.col(j).cwiseProduct(R.col(j));
+    }
+    // H dg = b (J = -P diag(m_j), J' r = -m .* r since P r = r); the gauge (g itself is a null
+    // direction: scaling g scales every c_j inversely) fixed by a penalty on the mean.
+    Eigen::MatrixXd H = P.cwiseProduct(S);
+    const double scale = H.diagonal().mean();
+    if (!(scale > 0) || !std::isfinite(scale)) break;
+    H += scale * Eigen::MatrixXd::Constant(nk, nk, 1.0 / nk);
+    const Eigen::VectorXd dg = H.ldlt().solve(b);
+    if (!dg.allFinite()) break;
+    g += dg;
+    g /= g.mean();
+    if ((g.array() <= 0.5).any() || (g.array() >= 1.5).any()) {  // not a gain jitter: give up
+      g.setOnes();
+      break;
+    }
+    if (dg.lpNorm<Eigen::Infinity>() < 1e-7) break;
+  }
+  for (int k = 0; k < nk; ++k) gains[k] = g[k];
+  return gains;
+}
+
+// Per-frame gains of the sine frames (stack indices; 1 where not estimated), by `method`.
+std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
+                              const std::vector<uint32_t>& pixels, CalibrationGainMethod method) {
+  std::vector<double> gains(stack.num_frames(), 1.0);
+  if (method == CalibrationGainMethod::kNone) return gains;
+  if (method == CalibrationGainMethod::kFrameMeans) {
+    // Every set's frame means over the whole view (FrameMeanGains), mean 1 per set.
+    std::vector<uint32_t> all;
+    for (size_t i = 0; i < stack.pixels(); i += 3) all.push_back(static_cast<uint32_t>(i));
+    for (int a = 0; a < 2; ++a)
+      for (const auto& p : vf.axis[a].periods) {
+        const std::vector<double> g = FrameMeanGains(stack, p.stack, all);
+        for (size_t k = 0; k < g.size(); ++k) gains[p.stack[k]] = g[k];
+      }
+    return gains;
+  }
+  const GainModel model = SineGainModel(vf);
+  if (model.frames.size() <= model.design[0].size() || pixels.size() < 100)
+    return gains;  // no redundancy
+  std::vector<double> g;
+  if (method == CalibrationGainMethod::kAlternating) {
+    // Every 4th pixel is plenty for a dozen gains.
+    std::vector<uint32_t> sample;
+    for (size_t i = 0; i < pixels.size(); i += 4) sample.push_back(pixels[i]);
+    g = EstimateFrameGains(stack, model, sample);
+  } else {
+    std::vector<uint32_t> sample;
+    for (size_t i = 0; i < pixels.size(); i += 2) sample.push_back(pixels[i]);
+    g = JointFrameGains(stack, model, sample, 8);
+  }
+  for (size_t k = 0; k < model.frames.size(); ++k) gains[model.frames[k]] = g[k];
+  return gains;
+}
+
+void DecodeAt(const FrameStack& stack, const ViewFrames& vf, const std::vector<uint32_t>& pixels,
+              const CalibrateOptions& options, std::vector<float>* out_u, std::vector<float>* out_v) {
+  const std::vector<double> gains = SineGains(stack, vf, pixels, options.gain_method);
+  std::vector<float> inv_gain(gains.size());
+  for (size_t k = 0; k < gains.size(); ++k) inv_gain[k] = static_cast<float>(1.0 / gains[k]);
+  out_u->assign(pixels.size(), std::numeric_limits<float>::quiet_NaN());
+  out_v->assign(pixels.size(), std::numeric_limits<float>::quiet_NaN());
+  const double sigma = options.frame_sigma;
+  ParallelFor(static_cast<int64_t>(pixels.size()), [&](int64_t n) {
+    const size_t i = pixels[n];
+    for (int a = 0; a < 2; ++a) {
+      const AxisDecoder& ax = vf.axis[a];
+      const int m = static_cast<int>(ax.periods.size());
+      double theta[16], weight[16];
+      bool ok = m <= 16;
+      for (int p = 0; p < m && ok; ++p) {
+        float samples[64];
+        const int k = static_cast<int>(ax.periods[p].stack.size());
+        if (k > 64) {
+          ok = false;
+          break;
+        }
+        for (int j = 0; j < k; ++j) {
+          const int f = ax.periods[p].stack[j];
+          samples[j] = stack.Value(f, i) * inv_gain[f];
+        }
+        const auto r = ax.solvers[p].Solve(samples);
+        if (!r.valid || !(r.modulation > options.min_modulation)) {
+          ok = false;
+          break;
+        }
+        theta[p] = r.theta;
+        weight[p] = 1.0 / ax.solvers[p].ThetaVariance(sigma, r.modulation);
+      }
+      if (!ok) return;
+      const UnwrapResult ur = ax.unwrapper->Unwrap(theta, weight);
+      if (!ur.valid) return;
+      (a == 0 ? *out_u : *out_v)[n] = static_cast<float>(ur.u);
+    }
+  });
+}
+
+// Distance-ordered labelling: corners as OpenCV returns them, re-ordered so that k = j*cols+i
+// follows the board frame (x along the columns, y along the rows, +z out of the printed face,
+// seen by the camera): the image of x cross y is clockwise (y down); for boards whose colours are
+// not symmetric under a half turn, the square beyond corner 0 is dark.
+void NormaliseOrder(const CalibrationBoard& board, const cv::Mat& texture,
+                    std::vector<cv::Point2f>* corners) {
+  const int c = board.cols, r = board.rows;
+  auto at = [&](int i, int j) { return (*corners)[j * c + i]; };
+  const cv::Point2f a = at(1, 0) - at(0, 0), b = at(0, 1) - at(0, 0);
+  if (a.x * b.y - a.y * b.x > 0) {  // counter-clockwise: reverse the rows
+    std::vector<cv::Point2f> flipped(corners->size());
+    for (int j = 0; j < r; ++j)
+      for (int i = 0; i < c; ++i) flipped[j * c + i] = at(i, r - 1 - j);
+    *corners = flipped;
+  }
+  if ((c + r) % 2 == 1) {
+    auto sample = [&](cv::Point2f p) {
+      const int x = std::clamp(static_cast<int>(std::lround(p.x)), 0, texture.cols - 1);
+      const int y = std::clamp(static_cast<int>(std::lround(p.y)), 0, texture.rows - 1);
+      return texture.at<float>(y, x);
+    };
+    const cv::Point2f c0 = at(0, 0), dx = at(1, 0) - c0, dy = at(0, 1) - c0;
+    const float dark = sample(c0 - 0.5f * dx - 0.5f * dy);   // square beyond corner 0
+    const float light = sample(c0 + 0.5f * dx - 0.5f * dy);  // its neighbour along x
+    if (dark > light) std::reverse(corners->begin(), corners->end());  // a half turn
+  }
+}
+
+// ChArUco: the markers (cv::aruco::detectMarkers, then refineDetectedMarkers against the board)
+// and the chessboard corners between them (interpolateCornersCharuco: local homographies of the
+// neighbouring markers, cornerSubPix). Corners come with their board index; a partial board gives
+// the corners of its visible part.
+bool DetectCharuco(const CalibrationBoard& board, const cv::Mat& grey8,
+                   std::vector<cv::Point2f>* corners, std::vector<int>* ids, std::string* why) {
+  const auto dict = cv::aruco::getPredefinedDictionary(
+      static_cast<cv::aruco::PREDEFINED_DICTIONARY_NAME>(board.dictionary));
+  const auto cb = cv::aruco::CharucoBoard::create(board.squares_x(), board.squares_y(),
+                                                  static_cast<float>(board.square_m),
+                                                  static_cast<float>(board.marker_m), dict);
+  std::vector<std::vector<cv::Point2f>> marker_corners, rejected;
+  std::vector<int> marker_ids;
+  try {
+    auto params = cv::aruco::DetectorParameters::create();
+    params->cornerRefinementMethod = cv::aruco::CORNER_REFINE_SUBPIX;
+    cv::aruco::detectMarkers(grey8, dict, marker_corners, marker_ids, params, rejected);
+    if (!marker_ids.empty())
+      cv::aruco::refineDetectedMarkers(grey8, cb, marker_corners, marker_ids, rejected);
+    if (marker_ids.size() >= 2)
+      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, grey8, cb, *corners, *ids);
+  } catch (const cv::Exception& e) {
+    corners->clear();
+    ids->clear();
+  }
+  // Enough corners for a pose of their own: 6, not all on one row or column.
+  constexpr size_t kMinCorners = 6;
+  bool spread = false;
+  if (ids->size() >= kMinCorners)
+    for (size_t n = 1; n < ids->size() && !spread; ++n)
+      spread = (*ids)[n] / board.cols != (*ids)[0] / board.cols &&
+               (*ids)[n] % board.cols != (*ids)[0] % board.cols;
+  bool valid = spread;
+  for (int id : *ids) valid = valid && id >= 0 && id < board.num_corners();
+  if (!valid) {
+    std::ostringstream o;
+    o << "no " << board.ToString() << " ChArUco board found (" << marker_ids.size()
+      << " markers, " << ids->size() << " corners; expected >= " << kMinCorners
+      << " corners over more than one row; is --board right?)";
+    *why = o.str();
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+void CalibrateOptions::Check() const {
+  if (homography_half_window_px < 3 || homography_half_window_px > 200)
+    MESOSCAN_THROW(ErrorKind::kUsage, "homography half window: expected 3..200 px, got "
+                                          << homography_half_window_px);
+  if (!(min_window_fraction > 0 && min_window_fraction <= 1))
+    MESOSCAN_THROW(ErrorKind::kUsage, "min window fraction: expected (0, 1]");
+  if (!(min_modulation >= 0 && min_modulation < 1))
+    MESOSCAN_THROW(ErrorKind::kUsage, "min modulation: expected [0, 1)");
+  if (!(frame_sigma > 0)) MESOSCAN_THROW(ErrorKind::kUsage, "frame sigma: expected > 0");
+  if (!(outlier_view_factor > 1))
+    MESOSCAN_THROW(ErrorKind::kUsage, "outlier view factor: expected > 1");
+  if (min_views < 3) MESOSCAN_THROW(ErrorKind::kUsage, "min views: expected >= 3");
+}
+
+void CalibrateOptions::ParseFix(const std::string& list) {
+  std::stringstream ss(list);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    if (item == "k2")
+      fix_k2 = true;
+    else if (item == "k3")
+      fix_k3 = true;
+    else if (item == "tangential")
+      fix_tangential = true;
+    else if (!item.empty())
+      MESOSCAN_THROW(ErrorKind::kUsage, "--fix: '" << item
+                                                   << "': expected a comma-separated list of k2, "
+                                                      "k3, tangential");
+  }
+}
+
+ProjectorCoordinates DecodeProjectorCoordinates(const Session& session,
+                                                const std::vector<uint32_t>& pixels,
+                                                const CalibrateOptions& options) {
+  const ViewFrames vf = PlanView(session);
+  const FrameStack stack = LoadFrames(session, vf.session_frames, FrameLoadOptions());
+  ProjectorCoordinates pc;
+  DecodeAt(stack, vf, pixels, options, &pc.u, &pc.v);
+  pc.eight_bit_frames = stack.eight_bit_frames();
+  return pc;
+}
+
+CalibrationView DetectView(const Session& session, const CalibrateOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  options.Check();
+  CalibrationView view;
+  view.name = session.root.string();
+  const int W = session.rig.camera.width, H = session.rig.camera.height;
+  view.width = W;
+  view.height = H;
+  view.projector_width = session.rig.projector.width;
+  view.projector_height = session.rig.projector.height;
+  const ViewFrames vf = PlanView(session);
+  const FrameStack stack = LoadFrames(session, vf.session_frames, FrameLoadOptions());
+
+  // 1. Texture: the white frame, else the mean of a full phase set.
+  cv::Mat texture(H, W, CV_32F);
+  {
+    float* t = texture.ptr<float>();
+    ParallelForRows(H, [&](int y0, int y1) {
+      for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
+        if (vf.white >= 0) {
+          t[i] = stack.Value(vf.white, i);
+          continue;
+        }
+        float s = 0;
+        for (int k : vf.texture_set) s += stack.Value(k, i);
+        t[i] = s / vf.texture_set.size();
+      }
+    });
+  }
+  // 8-bit for the detector: 0 .. the 99.5th percentile.
+  cv::Mat grey8;
+  {
+    std::vector<float> sample;
+    for (int y = 0; y < H; y += 4)
+      for (int x = 0; x < W; x += 4) sample.push_back(texture.at<float>(y, x));
+    std::nth_element(sample.begin(), sample.begin() + sample.size() * 995 / 1000, sample.end());
+    const float hi = std::max(1e-6f, sample[sample.size() * 995 / 1000]);
+    texture.convertTo(grey8, CV_8U, 255.0 / hi);
+  }
+
+  // 2. Corners: findChessboardCornersSB (checker) or ArUco markers and the ChArUco corners they
+  //    identify (any subset of the board), refined by cornerSubPix on the float texture.
+  const CalibrationBoard& board = options.board;
+  const int nc = board.num_corners();
+  std::vector<cv::Point2f> corners;
+  std::vector<int> ids;  // board corner index of each entry of `corners`
+  if (board.charuco()) {
+    std::string why;
+    if (!DetectCharuco(board, grey8, &corners, &ids, &why)) {
+      view.problem = why;
+      view.decode_seconds = Seconds(t0);
+      return view;
+    }
+  } else {
+    const cv::Size pattern(board.cols, board.rows);
+    bool found = false;
+    try {
+      found = cv::findChessboardCornersSB(grey8, pattern, corners,
+                                          cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE);
+    } catch (const cv::Exception& e) {
+      found = false;
+    }
+    if (!found || static_cast<int>(corners.size()) != nc) {
+      // A checkerboard partly out of view cannot be labelled (no corner is identified): the
+      // view is skipped; a ChArUco board works there.
+      view.problem = "no " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
+                     " checkerboard found (inner corners; is --board right and the whole board in "
+                     "view? a ChArUco board may be partly out of view)";
+      view.decode_seconds = Seconds(t0);
+      return view;
+    }
+    NormaliseOrder(board, texture, &corners);
+    ids.resize(nc);
+    std::iota(ids.begin(), ids.end(), 0);
+  }
+  // Half the smallest corner spacing bounds the refinement window.
+  {
+    std::vector<Vec2d> at(nc, Vec2d(kNaN, kNaN));
+    for (size_t n = 0; n < ids.size(); ++n) at[ids[n]] = Vec2d(corners[n].x, corners[n].y);
+    double spacing = 1e30;
+    for (int j = 0; j < board.rows; ++j)
+      for (int i = 0; i < board.cols; ++i) {
+        const Vec2d& a = at[j * board.cols + i];
+        if (i + 1 < board.cols && (at[j * board.cols + i + 1] - a).allFinite())
+          spacing = std::min(spacing, (at[j * board.cols + i + 1] - a).norm());
+        if (j + 1 < board.rows && (at[(j + 1) * board.cols + i] - a).allFinite())
+          spacing = std::min(spacing, (at[(j + 1) * board.cols + i] - a).norm());
+      }
+    if (options.refine_corners && spacing < 1e30) {
+      const int win = std::clamp(static_cast<int>(spacing / 4), 2, 11);
+      cv::Mat smooth;
+      cv::GaussianBlur(texture, smooth, cv::Size(0, 0), 0.7);
+      cv::cornerSubPix(smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
+                       cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+    }
+  }
+  view.found = true;
+  view.camera_px.assign(nc, Vec2d(kNaN, kNaN));
+  for (size_t n = 0; n < ids.size(); ++n) view.camera_px[ids[n]] = Vec2d(corners[n].x, corners[n].y);
+
+  // 3. Decode (u, v) in a window around each corner, one homography per corner (Moreno & Taubin
+  //    2012), fitted with LMEDS (least median of squares: half the window may be wrong).
+  const int hw = options.homography_half_window_px;
+  std::vector<uint8_t> mask(static_cast<size_t>(W) * H, 0);
+  for (const auto& c : view.camera_px) {
+    if (!c.allFinite()) continue;
+    const int cx = static_cast<int>(std::lround(c.x())), cy = static_cast<int>(std::lround(c.y()));
+    for (int y = std::max(0, cy - hw); y <= std::min(H - 1, cy + hw); ++y)
+      for (int x = std::max(0, cx - hw); x <= std::min(W - 1, cx + hw); ++x)
+        mask[static_cast<size_t>(y) * W + x] = 1;
+  }
+  std::vector<uint32_t> pixels;
+  std::vector<int32_t> index(mask.size(), -1);
+  for (size_t i = 0; i < mask.size(); ++i)
+    if (mask[i]) {
+      index[i] = static_cast<int32_t>(pixels.size());
+      pixels.push_back(static_cast<uint32_t>(i));
+    }
+  std::vector<float> u, v;
+  DecodeAt(stack, vf, pixels, options, &u, &v);
+  view.projector_px.assign(nc, Vec2d(kNaN, kNaN));
+  view.projector_inliers.assign(nc, 0);
+  ParallelFor(nc, [&](int64_t k) {
+    const Vec2d c = view.camera_px[k];
+    if (!c.allFinite()) return;
+    const int cx = static_cast<int>(std::lround(c.x())), cy = static_cast<int>(std::lround(c.y()));
+    std::vector<cv::Point2d> src, dst;
+    int area = 0;
+    for (int y = cy - hw; y <= cy + hw; ++y)
+      for (int x = cx - hw; x <= cx + hw; ++x) {
+        ++area;
+        if (x < 0 || y < 0 || x >= W || y >= H) continue;
+        const int32_t n = index[static_cast<size_t>(y) * W + x];
+        if (n < 0 || !std::isfinite(u[n]) || !std::isfinite(v[n])) continue;
+        // Centred on the corner: better conditioned homographies.
+        src.emplace_back(x - c.x(), y - c.y());
+        dst.emplace_back(u[n], v[n]);
+      }
+    if (static_cast<double>(src.size()) < options.min_window_fraction * area || src.size() < 8)
+      return;
+    cv::Mat inliers;
+    cv::Mat h = cv::findHomography(src, dst, cv::LMEDS, 3.0, inliers);
+    if (h.empty()) return;
+    const double w = h.at<double>(2, 2);
+    if (!(std::abs(w) > 1e-12)) return;
+    view.projector_px[k] = Vec2d(h.at<double>(0, 2) / w, h.at<double>(1, 2) / w);
+    view.projector_inliers[k] = cv::countNonZero(inliers);
+  });
+  view.decode_seconds = Seconds(t0);
+  return view;
+}
+
+namespace {
+
+// Reprojection residual of one board corner in the camera (prj == false) or the projector.
+// Parameters: intrinsics {fx, fy, cx, cy}, distortion[5], cam_from_board (angle-axis, t),
+// and for the projector prj_from_cam (angle-axis, t).
+struct CornerResidual {
+  CornerResidual(const Vec3d& x, const Vec2d& obs) : x_(x), obs_(obs) {}
+  template <typename T>
+  bool Camera(const T* intr, const T* dist, const T* board_pose, T* res) const {
+    T p[3];
+    const T xb[3] = {T(x_.x()), T(x_.y()), T(x_.z())};
+    ceres::AngleAxisRotatePoint(board_pose, xb, p);
+    for (int i = 0; i < 3; ++i) p[i] += board_pose[3 + i];
+    return Finish(intr, dist, p, res);
+  }
+  template <typename T>
+  bool Projector(const T* intr, const T* dist, const T* board_pose, const T* prj_pose,
+                 T* res) const {
+    T p[3], q[3];
+    const T xb[3] = {T(x_.x()), T(x_.y()), T(x_.z())};
+    ceres::AngleAxisRotatePoint(board_pose, xb, p);
+    for (int i = 0; i < 3; ++i) p[i] += board_pose[3 + i];
+    ceres::AngleAxisRotatePoint(prj_pose, p, q);
+    for (int i = 0; i < 3; ++i) q[i] += prj_pose[3 + i];
+    return Finish(intr, dist, q, res);
+  }
+  template <typename T>
+  bool Finish(const T* intr, const T* dist, const T* p, T* res) const {
+    T uv[2];
+    if (!PinholeCamera::ProjectWithParams(intr, dist, p, uv)) return false;
+    res[0] = uv[0] - T(obs_.x());
+    res[1] = uv[1] - T(obs_.y());
+    return true;
+  }
+  Vec3d x_;
+  Vec2d obs_;
+};
+
+struct CameraCost : CornerResidual {
+  using CornerResidual::CornerResidual;
+  template <typename T>
+  bool operator()(const T* intr, const T* dist, const T* pose, T* res) const {
+    return Camera(intr, dist, pose, res);
+  }
+};
+struct ProjectorCost : CornerResidual {
+  using CornerResidual::CornerResidual;
+  template <typename T>
+  bool operator()(const T* intr, const T* dist, const T* pose, const T* prj, T* res) const {
+    return Projector(intr, dist, pose, prj, res);
+  }
+};
+
+Rigid3d PoseFromArray(const double* a) {
+  Rigid3d t;
+  double r[9];
+  ceres::AngleAxisToRotationMatrix(a, r);  // column-major
+  for (int c = 0; c < 3; ++c)
+    for (int rr = 0; rr < 3; ++rr) t.rotation(rr, c) = r[c * 3 + rr];
+  t.translation = Vec3d(a[3], a[4], a[5]);
+  return t;
+}
+
+void PoseToArray(const cv::Mat& rvec, const cv::Mat& tvec, double* a) {
+  for (int i = 0; i < 3; ++i) {
+    a[i] = rvec.at<double>(i);
+    a[3 + i] = tvec.at<double>(i);
+  }
+}
+
+Json CameraJson(const cv::Mat& k, const cv::Mat& d) {
+  Json j;
+  j["fx"] = k.at<double>(0, 0);
+  j["fy"] = k.at<double>(1, 1);
+  j["cx"] = k.at<double>(0, 2);
+  j["cy"] = k.at<double>(1, 2);
+  std::vector<double> dist(5, 0.0);
+  for (int i = 0; i < std::min<int>(5, static_cast<int>(d.total())); ++i) dist[i] = d.at<double>(i);
+  j["distortion"] = dist;
+  return j;
+}
+
+double Rms(const std::vector<Vec2d>& r) {
+  double s = 0;
+  int n = 0;
+  for (const auto& v : r)
+    if (v.allFinite()) {
+      s += v.squaredNorm();
+      ++n;
+    }
+  return n ? std::sqrt(s / n) : 0.0;
+}
+
+}  // namespace
+
+CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_rig,
+                            const std::optional<CalibrationView>& mount_view,
+                            const CalibrateOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  options.Check();
+  CalibrationResult result;
+  const CalibrationBoard& board = options.board;
+  const int nc = board.num_corners();
+  // The views in the adjustment: every found view with enough projector corners, then the mount.
+  std::vector<CalibrationView*> used;
+  for (auto& v : views) {
+    if (!v.found) continue;
+    int np = 0, ncam = 0;
+    for (const auto& p : v.projector_px) np += p.allFinite();
+    for (const auto& p : v.camera_px) ncam += p.allFinite();
+    if (np < std::max(6, ncam / 4)) {
+      v.problem = "the projector was decoded at only " + std::to_string(np) + " of " +
+                  std::to_string(ncam) + " corners";
+      continue;
+    }
+    used.push_back(&v);
+  }
+  const size_t n_regular = used.size();
+  if (static_cast<int>(n_regular) < options.min_views) {
+    std::ostringstream o;
+    o << "calibrate: " << n_regular << " of " << views.size() << " views usable, expected at least "
+      << options.min_views;
+    for (const auto& v : views)
+      if (!v.problem.empty()) {
+        o << "; " << v.name << ": " << v.problem;
+        break;
+      }
+    MESOSCAN_BAD_INPUT(o.str());
+  }
+  std::optional<CalibrationView> mount = mount_view;
+  if (mount) {
+    if (!mount->found)
+      MESOSCAN_BAD_INPUT("--mount " << mount->name << ": " << mount->problem);
+    used.push_back(&*mount);
+  }
+  // Degenerate: every view at one pose (the camera's corners move less than a pixel).
+  {
+    double spread = 0;
+    for (const auto* v : used)
+      for (int k = 0; k < nc; ++k)
+        if ((v->camera_px[k] - used[0]->camera_px[k]).allFinite())
+          spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
+    if (spread < 1.0)
+      MESOSCAN_BAD_INPUT("calibrate: all " << used.size()
+                                           << " views show the board at one pose (corners move "
+                                           << spread << " px), expected views at different tilts "
+                                              "and positions (degenerate)");
+  }
+
+  // ---- OpenCV: calibrateCamera per device, stereoCalibrate (initial values and the baseline) --
+  const cv::Size cam_size(size_rig.camera.width, size_rig.camera.height);
+  const cv::Size prj_size(size_rig.projector.width, size_rig.projector.height);
+  std::vector<std::vector<cv::Point3f>> obj_cam, obj_both;
+  std::vector<std::vector<cv::Point2f>> img_cam, img_cam_both, img_prj;
+  for (const auto* v : used) {
+    std::vector<cv::Point3f> oc, ob;
+    std::vector<cv::Point2f> ic, icb, ip;
+    for (int k = 0; k < nc; ++k) {
+      if (!v->camera_px[k].allFinite()) continue;  // a ChArUco corner out of view
+      const Vec3d x = board.Corner(k);
+      const cv::Point3f xp(static_cast<float>(x.x()), static_cast<float>(x.y()), 0.f);
+      oc.push_back(xp);
+      ic.emplace_back(static_cast<float>(v->camera_px[k].x()),
+                      static_cast<float>(v->camera_px[k].y()));
+      if (v->projector_px[k].allFinite()) {
+        ob.push_back(xp);
+        icb.push_back(ic.back());
+        ip.emplace_back(static_cast<float>(v->projector_px[k].x()),
+                        static_cast<float>(v->projector_px[k].y()));
+      }
+    }
+    obj_cam.push_back(oc);
+    img_cam.push_back(ic);
+    obj_both.push_back(ob);
+    img_cam_both.push_back(icb);
+    img_prj.push_back(ip);
+  }
+  int cv_flags = 0;
+  if (options.fix_k2) cv_flags |= cv::CALIB_FIX_K2;
+  if (options.fix_k3) cv_flags |= cv::CALIB_FIX_K3;
+  if (options.fix_tangential) cv_flags |= cv::CALIB_ZERO_TANGENT_DIST;
+  cv::Mat kc, dc, kp, dp, r_pc, t_pc, e, f;
+  std::vector<cv::Mat> rv_c, tv_c, rv_p, tv_p;
+  double cv_rms_cam = 0, cv_rms_prj = 0, cv_rms_stereo = 0, cv_rms_joint = 0;
+  Json cv_joint;
+  try {
+    cv_rms_cam = cv::calibrateCamera(obj_cam, img_cam, cam_size, kc, dc, rv_c, tv_c, cv_flags);
+    cv_rms_prj = cv::calibrateCamera(obj_both, img_prj, prj_size, kp, dp, rv_p, tv_p, cv_flags);
+    cv_rms_stereo = cv::stereoCalibrate(obj_both, img_cam_both, img_prj, kc, dc, kp, dp, cam_size,
+                                        r_pc, t_pc, e, f, cv::CALIB_FIX_INTRINSIC);
+    // OpenCV's own joint refinement (intrinsics and extrinsics together), for the baseline.
+    cv::Mat kc2 = kc.clone(), dc2 = dc.clone(), kp2 = kp.clone(), dp2 = dp.clone(), r2, t2;
+    cv_rms_joint = cv::stereoCalibrate(obj_both, img_cam_both, img_prj, kc2, dc2, kp2, dp2,
+                                       cam_size, r2, t2, e, f,
+                                       cv::CALIB_USE_INTRINSIC_GUESS | cv_flags);
+    Mat3d r;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) r(a, b) = r2.at<double>(a, b);
+    const Vec3d t(t2.at<double>(0), t2.at<double>(1), t2.at<double>(2));
+    cv_joint = {{"rms_px", cv_rms_joint},
+                {"camera", CameraJson(kc2, dc2)},
+                {"projector", CameraJson(kp2, dp2)},
+                {"baseline_m", t.norm()},
+                {"prj_from_cam_rotation_deg",
+                 Eigen::AngleAxisd(r).angle() * 180.0 / std::numbers::pi},
+                {"prj_from_cam_translation_m", {t.x(), t.y(), t.z()}}};
+  } catch (const cv::Exception& ex) {
+    MESOSCAN_BAD_INPUT("calibrate: OpenCV's initial calibration failed on these "
+                       << used.size() << " views (" << ex.err
+                       << "); are the views at different tilts?");
+  }
+  if (!std::isfinite(cv_rms_cam) || !std::isfinite(cv_rms_prj) || !std::isfinite(cv_rms_stereo))
+    MESOSCAN_BAD_INPUT("calibrate: the initial calibration did not converge (degenerate views?)");
+  result.opencv = {{"note", "cv::calibrateCamera per device, cv::stereoCalibrate with "
+                            "CALIB_FIX_INTRINSIC; joint: stereoCalibrate refining everything"},
+                   {"rms_camera_px", cv_rms_cam},
+                   {"rms_projector_px", cv_rms_prj},
+                   {"rms_stereo_px", cv_rms_stereo},
+                   {"camera", CameraJson(kc, dc)},
+                   {"projector", CameraJson(kp, dp)},
+                   {"joint", cv_joint}};
+
+  // ---- Ceres: one bundle adjustment of both devices and every board pose ----
+  double cam_intr[4] = {kc.at<double>(0, 0), kc.at<double>(1, 1), kc.at<double>(0, 2),
+                        kc.at<double>(1, 2)};
+  double prj_intr[4] = {kp.at<double>(0, 0), kp.at<double>(1, 1), kp.at<double>(0, 2),
+                        kp.at<double>(1, 2)};
+  double cam_dist[5] = {0}, prj_dist[5] = {0};
+  for (int i = 0; i < 5 && i < static_cast<int>(dc.total()); ++i) cam_dist[i] = dc.at<double>(i);
+  for (int i = 0; i < 5 && i < static_cast<int>(dp.total()); ++i) prj_dist[i] = dp.at<double>(i);
+  double prj_pose[6];
+  {
+    cv::Mat rvec;
+    cv::Rodrigues(r_pc, rvec);
+    PoseToArray(rvec, t_pc, prj_pose);
+  }
+  std::vector<std::array<double, 6>> board_pose(used.size());
+  for (size_t i = 0; i < used.size(); ++i) PoseToArray(rv_c[i], tv_c[i], board_pose[i].data());
+
+  ceres::Problem problem;
+  int n_res = 0;
+  for (size_t i = 0; i < used.size(); ++i) {
+    const CalibrationView& v = *used[i];
+    for (int k = 0; k < nc; ++k) {
+      if (!v.camera_px[k].allFinite()) continue;
+      const Vec3d x = board.Corner(k);
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<CameraCost, 2, 4, 5, 6>(new CameraCost(x, v.camera_px[k])),
+          nullptr, cam_intr, cam_dist, board_pose[i].data());
+      n_res += 2;
+      if (!v.projector_px[k].allFinite()) continue;
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ProjectorCost, 2, 4, 5, 6, 6>(
+                                   new ProjectorCost(x, v.projector_px[k])),
+                               nullptr, prj_intr, prj_dist, board_pose[i].data(), prj_pose);
+      n_res += 2;
+    }
+  }
+  std::vector<int> fixed;
+  if (options.fix_k2) fixed.push_back(1);
+  if (options.fix_tangential) fixed.insert(fixed.end(), {2, 3});
+  if (options.fix_k3) fixed.push_back(4);
+  if (!fixed.empty()) {
+    for (double* d : {cam_dist, prj_dist}) {
+      for (int i : fixed) d[i] = 0.0;
+      problem.SetManifold(d, new ceres::SubsetManifold(5, fixed));
+    }
+  }
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::DENSE_SCHUR;
+  so.max_num_iterations = 200;
+  so.function_tolerance = 1e-14;
+  so.gradient_tolerance = 1e-14;
+  so.parameter_tolerance = 1e-14;
+  so.num_threads = 2;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  result.ceres_brief = summary.BriefReport();
+  if (!summary.IsSolutionUsable())
+    MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << summary.message);
+
+  // ---- Residuals per view ----
+  PinholeCamera cam_model, prj_model;
+  auto fill_model = [](PinholeCamera* m, const double* intr, const double* dist, int w, int h) {
+    m->width = w;
+    m->height = h;
+    m->K << intr[0], 0, intr[2], 0, intr[1], intr[3], 0, 0, 1;
+    for (int i = 0; i < 5; ++i) m->distortion[i] = dist[i];
+  };
+  fill_model(&cam_model, cam_intr, cam_dist, size_rig.camera.width, size_rig.camera.height);
+  fill_model(&prj_model, prj_intr, prj_dist, size_rig.projector.width, size_rig.projector.height);
+  const Rigid3d prj_from_cam = PoseFromArray(prj_pose);
+  std::vector<Vec2d> all_cam, all_prj;
+  for (size_t i = 0; i < used.size(); ++i) {
+    CalibrationView& v = *used[i];
+    v.cam_from_board = PoseFromArray(board_pose[i].data());
+    v.camera_residual_px.assign(nc, Vec2d(kNaN, kNaN));
+    v.projector_residual_px.assign(nc, Vec2d(kNaN, kNaN));
+    for (int k = 0; k < nc; ++k) {
+      const Vec3d pc = v.cam_from_board * board.Corner(k);
+      Vec2d uv;
+      if (cam_model.ProjectDevice(pc.data(), uv.data())) v.camera_residual_px[k] = v.camera_px[k] - uv;
+      const Vec3d pp = prj_from_cam * pc;
+      if (v.projector_px[k].allFinite() && prj_model.ProjectDevice(pp.data(), uv.data()))
+        v.projector_residual_px[k] = v.projector_px[k] - uv;
+    }
+    v.rms_camera_px = Rms(v.camera_residual_px);
+    v.rms_projector_px = Rms(v.projector_residual_px);
+    for (const auto& r : v.camera_residual_px) all_cam.push_back(r);
+    for (const auto& r : v.projector_residual_px) all_prj.push_back(r);
+  }
+  result.rms_camera_px = Rms(all_cam);
+  result.rms_projector_px = Rms(all_prj);
+  {
+    std::vector<Vec2d> both = all_cam;
+    both.insert(both.end(), all_prj.begin(), all_prj.end());
+    result.rms_stereo_px = Rms(both);
+  }
+  // Outlier views: combined RMS above factor x the median view's.
+  {
+    std::vector<double> rms;
+    for (const auto* v : used)
+      rms.push_back(std::hypot(v->rms_camera_px, v->rms_projector_px));
+    std::vector<double> sorted = rms;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double median = sorted[sorted.size() / 2];
+    for (size_t i = 0; i < used.size(); ++i)
+      if (rms[i] > options.outlier_view_factor * median) {
+        used[i]->outlier = true;
+        MESOSCAN_LOG(kWarning) << used[i]->name << ": reprojection RMS " << rms[i]
+                               << " px is an outlier (median view " << median << " px)";
+      }
+  }
+
+  // ---- Uncertainties: the covariance of the intrinsics and the relative pose, scaled by the
+  // residual variance (Ceres assumes unit-variance residuals) ----
+  {
+    const int n_params = problem.NumParameters() -
+                         static_cast<int>(fixed.size()) * 2;  // fixed coefficients are no unknowns
+    const double dof = std::max(1, n_res - n_params);
+    const double s2 = 2.0 * summary.final_cost / dof;
+    ceres::Covariance::Options co;
+    co.algorithm_type = ceres::DENSE_SVD;
+    co.null_space_rank = -1;
+    ceres::Covariance cov(co);
+    std::vector<std::pair<const double*, const double*>> blocks = {
+        {cam_intr, cam_intr}, {cam_dist, cam_dist}, {prj_intr, prj_intr},
+        {prj_dist, prj_dist}, {prj_pose, prj_pose}};
+    Json u;
+    if (cov.Compute(blocks, &problem)) {
+      auto sd = [&](const double* block, int n, const std::vector<std::string>& names) {
+        std::vector<double> c(n * n);
+        cov.GetCovarianceBlock(block, block, c.data());
+        Json j;
+        for (int i = 0; i < n; ++i) j[names[i]] = std::sqrt(std::max(0.0, c[i * n + i] * s2));
+        return j;
+      };
+      const std::vector<std::string> in = {"fx", "fy", "cx", "cy"};
+      const std::vector<std::string> dn = {"k1", "k2", "p1", "p2", "k3"};
+      u["camera"] = sd(cam_intr, 4, in);
+      u["camera"]["distortion"] = sd(cam_dist, 5, dn);
+      u["projector"] = sd(prj_intr, 4, in);
+      u["projector"]["distortion"] = sd(prj_dist, 5, dn);
+      Json p = sd(prj_pose, 6, {"rx_rad", "ry_rad", "rz_rad", "tx_m", "ty_m", "tz_m"});
+      u["prj_from_cam"] = p;
+      u["residual_sigma_px"] = std::sqrt(s2);
+    } else {
+      u["error"] = "the covariance could not be computed (rank-deficient problem)";
+    }
+    result.uncertainties = u;
+  }
+
+  // ---- The world: the mount board if given, else the first view's board ----
+  const CalibrationView& world_view = mount ? *used.back() : *used.front();
+  result.world = (mount ? "mount board " : "first board ") + world_view.name;
+  const Rigid3d world_from_cam = world_view.cam_from_board.Inverse();
+  result.rig = size_rig;
+  result.rig.uncalibrated = false;
+  result.rig.camera = cam_model;
+  result.rig.camera.world_from_device = world_from_cam;
+  result.rig.projector = prj_model;
+  result.rig.projector.world_from_device = world_from_cam * prj_from_cam.Inverse();
+  // The mount view is reported with the others.
+  if (mount) views.push_back(*mount);
+  result.views = std::move(views);
+  result.views_used = static_cast<int>(n_regular);
+  result.seconds = Seconds(t0);
+  return result;
+}
+
+namespace {
+
+Json DeviceJson(const PinholeCamera& c) {
+  return {{"fx", c.K(0, 0)},
+          {"fy", c.K(1, 1)},
+          {"cx", c.K(0, 2)},
+          {"cy", c.K(1, 2)},
+          {"distortion", std::vector<double>(c.distortion.begin(), c.distortion.end())}};
+}
+
+// A PNG of each view's residual vectors (scaled) or corners over one device's image.
+void DrawDevice(const CalibrationResult& r, bool projector, bool residuals, const fs::path& path) {
+  if (r.views.empty()) return;
+  const CalibrationView* first = nullptr;
+  for (const auto& v : r.views)
+    if (v.found) first = &v;
+  if (!first) return;
+  const int w = projector ? first->projector_width : first->width;
+  const int h = projector ? first->projector_height : first->height;
+  const double scale = 1200.0 / std::max(w, h);
+  const int cw = std::max(1, static_cast<int>(w * scale)), ch = std::max(1, static_cast<int>(h * scale));
+  cv::Mat canvas(ch, cw, CV_8UC3, cv::Scalar(255, 255, 255));
+  // Residuals are drawn magnified so that the largest is ~5% of the canvas.
+  double max_res = 0;
+  for (const auto& v : r.views)
+    for (const auto& e : projector ? v.projector_residual_px : v.camera_residual_px)
+      if (e.allFinite()) max_res = std::max(max_res, e.norm());
+  const double gain = max_res > 0 ? 0.05 * cw / max_res : 1.0;
+  int vi = 0;
+  for (const auto& v : r.views) {
+    if (!v.found) continue;
+    const cv::Scalar colour(((vi * 97) % 200), ((vi * 57 + 80) % 200), ((vi * 151 + 40) % 200));
+    ++vi;
+    const auto& pts = projector ? v.projector_px : v.camera_px;
+    const auto& res = projector ? v.projector_residual_px : v.camera_residual_px;
+    std::vector<cv::Point> hull;
+    for (size_t k = 0; k < pts.size(); ++k) {
+      if (!pts[k].allFinite()) continue;
+      const cv::Point p(static_cast<int>(pts[k].x() * scale), static_cast<int>(pts[k].y() * scale));
+      hull.push_back(p);
+      if (residuals) {
+        if (k < res.size() && res[k].allFinite()) {
+          const cv::Point q(static_cast<int>(p.x + res[k].x() * gain),
+                            static_cast<int>(p.y + res[k].y() * gain));
+          cv::line(canvas, p, q, v.outlier ? cv::Scalar(0, 0, 255) : colour, 1, cv::LINE_AA);
+          cv::circle(canvas, p, 1, cv::Scalar(0, 0, 0), -1);
+        }
+      } else {
+        cv::circle(canvas, p, 2, colour, -1, cv::LINE_AA);
+      }
+    }
+    if (!residuals && hull.size() >= 3) {
+      std::vector<cv::Point> convex;
+      cv::convexHull(hull, convex);
+      cv::polylines(canvas, convex, true, colour, 1, cv::LINE_AA);
+    }
+  }
+  std::ostringstream label;
+  label << (projector ? "projector " : "camera ") << w << "x" << h;
+  if (residuals)
+    label << ", residuals x" << std::setprecision(3) << gain / scale << " (max " << max_res
+          << " px), RMS " << (projector ? r.rms_projector_px : r.rms_camera_px) << " px";
+  else
+    label << ", board corners of " << vi << " views";
+  cv::putText(canvas, label.str(), cv::Point(8, 20), cv::FONT_HERSHEY_SIMPLEX, 0.5,
+              cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  ImageU8 out(cw, ch, 3);
+  for (int y = 0; y < ch; ++y)
+    for (int x = 0; x < cw; ++x) {
+      const cv::Vec3b px = canvas.at<cv::Vec3b>(y, x);
+      for (int c = 0; c < 3; ++c) out.channel(c)[static_cast<size_t>(y) * cw + x] = px[2 - c];
+    }
+  WritePng8(path, out);
+}
+
+}  // namespace
+
+Json CalibrationResult::ToJson() const {
+  Json j;
+  j["rms_camera_px"] = rms_camera_px;
+  j["rms_projector_px"] = rms_projector_px;
+  j["rms_stereo_px"] = rms_stereo_px;
+  j["views_used"] = views_used;
+  j["world"] = world;
+  j["camera"] = DeviceJson(rig.camera);
+  j["projector"] = DeviceJson(rig.projector);
+  const Rigid3d prj_from_cam = rig.projector.world_from_device.Inverse() * rig.camera.world_from_device;
+  j["baseline_m"] = prj_from_cam.translation.norm();
+  j["prj_from_cam_rotation_deg"] =
+      Eigen::AngleAxisd(prj_from_cam.rotation).angle() * 180.0 / std::numbers::pi;
+  j["uncertainties"] = uncertainties;
+  j["ceres"] = ceres_brief;
+  j["opencv_baseline"] = opencv;
+  j["seconds"] = seconds;
+  Json vs = Json::array();
+  for (const auto& v : views) {
+    Json vj = {{"session", v.name}, {"found", v.found}};
+    if (!v.problem.empty()) vj["problem"] = v.problem;
+    if (v.found && !v.camera_residual_px.empty()) {
+      int np = 0;
+      for (const auto& p : v.projector_px) np += p.allFinite();
+      vj["rms_camera_px"] = v.rms_camera_px;
+      vj["rms_projector_px"] = v.rms_projector_px;
+      vj["projector_corners"] = np;
+      vj["outlier"] = v.outlier;
+      const Rigid3d board_in_cam = v.cam_from_board;
+      vj["cam_from_board_translation_m"] = {board_in_cam.translation.x(),
+                                            board_in_cam.translation.y(),
+                                            board_in_cam.translation.z()};
+    }
+    vj["decode_seconds"] = v.decode_seconds;
+    vs.push_back(vj);
+  }
+  j["views"] = vs;
+  return j;
+}
+
+std::string CalibrationResult::BriefReport() const {
+  std::ostringstream o;
+  o << std::setprecision(4) << views_used << " views, RMS camera " << rms_camera_px
+    << " px, projector " << rms_projector_px << " px, stereo " << rms_stereo_px
+    << " px (OpenCV: " << opencv.value("rms_camera_px", 0.0) << " / "
+    << opencv.value("rms_projector_px", 0.0) << " / " << opencv.value("rms_stereo_px", 0.0)
+    << " px); fx camera " << rig.camera.K(0, 0) << ", projector " << rig.projector.K(0, 0)
+    << " px; " << seconds << " s";
+  int outliers = 0;
+  for (const auto& v : views) outliers += v.outlier;
+  if (outliers) o << "; " << outliers << " outlier view(s)";
+  return o.str();
+}
+
+void WriteCalibrationReport(const CalibrationResult& result, const fs::path& dir,
+                            const Json& extra) {
+  fs::create_directories(dir);
+  Json j = result.ToJson();
+  for (auto it = extra.begin(); it != extra.end(); ++it) j[it.key()] = it.value();
+  WriteJsonFile(dir / "report.json", j);
+  DrawDevice(result, false, true, dir / "residuals_camera.png");
+  DrawDevice(result, true, true, dir / "residuals_projector.png");
+  DrawDevice(result, false, false, dir / "coverage_camera.png");
+  DrawDevice(result, true, false, dir / "coverage_projector.png");
+}
+
+}  // namespace mesoscan

@@ -1,0 +1,266 @@
+#include "maps/maps_tile.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <vector>
+
+#include "core/error.h"
+#include "core/numbers.h"
+#include "core/parallel.h"
+
+namespace mesoscan {
+namespace {
+
+// Summed-area table of a 0/1 predicate, (w+1) x (h+1).
+template <typename Pred>
+std::vector<int64_t> Integral(int w, int h, Pred&& pred) {
+  std::vector<int64_t> s(static_cast<size_t>(w + 1) * (h + 1), 0);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      s[(y + 1) * (w + 1) + x + 1] = (pred(x, y) ? 1 : 0) + s[y * (w + 1) + x + 1] +
+                                     s[(y + 1) * (w + 1) + x] - s[y * (w + 1) + x];
+  return s;
+}
+int64_t BoxSum(const std::vector<int64_t>& s, int w, int x, int y, int n) {
+  return s[(y + n) * (w + 1) + x + n] - s[y * (w + 1) + x + n] - s[(y + n) * (w + 1) + x] +
+         s[y * (w + 1) + x];
+}
+
+// Mean of the finite values of channel c.
+double MeanOf(const ImageF& im, int c) {
+  double s = 0;
+  int64_t n = 0;
+  const float* p = im.channel(c);
+  for (size_t i = 0; i < im.pixels(); ++i)
+    if (std::isfinite(p[i])) s += p[i], ++n;
+  return n ? s / n : 0.0;
+}
+
+// Normalised autocorrelation of channel 0 of the square `t` at shift s along x (axis 0) or y
+// (axis 1), over the overlap without wrapping.
+double Autocorrelation(const ImageF& t, int s, int axis) {
+  const int n = t.width();
+  const double mu = MeanOf(t, 0);
+  double c = 0, v = 0;
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) {
+      const double a = t(x, y) - mu;
+      v += a * a;
+      const int x2 = axis == 0 ? x + s : x, y2 = axis == 0 ? y : y + s;
+      if (x2 < n && y2 < n) c += a * (t(x2, y2) - mu);
+    }
+  const double overlap = static_cast<double>(n - s) / n;
+  return v > 0 ? c / (v * overlap) : 0.0;
+}
+
+// The offset of the shifted copies along one axis: half the tile, unless a shift in
+// [n/3, 2n/3] correlates clearly better with the square (a periodic texture such as a weave:
+// the copies then stay in phase with it instead of cancelling it in the blend).
+int BestShift(const ImageF& t, int axis) {
+  const int n = t.width();
+  int best = n / 2;
+  double best_c = Autocorrelation(t, best, axis) + 0.2;  // the half shift wins unless clearly beaten
+  for (int s = n / 3; s <= 2 * n / 3; ++s) {
+    const double c = Autocorrelation(t, s, axis);
+    if (c > best_c) best_c = c, best = s;
+  }
+  return best;
+}
+
+// Weight of the square itself along one axis: 0 at the tile's edges (its seam), 1 at c = n - s
+// where the copy shifted by s has its own seam; sin^2 ramps in between.
+std::vector<double> Window(int n, int shift) {
+  const double c = n - shift;
+  std::vector<double> w(n);
+  constexpr double kHalfPi = kPi / 2;
+  for (int i = 0; i < n; ++i) {
+    const double t = i + 0.5;
+    const double s = t <= c ? std::sin(kHalfPi * t / c) : std::sin(kHalfPi * (n - t) / (n - c));
+    w[i] = s * s;
+  }
+  return w;
+}
+
+// Offset-and-blend of a square image (all channels) with matched variance (see the header);
+// shifts from the height channel (the same for every map of the set).
+ImageF BlendPeriodic(const ImageF& t, bool preserve_variance, int shift_x, int shift_y) {
+  const int n = t.width();
+  ImageF out(n, n, t.channels());
+  const std::vector<double> wxs = Window(n, shift_x), wys = Window(n, shift_y);
+  for (int c = 0; c < t.channels(); ++c) {
+    const double mu = preserve_variance ? MeanOf(t, c) : 0.0;
+    ParallelForRows(n, [&](int r0, int r1) {
+      for (int y = r0; y < r1; ++y) {
+        const int ys = (y + shift_y) % n;
+        const double wy = wys[y];
+        for (int x = 0; x < n; ++x) {
+          const int xs = (x + shift_x) % n;
+          const double wx = wxs[x];
+          const double w[4] = {wx * wy, (1 - wx) * wy, wx * (1 - wy), (1 - wx) * (1 - wy)};
+          const double v[4] = {t(x, y, c), t(xs, y, c), t(x, ys, c), t(xs, ys, c)};
+          double s = 0, s2 = 0;
+          for (int k = 0; k < 4; ++k) s += w[k] * (v[k] - mu), s2 += w[k] * w[k];
+          out(x, y, c) = static_cast<float>(mu + (preserve_variance ? s / std::sqrt(s2) : s));
+        }
+      }
+    });
+  }
+  return out;
+}
+
+ImageF MirrorPeriodic(const ImageF& t) {
+  const int s = t.width(), n = 2 * s;
+  ImageF out(n, n, t.channels());
+  for (int c = 0; c < t.channels(); ++c)
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x)
+        out(x, y, c) = t(x < s ? x : n - 1 - x, y < s ? y : n - 1 - y, c);
+  return out;
+}
+
+ImageF CropSquare(const ImageF& im, int x0, int y0, int n) {
+  ImageF out(n, n, im.channels());
+  for (int c = 0; c < im.channels(); ++c)
+    for (int y = 0; y < n; ++y)
+      std::copy(im.row(y0 + y, c) + x0, im.row(y0 + y, c) + x0 + n, out.row(y, c));
+  return out;
+}
+
+}  // namespace
+
+void TileOptions::Check() const {
+  if (!(size_m > 0) || !std::isfinite(size_m))
+    MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << size_m * 1e3 << " mm: expected a size > 0");
+}
+
+TileMethod ParseTileMethod(const std::string& t) {
+  if (t == "blend") return TileMethod::kBlend;
+  if (t == "mirror") return TileMethod::kMirror;
+  MESOSCAN_THROW(ErrorKind::kUsage, "--tile-method '" << t << "': expected blend or mirror");
+}
+const char* TileMethodName(TileMethod m) { return m == TileMethod::kBlend ? "blend" : "mirror"; }
+
+SeamStats MeasureSeams(const ImageF& z) {
+  const int w = z.width(), h = z.height();
+  SeamStats s;
+  double sx = 0, ix = 0, sy = 0, iy = 0;
+  int64_t nsx = 0, nix = 0, nsy = 0, niy = 0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const double v = z(x, y);
+      const double dx = z((x + 1) % w, y) - v, dy = z(x, (y + 1) % h) - v;
+      if (std::isfinite(dx)) {
+        if (x == w - 1) sx += dx * dx, ++nsx;
+        else ix += dx * dx, ++nix;
+      }
+      if (std::isfinite(dy)) {
+        if (y == h - 1) sy += dy * dy, ++nsy;
+        else iy += dy * dy, ++niy;
+      }
+    }
+  // Per-column (x) and per-row (y) interior gradient RMS, and their scatter.
+  std::vector<double> col2(w, 0.0), row2(h, 0.0);
+  std::vector<int64_t> coln(w, 0), rown(h, 0);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const double v = z(x, y);
+      const double dx = z((x + 1) % w, y) - v, dy = z(x, (y + 1) % h) - v;
+      if (std::isfinite(dx)) col2[x] += dx * dx, ++coln[x];
+      if (std::isfinite(dy)) row2[y] += dy * dy, ++rown[y];
+    }
+  auto spread = [](const std::vector<double>& a2, const std::vector<int64_t>& n, double ref) {
+    if (ref <= 0) return 0.0;
+    double m = 0, m2 = 0;
+    int k = 0;
+    for (size_t i = 0; i + 1 < a2.size(); ++i) {  // the last one is the seam
+      if (n[i] == 0) continue;
+      const double r = std::sqrt(a2[i] / n[i]) / ref;
+      m += r, m2 += r * r, ++k;
+    }
+    return k > 1 ? std::sqrt(std::max(0.0, m2 / k - (m / k) * (m / k))) : 0.0;
+  };
+  s.seam_rms_x = nsx ? std::sqrt(sx / nsx) : 0;
+  s.interior_rms_x = nix ? std::sqrt(ix / nix) : 0;
+  s.seam_rms_y = nsy ? std::sqrt(sy / nsy) : 0;
+  s.interior_rms_y = niy ? std::sqrt(iy / niy) : 0;
+  s.column_spread_x = spread(col2, coln, s.interior_rms_x);
+  s.row_spread_y = spread(row2, rown, s.interior_rms_y);
+  return s;
+}
+
+std::string TileResult::BriefReport() const {
+  std::ostringstream s;
+  s.precision(3);
+  s << "tile: " << size_px << " px (" << size_px * field.pixel_size * 1e3 << " mm) from the "
+    << src_size << " px square at (" << src_x << ", " << src_y << "); seam/interior gradient RMS "
+    << "x " << seams_after.ratio_x() << ", y " << seams_after.ratio_y() << " (untiled crop: x "
+    << seams_before.ratio_x() << ", y " << seams_before.ratio_y() << "); single interior columns "
+    << "scatter by " << seams_after.column_spread_x << ", rows by " << seams_after.row_spread_y;
+  return s.str();
+}
+
+TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& filled,
+                    const TileOptions& o) {
+  o.Check();
+  const int w = hf.width(), h = hf.height();
+  const int n_target = static_cast<int>(std::lround(o.size_m / hf.pixel_size));
+  const int src = o.method == TileMethod::kBlend ? n_target : (n_target + 1) / 2;
+  if (n_target < 8)
+    MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << o.size_m * 1e3 << " mm: under 8 grid pixels of "
+                                                << hf.pixel_size * 1e6 << " um");
+  if (src > w || src > h)
+    MESOSCAN_BAD_INPUT("height.exr: the " << w << "x" << h << " grid ("
+                                          << w * hf.pixel_size * 1e3 << " x " << h * hf.pixel_size * 1e3
+                                          << " mm) is smaller than the --tile square of "
+                                          << src * hf.pixel_size * 1e3 << " mm");
+  // 1. The hole-free square with the fewest filled pixels, nearest to the centre.
+  const auto holes = Integral(w, h, [&](int x, int y) { return !std::isfinite(hf.z(x, y)); });
+  const auto fills = Integral(w, h, [&](int x, int y) { return !filled.empty() && filled(x, y) != 0; });
+  int64_t best_fill = std::numeric_limits<int64_t>::max();
+  double best_d = 0;
+  int bx = -1, by = -1;
+  const double cx = 0.5 * (w - src), cy = 0.5 * (h - src);
+  for (int y = 0; y + src <= h; ++y)
+    for (int x = 0; x + src <= w; ++x) {
+      if (BoxSum(holes, w, x, y, src) != 0) continue;
+      const int64_t f = BoxSum(fills, w, x, y, src);
+      const double d = (x - cx) * (x - cx) + (y - cy) * (y - cy);
+      if (f < best_fill || (f == best_fill && d < best_d)) best_fill = f, best_d = d, bx = x, by = y;
+    }
+  if (bx < 0)
+    MESOSCAN_BAD_INPUT("height.exr: no hole-free square of " << src * hf.pixel_size * 1e3
+                                                             << " mm in the filled height field; "
+                                                                "use a smaller --tile or --crop");
+  TileResult r;
+  r.src_x = bx, r.src_y = by, r.src_size = src;
+  const ImageF zsq = CropSquare(hf.z, bx, by, src);
+  r.seams_before = MeasureSeams(zsq);
+  // 2. Periodic height, albedo, confidence and filled mask.
+  const bool blend = o.method == TileMethod::kBlend;
+  const int shift_x = blend ? BestShift(zsq, 0) : 0, shift_y = blend ? BestShift(zsq, 1) : 0;
+  r.shift_x = shift_x, r.shift_y = shift_y;
+  auto periodic = [&](const ImageF& sq, bool preserve) {
+    return blend ? BlendPeriodic(sq, preserve, shift_x, shift_y) : MirrorPeriodic(sq);
+  };
+  r.field.z = periodic(zsq, true);
+  r.size_px = r.field.z.width();
+  r.field.pixel_size = hf.pixel_size;
+  r.field.x0 = hf.X(bx);
+  r.field.y0 = hf.Y(by);
+  if (!hf.confidence.empty()) r.field.confidence = periodic(CropSquare(hf.confidence, bx, by, src), false);
+  if (!albedo.empty()) r.albedo = periodic(CropSquare(albedo, bx, by, src), true);
+  if (!filled.empty()) {
+    ImageF fsq(src, src, 1);
+    for (int y = 0; y < src; ++y)
+      for (int x = 0; x < src; ++x) fsq(x, y) = filled(bx + x, by + y) ? 1.0f : 0.0f;
+    const ImageF fb = periodic(fsq, false);
+    r.filled = ImageU8(r.size_px, r.size_px, 1, 0);
+    for (size_t p = 0; p < fb.pixels(); ++p) r.filled.data()[p] = fb.data()[p] > 0.05f ? 1 : 0;
+  }
+  r.seams_after = MeasureSeams(r.field.z);
+  return r;
+}
+
+}  // namespace mesoscan
