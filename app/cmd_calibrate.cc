@@ -9,13 +9,13 @@
 #include <sstream>
 
 #include "app/commands.h"
-#include "session/session.h"
-#include "core/error.h"
-#include "core/json.h"
-#include "core/log.h"
 #include "calibration/calibrate.h"
 #include "calibration/calibrate_mount.h"
 #include "calibration/calibrate_shifter.h"
+#include "core/error.h"
+#include "core/json.h"
+#include "core/log.h"
+#include "session/session.h"
 
 namespace fs = std::filesystem;
 
@@ -58,8 +58,8 @@ void Run(const CalibrateArgs& a) {
     CalibrationView v = DetectView(s, opt);
     if (!v.found) MESOSCAN_LOG(kWarning) << a.sessions[i] << ": skipped: " << v.problem;
     MESOSCAN_LOG(kInfo) << "view " << i + 1 << "/" << a.sessions.size() << " " << a.sessions[i]
-                        << (v.found ? ": board found" : ": no board") << " ("
-                        << v.decode_seconds << " s)";
+                        << (v.found ? ": board found" : ": no board") << " (" << v.decode_seconds
+                        << " s)";
     views.push_back(std::move(v));
   }
   // --mount: a board lying on the mount (its board defines the world, in the adjustment) or the
@@ -101,9 +101,9 @@ void Run(const CalibrateArgs& a) {
     extra["mount"] = mj;
     std::ostringstream o;
     o << "mount plane: " << plane.inliers << " of " << plane.points << " points, RMS "
-      << plane.rms_m * 1e6 << " um, tilt +- " << plane.normal_sigma_rad * 180 / 3.14159265358979323846
-      << " deg, offset +- " << plane.offset_sigma_m * 1e6 << " um (" << mount_scan->seconds + plane.seconds
-      << " s)";
+      << plane.rms_m * 1e6 << " um, tilt +- "
+      << plane.normal_sigma_rad * 180 / 3.14159265358979323846 << " deg, offset +- "
+      << plane.offset_sigma_m * 1e6 << " um (" << mount_scan->seconds + plane.seconds << " s)";
     lines.push_back(o.str());
   } else if (mount) {
     extra["mount"] = {{"kind", "board on the mount"}, {"session", a.mount}};
@@ -114,13 +114,12 @@ void Run(const CalibrateArgs& a) {
       !MakeFramePlan(mount_session->frames).lens_shift.empty())
     shifter_path = a.mount;
   if (!shifter_path.empty()) {
-    const Session s = shifter_path == a.mount && mount_session ? *mount_session
-                                                               : ReadSession(shifter_path);
+    const Session s =
+        shifter_path == a.mount && mount_session ? *mount_session : ReadSession(shifter_path);
     const bool reuse = shifter_path == a.mount && mount_scan.has_value();
     const Rig scan_rig = reuse ? mount_scan_rig : result.rig;
     const FlatTargetScan scan = reuse ? *mount_scan : ScanFlatTarget(s, scan_rig);
-    const ShifterCalibration cal =
-        CalibrateShifter(s, scan, scan_rig, ShifterCalibrationOptions());
+    const ShifterCalibration cal = CalibrateShifter(s, scan, scan_rig, ShifterCalibrationOptions());
     result.rig.lens_shifter = cal.calibrated;
     extra["lens_shifter"] = cal.ToJson();
     if (!a.report.empty()) {
@@ -162,8 +161,7 @@ void AddCalibrateCommand(CLI::App* app) {
   cmd->add_option("--shifter", args->shifter,
                   "Session with lens-shift frames of a flat target for the lens shifter's "
                   "steps_per_px (default: the --mount session if it has lens-shift frames)");
-  cmd->add_option("--report", args->report,
-                  "Folder for report.json and residual / coverage PNGs");
+  cmd->add_option("--report", args->report, "Folder for report.json and residual / coverage PNGs");
   cmd->add_option("--fix", args->fix, "Distortion terms held at 0: k2,k3,tangential");
   cmd->add_option("--window", args->window,
                   "Local homography half window, camera px (Moreno & Taubin)")

@@ -12,12 +12,12 @@
 #include "app/commands.h"
 #include "app/rehearsal.h"
 #include "capture/lens_shifter.h"
-#include "session/patterns.h"
 #include "capture/projector_window.h"
 #include "capture/sequencer.h"
-#include "session/session.h"
 #include "core/error.h"
 #include "core/log.h"
+#include "session/patterns.h"
+#include "session/session.h"
 
 namespace mesoscan {
 namespace {
@@ -48,8 +48,9 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
     if (a.periods_given) plan.periods_px = ParsePeriodList(a.periods, "--periods");
     if (a.periods_y_given) plan.cross_periods_px = ParsePeriodList(a.periods_y, "--periods-y");
     if (plan.periods_px.empty() || plan.cross_periods_px.empty())
-      MESOSCAN_THROW(ErrorKind::kUsage, "--plan calibration: expected sine periods along both "
-                                        "axes (--periods, --periods-y)");
+      MESOSCAN_THROW(ErrorKind::kUsage,
+                     "--plan calibration: expected sine periods along both "
+                     "axes (--periods, --periods-y)");
   } else if (a.plan == "scan") {
     if (a.periods_y_given)
       MESOSCAN_THROW(ErrorKind::kUsage, "--periods-y: only with --plan calibration");
@@ -63,8 +64,8 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
     if (plan.lens_shift_frames != 0 &&
         (plan.lens_shift_frames < 4 || plan.lens_shift_frames > positions))
       MESOSCAN_THROW(ErrorKind::kUsage, "--ls-frames: expected 0 or 4.."
-                                            << positions
-                                            << " (the shifter's positions), got " << a.ls_frames);
+                                            << positions << " (the shifter's positions), got "
+                                            << a.ls_frames);
   } else {
     MESOSCAN_THROW(ErrorKind::kUsage, "--plan: '" << a.plan << "': expected scan or calibration");
   }

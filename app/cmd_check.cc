@@ -12,9 +12,9 @@
 
 #include "app/commands.h"
 #include "app/session_checks.h"
-#include "session/session.h"
 #include "core/error.h"
 #include "core/scan_folder.h"
+#include "session/session.h"
 
 namespace mesoscan {
 namespace {

@@ -5,13 +5,13 @@
 #include <OpenEXR/OpenEXRConfig.h>
 #include <OpenImageIO/oiioversion.h>
 #include <ceres/version.h>
-#include <opencv2/core/version.hpp>
 #include <oneapi/tbb/version.h>
 
 #include <Eigen/Core>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <opencv2/core/version.hpp>
 #include <sstream>
 #include <thread>
 
@@ -19,11 +19,11 @@
 #include "capture/gphoto2_camera.h"
 #include "capture/lens_shifter.h"
 #include "capture/projector_window.h"
-#include "session/raw_frame.h"
 #include "core/error.h"
 #include "core/module.h"
 #include "core/oiio_module.h"
 #include "render/embree_scene.h"
+#include "session/raw_frame.h"
 
 namespace mesoscan {
 namespace {

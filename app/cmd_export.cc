@@ -3,10 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <sstream>
 #include <iostream>
 #include <memory>
 #include <optional>
+#include <sstream>
 
 #include "app/commands.h"
 #include "app/map_options.h"
@@ -50,10 +50,10 @@ void ValidateExportSizes(const Scan& scan, const ExportOptions& o, const std::st
   if (!o.crop.whole()) {
     const PixelRect& c = o.crop;
     if (int64_t{c.x} + c.w > w || int64_t{c.y} + c.h > h)
-      MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.w
-                                                          << "," << c.h
-                                                          << ": expected a rectangle inside the "
-                                                          << w << "x" << h << " height grid");
+      MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop "
+                                            << c.x << "," << c.y << "," << c.w << "," << c.h
+                                            << ": expected a rectangle inside the " << w << "x" << h
+                                            << " height grid");
     w = c.w;
     h = c.h;
   }
@@ -71,10 +71,11 @@ void ValidateExportSizes(const Scan& scan, const ExportOptions& o, const std::st
   // Export keeps ~160 bytes per output pixel alive at its peak (height, normals, their filled and
   // encoded copies, 16-bit quantisations, writers' interleaved buffers, the mesh).
   std::ostringstream what;
-  what << "export: a " << std::llround(std::min(gw, 1e15)) << "x" << std::llround(std::min(gh, 1e15))
-       << " output grid";
-  CheckMemoryBudget(what.str(), gw * gh * 160.0,
-                    o.pixel_size_m > 0 || !o.crop.whole() ? ErrorKind::kUsage : ErrorKind::kBadInput);
+  what << "export: a " << std::llround(std::min(gw, 1e15)) << "x"
+       << std::llround(std::min(gh, 1e15)) << " output grid";
+  CheckMemoryBudget(
+      what.str(), gw * gh * 160.0,
+      o.pixel_size_m > 0 || !o.crop.whole() ? ErrorKind::kUsage : ErrorKind::kBadInput);
   bool any = false;
   for (const float z : hf.z.data())
     if (std::isfinite(z)) {
@@ -128,9 +129,9 @@ void RunExport(const ExportArgs& a) {
       o.albedo = std::move(rgb);
     }
     if (o.albedo.width() != scan.height.width() || o.albedo.height() != scan.height.height())
-      MESOSCAN_BAD_INPUT(albedo.string() << ": expected the " << scan.height.width() << "x"
-                                         << scan.height.height() << " height grid, got "
-                                         << o.albedo.width() << "x" << o.albedo.height());
+      MESOSCAN_BAD_INPUT(albedo.string()
+                         << ": expected the " << scan.height.width() << "x" << scan.height.height()
+                         << " height grid, got " << o.albedo.width() << "x" << o.albedo.height());
   }
   ExportSummary s;
   std::optional<MapsSummary> maps_summary;
@@ -164,10 +165,12 @@ void AddExportCommand(CLI::App* app) {
       ->required();
   cmd->add_option("--format", a->formats, "Comma-separated subset of exr,png16,glb,ply")
       ->capture_default_str();
-  cmd->add_option("--normals", a->normals, "Normal-map convention: gl (OpenGL, +Y) or dx (DirectX, -Y)")
+  cmd->add_option("--normals", a->normals,
+                  "Normal-map convention: gl (OpenGL, +Y) or dx (DirectX, -Y)")
       ->check(CLI::IsMember({"gl", "dx"}))
       ->capture_default_str();
-  cmd->add_option("--pixel-size", a->pixel_size_m, "Output pixel size in metres (default: the scan's)");
+  cmd->add_option("--pixel-size", a->pixel_size_m,
+                  "Output pixel size in metres (default: the scan's)");
   cmd->add_option("--crop", a->crop, "X,Y,W,H: a rectangle of the scan's height-grid pixels");
   cmd->add_option("--max-triangles", a->max_triangles, "GLB triangle budget (decimates above it)")
       ->capture_default_str();

@@ -18,12 +18,14 @@ namespace mesoscan {
 namespace fs = std::filesystem;
 
 void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
-  const std::string g = standalone ? "" : " (map set: also writes a finished map set into OUT/maps)";
+  const std::string g =
+      standalone ? "" : " (map set: also writes a finished map set into OUT/maps)";
   cmd->add_option("--fill", a->fill, "Hole filling: harmonic, biharmonic or none" + g);
   cmd->add_option("--fill-max-radius-mm", a->fill_max_radius_mm,
                   "Holes wider than this (inscribed radius, mm) stay holes");
-  cmd->add_option("--flatten", a->flatten,
-                  "Remove the sample's shape: none, plane, poly:N or highpass:MM (cutoff wavelength)" + g);
+  cmd->add_option(
+      "--flatten", a->flatten,
+      "Remove the sample's shape: none, plane, poly:N or highpass:MM (cutoff wavelength)" + g);
   cmd->add_option("--tile", a->tile_mm, "Make a tileable square of this size in mm" + g);
   cmd->add_option("--tile-method", a->tile_method, "blend (offset-and-blend, default) or mirror");
   cmd->add_option("--maps", a->maps,
@@ -41,7 +43,8 @@ MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop)
   if (!fill.empty()) o.fill.method = ParseFillMethod(fill);
   if (fill_max_radius_mm > 0) o.fill.max_hole_radius_m = fill_max_radius_mm * 1e-3;
   if (!flatten.empty()) o.flatten = ParseFlatten(flatten);
-  if (tile_mm < 0) MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << tile_mm << ": expected a size in mm > 0");
+  if (tile_mm < 0)
+    MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << tile_mm << ": expected a size in mm > 0");
   if (tile_mm > 0) {
     o.tile = true;
     o.tile_options.size_m = tile_mm * 1e-3;
@@ -68,8 +71,10 @@ void PrintMapSet(const MapsSummary& s, const fs::path& dir) {
 std::string BlenderLoadLine(const fs::path& manifest) {
   const fs::path addon = MESOSCAN_ADDON_ZIP;  // written by the build (app/CMakeLists.txt)
   return "blender --python-expr \"import bpy; bpy.ops.preferences.addon_install(filepath='" +
-         addon.string() + "'); bpy.ops.preferences.addon_enable(module='mesoscan_maps'); "
-         "bpy.ops.import_scene.mesoscan_maps(filepath='" + manifest.string() + "')\"";
+         addon.string() +
+         "'); bpy.ops.preferences.addon_enable(module='mesoscan_maps'); "
+         "bpy.ops.import_scene.mesoscan_maps(filepath='" +
+         manifest.string() + "')\"";
 }
 
 namespace {
@@ -102,7 +107,8 @@ void RunMaps(const MapsCmdArgs& a) {
                                   << scan.height.height() << " height grid");
     if (o.albedo.channels() == 2 || o.albedo.channels() == 4) {
       ImageF rgb(o.albedo.width(), o.albedo.height(), o.albedo.channels() - 1);
-      std::copy(o.albedo.data().begin(), o.albedo.data().begin() + rgb.data().size(), rgb.data().begin());
+      std::copy(o.albedo.data().begin(), o.albedo.data().begin() + rgb.data().size(),
+                rgb.data().begin());
       o.albedo = std::move(rgb);
     }
   }
@@ -115,14 +121,16 @@ void RunMaps(const MapsCmdArgs& a) {
 
 void AddMapsCommand(CLI::App* app) {
   auto* cmd = app->add_subcommand(
-      "maps", "Artist-ready material maps: holes filled, shape removed, tileable at a physical size");
+      "maps",
+      "Artist-ready material maps: holes filled, shape removed, tileable at a physical size");
   auto a = std::make_shared<MapsCmdArgs>();
   cmd->add_option("SCAN", a->scan, "Scan folder (written by reconstruct)")->required();
   cmd->add_option("--out", a->out, "Map-set folder (replaced atomically)")->required();
   cmd->add_option("--crop", a->crop, "X,Y,W,H: a rectangle of the scan's height-grid pixels");
   cmd->add_option("--name", a->name, "File name prefix (default: the scan folder's name)");
-  cmd->add_option("--albedo", a->albedo, "Linear albedo image on the height grid (default: the "
-                                         "session's white frame with the projector falloff divided out)");
+  cmd->add_option("--albedo", a->albedo,
+                  "Linear albedo image on the height grid (default: the "
+                  "session's white frame with the projector falloff divided out)");
   cmd->add_option("--normals", a->normals, "Normal-map convention: gl or dx")
       ->check(CLI::IsMember({"gl", "dx"}))
       ->capture_default_str();

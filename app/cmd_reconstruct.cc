@@ -10,7 +10,6 @@
 #include "app/commands.h"
 #include "app/map_options.h"
 #include "app/session_checks.h"
-#include "session/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/json.h"
@@ -19,10 +18,11 @@
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
-#include "sim/error_map_png.h"
-#include "maps/export.h"
-#include "sim/ground_truth.h"
 #include "heightfield/reconstruct.h"
+#include "maps/export.h"
+#include "session/session.h"
+#include "sim/error_map_png.h"
+#include "sim/ground_truth.h"
 
 namespace mesoscan {
 namespace {
@@ -69,11 +69,12 @@ void Run(const ReconstructArgs& a) {
   }
 
   // --out (and --export-dir) must not be, contain or lie inside an input: checked before any work.
-  OutputSpec out_spec{"reconstruct", "--out", a.out, {a.session, a.mask, a.export_dir}, a.force,
-                      {"report.json", "height.exr"}};
+  OutputSpec out_spec{"reconstruct", "--out",
+                      a.out,         {a.session, a.mask, a.export_dir},
+                      a.force,       {"report.json", "height.exr"}};
   CheckOutputFolder(out_spec);
-  OutputSpec export_spec{"export", "--export-dir", a.export_dir, {a.session, a.mask, a.out},
-                         a.force, {"manifest.json"}};
+  OutputSpec export_spec{"export", "--export-dir",   a.export_dir, {a.session, a.mask, a.out},
+                         a.force,  {"manifest.json"}};
   if (!a.export_formats.empty() && !a.export_dir.empty()) CheckOutputFolder(export_spec);
 
   const Session session = ReadSession(a.session);
@@ -83,7 +84,8 @@ void Run(const ReconstructArgs& a) {
   if (session.ground_truth)
     opt.on_frames_released = [&] {
       ReleaseFreedHeap();
-      gt_read = std::async(std::launch::async, [&session] { return ReadGroundTruthPoints(session); });
+      gt_read =
+          std::async(std::launch::async, [&session] { return ReadGroundTruthPoints(session); });
     };
   ReconstructSummary summary;
   Scan scan = ReconstructOrExplain(session, opt, &summary);  // names session.json; no empty scan
@@ -155,8 +157,8 @@ void Run(const ReconstructArgs& a) {
             << gt->coverage_single * 100 << "%)";
     MESOSCAN_LOG(kInfo) << "ground truth: coverage " << gt->coverage * 100 << "%, depth RMS "
                         << gt->rms_m * 1e6 << " um, median |error| " << gt->median_abs_m * 1e6
-                        << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross "
-                        << gt->gross_fraction << mixed.str();
+                        << " um, p99 " << gt->p99_abs_m * 1e6 << " um, gross " << gt->gross_fraction
+                        << mixed.str();
   }
   MESOSCAN_LOG(kInfo) << "scan written to " << a.out << " ("
                       << scan.report["wall_time_s"].get<double>() << " s wall, "
@@ -164,16 +166,14 @@ void Run(const ReconstructArgs& a) {
                       << scan.report["peak_rss_mb"].get<double>() << " MB)";
   if (!a.export_formats.empty()) {
     // The same exports as `mesoscan export SCAN --format ...`, from the scan in memory.
-    const std::filesystem::path dir =
-        a.export_dir.empty() ? std::filesystem::path(a.out) / "export"
-                             : std::filesystem::path(a.export_dir);
+    const std::filesystem::path dir = a.export_dir.empty() ? std::filesystem::path(a.out) / "export"
+                                                           : std::filesystem::path(a.export_dir);
     ExportSummary es;
     if (export_summary) {
       es = *export_summary;
     } else {
-      WriteOutputFolder(export_spec, [&](const std::filesystem::path& tmp) {
-        es = write_exports(tmp);
-      });
+      WriteOutputFolder(export_spec,
+                        [&](const std::filesystem::path& tmp) { es = write_exports(tmp); });
     }
     MESOSCAN_LOG(kInfo) << es.BriefReport();
     MESOSCAN_LOG(kInfo) << "exports written to " << dir.string() << " (manifest.json lists them)";

@@ -74,7 +74,8 @@ void ParseCamera(const std::string& spec, RenderOptions* o) {
   std::string part;
   while (std::getline(ss, part, ':')) {
     const auto eq = part.find('=');
-    const std::string key = part.substr(0, eq), val = eq == std::string::npos ? "" : part.substr(eq + 1);
+    const std::string key = part.substr(0, eq),
+                      val = eq == std::string::npos ? "" : part.substr(eq + 1);
     double a, b, c;
     char tail;
     if ((key == "eye" || key == "target") &&
@@ -86,8 +87,10 @@ void ParseCamera(const std::string& spec, RenderOptions* o) {
         MESOSCAN_THROW(ErrorKind::kUsage, "--camera: fov must be in (0, 180) degrees, got " << val);
       o->fov_deg = a;
     } else {
-      MESOSCAN_THROW(ErrorKind::kUsage, "--camera: expected eye=X,Y,Z:target=X,Y,Z[:fov=DEG] (metres, "
-                                        "degrees), could not read '" << part << "'");
+      MESOSCAN_THROW(ErrorKind::kUsage,
+                     "--camera: expected eye=X,Y,Z:target=X,Y,Z[:fov=DEG] (metres, "
+                     "degrees), could not read '"
+                         << part << "'");
     }
   }
   if (!have_eye || !have_target)
@@ -102,8 +105,9 @@ EnvironmentMap MakeEnvironment(const RenderArgs& a) {
     if (a.env == name) {
       const fs::path p = EnvironmentMap::NamedPath(name);
       if (p.empty())
-        MESOSCAN_BAD_INPUT("--env " << name << ": needs Debian's blender-data package "
-                                    "(/usr/share/blender/datafiles/studiolights/world/"
+        MESOSCAN_BAD_INPUT("--env " << name
+                                    << ": needs Debian's blender-data package "
+                                       "(/usr/share/blender/datafiles/studiolights/world/"
                                     << name << ".exr); give a lat-long EXR/HDR file instead");
       return EnvironmentMap::Load(p, a.env_scale);
     }
@@ -134,34 +138,40 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
     return im;
   }
   if (a.albedo != "scan")
-    MESOSCAN_THROW(ErrorKind::kUsage, "--albedo: expected scan, none or R,G,B, got '" << a.albedo << "'");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "--albedo: expected scan, none or R,G,B, got '" << a.albedo << "'");
   ImageF alb;
   for (const char* f : {"albedo.exr", "albedo.png"})
-    if (alb.pixels() == 0 && fs::exists(fs::path(a.scan) / f)) alb = ReadImage(fs::path(a.scan) / f);
+    if (alb.pixels() == 0 && fs::exists(fs::path(a.scan) / f))
+      alb = ReadImage(fs::path(a.scan) / f);
   if (alb.pixels() == 0) {
     const Json report = Json::parse(ReadTextFile(fs::path(a.scan) / "report.json"));
     if (!report.contains("session") || !report["session"].is_string())
-      MESOSCAN_BAD_INPUT(a.scan << "/report.json: --albedo scan: no albedo.exr/png and no \"session\" "
-                                   "whose white frame gives one");
+      MESOSCAN_BAD_INPUT(
+          a.scan << "/report.json: --albedo scan: no albedo.exr/png and no \"session\" "
+                    "whose white frame gives one");
     fs::path session = report["session"].get<std::string>();
     if (session.is_relative() && !fs::exists(session)) session = fs::path(a.scan) / session;
     alb = AlbedoFromSession(hf, session);
   }
   if (alb.width() != hf.width() || alb.height() != hf.height())
-    MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo is " << alb.width() << "x" << alb.height()
-                              << ", the height grid " << hf.width() << "x" << hf.height());
+    MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo is " << alb.width() << "x"
+                              << alb.height() << ", the height grid " << hf.width() << "x"
+                              << hf.height());
   const int nc = alb.channels() >= 3 ? 3 : 1;
   std::vector<float> lum;
   for (size_t i = 0; i < alb.pixels(); ++i)
     if (std::isfinite(alb.channel(0)[i]) && alb.channel(0)[i] > 0) lum.push_back(alb.channel(0)[i]);
-  if (lum.empty()) MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo has no positive sample");
+  if (lum.empty())
+    MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo has no positive sample");
   std::nth_element(lum.begin(), lum.begin() + lum.size() / 2, lum.end());
   const double median = lum[lum.size() / 2];
   ImageF tint(hf.width(), hf.height(), nc);
   for (int c = 0; c < nc; ++c)
     for (size_t i = 0; i < alb.pixels(); ++i) {
       const float v = alb.channel(c)[i];
-      tint.channel(c)[i] = std::isfinite(v) ? static_cast<float>(std::clamp(v / median, 0.0, 1.4)) : 1.0f;
+      tint.channel(c)[i] =
+          std::isfinite(v) ? static_cast<float>(std::clamp(v / median, 0.0, 1.4)) : 1.0f;
     }
   return tint;
 }
@@ -195,9 +205,10 @@ void ValidateHeightField(const HeightField& hf, const RenderOptions& o, const st
   if (!std::isfinite(hf.x0) || !std::isfinite(hf.y0) || !(hf.pixel_size > 0) ||
       !std::isfinite(hf.pixel_size) || std::abs(hf.x0) > 1e6 || std::abs(hf.y0) > 1e6 ||
       hf.pixel_size > 1e3)
-    MESOSCAN_BAD_INPUT(file << ": " << kAttrX0 << ", " << kAttrY0 << ", " << kAttrPixelSize
-                            << " must be finite (|x0|, |y0| <= 1e6 m, 0 < pixel size <= 1e3 m), got "
-                            << hf.x0 << ", " << hf.y0 << ", " << hf.pixel_size);
+    MESOSCAN_BAD_INPUT(
+        file << ": " << kAttrX0 << ", " << kAttrY0 << ", " << kAttrPixelSize
+             << " must be finite (|x0|, |y0| <= 1e6 m, 0 < pixel size <= 1e3 m), got " << hf.x0
+             << ", " << hf.y0 << ", " << hf.pixel_size);
   // Relief-scaled heights stay within a float-friendly multiple of the field's extent.
   const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
   double zmax = 0;
@@ -271,8 +282,7 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     const ImageF dn = DenoisePreview(result);
     WriteExr(out / "preview_denoised.exr", dn, {"R", "G", "B"}, {}, {}, "none");
     WritePng8(out / "preview_denoised.png", ToneMapForDisplay(dn, result.tone));
-    MESOSCAN_LOG(kInfo) << "render: denoised in "
-                        << denoise_time.Seconds()
+    MESOSCAN_LOG(kInfo) << "render: denoised in " << denoise_time.Seconds()
                         << " s: preview_denoised.png / .exr (biased: edge-aware smoothing; the raw "
                            "render is preview.png / .exr)";
   }
@@ -285,16 +295,17 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     const RenderResult rb = Render(other_scan->hf, brdf, env, ob);
     WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
                                                    ToneMapForDisplay(rb.radiance, result.tone)));
-    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string() << " (left "
-                        << a.scan << ", right " << a.compare_scan << ", one camera and exposure)";
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string()
+                        << " (left " << a.scan << ", right " << a.compare_scan
+                        << ", one camera and exposure)";
   } else if (!a.compare.empty()) {
     // Side by side: the same scan, camera and light with a second BRDF, one exposure.
     const Brdf other = MakeBrdf(a.compare, out);
     const RenderResult rb = Render(hf, other, env, o);
     WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
                                                    ToneMapForDisplay(rb.radiance, result.tone)));
-    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string() << " (left "
-                        << a.brdf << ", right " << a.compare << ")";
+    MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string()
+                        << " (left " << a.brdf << ", right " << a.compare << ")";
   }
 
   if (a.turntable > 0) {
@@ -305,7 +316,8 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     RenderOptions ot = o;
     if (!a.turntable_size.empty() &&
         std::sscanf(a.turntable_size.c_str(), "%dx%d", &ot.width, &ot.height) != 2)
-      MESOSCAN_THROW(ErrorKind::kUsage, "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
+      MESOSCAN_THROW(ErrorKind::kUsage,
+                     "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
     if (a.turntable_spp > 0) {
       ot.max_spp = a.turntable_spp;
       ot.min_spp = std::min(ot.min_spp, ot.max_spp);
@@ -350,14 +362,18 @@ void Run(const RenderArgs& args) {
   // --compare also takes a scan folder (one with a height.exr): a side by side of two scans.
   if (!a.compare.empty() && fs::is_directory(a.compare)) {
     if (!a.compare_scan.empty())
-      MESOSCAN_THROW(ErrorKind::kUsage, "render: --compare " << a.compare << " is a scan folder and "
-                                        "--compare-scan is given too: compare with one of them");
+      MESOSCAN_THROW(ErrorKind::kUsage,
+                     "render: --compare "
+                         << a.compare
+                         << " is a scan folder and "
+                            "--compare-scan is given too: compare with one of them");
     a.compare_scan = a.compare;
     a.compare.clear();
   }
   if (!a.compare_scan.empty() && !a.compare.empty())
-    MESOSCAN_THROW(ErrorKind::kUsage, "render: --compare (a second BRDF) and --compare-scan (a second "
-                                      "scan) both make side_by_side.png: give one of them");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "render: --compare (a second BRDF) and --compare-scan (a second "
+                   "scan) both make side_by_side.png: give one of them");
   ThreadLimit limit(a.threads);
   RenderOptions o = a.options;
   if (std::sscanf(a.size.c_str(), "%dx%d", &o.width, &o.height) != 2)
@@ -373,18 +389,23 @@ void Run(const RenderArgs& args) {
   if (!a.turntable_size.empty() &&
       (std::sscanf(a.turntable_size.c_str(), "%dx%d", &tw, &th) != 2 || tw < 1 || th < 1 ||
        static_cast<double>(tw) * th > static_cast<double>(o.width) * o.height * 16))
-    MESOSCAN_THROW(ErrorKind::kUsage, "--turntable-size: expected WxH (positive, at most 16x the "
-                                      "--size area), got '" << a.turntable_size << "'");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "--turntable-size: expected WxH (positive, at most 16x the "
+                   "--size area), got '"
+                       << a.turntable_size << "'");
   ValidateRenderNumbers(a, o);
   o.Check();
   const bool brdf_file = a.brdf != "lambert" && a.brdf != "ggx" && a.brdf != "ggx-merl";
   const bool compare_file =
       !a.compare.empty() && a.compare != "lambert" && a.compare != "ggx" && a.compare != "ggx-merl";
   const bool env_file = fs::exists(a.env);
-  const OutputSpec out_spec{"render", "--out", a.out,
+  const OutputSpec out_spec{"render",
+                            "--out",
+                            a.out,
                             {a.scan, brdf_file ? a.brdf : "", compare_file ? a.compare : "",
                              env_file ? a.env : "", a.compare_scan},
-                            a.force, {"preview.exr", "preview.png"}};
+                            a.force,
+                            {"preview.exr", "preview.png"}};
   CheckOutputFolder(out_spec);
   // --denoise: the filters' module (OpenCV's ximgproc, ~0.12-0.16 s to load) is loaded on
   // another thread while the scan is read and the BRDF tabulated, not inside the time budget.
@@ -419,34 +440,44 @@ void Run(const RenderArgs& args) {
 
 void AddRenderCommand(CLI::App* app) {
   auto args = std::make_shared<RenderArgs>();
-  auto* cmd = app->add_subcommand("render", "Path-traced preview of a scan with a BRDF under an environment map");
+  auto* cmd = app->add_subcommand(
+      "render", "Path-traced preview of a scan with a BRDF under an environment map");
   cmd->add_option("scan", args->scan, "Scan folder (reads height.exr)")->required();
   cmd->add_option("--out", args->out, "Output folder for preview.png / preview.exr")->required();
-  cmd->add_option("--brdf", args->brdf,
-                  "lambert | ggx | ggx-merl (GGX tabulated in MERL layout) | FILE.binary | FILE.bsdf")
+  cmd->add_option(
+         "--brdf", args->brdf,
+         "lambert | ggx | ggx-merl (GGX tabulated in MERL layout) | FILE.binary | FILE.bsdf")
       ->capture_default_str();
-  cmd->add_option("--env", args->env,
-                  "sky (procedural sun and sky) | constant | studio|forest|city|courtyard|interior|"
-                  "night|sunrise|sunset (Blender's, Debian blender-data) | FILE.exr/.hdr (lat-long)")
+  cmd->add_option(
+         "--env", args->env,
+         "sky (procedural sun and sky) | constant | studio|forest|city|courtyard|interior|"
+         "night|sunrise|sunset (Blender's, Debian blender-data) | FILE.exr/.hdr (lat-long)")
       ->capture_default_str();
   cmd->add_option("--env-scale", args->env_scale, "Radiance multiplier of the environment")
       ->capture_default_str();
   cmd->add_option("--env-rotation", args->env_rotation_deg,
                   "Turns the environment about the vertical axis, degrees")
       ->capture_default_str();
-  cmd->add_option("--sun-elevation", args->sun_elevation_deg, "Procedural sky: sun elevation, degrees")
+  cmd->add_option("--sun-elevation", args->sun_elevation_deg,
+                  "Procedural sky: sun elevation, degrees")
       ->capture_default_str();
   cmd->add_option("--sun-azimuth", args->sun_azimuth_deg, "Procedural sky: sun azimuth, degrees")
       ->capture_default_str();
   cmd->add_option("--size", args->size, "Image size WxH")->capture_default_str();
-  cmd->add_option_function<int>("--spp", [args](int n) {
-       args->options.max_spp = n;
-       args->spp_given = true;
-     }, "Maximum samples per pixel (default 256; 65536 with --time)");
-  cmd->add_option_function<int>("--min-spp", [args](int n) {
-       args->options.min_spp = n;
-       args->min_spp_given = true;
-     }, "Samples before a pixel may stop early (default 16, at most --spp)");
+  cmd->add_option_function<int>(
+      "--spp",
+      [args](int n) {
+        args->options.max_spp = n;
+        args->spp_given = true;
+      },
+      "Maximum samples per pixel (default 256; 65536 with --time)");
+  cmd->add_option_function<int>(
+      "--min-spp",
+      [args](int n) {
+        args->options.min_spp = n;
+        args->min_spp_given = true;
+      },
+      "Samples before a pixel may stop early (default 16, at most --spp)");
   cmd->add_option("--noise", args->options.noise,
                   "Adaptive sampling: a pixel stops when its standard error is below this fraction "
                   "of the display range (0 = every pixel gets --spp)")
@@ -492,10 +523,11 @@ void AddRenderCommand(CLI::App* app) {
   cmd->add_option("--fill", args->fill,
                   "Hole filling of the previewed height field: harmonic | biharmonic | none")
       ->capture_default_str();
-  cmd->add_flag("!--no-mirror-guide", args->options.mirror_guide,
-                "Sample continuation rays by BRDF alone (default: glossy BRDFs under an environment "
-                "map also aim at the environment mirrored in the field's plane; same image, less "
-                "noise on reliefs lit by the field's reflection)");
+  cmd->add_flag(
+      "!--no-mirror-guide", args->options.mirror_guide,
+      "Sample continuation rays by BRDF alone (default: glossy BRDFs under an environment "
+      "map also aim at the environment mirrored in the field's plane; same image, less "
+      "noise on reliefs lit by the field's reflection)");
   cmd->add_option("--resample", args->options.resample_candidates,
                   "Candidate directions resampled towards the BRDF x the field's reflection at "
                   "vertices that aim at it (0 or 1: off)")

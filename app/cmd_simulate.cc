@@ -4,11 +4,11 @@
 #include <filesystem>
 
 #include "app/commands.h"
-#include "session/patterns.h"
 #include "core/error.h"
 #include "core/log.h"
-#include "core/rect.h"
 #include "core/output_dir.h"
+#include "core/rect.h"
+#include "session/patterns.h"
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 
@@ -30,9 +30,11 @@ void AddSimulateCommand(CLI::App* app) {
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
-  cmd->add_option("--object", o.object,
-                  "coin | plane | ramp | leaf | fabric | metal | mount (empty) | FILE.exr (a height EXR in the "
-                  "scan-outputs layout) | board:checker:COLSxROWS:SQUARE_MM (a calibration session)")
+  cmd->add_option(
+         "--object", o.object,
+         "coin | plane | ramp | leaf | fabric | metal | mount (empty) | FILE.exr (a height EXR in "
+         "the "
+         "scan-outputs layout) | board:checker:COLSxROWS:SQUARE_MM (a calibration session)")
       ->capture_default_str();
   cmd->add_option("--rig", o.rig, "paper (built-in rig) | RIG.json (a file with a \"rig\" object)")
       ->capture_default_str();
@@ -46,7 +48,8 @@ void AddSimulateCommand(CLI::App* app) {
                   "lens shifter moves along y)")
       ->check(CLI::IsMember({"x", "y"}))
       ->capture_default_str();
-  cmd->add_option("--ps-phases", o.ps_phases, "Phases per sine period (>= 3)")->capture_default_str();
+  cmd->add_option("--ps-phases", o.ps_phases, "Phases per sine period (>= 3)")
+      ->capture_default_str();
   cmd->add_option("--ls-frames", o.ls_frames,
                   "Lens-shift frames evenly over the shifter range incl. both ends (0 or >= 4)")
       ->capture_default_str();
@@ -66,8 +69,7 @@ void AddSimulateCommand(CLI::App* app) {
                   "Grid spacing of procedural objects, m (0 = the object's default)")
       ->capture_default_str();
   cmd->add_option("--object-label", o.object_label, "The session's \"object\" text");
-  cmd->add_option("--fill-factor", o.fill_factor,
-                  "Projector pixel fill factor per axis, (0, 1]")
+  cmd->add_option("--fill-factor", o.fill_factor, "Projector pixel fill factor per axis, (0, 1]")
       ->capture_default_str();
   cmd->add_option("--blur", o.blur_sigma_px, "Projector blur sigma at focus, projector px")
       ->capture_default_str();
@@ -81,8 +83,7 @@ void AddSimulateCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_option("--shift-gain-y", o.shift_gain_y, "Lens-shifter gain: linear term in vn")
       ->capture_default_str();
-  cmd->add_option("--shift-gain-r", o.shift_gain_r,
-                  "Lens-shifter gain: radial term in un^2 + vn^2")
+  cmd->add_option("--shift-gain-r", o.shift_gain_r, "Lens-shifter gain: radial term in un^2 + vn^2")
       ->capture_default_str();
   cmd->add_option("--projector-gamma", o.projector_gamma,
                   "Projector response v^g (1 = linear; else written as projector.response)")
@@ -90,11 +91,13 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--exposure", o.exposure,
                   "Frame value of a white-lit albedo-1 surface facing the projector")
       ->capture_default_str();
-  cmd->add_option("--ambient", o.ambient, "Ambient/indirect light, relative to the projector's white")
+  cmd->add_option("--ambient", o.ambient,
+                  "Ambient/indirect light, relative to the projector's white")
       ->capture_default_str();
   cmd->add_option("--full-well", o.full_well_e, "Electrons at full scale (shot noise)")
       ->capture_default_str();
-  cmd->add_option("--read-noise", o.read_noise_e, "Read noise, electrons rms")->capture_default_str();
+  cmd->add_option("--read-noise", o.read_noise_e, "Read noise, electrons rms")
+      ->capture_default_str();
   cmd->add_option("--adc-bits", o.adc_bits, "ADC bits (8..16), stored in 16-bit PNG")
       ->capture_default_str();
   cmd->add_option("--gain-jitter", o.gain_jitter, "Per-frame gain jitter, relative sigma")
@@ -137,8 +140,9 @@ void AddSimulateCommand(CLI::App* app) {
                                : ParsePeriodList(args->periods_y, "--ps-periods-y");
       opt.white = !args->no_white;
       opt.black = !args->no_black;
-      const OutputSpec board_spec{"simulate", "--out", args->out,
-                                  {std::filesystem::exists(opt.rig) ? opt.rig : ""}, args->force, {}};
+      const OutputSpec board_spec{"simulate",  "--out",
+                                  args->out,   {std::filesystem::exists(opt.rig) ? opt.rig : ""},
+                                  args->force, {}};
       SimulateSummary summary;
       WriteOutputFolder(board_spec, [&](const std::filesystem::path& tmp) {
         summary = SimulateBoard(opt, bo, tmp);
@@ -154,10 +158,10 @@ void AddSimulateCommand(CLI::App* app) {
     opt.shadows = !args->no_shadows;
     // A FILE.exr object and a RIG.json are inputs: --out must not be, contain or lie in them.
     const auto is_file = [](const std::string& v) { return std::filesystem::exists(v); };
-    const OutputSpec out_spec{"simulate", "--out", args->out,
-                              {is_file(opt.object) ? opt.object : "",
-                               is_file(opt.rig) ? opt.rig : ""},
-                              args->force, {}};
+    const OutputSpec out_spec{
+        "simulate",  "--out",
+        args->out,   {is_file(opt.object) ? opt.object : "", is_file(opt.rig) ? opt.rig : ""},
+        args->force, {}};
     SimulateSummary summary;
     WriteOutputFolder(out_spec, [&](const std::filesystem::path& tmp) {
       summary = Simulate(opt, tmp);  // its own temporary folder inside ours, renamed onto tmp

@@ -2,7 +2,6 @@
 // The map-set options shared by `maps`, `export` and `reconstruct --export` (app/cmd_maps.cc).
 
 #include <CLI/CLI.hpp>
-
 #include <filesystem>
 #include <string>
 

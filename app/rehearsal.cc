@@ -23,8 +23,9 @@ Rehearsal::Rehearsal(const std::string& display, int width, int height, bool wit
   if (display_.empty()) {
     const char* xvfb = "/usr/bin/Xvfb";
     if (::access(xvfb, X_OK) != 0)
-      MESOSCAN_THROW(ErrorKind::kDevice, "capture --rehearse: " << xvfb
-                                             << " not found (Debian package xvfb), or pass --display");
+      MESOSCAN_THROW(
+          ErrorKind::kDevice,
+          "capture --rehearse: " << xvfb << " not found (Debian package xvfb), or pass --display");
     char screen[64];
     std::snprintf(screen, sizeof(screen), "%dx%dx24", std::max(width, 64), std::max(height, 64));
     for (int attempt = 0; attempt < 20 && display_.empty(); ++attempt) {
@@ -62,7 +63,8 @@ Rehearsal::Rehearsal(const std::string& display, int width, int height, bool wit
       }
     }
     if (display_.empty())
-      MESOSCAN_THROW(ErrorKind::kDevice, "capture --rehearse: could not start Xvfb (" << screen << ")");
+      MESOSCAN_THROW(ErrorKind::kDevice,
+                     "capture --rehearse: could not start Xvfb (" << screen << ")");
     MESOSCAN_LOG(kInfo) << "rehearsal: Xvfb on display " << display_ << " (" << screen << ")";
   }
   if (with_shifter) {

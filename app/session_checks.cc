@@ -17,7 +17,8 @@ bool NamesAFile(const std::string& msg, const Session& s) {
   return msg.rfind(s.root.string(), 0) == 0 || msg.rfind("session.json", 0) == 0 ||
          msg.rfind("frames", 0) == 0 || msg.find(".png") != std::string::npos ||
          msg.find(".exr") != std::string::npos || msg.find(".json") != std::string::npos ||
-         msg.rfind("roi", 0) == 0 || msg.rfind("--", 0) == 0 || msg.find(": --") != std::string::npos;
+         msg.rfind("roi", 0) == 0 || msg.rfind("--", 0) == 0 ||
+         msg.find(": --") != std::string::npos;
 }
 
 }  // namespace

@@ -2,9 +2,9 @@
 // What `reconstruct` would refuse, for `check` too (issue 10 item 6), and errors of the
 // pipeline that name no file given the session's session.json (item 8).
 
-#include "session/session.h"
 #include "core/scan_folder.h"
 #include "heightfield/reconstruct.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

@@ -138,8 +138,7 @@ double MountAlbedo(double x, double y) {
 
 double SceneObject::Albedo(double x, double y) const {
   const double i = height.I(x), j = height.J(y);
-  if (i < 0 || j < 0 || i > height.width() - 1 || j > height.height() - 1)
-    return MountAlbedo(x, y);
+  if (i < 0 || j < 0 || i > height.width() - 1 || j > height.height() - 1) return MountAlbedo(x, y);
   const int i0 = std::min(static_cast<int>(i), height.width() - 2);
   const int j0 = std::min(static_cast<int>(j), height.height() - 2);
   const double a = i - i0, b = j - j0;
@@ -257,44 +256,54 @@ double SampleShape(double x, double y) {
 
 SceneObject MakeFabric(double h) {
   constexpr int kMargin = 3;
-  HeightField grid = MakeGrid(-kMaterialHalfM, kMaterialHalfM, -kMaterialHalfM, kMaterialHalfM, h, kMargin);
+  HeightField grid =
+      MakeGrid(-kMaterialHalfM, kMaterialHalfM, -kMaterialHalfM, kMaterialHalfM, h, kMargin);
   constexpr double pitch = kFabricPitchM, half_w = 0.42 * kFabricPitchM;
   constexpr double base = 0.45e-3, thread = 0.16e-3, wave = 0.07e-3;
-  return Generate("fabric", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
-    if (std::abs(x) > kMaterialHalfM || std::abs(y) > kMaterialHalfM) return;
-    // Plain weave: warp threads run along y (centred at x = i * pitch), weft along x; each
-    // passes over and under the crossing threads in turn (a cosine along its length, the sign
-    // alternating from one thread to the next), with an elliptical cross-section.
-    const int iw = static_cast<int>(std::lround(x / pitch)), jw = static_cast<int>(std::lround(y / pitch));
-    const double dx = x - iw * pitch, dy = y - jw * pitch;
-    auto section = [&](double d) {
-      const double t = d / half_w;
-      return t * t < 1 ? thread * std::sqrt(1 - t * t) : -1.0;
-    };
-    const double warp_c = wave * std::cos(kPi * y / pitch + kPi * iw);
-    const double weft_c = -wave * std::cos(kPi * x / pitch + kPi * jw);
-    double top = 0.0;
-    const double sw = section(dx), sf = section(dy);
-    // Fibre twist: fine ridges at 45 degrees along each thread, 6 um.
-    if (sw >= 0) top = std::max(top, base + warp_c + sw + 6e-6 * std::sin(2 * kPi * (y + dx) / 0.12e-3));
-    if (sf >= 0) top = std::max(top, base + weft_c + sf + 6e-6 * std::sin(2 * kPi * (x - dy) / 0.12e-3));
-    if (top == 0.0) top = base - thread;  // the gap between threads: the cloth's back
-    *z = top + SampleShape(x, y);
-    // Dyed yarn: warp and weft slightly different, with slub variations along each thread.
-    const bool on_warp = sw >= 0 && (sf < 0 || base + warp_c + sw >= base + weft_c + sf);
-    *a = (on_warp ? 0.62 : 0.48) + 0.05 * (Hash01(on_warp ? iw : jw, static_cast<int>(std::floor((on_warp ? y : x) / 2e-3)), 3) - 0.5);
-  });
+  return Generate(
+      "fabric", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+        if (std::abs(x) > kMaterialHalfM || std::abs(y) > kMaterialHalfM) return;
+        // Plain weave: warp threads run along y (centred at x = i * pitch), weft along x; each
+        // passes over and under the crossing threads in turn (a cosine along its length, the sign
+        // alternating from one thread to the next), with an elliptical cross-section.
+        const int iw = static_cast<int>(std::lround(x / pitch)),
+                  jw = static_cast<int>(std::lround(y / pitch));
+        const double dx = x - iw * pitch, dy = y - jw * pitch;
+        auto section = [&](double d) {
+          const double t = d / half_w;
+          return t * t < 1 ? thread * std::sqrt(1 - t * t) : -1.0;
+        };
+        const double warp_c = wave * std::cos(kPi * y / pitch + kPi * iw);
+        const double weft_c = -wave * std::cos(kPi * x / pitch + kPi * jw);
+        double top = 0.0;
+        const double sw = section(dx), sf = section(dy);
+        // Fibre twist: fine ridges at 45 degrees along each thread, 6 um.
+        if (sw >= 0)
+          top = std::max(top, base + warp_c + sw + 6e-6 * std::sin(2 * kPi * (y + dx) / 0.12e-3));
+        if (sf >= 0)
+          top = std::max(top, base + weft_c + sf + 6e-6 * std::sin(2 * kPi * (x - dy) / 0.12e-3));
+        if (top == 0.0) top = base - thread;  // the gap between threads: the cloth's back
+        *z = top + SampleShape(x, y);
+        // Dyed yarn: warp and weft slightly different, with slub variations along each thread.
+        const bool on_warp = sw >= 0 && (sf < 0 || base + warp_c + sw >= base + weft_c + sf);
+        *a = (on_warp ? 0.62 : 0.48) +
+             0.05 * (Hash01(on_warp ? iw : jw,
+                            static_cast<int>(std::floor((on_warp ? y : x) / 2e-3)), 3) -
+                     0.5);
+      });
 }
 
 SceneObject MakeHammeredMetal(double h) {
   constexpr int kMargin = 3;
-  HeightField grid = MakeGrid(-kMaterialHalfM, kMaterialHalfM, -kMaterialHalfM, kMaterialHalfM, h, kMargin);
+  HeightField grid =
+      MakeGrid(-kMaterialHalfM, kMaterialHalfM, -kMaterialHalfM, kMaterialHalfM, h, kMargin);
   constexpr double cell = kHammerCellM;
   return Generate("metal", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
     if (std::abs(x) > kMaterialHalfM || std::abs(y) > kMaterialHalfM) return;
     // Hammer blows on a jittered grid: spherical dents of radius 1.1-1.6 cells, 15-35 um deep;
     // the surface is the lowest dent at each point (a later blow cuts an earlier one).
-    const int ci = static_cast<int>(std::floor(x / cell)), cj = static_cast<int>(std::floor(y / cell));
+    const int ci = static_cast<int>(std::floor(x / cell)),
+              cj = static_cast<int>(std::floor(y / cell));
     double dent = 0.0;
     for (int j = cj - 2; j <= cj + 2; ++j)
       for (int i = ci - 2; i <= ci + 2; ++i) {
@@ -342,16 +351,19 @@ SceneObject MakeObject(const std::string& spec, double h) {
   if (spec == "leaf") return MakeLeaf(h > 0 ? h : 20e-6);
   if (spec == "mount") {  // the empty mount: a few zero cells (the plane z = 0 extends beyond)
     const double g = h > 0 ? h : 1e-3;
-    return Generate("mount", MakeGrid(-g, g, -g, g, g, 1), 1, [](double, double, double*, double*) {});
+    return Generate("mount", MakeGrid(-g, g, -g, g, g, 1), 1,
+                    [](double, double, double*, double*) {});
   }
   if (spec == "fabric") return MakeFabric(h > 0 ? h : 20e-6);
   if (spec == "metal") return MakeHammeredMetal(h > 0 ? h : 20e-6);
   const std::filesystem::path p(spec);
   std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   if (ext == ".exr") return LoadHeightExrObject(p);
-  MESOSCAN_BAD_INPUT("--object: '" << spec
-                                   << "': expected coin, plane, ramp, leaf, fabric, metal, mount or a height .exr file");
+  MESOSCAN_BAD_INPUT(
+      "--object: '"
+      << spec << "': expected coin, plane, ramp, leaf, fabric, metal, mount or a height .exr file");
 }
 
 }  // namespace mesoscan

@@ -69,8 +69,9 @@ SceneObject MakeHammeredMetal(double pixel_size_m = 20e-6);
 // smooth albedo 0.5 +- 0.1 is made up. Throws Error naming the file if unreadable.
 SceneObject LoadHeightExrObject(const std::filesystem::path& path);
 
-// "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | "mount" (the empty mount) | a path ending in .exr. pixel_size_m <= 0: the object's
-// default grid spacing. Throws Error(kBadInput) naming `--object` for anything else.
+// "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | "mount" (the empty mount) | a path
+// ending in .exr. pixel_size_m <= 0: the object's default grid spacing. Throws Error(kBadInput)
+// naming `--object` for anything else.
 SceneObject MakeObject(const std::string& spec, double pixel_size_m = 0.0);
 
 }  // namespace mesoscan

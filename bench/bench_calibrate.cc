@@ -16,10 +16,10 @@
 #include <fstream>
 #include <numbers>
 
-#include "session/session.h"
+#include "calibration/calibrate.h"
 #include "core/log.h"
 #include "core/progress.h"
-#include "calibration/calibrate.h"
+#include "session/session.h"
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 
@@ -41,8 +41,8 @@ const CalibrationBoard& Board() {
 const std::vector<fs::path>& Sessions() {
   static const std::vector<fs::path> dirs = [] {
     const std::vector<std::array<double, 6>> poses = {
-        {0, 0, 0, 0, 0, 0},        {20, 0, 5, 0, 0, 5},      {-20, 5, -5, 5, 0, 0},
-        {5, 20, 10, 0, 5, -5},     {-5, -20, -10, -5, 0, 8}, {15, -15, 0, 0, -5, 3}};
+        {0, 0, 0, 0, 0, 0},    {20, 0, 5, 0, 0, 5},      {-20, 5, -5, 5, 0, 0},
+        {5, 20, 10, 0, 5, -5}, {-5, -20, -10, -5, 0, 8}, {15, -15, 0, 0, -5, 3}};
     const Rig rig = RealShapeRig();
     fs::create_directories(OutDir());
     const fs::path rig_file = OutDir() / "rig.json";
@@ -123,8 +123,8 @@ void BM_CalibrateSixSessions(benchmark::State& state) {
       out << "case,seconds,detect_s,calibrate_s,views,rms_cam_px,rms_prj_px,rms_stereo_px,"
              "opencv_rms_cam_px,opencv_rms_prj_px,opencv_rms_stereo_px,f_cam_err_pct,"
              "f_prj_err_pct\n";
-    out << "six_sessions," << detect_s + calibrate_s << "," << detect_s << "," << calibrate_s
-        << "," << r.views_used << "," << r.rms_camera_px << "," << r.rms_projector_px << ","
+    out << "six_sessions," << detect_s + calibrate_s << "," << detect_s << "," << calibrate_s << ","
+        << r.views_used << "," << r.rms_camera_px << "," << r.rms_projector_px << ","
         << r.rms_stereo_px << "," << r.opencv.value("rms_camera_px", 0.0) << ","
         << r.opencv.value("rms_projector_px", 0.0) << "," << r.opencv.value("rms_stereo_px", 0.0)
         << "," << f_cam << "," << f_prj << "\n";

@@ -41,7 +41,8 @@ const Scan& FullScan() {
         double z = 0.0;
         if (r < 9.5e-3) {
           z = 1.2e-3 + (r > 8.8e-3 ? 0.1e-3 : 0.0) +
-              40e-6 * std::sin(r / 0.3e-3) * std::cos(std::atan2(y, x) * 7) + 20e-6 * std::sin(x / 0.2e-3);
+              40e-6 * std::sin(r / 0.3e-3) * std::cos(std::atan2(y, x) * 7) +
+              20e-6 * std::sin(x / 0.2e-3);
         }
         const bool shadow = r > 9.5e-3 && r < 10.5e-3 && x > 0;
         const bool hole = shadow || u(rng) < 1e-3;
@@ -71,7 +72,8 @@ void Csv(const std::string& name, double seconds, const ExportSummary& s) {
   out << name << "," << seconds << "," << s.files.size() << "," << s.triangles << ","
       << s.max_height_error_m * 1e6 << "\n";
   // Each writer's own wall time (they run in parallel), as rows "case/file".
-  for (const auto& [file, sec] : s.seconds_per_file) out << name << "/" << file << "," << sec << ",,,\n";
+  for (const auto& [file, sec] : s.seconds_per_file)
+    out << name << "/" << file << "," << sec << ",,,\n";
 }
 
 void BM_Export(benchmark::State& state, std::string formats, std::string label) {
@@ -90,15 +92,25 @@ void BM_Export(benchmark::State& state, std::string formats, std::string label) 
 }
 
 BENCHMARK_CAPTURE(BM_Export, all, std::string("exr,png16,glb,ply"), std::string("all"))
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
 BENCHMARK_CAPTURE(BM_Export, exr, std::string("exr"), std::string("exr"))
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
 BENCHMARK_CAPTURE(BM_Export, png16, std::string("png16"), std::string("png16"))
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
 BENCHMARK_CAPTURE(BM_Export, glb, std::string("glb"), std::string("glb"))
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
 BENCHMARK_CAPTURE(BM_Export, ply, std::string("ply"), std::string("ply"))
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
 
 }  // namespace
 }  // namespace mesoscan

@@ -15,12 +15,10 @@
 #include <benchmark/benchmark.h>
 #include <ceres/ceres.h>
 #include <ceres/tiny_solver.h>
+#include <time.h>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
-
-#include <time.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -227,7 +225,6 @@ void PipelineMix(std::FILE* out, int subsample) {
   }
 }
 
-
 // The fast fitter's statistical stopping rule (frequency_tolerance_sigma, default 1e-3) against
 // frequency_tolerance alone (sigma 0): on the bench's profiles (a / sigma = 20) and on clean
 // ones (a / sigma = 1000), the largest phase and frequency differences against their noise, and
@@ -321,8 +318,8 @@ void RowKernel(std::FILE* out) {
     int valid_diff = 0;
     for (size_t p = 0; p < fits_row.size(); ++p) {
       valid_diff += fits_row[p].valid != fits_px[p].valid;
-      worst = std::max(worst,
-                       std::abs(std::remainder(fits_row[p].phase - fits_px[p].phase, 2 * kPi)));
+      worst =
+          std::max(worst, std::abs(std::remainder(fits_row[p].phase - fits_px[p].phase, 2 * kPi)));
     }
     const double sigma_phi =
         std::sqrt(LensShiftPhaseCrlb(set.sigma, set.amplitude, set.x, kF0, false));
@@ -332,7 +329,6 @@ void RowKernel(std::FILE* out) {
                  n, ns_row, ns_px, ns_px / ns_row, worst, sigma_phi, valid_diff);
   }
 }
-
 
 // ---------------------------------------------------------------------------------------------
 // Ceres baselines: the same 4-parameter least squares (b = a sin(phi + 2 pi f x) + d) through
@@ -456,8 +452,9 @@ enum CeresVariant {
   kNumVariants
 };
 const char* const kVariantNames[kNumVariants] = {
-    "lib",         "autodiff_qr",         "analytic_qr", "analytic_chol", "analytic_chol_reuse",
-    "analytic_chol_reuse_tight", "tiny_solver"};
+    "lib",           "autodiff_qr",         "analytic_qr",
+    "analytic_chol", "analytic_chol_reuse", "analytic_chol_reuse_tight",
+    "tiny_solver"};
 
 ceres::Solver::Options DefaultSolverOptions(ceres::LinearSolverType type) {
   ceres::Solver::Options o;  // Ceres' default tolerances: 1e-6 / 1e-10 / 1e-8
@@ -532,10 +529,9 @@ void FitCeresVariant(int v, const ProfileSet& set, int count, std::vector<double
     } else {
       ceres::Problem problem;
       if (v == kAutodiffQr) {
-        problem.AddResidualBlock(
-            new ceres::AutoDiffCostFunction<AutoResidual, ceres::DYNAMIC, 4>(
-                new AutoResidual(b, set.x.data(), n), n),
-            nullptr, params);
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<AutoResidual, ceres::DYNAMIC, 4>(
+                                     new AutoResidual(b, set.x.data(), n), n),
+                                 nullptr, params);
       } else {
         auto* cost = new AnalyticResidual(set.x.data(), n);
         cost->set_data(b);
@@ -596,8 +592,8 @@ std::vector<CeresComparison> CompareWithCeres(const std::vector<int>& sizes, int
     for (int p = 0; p < kFastCount; ++p) {
       c.many_validity_differs += many[p].valid != std::isfinite(fast_phase[p]);
       if (many[p].valid && std::isfinite(fast_phase[p]))
-        c.many_max_dphi =
-            std::max(c.many_max_dphi, std::abs(std::remainder(many[p].phase - fast_phase[p], 2 * kPi)));
+        c.many_max_dphi = std::max(
+            c.many_max_dphi, std::abs(std::remainder(many[p].phase - fast_phase[p], 2 * kPi)));
     }
     const double sigma_phi = std::sqrt(LensShiftPhaseCrlb(set.sigma, set.amplitude, set.x, kF0));
     for (int round = 0; round < rounds; ++round) {
@@ -631,9 +627,9 @@ std::vector<CeresComparison> CompareWithCeres(const std::vector<int>& sizes, int
           const double e = std::remainder(phase[p] - set.phase[p], 2 * kPi);
           s2 += e * e;
           if (std::isfinite(fast_phase[p]))
-            f.max_dphi_sigma = std::max(
-                f.max_dphi_sigma, std::abs(std::remainder(phase[p] - fast_phase[p], 2 * kPi)) /
-                                      sigma_phi);
+            f.max_dphi_sigma =
+                std::max(f.max_dphi_sigma,
+                         std::abs(std::remainder(phase[p] - fast_phase[p], 2 * kPi)) / sigma_phi);
         }
         f.phase_rms = std::sqrt(s2 / std::max(f.converged, 1));
       }
@@ -685,8 +681,7 @@ int main(int argc, char** argv) {
   // MESOSCAN_BENCH_CERES_ONLY=1: only the fast-vs-Ceres comparison (stdout), 7 rounds.
   const char* ceres_only = std::getenv("MESOSCAN_BENCH_CERES_ONLY");
   if (ceres_only && std::string(ceres_only) == "1") {
-    mesoscan::PrintCeresComparison(stdout,
-                                   mesoscan::CompareWithCeres({15, 25, 50, 100, 200}, 7));
+    mesoscan::PrintCeresComparison(stdout, mesoscan::CompareWithCeres({15, 25, 50, 100, 200}, 7));
     return 0;
   }
   // MESOSCAN_BENCH_FIT_MANY_N=n: FitMany alone on 5000 profiles of n samples, repeated (for a
@@ -760,13 +755,12 @@ int main(int argc, char** argv) {
         it != Rows().end() ? it->second.ns_per_profile / row.ns_per_profile : 0.0;
     std::fprintf(csv, "%s,%d,%.1f,%.0f,%.5e,%.5e,%.4f,%.4f,%.1f\n", row.fitter.c_str(), row.n,
                  row.ns_per_profile, row.profiles_per_s, row.phase_rms, row.crlb_rms,
-                 row.phase_rms / row.crlb_rms, static_cast<double>(row.valid) / row.count,
-                 speedup);
-    std::printf("%-10s N %3d: %9.1f ns/profile  %10.0f profiles/s  phase RMS %.4e = %.4f x CRLB"
-                "  valid %.4f  speedup vs ceres %.1f\n",
-                row.fitter.c_str(), row.n, row.ns_per_profile, row.profiles_per_s, row.phase_rms,
-                row.phase_rms / row.crlb_rms, static_cast<double>(row.valid) / row.count,
-                speedup);
+                 row.phase_rms / row.crlb_rms, static_cast<double>(row.valid) / row.count, speedup);
+    std::printf(
+        "%-10s N %3d: %9.1f ns/profile  %10.0f profiles/s  phase RMS %.4e = %.4f x CRLB"
+        "  valid %.4f  speedup vs ceres %.1f\n",
+        row.fitter.c_str(), row.n, row.ns_per_profile, row.profiles_per_s, row.phase_rms,
+        row.phase_rms / row.crlb_rms, static_cast<double>(row.valid) / row.count, speedup);
   }
   // The headline: fast (Fit and FitMany) against the best-set-up Ceres at equal error.
   const auto ceres_rows = mesoscan::CompareWithCeres({15, 25, 50, 100, 200}, 7);

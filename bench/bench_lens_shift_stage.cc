@@ -23,13 +23,13 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/stage_timer.h"
 #include "heightfield/reconstruct.h"
 #include "heightfield/stage_lens_shift.h"
 #include "heightfield/stage_stream.h"
+#include "session/session.h"
 #include "sim/virtual_rig.h"
 
 namespace fs = std::filesystem;
@@ -101,8 +101,8 @@ int main(int argc, char** argv) {
         LensShiftPixels ls = FitLensShift(front.stack, plan, &gains, lo, &state);
         const double wall = watch.Seconds();
         const double cpu = ProcessCpuSeconds() - c0;
-        std::printf("  %-10s run %d: %.3f s wall, %.3f CPU-s (load %.2f):", v ? "per-pixel" : "row kernel",
-                    run, wall, cpu, load);
+        std::printf("  %-10s run %d: %.3f s wall, %.3f CPU-s (load %.2f):",
+                    v ? "per-pixel" : "row kernel", run, wall, cpu, load);
         for (const auto& [name, s] : steps) std::printf(" %s %.3f", name.c_str(), s);
         std::printf("\n");
         std::fflush(stdout);
@@ -142,14 +142,15 @@ int main(int argc, char** argv) {
       max_da = std::max(max_da, std::abs(static_cast<double>(a.amplitude[i]) - amp) / amp);
       if (offsets)
         max_dd = std::max(max_dd, std::abs(static_cast<double>(a.offset[i]) - b.offset[i]) / amp);
-      max_dres = std::max(max_dres,
-                          std::abs(static_cast<double>(a.residual_rms[i]) - b.residual_rms[i]) /
-                              std::max(1e-30, static_cast<double>(b.residual_rms[i])));
+      max_dres =
+          std::max(max_dres, std::abs(static_cast<double>(a.residual_rms[i]) - b.residual_rms[i]) /
+                                 std::max(1e-30, static_cast<double>(b.residual_rms[i])));
     }
     const double n = std::max<int64_t>(both, 1);
-    std::printf("lens_shift stage (fastest of %d runs): row kernel %.3f s wall %.3f CPU-s; "
-                "per-pixel %.3f s wall %.3f CPU-s; load %.2f\n",
-                runs, results[0].wall, results[0].cpu, results[1].wall, results[1].cpu, Load1());
+    std::printf(
+        "lens_shift stage (fastest of %d runs): row kernel %.3f s wall %.3f CPU-s; "
+        "per-pixel %.3f s wall %.3f CPU-s; load %.2f\n",
+        runs, results[0].wall, results[0].cpu, results[1].wall, results[1].cpu, Load1());
     std::printf(
         "row kernel vs per-pixel on %lld pixels: phase max %.2e rad RMS %.2e rad, "
         "max %.2e RMS %.2e of the predicted sigma; amplitude max %.2e relative; offset max "

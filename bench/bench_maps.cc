@@ -7,9 +7,6 @@
 // $MESOSCAN_BENCH_OUT/bench_maps.csv.
 
 #include <benchmark/benchmark.h>
-
-#include <opencv2/photo.hpp>
-
 #include <sys/resource.h>
 
 #include <chrono>
@@ -17,6 +14,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <opencv2/photo.hpp>
 #include <random>
 
 #include "core/log.h"
@@ -44,8 +42,9 @@ const Scan& FullScan() {
     for (int j = 0; j < h; ++j)
       for (int i = 0; i < w; ++i) {
         const double x = hf.X(i), y = hf.Y(j);
-        const double weave = 80e-6 * std::sin(2 * kPi * x / 0.8e-3) * std::sin(2 * kPi * y / 0.8e-3) +
-                             40e-6 * std::cos(2 * kPi * (x + y) / 1.6e-3);
+        const double weave =
+            80e-6 * std::sin(2 * kPi * x / 0.8e-3) * std::sin(2 * kPi * y / 0.8e-3) +
+            40e-6 * std::cos(2 * kPi * (x + y) / 1.6e-3);
         const double shape = 1e-3 + 0.01 * x - 0.005 * y - 0.4e-3 * (x * x + y * y) / (0.06 * 0.06);
         hf.z(i, j) = static_cast<float>(shape + weave + 1e-6 * noise(rng));
       }
@@ -55,7 +54,8 @@ const Scan& FullScan() {
       const int r = 1 + static_cast<int>(u(rng) * 3);
       for (int dy = -r; dy <= r; ++dy)
         for (int dx = -r; dx <= r; ++dx)
-          if (cx + dx >= 0 && cy + dy >= 0 && cx + dx < w && cy + dy < h && dx * dx + dy * dy <= r * r)
+          if (cx + dx >= 0 && cy + dy >= 0 && cx + dx < w && cy + dy < h &&
+              dx * dx + dy * dy <= r * r)
             hf.z(cx + dx, cy + dy) = std::nanf(""), hf.confidence(cx + dx, cy + dy) = 0.0f;
     }
     for (int j = 0; j < h; ++j)
@@ -119,7 +119,8 @@ void BM_Maps(benchmark::State& state, std::string label, FillMethod fill, bool t
   state.counters["load_avg"] = LoadAverage();
   std::string stages;
   for (const auto& [k, v] : s.seconds_per_stage) stages += k + "=" + std::to_string(v) + " ";
-  Csv(label, s.seconds, StageSeconds(s.seconds_per_stage, "fill"), "cpu=" + std::to_string(cpu) + " " + stages);
+  Csv(label, s.seconds, StageSeconds(s.seconds_per_stage, "fill"),
+      "cpu=" + std::to_string(cpu) + " " + stages);
 }
 
 // The plain baseline: OpenCV's Navier-Stokes inpainting of the same holes (16-bit heights, as
@@ -133,7 +134,8 @@ void BM_OpenCvInpaint(benchmark::State& state) {
   for (int y = 0; y < hf.height(); ++y)
     for (int x = 0; x < hf.width(); ++x) {
       const float v = hf.z(x, y);
-      src.at<uint16_t>(y, x) = std::isfinite(v) ? static_cast<uint16_t>((v - lo) / (hi - lo) * 65535) : 0;
+      src.at<uint16_t>(y, x) =
+          std::isfinite(v) ? static_cast<uint16_t>((v - lo) / (hi - lo) * 65535) : 0;
       mask.at<uint8_t>(y, x) = std::isfinite(v) ? 0 : 255;
     }
   double sec = 0, cpu = 0;
@@ -150,11 +152,19 @@ void BM_OpenCvInpaint(benchmark::State& state) {
 }
 
 BENCHMARK_CAPTURE(BM_Maps, tile_harmonic, std::string("tile_harmonic"), FillMethod::kHarmonic, true)
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
-BENCHMARK_CAPTURE(BM_Maps, tile_biharmonic, std::string("tile_biharmonic"), FillMethod::kBiharmonic, true)
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
-BENCHMARK_CAPTURE(BM_Maps, whole_grid_harmonic, std::string("whole_grid_harmonic"), FillMethod::kHarmonic, false)
-    ->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
+BENCHMARK_CAPTURE(BM_Maps, tile_biharmonic, std::string("tile_biharmonic"), FillMethod::kBiharmonic,
+                  true)
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
+BENCHMARK_CAPTURE(BM_Maps, whole_grid_harmonic, std::string("whole_grid_harmonic"),
+                  FillMethod::kHarmonic, false)
+    ->Unit(benchmark::kSecond)
+    ->UseRealTime()
+    ->Iterations(1);
 BENCHMARK(BM_OpenCvInpaint)->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
 
 }  // namespace

@@ -41,7 +41,6 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
 #include "core/fs.h"
 #include "core/image_input.h"
 #include "core/image_io.h"
@@ -50,9 +49,10 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
-#include "sim/ground_truth.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/reconstruct.h"
+#include "session/session.h"
+#include "sim/ground_truth.h"
 #include "sim/virtual_rig.h"
 #include "tests/plain_ls_decoder.h"
 
@@ -100,7 +100,7 @@ std::vector<Row> Table1(const fs::path& work) {
     int phases, ls;
     double jitter = 0.005, position_error = 0.0;  // issue 13 rows: disturbances of real rigs
   };
-  const std::vector<Config> configs = {{"PS 9", 3, 0},          {"PS 21", 7, 0},
+  const std::vector<Config> configs = {{"PS 9", 3, 0},           {"PS 21", 7, 0},
                                        {"LS 15 + PS 9", 3, 15},  {"LS 25 + PS 9", 3, 25},
                                        {"LS 50 + PS 9", 3, 50},  {"LS 100 + PS 9", 3, 100},
                                        {"LS 200 + PS 9", 3, 200}};
@@ -115,10 +115,10 @@ std::vector<Row> Table1(const fs::path& work) {
       so[k].ls_frames = c.ls;
       so[k].gain_jitter = c.jitter;
       so[k].shift_position_error_px = c.position_error;
-      const fs::path dir = work / ("t1_" + std::to_string(c.phases) + "_" + std::to_string(c.ls) +
-                                   "_" + std::to_string(k) +
-                                   (c.jitter != 0.005 ? "_j" + std::to_string(c.jitter) : "") +
-                                   (c.position_error > 0 ? "_p" + std::to_string(c.position_error) : ""));
+      const fs::path dir =
+          work / ("t1_" + std::to_string(c.phases) + "_" + std::to_string(c.ls) + "_" +
+                  std::to_string(k) + (c.jitter != 0.005 ? "_j" + std::to_string(c.jitter) : "") +
+                  (c.position_error > 0 ? "_p" + std::to_string(c.position_error) : ""));
       if (!fs::exists(dir / "session.json")) Simulate(so[k], dir);
       sessions[k] = ReadSession(dir);
     }
@@ -129,7 +129,7 @@ std::vector<Row> Table1(const fs::path& work) {
     for (LensShiftFitter fitter : fitters) {
       Row r;
       r.config = c.name;
-      r.fitter = c.ls == 0                              ? "-"
+      r.fitter = c.ls == 0                          ? "-"
                  : fitter == LensShiftFitter::kFast ? "fast"
                  : fitter == LensShiftFitter::kLm   ? "lm"
                                                     : "ceres";
@@ -159,10 +159,11 @@ std::vector<Row> Table1(const fs::path& work) {
       }
       r.repeat_um = n ? std::sqrt(s2 / n / 2) * 1e6 : NAN;
       r.crlb_um = CrlbDepthRms(sessions[0], so[0], sum[0], e) * 1e6;
-      std::printf("%-28s %-6s frames %3d  total %7.3f s  fit %7.3f s  RMS %6.3f um  D %6.3f um  "
-                  "RMS/CRLB %5.3f  coverage %.4f\n",
-                  r.config.c_str(), r.fitter.c_str(), r.frames, r.seconds, r.fit_seconds, r.rms_um,
-                  r.repeat_um, r.rms_um / r.crlb_um, r.coverage);
+      std::printf(
+          "%-28s %-6s frames %3d  total %7.3f s  fit %7.3f s  RMS %6.3f um  D %6.3f um  "
+          "RMS/CRLB %5.3f  coverage %.4f\n",
+          r.config.c_str(), r.fitter.c_str(), r.frames, r.seconds, r.fit_seconds, r.rms_um,
+          r.repeat_um, r.rms_um / r.crlb_um, r.coverage);
       std::fflush(stdout);
       rows.push_back(r);
     }
@@ -180,7 +181,8 @@ void PlotTable1(const std::vector<Row>& rows, const fs::path& png) {
     tmax = std::max(tmax, r.seconds);
     if (std::isfinite(r.rms_um)) emax = std::max(emax, r.rms_um);
   }
-  const double lx0 = std::floor(std::log10(std::max(tmin, 1e-4))), lx1 = std::ceil(std::log10(tmax));
+  const double lx0 = std::floor(std::log10(std::max(tmin, 1e-4))),
+               lx1 = std::ceil(std::log10(tmax));
   const double ey1 = emax * 1.1;
   auto px = [&](double t) {
     return L + static_cast<int>((std::log10(t) - lx0) / std::max(lx1 - lx0, 1e-9) * (W - L - R));
@@ -193,7 +195,8 @@ void PlotTable1(const std::vector<Row>& rows, const fs::path& png) {
     cv::line(img, {x, T}, {x, H - B}, grey, 1);
     char buf[32];
     std::snprintf(buf, sizeof buf, "%g s", std::pow(10, lx));
-    cv::putText(img, buf, {x - 20, H - B + 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv::LINE_AA);
+    cv::putText(img, buf, {x - 20, H - B + 22}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1,
+                cv::LINE_AA);
   }
   for (int k = 0; k <= 5; ++k) {
     const double e = ey1 * k / 5;
@@ -210,8 +213,8 @@ void PlotTable1(const std::vector<Row>& rows, const fs::path& png) {
   cv::putText(img, "Table 1 rerun, tilted bar, 128x96 px", {W / 2 - 60, T - 15},
               cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1, cv::LINE_AA);
   auto colour = [](const std::string& f) {
-    return f == "fast" ? cv::Scalar(40, 160, 40)
-           : f == "lm" ? cv::Scalar(200, 100, 20)
+    return f == "fast"    ? cv::Scalar(40, 160, 40)
+           : f == "lm"    ? cv::Scalar(200, 100, 20)
            : f == "ceres" ? cv::Scalar(30, 30, 220)
                           : cv::Scalar(80, 80, 80);
   };
@@ -591,10 +594,11 @@ std::vector<DisturbedRow> Table1Disturbances(const fs::path& work) {
     testing::IntersectPoints(&pipeline, &plain);
     r.pipeline_same_um = EvaluateAgainstGroundTruth(sessions[0], pipeline).rms_m * 1e6;
     r.plain_um = EvaluateAgainstGroundTruth(sessions[0], plain).rms_m * 1e6;
-    std::printf("%-52s total %7.3f s  RMS %6.3f um  D %6.3f um  RMS/CRLB %5.3f  coverage %.4f  "
-                "same pixels: pipeline %6.3f um, plain LS %6.3f um\n",
-                r.config.c_str(), r.seconds, r.rms_um, r.repeat_um, r.rms_um / r.crlb_um,
-                r.coverage, r.pipeline_same_um, r.plain_um);
+    std::printf(
+        "%-52s total %7.3f s  RMS %6.3f um  D %6.3f um  RMS/CRLB %5.3f  coverage %.4f  "
+        "same pixels: pipeline %6.3f um, plain LS %6.3f um\n",
+        r.config.c_str(), r.seconds, r.rms_um, r.repeat_um, r.rms_um / r.crlb_um, r.coverage,
+        r.pipeline_same_um, r.plain_um);
     std::fflush(stdout);
     rows.push_back(r);
   }

@@ -115,12 +115,14 @@ CameraSpec FramingCamera(const HeightField& hf, int width, int height) {
   for (float z : hf.z.data())
     if (std::isfinite(z)) zmin = std::min(zmin, double(z)), zmax = std::max(zmax, double(z));
   const double ex = hf.width() * hf.pixel_size, ey = hf.height() * hf.pixel_size;
-  const Vec3 target(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)), 0.5 * (zmin + zmax));
+  const Vec3 target(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)),
+                    0.5 * (zmin + zmax));
   const double el = 50 * kPi / 180, az = -90 * kPi / 180, aspect = double(width) / height;
   const double half = 0.5 * std::max(ey, ex / aspect) / 0.9;
   const double dist = half / std::tan(15 * kPi / 180) + 0.5 * (zmax - zmin);
-  return {target + dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)),
-          target};
+  return {
+      target + dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)),
+      target};
 }
 
 struct Stats {
@@ -131,8 +133,10 @@ Stats RegionMeans(const ImageF& im, const ImageF& mask) {
   int64_t ns = 0, nm = 0;
   for (size_t i = 0; i < im.pixels(); ++i) {
     const double y = Luminance(Rgb(im.channel(0)[i], im.channel(1)[i], im.channel(2)[i]));
-    if (mask.channel(0)[i] > 0.99f) s += y, ++ns;
-    else if (mask.channel(0)[i] < 0.01f) m += y, ++nm;
+    if (mask.channel(0)[i] > 0.99f)
+      s += y, ++ns;
+    else if (mask.channel(0)[i] < 0.01f)
+      m += y, ++nm;
   }
   return {ns ? s / ns : 0, nm ? m / nm : 0};
 }
@@ -152,8 +156,8 @@ double RelRmse(const ImageF& im, const ImageF& ref) {
 bool HaveBlender() { return std::system("command -v blender > /dev/null 2>&1") == 0; }
 
 // Renders the scene in Cycles; returns the render seconds (NaN on failure).
-double RenderCycles(const fs::path& dir, const std::string& tag, const SceneDef& sc, const Json& base,
-                    int spp, ImageF* out) {
+double RenderCycles(const fs::path& dir, const std::string& tag, const SceneDef& sc,
+                    const Json& base, int spp, ImageF* out) {
   Json cfg = base;
   cfg["spp"] = spp;
   cfg["out_exr"] = fs::absolute(dir / ("cycles_" + tag + ".exr")).string();
@@ -175,7 +179,8 @@ double RenderCycles(const fs::path& dir, const std::string& tag, const SceneDef&
   *out = ReadImage(cfg["out_exr"].get<std::string>());
   if (out->channels() > 3) {
     ImageF rgb(out->width(), out->height(), 3);
-    for (int c = 0; c < 3; ++c) std::copy(out->channel(c), out->channel(c) + out->pixels(), rgb.channel(c));
+    for (int c = 0; c < 3; ++c)
+      std::copy(out->channel(c), out->channel(c) + out->pixels(), rgb.channel(c));
     *out = std::move(rgb);
   }
   return seconds;
@@ -251,8 +256,10 @@ void DemoPreview(const fs::path& dir) {
   MerlBrdf::Tabulate([&](const Vec3& wo, const Vec3& wi) { return ggx.f(wo, wi); })->Write(merl);
   const Brdf brdf = LoadBrdf(merl);
   const EnvironmentMap env = EnvironmentMap::Sky(25, 200);
-  std::printf("demo preview: set-up (read + fill + tabulate/write/load the MERL table + sky) %.2f s "
-              "wall, %.2f CPU s\n", Now() - t0, CpuNow() - c0);
+  std::printf(
+      "demo preview: set-up (read + fill + tabulate/write/load the MERL table + sky) %.2f s "
+      "wall, %.2f CPU s\n",
+      Now() - t0, CpuNow() - c0);
   RenderOptions o;
   o.width = 480;
   o.height = 360;
@@ -300,20 +307,26 @@ void DemoPreview(const fs::path& dir) {
   ImageF ref = refs[0];
   double ref_var = 0, ref_sum = 0;  // sum over pixels of var(mean reference); of its luminance
   for (size_t i = 0; i < ref.pixels(); ++i) {
-    const double a = Luminance(Rgb(refs[0].channel(0)[i], refs[0].channel(1)[i], refs[0].channel(2)[i]));
-    const double b = Luminance(Rgb(refs[1].channel(0)[i], refs[1].channel(1)[i], refs[1].channel(2)[i]));
+    const double a =
+        Luminance(Rgb(refs[0].channel(0)[i], refs[0].channel(1)[i], refs[0].channel(2)[i]));
+    const double b =
+        Luminance(Rgb(refs[1].channel(0)[i], refs[1].channel(1)[i], refs[1].channel(2)[i]));
     ref_var += 0.25 * (a - b) * (a - b);
     ref_sum += 0.5 * (a + b);
-    for (int c = 0; c < 3; ++c) ref.channel(c)[i] = 0.5f * (refs[0].channel(c)[i] + refs[1].channel(c)[i]);
+    for (int c = 0; c < 3; ++c)
+      ref.channel(c)[i] = 0.5f * (refs[0].channel(c)[i] + refs[1].channel(c)[i]);
   }
   // relMSE of the mean reference (whole image), and of one reference alone (twice that).
-  const double ref_mse = ref_var / ref.pixels() / ((ref_sum / ref.pixels()) * (ref_sum / ref.pixels()));
-  std::printf("demo preview: reference = mean of the two: its own relRMSE %.4f (one reference "
-              "alone %.4f; the two differ by relRMSE %.4f)\n",
-              std::sqrt(ref_mse), std::sqrt(2 * ref_mse), RelRmse(refs[0], refs[1]));
+  const double ref_mse =
+      ref_var / ref.pixels() / ((ref_sum / ref.pixels()) * (ref_sum / ref.pixels()));
+  std::printf(
+      "demo preview: reference = mean of the two: its own relRMSE %.4f (one reference "
+      "alone %.4f; the two differ by relRMSE %.4f)\n",
+      std::sqrt(ref_mse), std::sqrt(2 * ref_mse), RelRmse(refs[0], refs[1]));
   std::ofstream csv(dir / "demo_preview.csv");
   csv << "run,spp,relrmse,relrmse_sample,relrmse_mount,relrmse_corrected,display_relrmse,cpu_s,"
-         "wall_s,cpu_s_per_spp,load,denoised_relrmse,denoised_relrmse_corrected,denoised_display_relrmse,"
+         "wall_s,cpu_s_per_spp,load,denoised_relrmse,denoised_relrmse_corrected,denoised_display_"
+         "relrmse,"
          "denoise_wall_s\n";
   const ToneMapping ref_tone = MeterExposure(ref, &mask);
   struct Run {
@@ -329,10 +342,10 @@ void DemoPreview(const fs::path& dir) {
   // "uniform": as "denoise" with uniform rounds (allocate_pilot_spp = 0), the before.
   // "no-resample": the fixed 16 spp run (same seed) without the resampled first continuation
   // (RenderOptions::resample_candidates): the before/after.
-  std::vector<Run> runs = {{"fixed", 64, 0},       {"fixed", 8, 0},       {"fixed", 16, 0},
-                           {"alloc", 16, 0},       {"no-resample", 16, 0}, {"fixed", 32, 0},
-                           {"alloc", 32, 0},       {"no-guide", 32, 0},   {"time 3 s", 0, 3.0},
-                           {"uniform", 0, 3.0},    {"denoise", 0, 3.0}};
+  std::vector<Run> runs = {{"fixed", 64, 0},    {"fixed", 8, 0},        {"fixed", 16, 0},
+                           {"alloc", 16, 0},    {"no-resample", 16, 0}, {"fixed", 32, 0},
+                           {"alloc", 32, 0},    {"no-guide", 32, 0},    {"time 3 s", 0, 3.0},
+                           {"uniform", 0, 3.0}, {"denoise", 0, 3.0}};
   // "denoise": as `render --time 3 --denoise` (the denoiser's time comes out of the budget;
   // its wall time is the render's plus the denoiser's). Every run also reports the denoised
   // figure (render/denoise.h) next to its raw one.
@@ -344,10 +357,10 @@ void DemoPreview(const fs::path& dir) {
     std::string list = std::string(",") + keep + ",";
     for (const Run& r : runs) {
       const std::string key = r.name == "denoise" || r.name == "uniform" ? r.name
-                              : r.time_s > 0                              ? "time"
-                              : r.name == "alloc"    ? "alloc" + std::to_string(r.spp)
-                              : r.name != "fixed"    ? r.name
-                                                     : std::to_string(r.spp);
+                              : r.time_s > 0                             ? "time"
+                              : r.name == "alloc" ? "alloc" + std::to_string(r.spp)
+                              : r.name != "fixed" ? r.name
+                                                  : std::to_string(r.spp);
       if (list.find("," + key + ",") != std::string::npos) kept.push_back(r);
     }
     // "allocN": an alloc run at N spp not in the list above (e.g. alloc8).
@@ -364,7 +377,8 @@ void DemoPreview(const fs::path& dir) {
   // (for tuning).
   if (const char* a = std::getenv("MESOSCAN_BENCH_DEMO_ALLOC")) {
     int by_cost = 1;
-    std::sscanf(a, "%d,%d,%lf,%d", &o.allocate_pilot_spp, &o.allocate_radius, &o.allocate_floor, &by_cost);
+    std::sscanf(a, "%d,%d,%lf,%d", &o.allocate_pilot_spp, &o.allocate_radius, &o.allocate_floor,
+                &by_cost);
     o.allocate_by_cost = by_cost != 0;
     std::printf("demo preview: allocation pilot %d spp, radius %d, floor %g, by cost %d\n",
                 o.allocate_pilot_spp, o.allocate_radius, o.allocate_floor, by_cost);
@@ -416,7 +430,10 @@ void DemoPreview(const fs::path& dir) {
       if (!(mask.data()[i] > 0.5f)) continue;
       const ImageF& nrm = rr[0].normal;
       const double nx = nrm.channel(0)[i], ny = nrm.channel(1)[i], nz = nrm.channel(2)[i];
-      const double t = std::acos(std::clamp(std::abs(nz) / std::max(1e-12, std::sqrt(nx * nx + ny * ny + nz * nz)), 0.0, 1.0)) * 180 / M_PI;
+      const double t =
+          std::acos(std::clamp(
+              std::abs(nz) / std::max(1e-12, std::sqrt(nx * nx + ny * ny + nz * nz)), 0.0, 1.0)) *
+          180 / M_PI;
       region[i] = t < 5 ? 1 : t < 15 ? 2 : t < 30 ? 3 : t < 60 ? 4 : 5;
     }
     double npx[kRegions] = {}, raw[kRegions] = {}, hvar[kRegions] = {};
@@ -432,8 +449,10 @@ void DemoPreview(const fs::path& dir) {
     }
     double traw = 0;
     for (int g = 0; g < kRegions; ++g) traw += raw[g];
-    std::printf("demo split: raw relRMSE (corrected) %.4f; per region: pixels, raw relMSE x 1e4 "
-                "(share), the half-buffers' variance estimate x 1e4\n", std::sqrt(std::max(0.0, traw)));
+    std::printf(
+        "demo split: raw relRMSE (corrected) %.4f; per region: pixels, raw relMSE x 1e4 "
+        "(share), the half-buffers' variance estimate x 1e4\n",
+        std::sqrt(std::max(0.0, traw)));
     for (int g = 0; g < kRegions; ++g)
       std::printf("demo split:   %-11s %6.2f%% raw %8.2f (%5.1f%%) half-var %8.2f\n", names[g],
                   100 * npx[g] / ref.pixels(), 1e4 * raw[g], 100 * raw[g] / traw, 1e4 * hvar[g]);
@@ -452,15 +471,24 @@ void DemoPreview(const fs::path& dir) {
         if (eq == std::string::npos) continue;
         const std::string k = kv.substr(0, eq);
         const double val = std::atof(kv.c_str() + eq + 1);
-        if (k == "radius") dopt.max_radius = static_cast<int>(val);
-        else if (k == "window") dopt.window = static_cast<int>(val);
-        else if (k == "eps") dopt.eps = val;
-        else if (k == "blend") dopt.blend = static_cast<int>(val);
-        else if (k == "jbf") dopt.bilateral = static_cast<int>(val);
-        else if (k == "jbfsigma") dopt.bilateral_sigma = val;
-        else if (k == "correct") dopt.half_variance_correction = val != 0;
-        else if (k == "c") dopt.correction = val;
-        else std::printf("demo split: unknown denoiser option %s\n", k.c_str());
+        if (k == "radius")
+          dopt.max_radius = static_cast<int>(val);
+        else if (k == "window")
+          dopt.window = static_cast<int>(val);
+        else if (k == "eps")
+          dopt.eps = val;
+        else if (k == "blend")
+          dopt.blend = static_cast<int>(val);
+        else if (k == "jbf")
+          dopt.bilateral = static_cast<int>(val);
+        else if (k == "jbfsigma")
+          dopt.bilateral_sigma = val;
+        else if (k == "correct")
+          dopt.half_variance_correction = val != 0;
+        else if (k == "c")
+          dopt.correction = val;
+        else
+          std::printf("demo split: unknown denoiser option %s\n", k.c_str());
       }
       ImageF dd[2];
       double ts = 1e30, cs = 0;
@@ -480,11 +508,14 @@ void DemoPreview(const fs::path& dir) {
       }
       double tdn = 0, tvar = 0;
       for (int g = 0; g < kRegions; ++g) tdn += dn[g], tvar += dvar[g];
-      std::printf("demo split: denoiser [%s] %.3f s wall (the faster of two), %.3f CPU s: relRMSE (corrected) %.4f = variance %.2f + "
-                  "bias^2 %.2f (x 1e4); per region dn (var, bias^2):", var.c_str(), ts, cs,
-                  std::sqrt(std::max(0.0, tdn)), 1e4 * tvar, 1e4 * (tdn - tvar));
+      std::printf(
+          "demo split: denoiser [%s] %.3f s wall (the faster of two), %.3f CPU s: relRMSE "
+          "(corrected) %.4f = variance %.2f + "
+          "bias^2 %.2f (x 1e4); per region dn (var, bias^2):",
+          var.c_str(), ts, cs, std::sqrt(std::max(0.0, tdn)), 1e4 * tvar, 1e4 * (tdn - tvar));
       for (int g = 0; g < kRegions; ++g)
-        std::printf(" %s %.2f (%.2f, %.2f);", names[g], 1e4 * dn[g], 1e4 * dvar[g], 1e4 * (dn[g] - dvar[g]));
+        std::printf(" %s %.2f (%.2f, %.2f);", names[g], 1e4 * dn[g], 1e4 * dvar[g],
+                    1e4 * (dn[g] - dvar[g]));
       std::printf("\n");
     }
   }
@@ -496,17 +527,17 @@ void DemoPreview(const fs::path& dir) {
     o.allocate_pilot_spp = run.name == "uniform" ? 0 : default_pilot;
     o.allocate_for_denoiser = denoiser_alloc || run.name == "denoise";  // as render --denoise
     double reserve_wall = 0;  // measuring the denoiser's reserve (part of the run's wall time)
-    if (run.time_s > 0) {  // as `render --time 3`: adaptive, no sample cap
+    if (run.time_s > 0) {     // as `render --time 3`: adaptive, no sample cap
       o.time_limit_s = run.time_s;
-      if (run.name == "denoise" || run.name == "uniform")
-        {
-          const double tr = Now();
-          const double reserve = MeasureDenoiseTimeReserve(o.width, o.height, run.time_s);
-          o.time_limit_s -= reserve;
-          std::printf("demo preview: %-8s denoiser's reserve measured %.3f s (the fixed figure %.3f s)\n",
-                      run.name.c_str(), reserve, DenoiseTimeReserve(o.width, o.height, run.time_s));
-          reserve_wall = Now() - tr;
-        }
+      if (run.name == "denoise" || run.name == "uniform") {
+        const double tr = Now();
+        const double reserve = MeasureDenoiseTimeReserve(o.width, o.height, run.time_s);
+        o.time_limit_s -= reserve;
+        std::printf(
+            "demo preview: %-8s denoiser's reserve measured %.3f s (the fixed figure %.3f s)\n",
+            run.name.c_str(), reserve, DenoiseTimeReserve(o.width, o.height, run.time_s));
+        reserve_wall = Now() - tr;
+      }
       o.noise = 0.01;
       o.min_spp = 16;
       o.max_spp = 1 << 16;
@@ -525,13 +556,15 @@ void DemoPreview(const fs::path& dir) {
     const double corrected = std::sqrt(std::max(0.0, e * e - ref_mse));
     const double spp = r.summary.mean_spp;
     const double ed = DisplayRelRmse(r.radiance, ref, ref_tone);
-    std::printf("demo preview: %-8s %6.1f spp: relRMSE %.4f (sample %.4f, mount %.4f; %.4f without "
-                "the reference's noise), display %.4f, in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), "
-                "load %s\n",
-                run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
-    const std::string png_stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) +
-                                 "spp" + (o.mirror_guide ? "" : "_noguide") +
-                                 (run.name == "alloc" || run.name == "uniform" ? "_" + run.name : "");
+    std::printf(
+        "demo preview: %-8s %6.1f spp: relRMSE %.4f (sample %.4f, mount %.4f; %.4f without "
+        "the reference's noise), display %.4f, in %.2f s wall, %.2f CPU s (%.3f CPU s/spp), "
+        "load %s\n",
+        run.name.c_str(), spp, e, es, em, corrected, ed, wall, cpu, cpu / spp, LoadAvg().c_str());
+    const std::string png_stem =
+        "demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp" +
+        (o.mirror_guide ? "" : "_noguide") +
+        (run.name == "alloc" || run.name == "uniform" ? "_" + run.name : "");
     // The optional denoise stage (render/denoise.h, `render --denoise`): its error against the
     // same reference, bias included, next to the raw figure above. Never in the Cycles tables.
     double dn_e = 0, dn_ed = 0, dn_s = 0, dn_corrected = 0;
@@ -542,14 +575,16 @@ void DemoPreview(const fs::path& dir) {
       dn_e = RelRmseMasked(dn, ref, mask, 0);
       dn_corrected = std::sqrt(std::max(0.0, dn_e * dn_e - ref_mse));
       dn_ed = DisplayRelRmse(dn, ref, ref_tone);
-      std::printf("demo preview: %-8s %6.1f spp: denoised relRMSE %.4f (%.4f without the "
-                  "reference's noise; sample %.4f, mount %.4f; raw %.4f), display %.4f; denoise %.3f s wall, %.3f CPU s; render + denoise "
-                  "%.2f s wall\n",
-                  run.name.c_str(), spp, dn_e, dn_corrected, RelRmseMasked(dn, ref, mask, 1),
-                  RelRmseMasked(dn, ref, mask, 2), e, dn_ed, dn_s, CpuNow() - c1, wall + dn_s);
+      std::printf(
+          "demo preview: %-8s %6.1f spp: denoised relRMSE %.4f (%.4f without the "
+          "reference's noise; sample %.4f, mount %.4f; raw %.4f), display %.4f; denoise %.3f s "
+          "wall, %.3f CPU s; render + denoise "
+          "%.2f s wall\n",
+          run.name.c_str(), spp, dn_e, dn_corrected, RelRmseMasked(dn, ref, mask, 1),
+          RelRmseMasked(dn, ref, mask, 2), e, dn_ed, dn_s, CpuNow() - c1, wall + dn_s);
       if (std::getenv("MESOSCAN_BENCH_DEMO_EXR")) {  // for a look at the error maps
-        const std::string stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) + "spp_" +
-                                 (run.name == "fixed" ? std::string("") : run.name + "_");
+        const std::string stem = "demo_" + std::to_string(static_cast<int>(std::lround(spp))) +
+                                 "spp_" + (run.name == "fixed" ? std::string("") : run.name + "_");
         WriteExr(dir / (stem + "denoised.exr"), dn, {"R", "G", "B"});
         WriteExr(dir / (stem + "raw.exr"), r.radiance, {"R", "G", "B"});
       }
@@ -624,8 +659,8 @@ void DemoPreview(const fs::path& dir) {
   }
 }
 
-// bench_render --compare REF.exr TEST.exr [MASK.exr]: the relative RMSE of TEST against REF (luminance,
-// whole image), for renders made by another build (e.g. main's `mesoscan render`).
+// bench_render --compare REF.exr TEST.exr [MASK.exr]: the relative RMSE of TEST against REF
+// (luminance, whole image), for renders made by another build (e.g. main's `mesoscan render`).
 int CompareExr(const char* ref_path, const char* test_path, const char* mask_path) {
   const ImageF ref = ReadImage(ref_path), test = ReadImage(test_path);
   if (mask_path) {  // the reference's sample mask (demo_ref_mask.exr): sample / mount split
@@ -652,7 +687,8 @@ int CompareExr(const char* ref_path, const char* test_path, const char* mask_pat
       const double a = Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i]));
       const double b = Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i]));
       const double r = std::abs(a - b) / std::max(m, 1e-30);
-      e.channel(0)[i] = static_cast<float>(std::clamp((std::log10(std::max(r, 1e-3)) + 3) / 4, 0.0, 1.0));
+      e.channel(0)[i] =
+          static_cast<float>(std::clamp((std::log10(std::max(r, 1e-3)) + 3) / 4, 0.0, 1.0));
     }
     WritePng8(map, QuantizeU8(e));
     std::printf("error map (|dY| / mean Y_ref, log 1e-3..10): %s\n", map);
@@ -669,29 +705,34 @@ int CompareExr(const char* ref_path, const char* test_path, const char* mask_pat
   }
   double mean_test = 0;
   for (size_t i = 0; i < ref.pixels(); ++i)
-    mean_test += Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])) / ref.pixels();
+    mean_test +=
+        Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])) / ref.pixels();
   std::printf("mean luminance: reference %.6g, test %.6g\n", mean_ref, mean_test);
   if (std::getenv("MESOSCAN_BENCH_COMPARE_WORST")) {
     std::vector<size_t> idx(se.size());
     for (size_t i = 0; i < idx.size(); ++i) idx[i] = i;
-    std::partial_sort(idx.begin(), idx.begin() + 30, idx.end(), [&](size_t a, size_t b) { return se[a] > se[b]; });
+    std::partial_sort(idx.begin(), idx.begin() + 30, idx.end(),
+                      [&](size_t a, size_t b) { return se[a] > se[b]; });
     for (int k = 0; k < 30; ++k) {
       const size_t i = idx[k];
-      std::printf("  x %zu y %zu: test %.4g ref %.4g (mean ref %.4g)\n", i % ref.width(), i / ref.width(),
-                  Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])),
-                  Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i])), mean_ref);
+      std::printf(
+          "  x %zu y %zu: test %.4g ref %.4g (mean ref %.4g)\n", i % ref.width(), i / ref.width(),
+          Luminance(Rgb(test.channel(0)[i], test.channel(1)[i], test.channel(2)[i])),
+          Luminance(Rgb(ref.channel(0)[i], ref.channel(1)[i], ref.channel(2)[i])), mean_ref);
     }
   }
   std::sort(se.begin(), se.end(), std::greater<double>());
   for (const double f : {0.001, 0.01, 0.1}) {
     double part = 0;
     for (size_t i = 0; i < static_cast<size_t>(f * se.size()); ++i) part += se[i];
-    std::printf("worst %.1f%% of the pixels: %.1f%% of the squared error\n", 100 * f, 100 * part / total);
+    std::printf("worst %.1f%% of the pixels: %.1f%% of the squared error\n", 100 * f,
+                100 * part / total);
   }
   // Display-space error: both images through the reference's tone curve (what one sees).
   const DisplayError display = DisplayRmse(test, ref, MeterExposure(ref));
-  std::printf("display (sRGB 8-bit, reference tone curve): RMSE %.2f of 255, relative to the mean %.4f\n",
-              display.rmse, display.relative());
+  std::printf(
+      "display (sRGB 8-bit, reference tone curve): RMSE %.2f of 255, relative to the mean %.4f\n",
+      display.rmse, display.relative());
   return 0;
 }
 
@@ -699,11 +740,15 @@ void Run() {
   std::setvbuf(stdout, nullptr, _IOLBF, 0);
   Progress::SetEnabled(false);
   ThreadLimit limit(2);
-  const fs::path dir = fs::path(std::getenv("MESOSCAN_BENCH_OUT") ? std::getenv("MESOSCAN_BENCH_OUT") : ".") / "render";
+  const fs::path dir =
+      fs::path(std::getenv("MESOSCAN_BENCH_OUT") ? std::getenv("MESOSCAN_BENCH_OUT") : ".") /
+      "render";
   fs::create_directories(dir);
   int W = 320, H = 240;
   if (const char* s = std::getenv("MESOSCAN_BENCH_RENDER_SIZE")) std::sscanf(s, "%dx%d", &W, &H);
-  const int ref_spp = std::getenv("MESOSCAN_BENCH_REF_SPP") ? std::atoi(std::getenv("MESOSCAN_BENCH_REF_SPP")) : 1024;
+  const int ref_spp = std::getenv("MESOSCAN_BENCH_REF_SPP")
+                          ? std::atoi(std::getenv("MESOSCAN_BENCH_REF_SPP"))
+                          : 1024;
   const int test_spp = 128;
   const char* only = std::getenv("MESOSCAN_BENCH_RENDER_SCENES");  // e.g. "relief,slab-hole,demo"
   if (!only || std::string(only).find("demo") != std::string::npos) DemoPreview(dir);
@@ -749,31 +794,44 @@ void Run() {
               ToneMapForDisplay(mtest.radiance, mref.tone));
     const double m_err = RelRmse(mtest.radiance, mref.radiance);
     const Stats ms = RegionMeans(mref.radiance, mref.sample_mask);
-    std::printf("%-11s mesoscan: %d spp relRMSE %.4f in %.2f s (%.2f M paths/s); ref sample %.5g mount %.5g\n",
-                sc.name.c_str(), test_spp, m_err, m_s, double(W) * H * test_spp / m_s / 1e6, ms.mean_sample,
-                ms.mean_mount);
+    std::printf(
+        "%-11s mesoscan: %d spp relRMSE %.4f in %.2f s (%.2f M paths/s); ref sample %.5g mount "
+        "%.5g\n",
+        sc.name.c_str(), test_spp, m_err, m_s, double(W) * H * test_spp / m_s / 1e6, ms.mean_sample,
+        ms.mean_mount);
     double c_err = NAN, c_s = NAN, bias_s = NAN, bias_m = NAN;
     if (blender) {
       // The scene for Blender: raw float32 heights + JSON.
       const fs::path raw = dir / (sc.name + "_height.f32");
       {
         std::ofstream f(raw, std::ios::binary);
-        f.write(reinterpret_cast<const char*>(sc.hf.z.data().data()), sc.hf.z.pixels() * sizeof(float));
+        f.write(reinterpret_cast<const char*>(sc.hf.z.data().data()),
+                sc.hf.z.pixels() * sizeof(float));
       }
       double zmin = 1e30;
       for (float z : sc.hf.z.data())
         if (std::isfinite(z)) zmin = std::min(zmin, double(z));
       const double extent = std::max(sc.hf.width(), sc.hf.height()) * sc.hf.pixel_size;
-      Json base = {{"grid_width", sc.hf.width()}, {"grid_height", sc.hf.height()},
-                   {"height_raw", fs::absolute(raw).string()}, {"x0", sc.hf.x0}, {"y0", sc.hf.y0},
-                   {"pixel_size", sc.hf.pixel_size}, {"albedo", {0.7, 0.7, 0.7}},
-                   {"mount_albedo", {0.3, 0.3, 0.3}}, {"plane_z", std::min(0.0, zmin) - 1e-6},
+      Json base = {{"grid_width", sc.hf.width()},
+                   {"grid_height", sc.hf.height()},
+                   {"height_raw", fs::absolute(raw).string()},
+                   {"x0", sc.hf.x0},
+                   {"y0", sc.hf.y0},
+                   {"pixel_size", sc.hf.pixel_size},
+                   {"albedo", {0.7, 0.7, 0.7}},
+                   {"mount_albedo", {0.3, 0.3, 0.3}},
+                   {"plane_z", std::min(0.0, zmin) - 1e-6},
                    {"plane_half_size", 10 * extent + 1.0},
                    {"eye", {o.camera->eye.x(), o.camera->eye.y(), o.camera->eye.z()}},
                    {"target", {o.camera->target.x(), o.camera->target.y(), o.camera->target.z()}},
-                   {"fov_deg", 30.0}, {"env_exr", fs::absolute(env_path).string()},
-                   {"env_rotation_deg", 0.0}, {"max_depth", o.max_depth}, {"threads", 2},
-                   {"width", W}, {"height", H}, {"seed", 1}};
+                   {"fov_deg", 30.0},
+                   {"env_exr", fs::absolute(env_path).string()},
+                   {"env_rotation_deg", 0.0},
+                   {"max_depth", o.max_depth},
+                   {"threads", 2},
+                   {"width", W},
+                   {"height", H},
+                   {"seed", 1}};
       ImageF cref, ctest;
       const double cr = RenderCycles(dir, sc.name + "_ref", sc, base, ref_spp, &cref);
       base["seed"] = 2;
@@ -788,25 +846,29 @@ void Run() {
         // Signed difference image of the references (grey = 0, +-10% of the sample mean = full).
         ImageF diff(W, H, 3);
         for (size_t i = 0; i < diff.pixels(); ++i) {
-          const double d = (Luminance(Rgb(mref.radiance.channel(0)[i], mref.radiance.channel(1)[i],
-                                          mref.radiance.channel(2)[i])) -
-                            Luminance(Rgb(cref.channel(0)[i], cref.channel(1)[i], cref.channel(2)[i]))) /
-                           (0.1 * ms.mean_sample);
+          const double d =
+              (Luminance(Rgb(mref.radiance.channel(0)[i], mref.radiance.channel(1)[i],
+                             mref.radiance.channel(2)[i])) -
+               Luminance(Rgb(cref.channel(0)[i], cref.channel(1)[i], cref.channel(2)[i]))) /
+              (0.1 * ms.mean_sample);
           diff.channel(0)[i] = static_cast<float>(std::clamp(0.5 + 0.5 * d, 0.0, 1.0));
           diff.channel(1)[i] = 0.5f;
           diff.channel(2)[i] = static_cast<float>(std::clamp(0.5 - 0.5 * d, 0.0, 1.0));
         }
         WritePng8(dir / (sc.name + "_ref_difference.png"), QuantizeU8(diff));
-        std::printf("%-11s cycles:   %d spp relRMSE %.4f in %.2f s (%.2f M paths/s); ref sample %.5g mount %.5g\n",
-                    sc.name.c_str(), test_spp, c_err, c_s, double(W) * H * test_spp / c_s / 1e6,
-                    cs.mean_sample, cs.mean_mount);
+        std::printf(
+            "%-11s cycles:   %d spp relRMSE %.4f in %.2f s (%.2f M paths/s); ref sample %.5g mount "
+            "%.5g\n",
+            sc.name.c_str(), test_spp, c_err, c_s, double(W) * H * test_spp / c_s / 1e6,
+            cs.mean_sample, cs.mean_mount);
       }
     }
     const double ratio = (c_err * c_err * c_s) / (m_err * m_err * m_s);
-    std::printf("%-11s bias vs Cycles: sample %+.2f%%, mount %+.2f%%; efficiency ratio %.2f (load %s)\n",
-                sc.name.c_str(), bias_s, bias_m, ratio, LoadAvg().c_str());
-    csv << sc.name << "," << bias_s << "," << bias_m << "," << m_err << "," << m_s << "," << c_err << ","
-        << c_s << "," << ratio << "," << double(W) * H * test_spp / m_s << ","
+    std::printf(
+        "%-11s bias vs Cycles: sample %+.2f%%, mount %+.2f%%; efficiency ratio %.2f (load %s)\n",
+        sc.name.c_str(), bias_s, bias_m, ratio, LoadAvg().c_str());
+    csv << sc.name << "," << bias_s << "," << bias_m << "," << m_err << "," << m_s << "," << c_err
+        << "," << c_s << "," << ratio << "," << double(W) * H * test_spp / m_s << ","
         << double(W) * H * test_spp / c_s << "," << LoadAvg() << "\n";
   }
 
@@ -826,22 +888,31 @@ void Run() {
     for (auto& d : dirs) d = (fwd + Vec3(u(rng), u(rng), u(rng))).normalized();
     std::atomic<int64_t> hits{0};
     double t = Now();
-    ParallelFor(n / 1000, [&](int64_t b) {
-      int64_t local = 0;
-      for (int k = 0; k < 1000; ++k) local += scene.Intersect(cam.eye, dirs[(b * 1000 + k) & 4095]).has_value();
-      hits += local;
-    }, 16);
+    ParallelFor(
+        n / 1000,
+        [&](int64_t b) {
+          int64_t local = 0;
+          for (int k = 0; k < 1000; ++k)
+            local += scene.Intersect(cam.eye, dirs[(b * 1000 + k) & 4095]).has_value();
+          hits += local;
+        },
+        16);
     const double t_hit = Now() - t;
     t = Now();
-    ParallelFor(n / 1000, [&](int64_t b) {
-      int64_t local = 0;
-      for (int k = 0; k < 1000; ++k) local += scene.Occluded(cam.eye, dirs[(b * 1000 + k) & 4095], 0, 1e30);
-      hits += local;
-    }, 16);
+    ParallelFor(
+        n / 1000,
+        [&](int64_t b) {
+          int64_t local = 0;
+          for (int k = 0; k < 1000; ++k)
+            local += scene.Occluded(cam.eye, dirs[(b * 1000 + k) & 4095], 0, 1e30);
+          hits += local;
+        },
+        16);
     const double t_occ = Now() - t;
-    std::printf("embree on the coin (2 threads): closest hit + double refinement %.2f M rays/s, occlusion "
-                "%.2f M rays/s (load %s)\n",
-                n / t_hit / 1e6, n / t_occ / 1e6, LoadAvg().c_str());
+    std::printf(
+        "embree on the coin (2 threads): closest hit + double refinement %.2f M rays/s, occlusion "
+        "%.2f M rays/s (load %s)\n",
+        n / t_hit / 1e6, n / t_occ / 1e6, LoadAvg().c_str());
   }
 
   // What the skips save: a constant environment (no NEE, no shadow rays) against the same
@@ -862,8 +933,10 @@ void Run() {
     t = Now();
     const RenderResult b = Render(hf, lambert, img, o);
     const double tb = Now() - t;
-    std::printf("constant environment: %.2f s (not importance-sampled) vs %.2f s as an image map; "
-                "relRMSE between them %.4f\n", ta, tb, RelRmse(a.radiance, b.radiance));
+    std::printf(
+        "constant environment: %.2f s (not importance-sampled) vs %.2f s as an image map; "
+        "relRMSE between them %.4f\n",
+        ta, tb, RelRmse(a.radiance, b.radiance));
     // Adaptive: reference 1024 spp; fixed 256 spp vs adaptive (noise 0.01, cap 256).
     o.min_spp = o.max_spp = 1024;
     const RenderResult ref = Render(hf, lambert, env, o);
@@ -877,11 +950,13 @@ void Run() {
     t = Now();
     const RenderResult adapt = Render(hf, lambert, env, o);
     const double tad = Now() - t;
-    std::printf("adaptive (noise 0.01 of the display range, 16..256 spp): %.2f s, %.1f spp mean, %lld of %d "
-                "pixels stopped early, relRMSE %.4f; fixed 256 spp: %.2f s, relRMSE %.4f (load %s)\n",
-                tad, adapt.summary.mean_spp, static_cast<long long>(adapt.summary.pixels_converged),
-                o.width * o.height, RelRmse(adapt.radiance, ref.radiance), tf,
-                RelRmse(fixed.radiance, ref.radiance), LoadAvg().c_str());
+    std::printf(
+        "adaptive (noise 0.01 of the display range, 16..256 spp): %.2f s, %.1f spp mean, %lld of "
+        "%d "
+        "pixels stopped early, relRMSE %.4f; fixed 256 spp: %.2f s, relRMSE %.4f (load %s)\n",
+        tad, adapt.summary.mean_spp, static_cast<long long>(adapt.summary.pixels_converged),
+        o.width * o.height, RelRmse(adapt.radiance, ref.radiance), tf,
+        RelRmse(fixed.radiance, ref.radiance), LoadAvg().c_str());
     // The mount the camera cannot see: a close-up inside the hole-free coin (camera rays skip
     // the plane) against the same render tracing it; the images must be identical. CPU time.
     RenderOptions oc;
@@ -903,10 +978,11 @@ void Run() {
     bool same = true;
     for (int c = 0; c < 3; ++c)
       same = same && std::equal(ia.channel(c), ia.channel(c) + ia.pixels(), ib.channel(c));
-    std::printf("invisible mount (close-up inside the coin, 64 spp): %s; %.2f CPU s skipping the plane "
-                "for camera rays vs %.2f CPU s tracing it, images %s (load %s)\n",
-                skipped.mount_visible ? "NOT detected" : "detected", ca, cb,
-                same ? "identical" : "DIFFER", LoadAvg().c_str());
+    std::printf(
+        "invisible mount (close-up inside the coin, 64 spp): %s; %.2f CPU s skipping the plane "
+        "for camera rays vs %.2f CPU s tracing it, images %s (load %s)\n",
+        skipped.mount_visible ? "NOT detected" : "detected", ca, cb, same ? "identical" : "DIFFER",
+        LoadAvg().c_str());
   }
 }
 

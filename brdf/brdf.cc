@@ -25,9 +25,9 @@ Brdf LoadBrdf(const std::filesystem::path& path, const MerlOptions& merl_options
   std::error_code ec;
   const auto st = std::filesystem::status(path, ec);
   if (std::filesystem::exists(st) && !std::filesystem::is_regular_file(st))
-    MESOSCAN_BAD_INPUT(path.string() << ": expected a .bsdf or .binary file, got "
-                                     << (std::filesystem::is_directory(st) ? "a folder"
-                                                                           : "a special file"));
+    MESOSCAN_BAD_INPUT(path.string()
+                       << ": expected a .bsdf or .binary file, got "
+                       << (std::filesystem::is_directory(st) ? "a folder" : "a special file"));
   std::ifstream in(path, std::ios::binary);
   if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
   char magic[12] = {};

@@ -12,8 +12,8 @@
 #include <numbers>
 #include <optional>
 
-#include "core/numbers.h"  // kPi
 #include "core/fast_atan.h"
+#include "core/numbers.h"  // kPi
 
 namespace mesoscan {
 

@@ -5,10 +5,10 @@
 #include <fstream>
 
 #include "core/error.h"
+#include "core/fast_atan.h"
 #include "core/fs.h"
 #include "core/log.h"
 #include "core/parallel.h"
-#include "core/fast_atan.h"
 
 namespace mesoscan {
 namespace {
@@ -169,7 +169,8 @@ void MerlBrdf::Write(const fs::path& path) const {
     const int32_t dims[3] = {kThetaH, kThetaD, kPhiD};
     out.write(reinterpret_cast<const char*>(dims), sizeof(dims));
     std::vector<double> raw(rgb_.size());
-    for (size_t i = 0; i < raw.size(); ++i) raw[i] = rgb_[3 * (i % kEntries) + i / kEntries] / kScale[i / kEntries];
+    for (size_t i = 0; i < raw.size(); ++i)
+      raw[i] = rgb_[3 * (i % kEntries) + i / kEntries] / kScale[i / kEntries];
     out.write(reinterpret_cast<const char*>(raw.data()), raw.size() * sizeof(double));
     if (!out) MESOSCAN_BAD_INPUT(tmp.string() << ": write failed");
   });
@@ -219,7 +220,8 @@ void MerlBrdf::BuildProxy() {
         double sum = 0;
         for (int a = 0; a < 2; ++a)
           for (int b = 0; b < 2; ++b) sum += Luminance(Node(ih, 2 * id + a, 2 * ip + b));
-        proxy_[(static_cast<size_t>(ih) * kD + id) * kP + ip] = static_cast<float>(std::max(0.0, 0.25 * sum));
+        proxy_[(static_cast<size_t>(ih) * kD + id) * kP + ip] =
+            static_cast<float>(std::max(0.0, 0.25 * sum));
       }
 }
 

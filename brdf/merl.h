@@ -104,7 +104,7 @@ class MerlBrdf {
   std::vector<float> rgb_;  // [theta_h][theta_d][phi_d][channel] (RGB interleaved), 1/sr
   size_t invalid_entries_ = 0;
   std::vector<float> proxy_;  // [theta_h][theta_d / 2][phi_d / 2]: mean luminance of 4 nodes
-  Warp2D sampling_;  // density over (u_theta_m, u_phi_m) per wo elevation
+  Warp2D sampling_;           // density over (u_theta_m, u_phi_m) per wo elevation
   EnergyClamp energy_;
 };
 

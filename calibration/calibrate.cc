@@ -5,7 +5,6 @@
 #include <ceres/rotation.h>
 
 #include <Eigen/Dense>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -55,8 +54,8 @@ struct AxisDecoder {
 // The frames a view needs: every sine frame, plus the first white frame (texture).
 struct ViewFrames {
   std::vector<int> session_frames;
-  AxisDecoder axis[2];  // x, y
-  int white = -1;       // stack index, -1 if none
+  AxisDecoder axis[2];           // x, y
+  int white = -1;                // stack index, -1 if none
   std::vector<int> texture_set;  // stack indices of the phase set averaged for the texture
 };
 
@@ -168,15 +167,15 @@ std::vector<double> JointFrameGains(const FrameStack& stack, const GainModel& mo
   for (int it = 0; it < iterations; ++it) {
     const Eigen::MatrixXd GM = g.asDiagonal() * M;
     const Eigen::MatrixXd pinv = (GM.transpose() * GM).ldlt().solve(GM.transpose());
-    const Eigen::MatrixXd C = pinv * I;             // np x n
-    const Eigen::MatrixXd Mc = M * C;               // ungained model, nk x n
+    const Eigen::MatrixXd C = pinv * I;                 // np x n
+    const Eigen::MatrixXd Mc = M * C;                   // ungained model, nk x n
     const Eigen::MatrixXd R = I - g.asDiagonal() * Mc;  // residuals
     const Eigen::MatrixXd P = Eigen::MatrixXd::Identity(nk, nk) - GM * pinv;
     std::vector<double> rel(n);
     for (size_t j = 0; j < n; ++j) {
       const double m2 = Mc.col(j).squaredNorm();
-      rel[j] = m2 > 0 ? std::sqrt(R.col(j).squaredNorm() / m2)
-                      : std::numeric_limits<double>::infinity();
+      rel[j] =
+          m2 > 0 ? std::sqrt(R.col(j).squaredNorm() / m2) : std::numeric_limits<double>::infinity();
     }
     const double limit = OutlierLimit(rel);
     Eigen::MatrixXd S = Eigen::MatrixXd::Zero(nk, nk);
@@ -242,7 +241,8 @@ std::vector<double> SineGains(const FrameStack& stack, const ViewFrames& vf,
 }
 
 void DecodeAt(const FrameStack& stack, const ViewFrames& vf, const std::vector<uint32_t>& pixels,
-              const CalibrateOptions& options, std::vector<float>* out_u, std::vector<float>* out_v) {
+              const CalibrateOptions& options, std::vector<float>* out_u,
+              std::vector<float>* out_v) {
   const std::vector<double> gains = SineGains(stack, vf, pixels, options.gain_method);
   std::vector<float> inv_gain(gains.size());
   for (size_t k = 0; k < gains.size(); ++k) inv_gain[k] = static_cast<float>(1.0 / gains[k]);
@@ -305,8 +305,8 @@ void NormaliseOrder(const CalibrationBoard& board, const cv::Mat& texture,
       return texture.at<float>(y, x);
     };
     const cv::Point2f c0 = at(0, 0), dx = at(1, 0) - c0, dy = at(0, 1) - c0;
-    const float dark = sample(c0 - 0.5f * dx - 0.5f * dy);   // square beyond corner 0
-    const float light = sample(c0 + 0.5f * dx - 0.5f * dy);  // its neighbour along x
+    const float dark = sample(c0 - 0.5f * dx - 0.5f * dy);             // square beyond corner 0
+    const float light = sample(c0 + 0.5f * dx - 0.5f * dy);            // its neighbour along x
     if (dark > light) std::reverse(corners->begin(), corners->end());  // a half turn
   }
 }
@@ -347,8 +347,8 @@ bool DetectCharuco(const CalibrationBoard& board, const cv::Mat& grey8,
   for (int id : *ids) valid = valid && id >= 0 && id < board.num_corners();
   if (!valid) {
     std::ostringstream o;
-    o << "no " << board.ToString() << " ChArUco board found (" << marker_ids.size()
-      << " markers, " << ids->size() << " corners; expected >= " << kMinCorners
+    o << "no " << board.ToString() << " ChArUco board found (" << marker_ids.size() << " markers, "
+      << ids->size() << " corners; expected >= " << kMinCorners
       << " corners over more than one row; is --board right?)";
     *why = o.str();
     return false;
@@ -360,8 +360,8 @@ bool DetectCharuco(const CalibrationBoard& board, const cv::Mat& grey8,
 
 void CalibrateOptions::Check() const {
   if (homography_half_window_px < 3 || homography_half_window_px > 200)
-    MESOSCAN_THROW(ErrorKind::kUsage, "homography half window: expected 3..200 px, got "
-                                          << homography_half_window_px);
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "homography half window: expected 3..200 px, got " << homography_half_window_px);
   if (!(min_window_fraction > 0 && min_window_fraction <= 1))
     MESOSCAN_THROW(ErrorKind::kUsage, "min window fraction: expected (0, 1]");
   if (!(min_modulation >= 0 && min_modulation < 1))
@@ -492,13 +492,15 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
       const int win = std::clamp(static_cast<int>(spacing / 4), 2, 11);
       cv::Mat smooth;
       cv::GaussianBlur(texture, smooth, cv::Size(0, 0), 0.7);
-      cv::cornerSubPix(smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
-                       cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+      cv::cornerSubPix(
+          smooth, corners, cv::Size(win, win), cv::Size(-1, -1),
+          cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
     }
   }
   view.found = true;
   view.camera_px.assign(nc, Vec2d(kNaN, kNaN));
-  for (size_t n = 0; n < ids.size(); ++n) view.camera_px[ids[n]] = Vec2d(corners[n].x, corners[n].y);
+  for (size_t n = 0; n < ids.size(); ++n)
+    view.camera_px[ids[n]] = Vec2d(corners[n].x, corners[n].y);
 
   // 3. Decode (u, v) in a window around each corner, one homography per corner (Moreno & Taubin
   //    2012), fitted with LMEDS (least median of squares: half the window may be wrong).
@@ -683,8 +685,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   }
   std::optional<CalibrationView> mount = mount_view;
   if (mount) {
-    if (!mount->found)
-      MESOSCAN_BAD_INPUT("--mount " << mount->name << ": " << mount->problem);
+    if (!mount->found) MESOSCAN_BAD_INPUT("--mount " << mount->name << ": " << mount->problem);
     used.push_back(&*mount);
   }
   // Degenerate: every view at one pose (the camera's corners move less than a pixel).
@@ -697,7 +698,8 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     if (spread < 1.0)
       MESOSCAN_BAD_INPUT("calibrate: all " << used.size()
                                            << " views show the board at one pose (corners move "
-                                           << spread << " px), expected views at different tilts "
+                                           << spread
+                                           << " px), expected views at different tilts "
                                               "and positions (degenerate)");
   }
 
@@ -744,20 +746,20 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
                                         r_pc, t_pc, e, f, cv::CALIB_FIX_INTRINSIC);
     // OpenCV's own joint refinement (intrinsics and extrinsics together), for the baseline.
     cv::Mat kc2 = kc.clone(), dc2 = dc.clone(), kp2 = kp.clone(), dp2 = dp.clone(), r2, t2;
-    cv_rms_joint = cv::stereoCalibrate(obj_both, img_cam_both, img_prj, kc2, dc2, kp2, dp2,
-                                       cam_size, r2, t2, e, f,
-                                       cv::CALIB_USE_INTRINSIC_GUESS | cv_flags);
+    cv_rms_joint =
+        cv::stereoCalibrate(obj_both, img_cam_both, img_prj, kc2, dc2, kp2, dp2, cam_size, r2, t2,
+                            e, f, cv::CALIB_USE_INTRINSIC_GUESS | cv_flags);
     Mat3d r;
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < 3; ++b) r(a, b) = r2.at<double>(a, b);
     const Vec3d t(t2.at<double>(0), t2.at<double>(1), t2.at<double>(2));
-    cv_joint = {{"rms_px", cv_rms_joint},
-                {"camera", CameraJson(kc2, dc2)},
-                {"projector", CameraJson(kp2, dp2)},
-                {"baseline_m", t.norm()},
-                {"prj_from_cam_rotation_deg",
-                 Eigen::AngleAxisd(r).angle() * 180.0 / std::numbers::pi},
-                {"prj_from_cam_translation_m", {t.x(), t.y(), t.z()}}};
+    cv_joint = {
+        {"rms_px", cv_rms_joint},
+        {"camera", CameraJson(kc2, dc2)},
+        {"projector", CameraJson(kp2, dp2)},
+        {"baseline_m", t.norm()},
+        {"prj_from_cam_rotation_deg", Eigen::AngleAxisd(r).angle() * 180.0 / std::numbers::pi},
+        {"prj_from_cam_translation_m", {t.x(), t.y(), t.z()}}};
   } catch (const cv::Exception& ex) {
     MESOSCAN_BAD_INPUT("calibrate: OpenCV's initial calibration failed on these "
                        << used.size() << " views (" << ex.err
@@ -765,8 +767,9 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   }
   if (!std::isfinite(cv_rms_cam) || !std::isfinite(cv_rms_prj) || !std::isfinite(cv_rms_stereo))
     MESOSCAN_BAD_INPUT("calibrate: the initial calibration did not converge (degenerate views?)");
-  result.opencv = {{"note", "cv::calibrateCamera per device, cv::stereoCalibrate with "
-                            "CALIB_FIX_INTRINSIC; joint: stereoCalibrate refining everything"},
+  result.opencv = {{"note",
+                    "cv::calibrateCamera per device, cv::stereoCalibrate with "
+                    "CALIB_FIX_INTRINSIC; joint: stereoCalibrate refining everything"},
                    {"rms_camera_px", cv_rms_cam},
                    {"rms_projector_px", cv_rms_prj},
                    {"rms_stereo_px", cv_rms_stereo},
@@ -798,9 +801,9 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     for (int k = 0; k < nc; ++k) {
       if (!v.camera_px[k].allFinite()) continue;
       const Vec3d x = board.Corner(k);
-      problem.AddResidualBlock(
-          new ceres::AutoDiffCostFunction<CameraCost, 2, 4, 5, 6>(new CameraCost(x, v.camera_px[k])),
-          nullptr, cam_intr, cam_dist, board_pose[i].data());
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CameraCost, 2, 4, 5, 6>(
+                                   new CameraCost(x, v.camera_px[k])),
+                               nullptr, cam_intr, cam_dist, board_pose[i].data());
       n_res += 2;
       if (!v.projector_px[k].allFinite()) continue;
       problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ProjectorCost, 2, 4, 5, 6, 6>(
@@ -852,7 +855,8 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     for (int k = 0; k < nc; ++k) {
       const Vec3d pc = v.cam_from_board * board.Corner(k);
       Vec2d uv;
-      if (cam_model.ProjectDevice(pc.data(), uv.data())) v.camera_residual_px[k] = v.camera_px[k] - uv;
+      if (cam_model.ProjectDevice(pc.data(), uv.data()))
+        v.camera_residual_px[k] = v.camera_px[k] - uv;
       const Vec3d pp = prj_from_cam * pc;
       if (v.projector_px[k].allFinite() && prj_model.ProjectDevice(pp.data(), uv.data()))
         v.projector_residual_px[k] = v.projector_px[k] - uv;
@@ -872,8 +876,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   // Outlier views: combined RMS above factor x the median view's.
   {
     std::vector<double> rms;
-    for (const auto* v : used)
-      rms.push_back(std::hypot(v->rms_camera_px, v->rms_projector_px));
+    for (const auto* v : used) rms.push_back(std::hypot(v->rms_camera_px, v->rms_projector_px));
     std::vector<double> sorted = rms;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double median = sorted[sorted.size() / 2];
@@ -896,9 +899,11 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     co.algorithm_type = ceres::DENSE_SVD;
     co.null_space_rank = -1;
     ceres::Covariance cov(co);
-    std::vector<std::pair<const double*, const double*>> blocks = {
-        {cam_intr, cam_intr}, {cam_dist, cam_dist}, {prj_intr, prj_intr},
-        {prj_dist, prj_dist}, {prj_pose, prj_pose}};
+    std::vector<std::pair<const double*, const double*>> blocks = {{cam_intr, cam_intr},
+                                                                   {cam_dist, cam_dist},
+                                                                   {prj_intr, prj_intr},
+                                                                   {prj_dist, prj_dist},
+                                                                   {prj_pose, prj_pose}};
     Json u;
     if (cov.Compute(blocks, &problem)) {
       auto sd = [&](const double* block, int n, const std::vector<std::string>& names) {
@@ -961,7 +966,8 @@ void DrawDevice(const CalibrationResult& r, bool projector, bool residuals, cons
   const int w = projector ? first->projector_width : first->width;
   const int h = projector ? first->projector_height : first->height;
   const double scale = 1200.0 / std::max(w, h);
-  const int cw = std::max(1, static_cast<int>(w * scale)), ch = std::max(1, static_cast<int>(h * scale));
+  const int cw = std::max(1, static_cast<int>(w * scale)),
+            ch = std::max(1, static_cast<int>(h * scale));
   cv::Mat canvas(ch, cw, CV_8UC3, cv::Scalar(255, 255, 255));
   // Residuals are drawn magnified so that the largest is ~5% of the canvas.
   double max_res = 0;
@@ -1027,7 +1033,8 @@ Json CalibrationResult::ToJson() const {
   j["world"] = world;
   j["camera"] = DeviceJson(rig.camera);
   j["projector"] = DeviceJson(rig.projector);
-  const Rigid3d prj_from_cam = rig.projector.world_from_device.Inverse() * rig.camera.world_from_device;
+  const Rigid3d prj_from_cam =
+      rig.projector.world_from_device.Inverse() * rig.camera.world_from_device;
   j["baseline_m"] = prj_from_cam.translation.norm();
   j["prj_from_cam_rotation_deg"] =
       Eigen::AngleAxisd(prj_from_cam.rotation).angle() * 180.0 / std::numbers::pi;
@@ -1047,9 +1054,8 @@ Json CalibrationResult::ToJson() const {
       vj["projector_corners"] = np;
       vj["outlier"] = v.outlier;
       const Rigid3d board_in_cam = v.cam_from_board;
-      vj["cam_from_board_translation_m"] = {board_in_cam.translation.x(),
-                                            board_in_cam.translation.y(),
-                                            board_in_cam.translation.z()};
+      vj["cam_from_board_translation_m"] = {
+          board_in_cam.translation.x(), board_in_cam.translation.y(), board_in_cam.translation.z()};
     }
     vj["decode_seconds"] = v.decode_seconds;
     vs.push_back(vj);

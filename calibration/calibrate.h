@@ -19,10 +19,10 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
+#include "calibration/calibrate_board.h"
 #include "core/json.h"
 #include "core/transform.h"
-#include "calibration/calibrate_board.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
@@ -66,16 +66,16 @@ struct CalibrateOptions {
 
 // One board pose as seen by the camera and the projector.
 struct CalibrationView {
-  std::string name;        // the session folder
-  bool found = false;      // the board was found
-  std::string problem;     // why not, or why the view was dropped (one line)
-  int width = 0, height = 0;                  // camera image size
+  std::string name;           // the session folder
+  bool found = false;         // the board was found
+  std::string problem;        // why not, or why the view was dropped (one line)
+  int width = 0, height = 0;  // camera image size
   int projector_width = 0, projector_height = 0;
   // Every board corner, board order (k = j*cols+i); NaN where not seen (a ChArUco board partly
   // out of view).
   std::vector<Vec2d> camera_px;
-  std::vector<Vec2d> projector_px;            // per corner; NaN where not decoded
-  std::vector<int> projector_inliers;         // per corner: LMEDS inliers of its homography
+  std::vector<Vec2d> projector_px;     // per corner; NaN where not decoded
+  std::vector<int> projector_inliers;  // per corner: LMEDS inliers of its homography
   // Filled by Calibrate():
   Rigid3d cam_from_board;
   std::vector<Vec2d> camera_residual_px, projector_residual_px;  // observed - predicted
@@ -94,10 +94,10 @@ struct CalibrationResult {
   std::vector<CalibrationView> views;  // all views, including those skipped
   int views_used = 0;
   double rms_camera_px = 0, rms_projector_px = 0, rms_stereo_px = 0;  // over all used corners
-  std::string world;                   // "mount board <session>" or "first board <session>"
-  std::string ceres_brief;             // Ceres' Summary::BriefReport()
-  Json uncertainties;                  // 1-sigma of every parameter (Ceres covariance)
-  Json opencv;                         // OpenCV's calibration on the same corners (baseline)
+  std::string world;        // "mount board <session>" or "first board <session>"
+  std::string ceres_brief;  // Ceres' Summary::BriefReport()
+  Json uncertainties;       // 1-sigma of every parameter (Ceres covariance)
+  Json opencv;              // OpenCV's calibration on the same corners (baseline)
   double seconds = 0;
   Json ToJson() const;
   std::string BriefReport() const;

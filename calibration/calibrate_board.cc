@@ -58,9 +58,9 @@ CalibrationBoard CalibrationBoard::Parse(const std::string& text, const std::str
     const long sx = std::stol(m[1].str().substr(0, 6)), sy = std::stol(m[2].str().substr(0, 6));
     const double square_mm = std::stod(m[3].str()), marker_mm = std::stod(m[4].str());
     if (sx < 3 || sy < 3 || sx > 201 || sy > 201 || !(square_mm > 0) || square_mm > 1e4)
-      MESOSCAN_THROW(ErrorKind::kUsage,
-                     key << ": '" << text
-                         << "': expected 3..201 squares per side and a square side > 0 mm");
+      MESOSCAN_THROW(
+          ErrorKind::kUsage,
+          key << ": '" << text << "': expected 3..201 squares per side and a square side > 0 mm");
     if (!(marker_mm > 0) || !(marker_mm < square_mm))
       MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text
                                             << "': expected a marker side > 0 and smaller than "
@@ -70,20 +70,20 @@ CalibrationBoard CalibrationBoard::Parse(const std::string& text, const std::str
                    [](unsigned char c) { return static_cast<char>(std::toupper(c)); });
     if (dict.rfind("DICT_", 0) != 0) dict = "DICT_" + dict;
     const auto& list = Dictionaries();
-    auto it = std::find_if(list.begin(), list.end(), [&](const auto& e) { return e.first == dict; });
+    auto it =
+        std::find_if(list.begin(), list.end(), [&](const auto& e) { return e.first == dict; });
     if (it == list.end()) {
       std::ostringstream names;
       for (size_t i = 0; i < list.size(); ++i) names << (i ? ", " : "") << list[i].first;
       MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text << "': unknown ArUco dictionary '"
-                                            << m[5].str() << "', expected one of "
-                                            << names.str());
+                                            << m[5].str() << "', expected one of " << names.str());
     }
     const int markers = static_cast<int>((sx * sy) / 2);
     const int available = cv::aruco::getPredefinedDictionary(it->second)->bytesList.rows;
     if (markers > available)
       MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text << "': a " << sx << "x" << sy
-                                            << " ChArUco board needs " << markers
-                                            << " markers, " << it->first << " has " << available);
+                                            << " ChArUco board needs " << markers << " markers, "
+                                            << it->first << " has " << available);
     b.cols = static_cast<int>(sx - 1);
     b.rows = static_cast<int>(sy - 1);
     b.square_m = square_mm * 1e-3;
@@ -123,16 +123,16 @@ std::vector<uint8_t> CalibrationBoard::CharucoImage(int px_per_square, int* widt
                                                     int* height) const {
   const auto dict = cv::aruco::getPredefinedDictionary(
       static_cast<cv::aruco::PREDEFINED_DICTIONARY_NAME>(dictionary));
-  const auto b = cv::aruco::CharucoBoard::create(squares_x(), squares_y(),
-                                                 static_cast<float>(square_m),
-                                                 static_cast<float>(marker_m), dict);
+  const auto b = cv::aruco::CharucoBoard::create(
+      squares_x(), squares_y(), static_cast<float>(square_m), static_cast<float>(marker_m), dict);
   *width = squares_x() * px_per_square;
   *height = squares_y() * px_per_square;
   cv::Mat img;
   b->draw(cv::Size(*width, *height), img, 0, 1);
   std::vector<uint8_t> out(static_cast<size_t>(*width) * *height);
   for (int y = 0; y < *height; ++y)
-    for (int x = 0; x < *width; ++x) out[static_cast<size_t>(y) * *width + x] = img.at<uint8_t>(y, x);
+    for (int x = 0; x < *width; ++x)
+      out[static_cast<size_t>(y) * *width + x] = img.at<uint8_t>(y, x);
   return out;
 }
 

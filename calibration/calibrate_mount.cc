@@ -13,9 +13,7 @@
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {
-namespace {
-
-}  // namespace
+namespace {}  // namespace
 
 bool HasBoardPatterns(const Session& session) {
   const FramePlan plan = MakeFramePlan(session.frames);
@@ -59,8 +57,7 @@ FlatTargetScan ScanFlatTarget(const Session& session_in, const Rig& rig) {
   PixelClasses classes = ClassifyPixels(stack, plan, session.rig.camera.width,
                                         session.rig.camera.height, ro.Classify());
   PixelStates& state = classes.state;
-  FrameGains gains =
-      EstimateLuminanceGains(stack, plan, state, session.frames.size(), ro.Gains());
+  FrameGains gains = EstimateLuminanceGains(stack, plan, state, session.frames.size(), ro.Gains());
   const PhaseShiftPixels ps =
       DecodePhaseShift(stack, plan, gains, classes, ro.PhaseShift(session.rig), &state);
   const LensShiftPixels ls = FitLensShift(stack, plan, &gains, ro.LensShift(), &state);
@@ -152,8 +149,7 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
     for (size_t k = 0; k < p.size(); ++k) dist[k] = std::abs(n.dot(p[k] - c));
     const double sigma = kMadToSigma * Median(dist);
     plane.robust_sigma_m = sigma;
-    for (size_t k = 0; k < p.size(); ++k)
-      use[k] = dist[k] <= options.reject_sigmas * sigma + 1e-12;
+    for (size_t k = 0; k < p.size(); ++k) use[k] = dist[k] <= options.reject_sigmas * sigma + 1e-12;
   }
   // Orientation: +z towards the rig (the camera's centre is above the plane).
   const Vec3d cam = rig.camera.CentreInWorld();
@@ -182,8 +178,9 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
   }
   plane.inliers = inl * static_cast<int64_t>(stride);
   if (inl < 3 || static_cast<double>(inl) < 0.5 * static_cast<double>(p.size()))
-    MESOSCAN_BAD_INPUT("mount: only " << inl << " of " << p.size()
-                                      << " points lie on one plane; expected the empty, flat mount");
+    MESOSCAN_BAD_INPUT("mount: only "
+                       << inl << " of " << p.size()
+                       << " points lie on one plane; expected the empty, flat mount");
   // Least-squares covariance (per-point sigma = the RMS; the subsample's points are
   // independent): offset at the centroid sigma/sqrt(m); tilt sigma / sqrt(second moment).
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(scatter);

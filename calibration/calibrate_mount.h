@@ -16,26 +16,26 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
 #include "core/transform.h"
 #include "heightfield/pixel_buffers.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
 // A flat target scanned with a rig in memory.
 struct FlatTargetScan {
-  RoiGrid grid;              // the camera grid (whole image)
-  ImageF xyz;                // camera grid, rig-world metres; NaN where no point
+  RoiGrid grid;                     // the camera grid (whole image)
+  ImageF xyz;                       // camera grid, rig-world metres; NaN where no point
   std::vector<float> ls_frequency;  // per pixel: the lens-shift profile's own fitted frequency
                                     // (cycles per nominal projector px); empty without lens shift
-  double ls_period_px = 2;   // the stripes' period (projector px)
+  double ls_period_px = 2;          // the stripes' period (projector px)
   int lens_shift_frames = 0;
   // Camera grid: the triangulation's predicted depth sigma of each point (m, from the lens-shift
   // residuals), NaN where no point.
   std::vector<float> sigma_z;
-  int64_t points = 0;        // pixels with a point
+  int64_t points = 0;  // pixels with a point
   double seconds = 0;
 };
 
@@ -61,10 +61,10 @@ struct MountPlane {
   Vec3d normal = Vec3d::UnitZ();  // unit, in the rig's world used for the scan, towards the rig
   double offset = 0;              // plane: normal . x = offset
   int64_t points = 0, inliers = 0;
-  double rms_m = 0;               // RMS distance of the inliers from the plane
-  double robust_sigma_m = 0;      // 1.4826 MAD of the distances
-  double normal_sigma_rad = 0;    // 1-sigma of the normal's direction (least-squares covariance)
-  double offset_sigma_m = 0;      // 1-sigma of the plane at the points' centroid
+  double rms_m = 0;             // RMS distance of the inliers from the plane
+  double robust_sigma_m = 0;    // 1.4826 MAD of the distances
+  double normal_sigma_rad = 0;  // 1-sigma of the normal's direction (least-squares covariance)
+  double offset_sigma_m = 0;    // 1-sigma of the plane at the points' centroid
   // The noise's share (FlatTargetScan::sigma_z over the inliers): RMS of the predicted sigmas,
   // and RMS of distance / predicted sigma (1 for points as good as the noise allows along the
   // ray; the plane's normal is within a few degrees of it); 0 without sigmas.

@@ -2,15 +2,16 @@
 // calibration/calibrate_shifter.h) on synthetic flat-target scans with known truth: points on a
 // plane with noise and outliers, lens-shift frequencies from a known shifter.
 
+#include "calibration/calibrate_mount.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <numbers>
 #include <random>
 
-#include "core/error.h"
-#include "calibration/calibrate_mount.h"
 #include "calibration/calibrate_shifter.h"
+#include "core/error.h"
 
 namespace mesoscan {
 namespace {
@@ -99,9 +100,9 @@ TEST(CalibrateMount, PlaneThroughNoisyPointsWithOutliersDefinesTheWorld) {
   }
   EXPECT_NEAR(std::sqrt(sz / m) / sigma, 1.0, 0.1);
   EXPECT_GT(on.camera.CentreInWorld().z(), 0.2);
-  const Vec3d axis_hit = on.camera.world_from_device *
-                         Vec3d(0, 0, on.camera.CentreInWorld().z() /
-                                         -on.camera.world_from_device.rotation.col(2).z());
+  const Vec3d axis_hit =
+      on.camera.world_from_device *
+      Vec3d(0, 0, on.camera.CentreInWorld().z() / -on.camera.world_from_device.rotation.col(2).z());
   EXPECT_LT(axis_hit.norm(), 1e-9);
   // x along the camera's x projected: the camera's x axis has no world y component.
   EXPECT_NEAR(on.camera.world_from_device.rotation.col(0).y(), 0.0, 1e-12);
@@ -160,8 +161,7 @@ TEST(CalibrateShifter, RecoversStepsPerPxAndGainFromFrequencies) {
   Session session;
   session.root = "synthetic";
   session.rig = rig;
-  const ShifterCalibration cal =
-      CalibrateShifter(session, scan, rig, ShifterCalibrationOptions());
+  const ShifterCalibration cal = CalibrateShifter(session, scan, rig, ShifterCalibrationOptions());
   SCOPED_TRACE(cal.ToJson().dump());
   EXPECT_GT(cal.pixels, kW * kH * 9 / 10);
   EXPECT_NEAR(cal.pixel_sigma_rel / rel_noise, 1.0, 0.1);

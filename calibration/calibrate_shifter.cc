@@ -130,12 +130,13 @@ ShifterCalibration CalibrateShifter(const Session& session, const FlatTargetScan
   // Covariance of a: rms^2 (A^T A)^-1 on the subsample (its pixels are independent fits).
   const Eigen::Matrix4d cov = rms * rms * ata.inverse();
   cal.steps_per_px_sigma = nominal / (a(0) * a(0)) * std::sqrt(std::max(0.0, cov(0, 0)));
-  for (int q = 0; q < 3; ++q) cal.gain_sigma[q] = std::sqrt(std::max(0.0, cov(q + 1, q + 1))) / a(0);
+  for (int q = 0; q < 3; ++q)
+    cal.gain_sigma[q] = std::sqrt(std::max(0.0, cov(q + 1, q + 1))) / a(0);
   cal.s_min = std::numeric_limits<double>::infinity();
   cal.s_max = -cal.s_min;
   for (const auto& s : all) {
-    const double g = 1 + cal.gain_x * s.un + cal.gain_y * s.vn +
-                     cal.gain_r * (s.un * s.un + s.vn * s.vn);
+    const double g =
+        1 + cal.gain_x * s.un + cal.gain_y * s.vn + cal.gain_r * (s.un * s.un + s.vn * s.vn);
     const double m = cal.calibrated.steps_per_px / g;
     cal.model_map.channel(0)[s.pixel] = static_cast<float>(m);
     cal.s_min = std::min(cal.s_min, m);
@@ -191,9 +192,10 @@ void WriteShifterMapPng(const ShifterCalibration& cal, const std::filesystem::pa
     for (int x = 0; x < W; ++x) {
       const float s = m.channel(0)[static_cast<size_t>(y) * W + x];
       valid.at<uint8_t>(y, x) = std::isfinite(s) ? 255 : 0;
-      grey.at<uint8_t>(y, x) = std::isfinite(s) ? static_cast<uint8_t>(std::clamp(
-                                                      (s - lo) / (hi - lo) * 255.0, 0.0, 255.0))
-                                                : 0;
+      grey.at<uint8_t>(y, x) =
+          std::isfinite(s)
+              ? static_cast<uint8_t>(std::clamp((s - lo) / (hi - lo) * 255.0, 0.0, 255.0))
+              : 0;
     }
   cv::Mat colour;
   cv::applyColorMap(grey, colour, cv::COLORMAP_VIRIDIS);

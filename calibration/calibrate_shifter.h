@@ -21,34 +21,34 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
+#include "calibration/calibrate_mount.h"
 #include "core/image.h"
 #include "core/json.h"
-#include "calibration/calibrate_mount.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
 struct ShifterCalibrationOptions {
   double reject_sigmas = 4.0;  // per-pixel values beyond this many robust sigmas are dropped
   int rounds = 4;
-  int64_t min_pixels = 1000;   // fewer fitted profiles: bad input
+  int64_t min_pixels = 1000;  // fewer fitted profiles: bad input
   size_t max_samples = 400000;
 };
 
 struct ShifterCalibration {
   std::string session;
-  LensShifter nominal;            // what the session's rig said
-  LensShifter calibrated;         // steps_per_px = S; axis and range as the session's
-  double steps_per_px_sigma = 0;  // 1-sigma of S (least squares, scaled by the residual)
-  double median_steps_per_px = 0; // median of s over the fitted pixels (no model)
+  LensShifter nominal;             // what the session's rig said
+  LensShifter calibrated;          // steps_per_px = S; axis and range as the session's
+  double steps_per_px_sigma = 0;   // 1-sigma of S (least squares, scaled by the residual)
+  double median_steps_per_px = 0;  // median of s over the fitted pixels (no model)
   double gain_x = 0, gain_y = 0, gain_r = 0;  // g's coefficients
   double gain_sigma[3] = {0, 0, 0};
-  double pixel_sigma_rel = 0;     // robust scatter of one pixel's 1/s around the model, relative
-  double model_rms_rel = 0;       // RMS of the inliers' relative residual
-  double s_min = 0, s_max = 0;    // s of the model over the projector pixels the camera saw
+  double pixel_sigma_rel = 0;   // robust scatter of one pixel's 1/s around the model, relative
+  double model_rms_rel = 0;     // RMS of the inliers' relative residual
+  double s_min = 0, s_max = 0;  // s of the model over the projector pixels the camera saw
   int64_t pixels = 0, inliers = 0;
-  ImageF steps_map;               // camera grid: per-pixel s (NaN where not fitted)
-  ImageF model_map;               // camera grid: the model's s at each pixel with a point
+  ImageF steps_map;  // camera grid: per-pixel s (NaN where not fitted)
+  ImageF model_map;  // camera grid: the model's s at each pixel with a point
   double seconds = 0;
 
   // The model's steps per projector px at projector pixel (u, v) of a projector (cx, cy, W, H).

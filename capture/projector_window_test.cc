@@ -12,9 +12,9 @@
 #include <filesystem>
 #include <thread>
 
-#include "session/patterns.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/error.h"
+#include "session/patterns.h"
 
 namespace mesoscan {
 namespace {

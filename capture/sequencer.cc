@@ -16,14 +16,14 @@
 
 #include "capture/gphoto2_camera.h"
 #include "capture/lens_shifter.h"
-#include "session/patterns.h"
 #include "capture/projector_window.h"
-#include "session/raw_frame.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/log.h"
 #include "core/progress.h"
+#include "session/patterns.h"
+#include "session/raw_frame.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -212,7 +212,8 @@ SequencerSummary RunAcquisition(const Session& plan_in, CameraDevice& camera,
       done.frames = static_cast<int>(n);
       done.reused = static_cast<int>(n);
       done.complete = true;
-      done.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      done.seconds =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       MESOSCAN_LOG(kInfo) << manifest.string()
                           << ": complete; removed the capture journal an interrupted run left";
       return done;

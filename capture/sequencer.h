@@ -21,8 +21,8 @@
 #include <memory>
 #include <string>
 
-#include "session/session.h"
 #include "core/image.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

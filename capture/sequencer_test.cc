@@ -7,12 +7,12 @@
 
 #include "capture/lens_shifter.h"
 #include "capture/lens_shifter_sim.h"
-#include "session/patterns.h"
 #include "capture/projector_window.h"
-#include "session/raw_frame.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "session/patterns.h"
+#include "session/raw_frame.h"
 
 namespace mesoscan {
 namespace {
@@ -21,8 +21,8 @@ namespace fs = std::filesystem;
 constexpr int kProjW = 64, kProjH = 48, kCamW = 32, kCamH = 24;
 
 // A plan: projector 64 x 48, camera 32 x 24 (the screen camera box-averages 2 x 2 screen
-// pixels), periods 7 and 11 (LCM 77 >= 64) x 3 phases, 4 lens-shift frames over [-2048, 2048] (both ends),
-// white, black: 12 frames.
+// pixels), periods 7 and 11 (LCM 77 >= 64) x 3 phases, 4 lens-shift frames over [-2048, 2048] (both
+// ends), white, black: 12 frames.
 Session Plan(const fs::path& root) {
   Session s;
   s.root = root;

@@ -11,10 +11,10 @@
 namespace mesoscan {
 
 struct PinholeCamera {
-  int width = 0, height = 0;                  // pixels
-  Mat3d K = Mat3d::Identity();                // [[fx, s, cx], [0, fy, cy], [0, 0, 1]], pixels
-  std::array<double, 5> distortion{};         // k1, k2, p1, p2, k3 (OpenCV order)
-  Rigid3d world_from_device;                  // device (x right, y down, z forward) -> world
+  int width = 0, height = 0;           // pixels
+  Mat3d K = Mat3d::Identity();         // [[fx, s, cx], [0, fy, cy], [0, 0, 1]], pixels
+  std::array<double, 5> distortion{};  // k1, k2, p1, p2, k3 (OpenCV order)
+  Rigid3d world_from_device;           // device (x right, y down, z forward) -> world
 
   bool HasDistortion() const {
     for (double d : distortion)

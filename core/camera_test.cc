@@ -46,8 +46,9 @@ TEST(PinholeCamera, UndistortInvertsProjectAndAgreesWithOpenCV) {
   std::vector<cv::Point2d> px, ref;
   for (int y = 0; y < 480; y += 37)
     for (int x = 0; x < 640; x += 41) px.emplace_back(x, y);
-  cv::undistortPoints(px, ref, K, d, cv::noArray(), cv::noArray(),
-                      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 100, 1e-14));
+  cv::undistortPoints(
+      px, ref, K, d, cv::noArray(), cv::noArray(),
+      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 100, 1e-14));
   for (size_t i = 0; i < px.size(); ++i) {
     const Vec2d n = cam.UndistortNormalized({px[i].x, px[i].y});
     // Round trip: exact to 1e-9 px.

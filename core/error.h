@@ -32,32 +32,33 @@ class Error : public std::runtime_error {
 
 // Builds a message with operator<< and throws it: `throw MakeError(kind) << "file: key ..."`
 // reads badly, so use MESOSCAN_THROW(kind, "file: " << x << ...).
-#define MESOSCAN_THROW(kind, stream_expr)                       \
-  do {                                                          \
-    std::ostringstream mesoscan_oss_;                           \
-    mesoscan_oss_ << stream_expr;                               \
-    throw ::mesoscan::Error(mesoscan_oss_.str(), (kind));       \
+#define MESOSCAN_THROW(kind, stream_expr)                 \
+  do {                                                    \
+    std::ostringstream mesoscan_oss_;                     \
+    mesoscan_oss_ << stream_expr;                         \
+    throw ::mesoscan::Error(mesoscan_oss_.str(), (kind)); \
   } while (0)
 
-#define MESOSCAN_BAD_INPUT(stream_expr) MESOSCAN_THROW(::mesoscan::ErrorKind::kBadInput, stream_expr)
+#define MESOSCAN_BAD_INPUT(stream_expr) \
+  MESOSCAN_THROW(::mesoscan::ErrorKind::kBadInput, stream_expr)
 
-#define MESOSCAN_CHECK(cond)                                                                 \
-  do {                                                                                       \
-    if (!(cond))                                                                             \
-      MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal,                                       \
-                     "internal error: " << __FILE__ << ":" << __LINE__ << ": CHECK(" #cond   \
-                                        << ") failed");                                      \
+#define MESOSCAN_CHECK(cond)                                                                    \
+  do {                                                                                          \
+    if (!(cond))                                                                                \
+      MESOSCAN_THROW(                                                                           \
+          ::mesoscan::ErrorKind::kInternal,                                                     \
+          "internal error: " << __FILE__ << ":" << __LINE__ << ": CHECK(" #cond << ") failed"); \
   } while (0)
 
-#define MESOSCAN_CHECK_OP(a, op, b)                                                          \
-  do {                                                                                       \
-    const auto& mesoscan_a_ = (a);                                                           \
-    const auto& mesoscan_b_ = (b);                                                           \
-    if (!(mesoscan_a_ op mesoscan_b_))                                                       \
-      MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal,                                       \
-                     "internal error: " << __FILE__ << ":" << __LINE__ << ": CHECK(" #a " " #op \
-                                        " " #b ") failed: " << mesoscan_a_ << " vs "         \
-                                        << mesoscan_b_);                                     \
+#define MESOSCAN_CHECK_OP(a, op, b)                                                  \
+  do {                                                                               \
+    const auto& mesoscan_a_ = (a);                                                   \
+    const auto& mesoscan_b_ = (b);                                                   \
+    if (!(mesoscan_a_ op mesoscan_b_))                                               \
+      MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal,                               \
+                     "internal error: " << __FILE__ << ":" << __LINE__               \
+                                        << ": CHECK(" #a " " #op " " #b ") failed: " \
+                                        << mesoscan_a_ << " vs " << mesoscan_b_);    \
   } while (0)
 
 #define MESOSCAN_CHECK_EQ(a, b) MESOSCAN_CHECK_OP(a, ==, b)

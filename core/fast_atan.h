@@ -13,7 +13,7 @@ namespace mesoscan {
 // atan(t) = t + t^3 P(t^2) for |t| <= tan(pi / 8): P interpolates (atan(s) - s) / s^3 at the 10
 // Chebyshev nodes in t^2 (computed at 50 digits); the largest error of the double evaluation
 // over the interval is 1.1e-16 (one rounding of atan).
-constexpr double kAtanP[10] = {-0.3333333333333325,  0.19999999999898407, -0.1428571426609662,
+constexpr double kAtanP[10] = {-0.3333333333333325,  0.19999999999898407,  -0.1428571426609662,
                                0.11111109636534361,  -0.09090852557176049, 0.0769105515839315,
                                -0.06649613695291669, 0.05736332165907643,  -0.04483334622272886,
                                0.02275052699336167};

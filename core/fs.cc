@@ -16,11 +16,12 @@ fs::path TempSiblingPath(const fs::path& final_path) {
   static std::atomic<int> counter{0};
   const std::string stem = final_path.stem().string();
   const std::string ext = final_path.extension().string();
-  return final_path.parent_path() / ("." + stem + ".tmp" + std::to_string(getpid()) + "_" +
-                                     std::to_string(counter++) + ext);
+  return final_path.parent_path() /
+         ("." + stem + ".tmp" + std::to_string(getpid()) + "_" + std::to_string(counter++) + ext);
 }
 
-void WriteAtomically(const fs::path& final_path, const std::function<void(const fs::path&)>& write) {
+void WriteAtomically(const fs::path& final_path,
+                     const std::function<void(const fs::path&)>& write) {
   const fs::path tmp = TempSiblingPath(final_path);
   try {
     write(tmp);

@@ -87,8 +87,8 @@ ImageF HeightField::Normals() const {
       const float* up = j > 0 ? z.row(j - 1) : nan_row.data();
       const float* down = j + 1 < h ? z.row(j + 1) : nan_row.data();
       std::copy(row, row + w, padded.begin() + 1);
-      NormalsRow(padded.data(), row, padded.data() + 2, up, down, w, inv, n.row(j, 0),
-                 n.row(j, 1), n.row(j, 2));
+      NormalsRow(padded.data(), row, padded.data() + 2, up, down, w, inv, n.row(j, 0), n.row(j, 1),
+                 n.row(j, 2));
     }
   });
   return n;

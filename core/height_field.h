@@ -12,10 +12,10 @@
 namespace mesoscan {
 
 struct HeightField {
-  ImageF z;           // metres, NaN = unknown
-  ImageF confidence;  // [0, 1], 0 where z is NaN; same size as z (may be empty)
-  double x0 = 0.0;    // world x of pixel (0,0) centre, metres
-  double y0 = 0.0;    // world y of pixel (0,0) centre, metres
+  ImageF z;                  // metres, NaN = unknown
+  ImageF confidence;         // [0, 1], 0 where z is NaN; same size as z (may be empty)
+  double x0 = 0.0;           // world x of pixel (0,0) centre, metres
+  double y0 = 0.0;           // world y of pixel (0,0) centre, metres
   double pixel_size = 1e-4;  // metres between neighbouring pixel centres, > 0
 
   int width() const { return z.width(); }

@@ -29,7 +29,6 @@ TEST(HeightField, NormalsOfTiltedPlane) {
   EXPECT_NEAR(hf.Sample(hf.X(3.5), hf.Y(2.25)), a * hf.X(3.5) + b * hf.Y(2.25), 1e-7);
 }
 
-
 // The former per-pixel Normals (bounds-checked neighbours, Eigen's normalized()): the row
 // kernel must give the same bits everywhere, NaN holes and edges included.
 ImageF ReferenceNormals(const HeightField& hf) {
@@ -46,14 +45,20 @@ ImageF ReferenceNormals(const HeightField& hf) {
       };
       const float l = at(i - 1, j), r = at(i + 1, j);
       double dzdx = 0;
-      if (std::isfinite(l) && std::isfinite(r)) dzdx = (r - l) * 0.5 * inv;
-      else if (std::isfinite(r)) dzdx = (r - c) * inv;
-      else if (std::isfinite(l)) dzdx = (c - l) * inv;
+      if (std::isfinite(l) && std::isfinite(r))
+        dzdx = (r - l) * 0.5 * inv;
+      else if (std::isfinite(r))
+        dzdx = (r - c) * inv;
+      else if (std::isfinite(l))
+        dzdx = (c - l) * inv;
       const float u = at(i, j - 1), d = at(i, j + 1);
       double dzdy = 0;
-      if (std::isfinite(u) && std::isfinite(d)) dzdy = (u - d) * 0.5 * inv;
-      else if (std::isfinite(u)) dzdy = (u - c) * inv;
-      else if (std::isfinite(d)) dzdy = (c - d) * inv;
+      if (std::isfinite(u) && std::isfinite(d))
+        dzdy = (u - d) * 0.5 * inv;
+      else if (std::isfinite(u))
+        dzdy = (u - c) * inv;
+      else if (std::isfinite(d))
+        dzdy = (c - d) * inv;
       const Vec3d v = Vec3d(-dzdx, -dzdy, 1.0).normalized();
       n(i, j, 0) = static_cast<float>(v.x());
       n(i, j, 1) = static_cast<float>(v.y());
@@ -74,7 +79,7 @@ TEST(HeightField, NormalsMatchPerPixelReferenceBitForBit) {
     for (int j = 0; j < h; ++j)
       for (int i = 0; i < w; ++i) {
         const float p = u01(rng);
-        hf.z(i, j) = p < 0.15f ? std::numeric_limits<float>::quiet_NaN()
+        hf.z(i, j) = p < 0.15f   ? std::numeric_limits<float>::quiet_NaN()
                      : p < 0.18f ? (p < 0.165f ? inf : -inf)
                                  : uz(rng) + (p > 0.99f ? 1e30f : 0.0f);
       }

@@ -5,9 +5,9 @@
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfTestFile.h>
 #include <OpenEXR/ImfThreading.h>
-#include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/openexr.h>
 
 #include <algorithm>
@@ -15,13 +15,13 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <memory>
 #include <limits>
+#include <memory>
 
 #include "core/budget.h"
 #include "core/error.h"
-#include "core/image_input.h"
 #include "core/fs.h"
+#include "core/image_input.h"
 #include "core/module.h"
 #include "core/png_gray16.h"
 #include "core/png_write.h"
@@ -99,11 +99,11 @@ void CheckRegularFile(const fs::path& path, const std::string& label_in) {
   if (!fs::exists(st)) MESOSCAN_BAD_INPUT(label << ": file not found");
   if (!fs::is_regular_file(st))
     MESOSCAN_BAD_INPUT(label << ": expected a regular image file, got "
-                                     << (fs::is_directory(st) ? "a folder"
-                                         : fs::is_fifo(st)    ? "a FIFO"
-                                         : fs::is_character_file(st) || fs::is_block_file(st)
-                                             ? "a device"
-                                             : "a special file"));
+                             << (fs::is_directory(st) ? "a folder"
+                                 : fs::is_fifo(st)    ? "a FIFO"
+                                 : fs::is_character_file(st) || fs::is_block_file(st)
+                                     ? "a device"
+                                     : "a special file"));
 }
 
 // OpenEXR's C++ reader (behind OpenImageIO) trusts the sizes in a header: a 651-byte file whose
@@ -165,14 +165,15 @@ std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::str
   std::error_code ec;
   std::string ext = path.extension().string();
   if (!ext.empty()) ext = ext.substr(1);
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   if (ext == "exr") CheckExrHeader(path, label);
   std::string err;
   bool no_reader = false;
   auto in = Oiio().Open(path.string(), ext, {}, &err, &no_reader);
   if (no_reader)
-    MESOSCAN_BAD_INPUT(label << ": cannot read image (no reader for the extension '."
-                                     << ext << "')");
+    MESOSCAN_BAD_INPUT(label << ": cannot read image (no reader for the extension '." << ext
+                             << "')");
   if (!in) {
     if (err.empty()) err = "not a valid ." + ext + " file";
     MESOSCAN_BAD_INPUT(label << ": cannot read image (" << err << ")");
@@ -180,7 +181,7 @@ std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::str
   const ImageHeader& h = in->header();
   if (h.width <= 0 || h.height <= 0 || h.channels <= 0)
     MESOSCAN_BAD_INPUT(label << ": header declares " << h.width << "x" << h.height << "x"
-                                     << h.channels << " pixels");
+                             << h.channels << " pixels");
   const double values = static_cast<double>(h.width) * h.height * h.channels;
   CheckImageBudget(label, h.width, h.height, h.channels);
   // No format we read stores more than ~2x its raw pixel size plus headers (EXR offset tables,
@@ -188,9 +189,8 @@ std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::str
   const double raw = values * static_cast<double>(h.format_bytes);
   const auto size = fs::file_size(path, ec);
   if (!ec && static_cast<double>(size) > 2.0 * raw + (1 << 20))
-    MESOSCAN_BAD_INPUT(label << ": file is " << size << " bytes, more than its "
-                                     << h.width << "x" << h.height << "x" << h.channels
-                                     << " header allows");
+    MESOSCAN_BAD_INPUT(label << ": file is " << size << " bytes, more than its " << h.width << "x"
+                             << h.height << "x" << h.channels << " header allows");
   return in;
 }
 
@@ -218,7 +218,8 @@ bool ReadPngLayout(const fs::path& path, ImageInfo* info) {
   if (!ParsePngHeader(head, &header)) return false;
   const uint32_t w = header.width, h = header.height;
   const int depth = header.bit_depth, colour = header.colour_type;
-  static const char* const kNames[7][4] = {{"Y"}, {}, {"R", "G", "B"}, {}, {"Y", "A"}, {}, {"R", "G", "B", "A"}};
+  static const char* const kNames[7][4] = {{"Y"},      {}, {"R", "G", "B"},     {},
+                                           {"Y", "A"}, {}, {"R", "G", "B", "A"}};
   static const int kChannels[7] = {1, 0, 3, 0, 2, 0, 4};
   if (w == 0 || h == 0 || w > 0x7fffffffu || h > 0x7fffffffu || (depth != 8 && depth != 16) ||
       colour > 6 || kChannels[colour] == 0)
@@ -271,7 +272,8 @@ bool ReadExrLayout(const fs::path& path, ImageInfo* info) {
 ImageInfo ReadImageLayout(const fs::path& path) {
   CheckRegularFile(path, path.string());
   std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   ImageInfo info;
   if (ext == ".png" && ReadPngLayout(path, &info) && LayoutFits(path, info)) return info;
   if (ext == ".exr") {
@@ -389,10 +391,8 @@ void WriteExr(const fs::path& path, const ImageF& image, const std::vector<std::
   w.channel_names = names;
   w.no_alpha = true;
   w.attributes.push_back(ImageAttribute::String("compression", compression));
-  for (const auto& [k, v] : float_attributes)
-    w.attributes.push_back(ImageAttribute::Float(k, v));
-  for (const auto& [k, v] : string_attributes)
-    w.attributes.push_back(ImageAttribute::String(k, v));
+  for (const auto& [k, v] : float_attributes) w.attributes.push_back(ImageAttribute::Float(k, v));
+  for (const auto& [k, v] : string_attributes) w.attributes.push_back(ImageAttribute::String(k, v));
   const std::vector<float> inter = Interleave(image);
   w.data = inter.data();
   WriteWithOiio(path, std::move(w));
@@ -471,8 +471,7 @@ ImageU8 QuantizeU8(const ImageF& image, bool srgb_encode) {
   auto& dst = out.data();
   for (size_t i = 0; i < src.size(); ++i) {
     float v = std::isfinite(src[i]) ? std::clamp(src[i], 0.0f, 1.0f) : 0.0f;
-    if (srgb_encode)
-      v = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+    if (srgb_encode) v = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
     dst[i] = static_cast<uint8_t>(std::lround(v * 255.0f));
   }
   return out;

@@ -59,9 +59,9 @@ void WriteExr(const std::filesystem::path& path, const ImageF& image,
               const std::string& compression = "zip");
 
 // An uncompressed float32 EXR written from planes (channel `channel` of `image`; channel -1: the
-// image's only channel, which it must be; all planes of one size) straight through OpenEXR, with float header attributes: no interleaved copy of the
-// image (the scan folder's points.exr is 75 MB at full resolution). The same pixels and
-// attributes as WriteExr with compression "none".
+// image's only channel, which it must be; all planes of one size) straight through OpenEXR, with
+// float header attributes: no interleaved copy of the image (the scan folder's points.exr is 75 MB
+// at full resolution). The same pixels and attributes as WriteExr with compression "none".
 struct ExrPlane {
   std::string name;
   const ImageF* image = nullptr;

@@ -1,10 +1,9 @@
 #include "core/image_io.h"
 
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <cstring>
-
-#include <gtest/gtest.h>
 
 #include "core/error.h"
 #include "core/fs.h"
@@ -43,12 +42,14 @@ TEST(ImageIo, PngGray16FastPathMatchesOiioAndDeclinesTheRest) {
   const int w = 301, h = 37;  // odd sizes, rows not a multiple of anything
   ImageU16 im(w, h, 1);
   for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) im(x, y) = static_cast<uint16_t>((x * 2654435761u + y * 40503u) >> 7);
+    for (int x = 0; x < w; ++x)
+      im(x, y) = static_cast<uint16_t>((x * 2654435761u + y * 40503u) >> 7);
   WritePng16(dir / "g.png", im);
   std::vector<uint16_t> fast(static_cast<size_t>(w) * h, 0);
   ASSERT_TRUE(ReadPngGray16(dir / "g.png", w, h, fast.data()));
   for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) ASSERT_EQ(fast[static_cast<size_t>(y) * w + x], im(x, y)) << x << "," << y;
+    for (int x = 0; x < w; ++x)
+      ASSERT_EQ(fast[static_cast<size_t>(y) * w + x], im(x, y)) << x << "," << y;
   EXPECT_FALSE(ReadPngGray16(dir / "g.png", w + 1, h, fast.data()));
   EXPECT_FALSE(ReadPngGray16(dir / "missing.png", w, h, fast.data()));
   ImageU16 rgb(w, h, 3, 1000);
@@ -124,7 +125,8 @@ TEST(ImageIo, ExrHeaderSizesThatCannotBeTrue) {
            {{"mesoscan:note", "a string attribute"}}, "none");
   EXPECT_EQ(ReadImage(dir / "height.exr").width(), 4);  // the untouched file reads
   const std::string bytes = ReadTextFile(dir / "height.exr");
-  auto patched = [&](const std::string& key, size_t offset, int32_t value, const std::string& name) {
+  auto patched = [&](const std::string& key, size_t offset, int32_t value,
+                     const std::string& name) {
     std::string b = bytes;
     const size_t at = b.find(key);
     EXPECT_NE(at, std::string::npos) << key;
@@ -137,8 +139,9 @@ TEST(ImageIo, ExrHeaderSizesThatCannotBeTrue) {
                 "not a valid EXR header");
   // Twenty million scan lines (the data window's fourth int32, after the attribute's size): the
   // chunk offset table alone would be megabytes in a file of a few hundred bytes.
-  ExpectRefused(patched(std::string("dataWindow") + '\0' + "box2i" + '\0', 4 + 12, 20000000, "tall.exr"),
-                "offset table");
+  ExpectRefused(
+      patched(std::string("dataWindow") + '\0' + "box2i" + '\0', 4 + 12, 20000000, "tall.exr"),
+      "offset table");
   // An attribute of a type no reader knows, claiming 1.7 GB, first in the header: OpenEXR's core
   // skips it with an error message and succeeds; its C++ reader would allocate the 1.7 GB.
   {

@@ -76,8 +76,8 @@ const void* LoadModule(const std::string& name) {
     m.path = path.string();
     return m.entry;  // never unloaded: its objects live until the process ends
   }
-  MESOSCAN_THROW(ErrorKind::kInternal,
-                 "cannot load the module " << file << " (searched " << searched << ")"
+  MESOSCAN_THROW(ErrorKind::kInternal, "cannot load the module "
+                                           << file << " (searched " << searched << ")"
                                            << (why.empty() ? "" : ": " + why));
 }
 

@@ -2,13 +2,13 @@
 // loaded by core/module.h on first use). It calls nothing of mesoscan's libraries: errors come
 // back as strings and the callers (core/image_io.cc) turn them into Error.
 
+#include "core/oiio_module.h"
+
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
 #include <cstdint>
 #include <vector>
-
-#include "core/oiio_module.h"
 
 namespace mesoscan {
 namespace {
@@ -22,11 +22,16 @@ std::string OneLine(std::string s) {
 
 oiio::TypeDesc ToOiio(PixelType t) {
   switch (t) {
-    case PixelType::kUInt8: return oiio::TypeDesc::UINT8;
-    case PixelType::kUInt16: return oiio::TypeDesc::UINT16;
-    case PixelType::kHalf: return oiio::TypeDesc::HALF;
-    case PixelType::kFloat: return oiio::TypeDesc::FLOAT;
-    case PixelType::kOther: break;
+    case PixelType::kUInt8:
+      return oiio::TypeDesc::UINT8;
+    case PixelType::kUInt16:
+      return oiio::TypeDesc::UINT16;
+    case PixelType::kHalf:
+      return oiio::TypeDesc::HALF;
+    case PixelType::kFloat:
+      return oiio::TypeDesc::FLOAT;
+    case PixelType::kOther:
+      break;
   }
   return oiio::TypeDesc::UNKNOWN;
 }
@@ -41,11 +46,15 @@ PixelType FromOiio(oiio::TypeDesc t) {
 
 void SetAttributes(oiio::ImageSpec* spec, const std::vector<ImageAttribute>& attributes) {
   for (const ImageAttribute& a : attributes) switch (a.kind) {
-      case ImageAttribute::Kind::kInt: spec->attribute(a.name, static_cast<int>(a.number)); break;
+      case ImageAttribute::Kind::kInt:
+        spec->attribute(a.name, static_cast<int>(a.number));
+        break;
       case ImageAttribute::Kind::kFloat:
         spec->attribute(a.name, static_cast<float>(a.number));
         break;
-      case ImageAttribute::Kind::kString: spec->attribute(a.name, a.text); break;
+      case ImageAttribute::Kind::kString:
+        spec->attribute(a.name, a.text);
+        break;
       case ImageAttribute::Kind::kRational:
         spec->attribute(a.name, oiio::TypeRational, a.rational);
         break;
@@ -74,7 +83,8 @@ ImageHeader HeaderOf(const oiio::ImageInput& in) {
 
 class Reader final : public ImageReader {
  public:
-  explicit Reader(std::unique_ptr<oiio::ImageInput> in) : in_(std::move(in)), header_(HeaderOf(*in_)) {}
+  explicit Reader(std::unique_ptr<oiio::ImageInput> in)
+      : in_(std::move(in)), header_(HeaderOf(*in_)) {}
   const ImageHeader& header() const override { return header_; }
 
   bool Read(PixelType type_in, void* data) override {
@@ -154,8 +164,8 @@ class Module final : public OiioModule {
       return false;
     }
     if (images.size() > 1 && !out->supports("multiimage")) {
-      *error = std::string("OpenImageIO cannot write several images to a .") +
-               out->format_name() + " file";
+      *error = std::string("OpenImageIO cannot write several images to a .") + out->format_name() +
+               " file";
       return false;
     }
     std::vector<oiio::ImageSpec> specs;

@@ -25,10 +25,18 @@ struct ImageAttribute {
   std::string text;
   int rational[2] = {0, 1};
 
-  static ImageAttribute Int(std::string name, int v) { return {Kind::kInt, std::move(name), double(v), {}, {0, 1}}; }
-  static ImageAttribute Float(std::string name, double v) { return {Kind::kFloat, std::move(name), v, {}, {0, 1}}; }
-  static ImageAttribute String(std::string name, std::string v) { return {Kind::kString, std::move(name), 0, std::move(v), {0, 1}}; }
-  static ImageAttribute Rational(std::string name, int num, int den) { return {Kind::kRational, std::move(name), 0, {}, {num, den}}; }
+  static ImageAttribute Int(std::string name, int v) {
+    return {Kind::kInt, std::move(name), double(v), {}, {0, 1}};
+  }
+  static ImageAttribute Float(std::string name, double v) {
+    return {Kind::kFloat, std::move(name), v, {}, {0, 1}};
+  }
+  static ImageAttribute String(std::string name, std::string v) {
+    return {Kind::kString, std::move(name), 0, std::move(v), {0, 1}};
+  }
+  static ImageAttribute Rational(std::string name, int num, int den) {
+    return {Kind::kRational, std::move(name), 0, {}, {num, den}};
+  }
 };
 
 // What a reader knows after open().

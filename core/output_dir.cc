@@ -59,8 +59,8 @@ bool HasMarker(const fs::path& dir, const std::string& command) {
 }
 
 [[noreturn]] void Refuse(const OutputSpec& s, const std::string& what) {
-  MESOSCAN_THROW(ErrorKind::kUsage, s.command << ": " << s.option << " " << s.out.string() << ": "
-                                              << what);
+  MESOSCAN_THROW(ErrorKind::kUsage,
+                 s.command << ": " << s.option << " " << s.out.string() << ": " << what);
 }
 
 // The checks shared by folders and files: not empty, not an input, not around an input.
@@ -72,7 +72,8 @@ fs::path CheckAgainstInputs(const OutputSpec& s) {
     if (in_raw.empty()) continue;
     const fs::path in = Resolve(in_raw);
     if (out == in)
-      Refuse(s, "is the input " + in_raw.string() + " (it would be overwritten); choose another folder");
+      Refuse(s, "is the input " + in_raw.string() +
+                    " (it would be overwritten); choose another folder");
     if (PathIsWithin(out, in))
       Refuse(s, "lies inside the input " + in_raw.string() + "; choose a folder outside it");
     if (PathIsWithin(in, out))
@@ -105,9 +106,12 @@ void CleanStaleOutputs(const fs::path& final_path) {
     if (name.rfind(base, 0) != 0) continue;
     const std::string rest = name.substr(base.size());
     bool backup;
-    if (rest.rfind(kTmpTag, 0) == 0) backup = false;
-    else if (rest.rfind(kOldTag, 0) == 0) backup = true;
-    else continue;
+    if (rest.rfind(kTmpTag, 0) == 0)
+      backup = false;
+    else if (rest.rfind(kOldTag, 0) == 0)
+      backup = true;
+    else
+      continue;
     const std::string pid_text = rest.substr(std::string(kTmpTag).size());
     char* end_ptr = nullptr;
     const long pid = std::strtol(pid_text.c_str(), &end_ptr, 10);
@@ -151,7 +155,8 @@ void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marke
   fs::create_directories(out.parent_path(), ec);
   const fs::path tmp = Sibling(out, kTmpTag);
   fs::create_directory(tmp, ec);
-  if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot create output folder (" << ec.message() << ")");
+  if (ec)
+    MESOSCAN_BAD_INPUT(out.string() << ": cannot create output folder (" << ec.message() << ")");
   try {
     fill(tmp);
     if (!marker_command.empty()) {
@@ -169,7 +174,9 @@ void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marke
       // backup, which CleanStaleOutputs renames back).
       const fs::path old = Sibling(out, kOldTag);
       fs::rename(out, old, ec);
-      if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot replace the existing folder (" << ec.message() << ")");
+      if (ec)
+        MESOSCAN_BAD_INPUT(out.string()
+                           << ": cannot replace the existing folder (" << ec.message() << ")");
       fs::rename(tmp, out, ec);
       if (ec) {
         std::error_code e2;

@@ -25,11 +25,11 @@ namespace mesoscan {
 inline constexpr const char* kOutputMarker = ".mesoscan-output";
 
 struct OutputSpec {
-  std::string command;                             // "reconstruct", "export", ...
-  std::string option = "--out";                    // the option named in messages
-  std::filesystem::path out;                       // as the user gave it
-  std::vector<std::filesystem::path> inputs;       // files or folders read (empty entries ignored)
-  bool force = false;                              // replace any existing folder (not an input)
+  std::string command;                        // "reconstruct", "export", ...
+  std::string option = "--out";               // the option named in messages
+  std::filesystem::path out;                  // as the user gave it
+  std::vector<std::filesystem::path> inputs;  // files or folders read (empty entries ignored)
+  bool force = false;                         // replace any existing folder (not an input)
   // Files whose presence marks an existing folder as a previous output of this command written
   // before the marker file existed (e.g. {"report.json", "height.exr"} for reconstruct).
   std::vector<std::string> legacy_signature;
@@ -55,9 +55,9 @@ void ReplaceFolderAtomically(const std::filesystem::path& final_dir,
 // The same rules for a single output file (brdf plot/tabulate): --out must not be an input,
 // nor an existing folder; an existing file is replaced only if accept_existing(path) says it
 // is a previous output (or force). The write itself goes through WriteAtomically.
-std::filesystem::path CheckOutputFile(const OutputSpec& spec,
-                                      const std::function<bool(const std::filesystem::path&)>&
-                                          accept_existing);
+std::filesystem::path CheckOutputFile(
+    const OutputSpec& spec,
+    const std::function<bool(const std::filesystem::path&)>& accept_existing);
 
 // Removes stale `.NAME.mesoscan-tmp.PID*` / `.NAME.mesoscan-old.PID*` siblings of `final_path`
 // whose process is gone; a stale backup whose final name is missing is renamed back.

@@ -85,7 +85,8 @@ TEST_F(OutputDirTest, ReplacesItsOwnOutputAndKeepsItOnFailure) {
 TEST_F(OutputDirTest, StaleTemporariesAreRemovedAndABackupIsRecovered) {
   // A process that no longer exists (pid_max is below 2^22) left a temporary and a backup of
   // "out" after renaming the old output aside and before renaming the new one in.
-  const fs::path tmp = dir_ / ".out.mesoscan-tmp.4999999.0", old = dir_ / ".out.mesoscan-old.4999999.1";
+  const fs::path tmp = dir_ / ".out.mesoscan-tmp.4999999.0",
+                 old = dir_ / ".out.mesoscan-old.4999999.1";
   fs::create_directories(tmp);
   fs::create_directories(old);
   std::ofstream(old / "a") << "old";

@@ -40,8 +40,8 @@ class ThreadLimit {
  public:
   explicit ThreadLimit(int n) {
     if (n > 0)
-      control_ = std::make_unique<tbb::global_control>(
-          tbb::global_control::max_allowed_parallelism, static_cast<size_t>(n));
+      control_ = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                       static_cast<size_t>(n));
   }
 
  private:

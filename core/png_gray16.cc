@@ -390,7 +390,8 @@ PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int hei
 
 bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uint16_t* out) {
   if (width <= 0 || height <= 0) return false;
-  return ReadPngGray16(path, [&](int w, int h, int) { return w == width && h == height ? out : nullptr; });
+  return ReadPngGray16(
+      path, [&](int w, int h, int) { return w == width && h == height ? out : nullptr; });
 }
 
 bool ReadPngGray16(const std::filesystem::path& path,

@@ -26,8 +26,8 @@ namespace mesoscan {
 bool ReadPngGray16(const std::filesystem::path& path, int width, int height, uint16_t* out);
 
 // The same at the size the file's IHDR declares: alloc(width, height, bit_depth) is called once
-// the file is read and returns where the width x height samples go (nullptr: not decoded here). So a
-// frame is decoded without opening it through OpenImageIO first (whose module is then never
+// the file is read and returns where the width x height samples go (nullptr: not decoded here). So
+// a frame is decoded without opening it through OpenImageIO first (whose module is then never
 // loaded, core/oiio_module.h).
 bool ReadPngGray16(const std::filesystem::path& path,
                    const std::function<uint16_t*(int width, int height, int bit_depth)>& alloc);
@@ -48,7 +48,7 @@ enum class PngGrayStatus {
   kDamaged,      // a checksum, length, filter or zlib stream is wrong, or the file is cut short
 };
 // `why` (optional) receives a short reason when the status is not kDecoded.
-PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int height,
-                            uint16_t* out, std::string* why = nullptr);
+PngGrayStatus DecodePngGray(const uint8_t* file, size_t size, int width, int height, uint16_t* out,
+                            std::string* why = nullptr);
 
 }  // namespace mesoscan

@@ -5,12 +5,12 @@
 #include "core/png_gray16.h"
 
 #include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
 #include <libdeflate.h>
 #include <unistd.h>
 
 #include <cstdio>
 #include <fstream>
-#include <gtest/gtest.h>
 #include <string>
 #include <vector>
 
@@ -45,10 +45,10 @@ int PaethRef(int a, int b, int c) {
 
 struct PngOptions {
   int depth = 16;
-  int filter = 0;           // 0-4 for every row; 5: row y uses filter y % 5
-  size_t idat_chunk = 0;    // split the zlib stream into IDATs of this many bytes (0: one)
-  bool ancillary = false;   // tEXt before and after the IDATs, oFFs before
-  uint8_t interlace = 0;    // written into IHDR only
+  int filter = 0;          // 0-4 for every row; 5: row y uses filter y % 5
+  size_t idat_chunk = 0;   // split the zlib stream into IDATs of this many bytes (0: one)
+  bool ancillary = false;  // tEXt before and after the IDATs, oFFs before
+  uint8_t interlace = 0;   // written into IHDR only
   uint8_t colour = 0;
 };
 
@@ -73,7 +73,11 @@ std::vector<uint8_t> EncodePng(int w, int h, const std::vector<uint16_t>& sample
     for (size_t i = 0; i < rowbytes; ++i) {
       const int a = i >= static_cast<size_t>(bpp) ? cur[i - bpp] : 0, b = prev[i];
       const int c = i >= static_cast<size_t>(bpp) ? prev[i - bpp] : 0;
-      const int pred = f == 0 ? 0 : f == 1 ? a : f == 2 ? b : f == 3 ? (a + b) / 2 : PaethRef(a, b, c);
+      const int pred = f == 0   ? 0
+                       : f == 1 ? a
+                       : f == 2 ? b
+                       : f == 3 ? (a + b) / 2
+                                : PaethRef(a, b, c);
       raw.push_back(static_cast<uint8_t>(cur[i] - pred));
     }
     prev = cur;
@@ -96,7 +100,8 @@ std::vector<uint8_t> EncodePng(int w, int h, const std::vector<uint16_t>& sample
   }
   const size_t step = o.idat_chunk ? o.idat_chunk : z.size();
   for (size_t i = 0; i < z.size(); i += step)
-    PutChunk(png, "IDAT", std::vector<uint8_t>(z.begin() + i, z.begin() + std::min(z.size(), i + step)));
+    PutChunk(png, "IDAT",
+             std::vector<uint8_t>(z.begin() + i, z.begin() + std::min(z.size(), i + step)));
   if (o.ancillary) PutChunk(png, "tEXt", text);
   PutChunk(png, "IEND", {});
   return png;
@@ -117,8 +122,9 @@ std::vector<uint16_t> Samples(int w, int h, int depth, uint32_t seed) {
 
 fs::path Write(const fs::path& dir, const std::string& name, const std::vector<uint8_t>& bytes) {
   const fs::path p = dir / name;
-  std::ofstream(p, std::ios::binary).write(reinterpret_cast<const char*>(bytes.data()),
-                                           static_cast<std::streamsize>(bytes.size()));
+  std::ofstream(p, std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()),
+             static_cast<std::streamsize>(bytes.size()));
   return p;
 }
 
@@ -204,7 +210,8 @@ TEST(PngGray16, DamagedFilesAreDeclinedAndOpenImageIoRefusesThem) {
                             bool oiio_refuses) {
     std::string why;
     EXPECT_EQ(DecodePngGray(bytes.data(), bytes.size(), w, h, out.data(), &why),
-              PngGrayStatus::kDamaged) << name;
+              PngGrayStatus::kDamaged)
+        << name;
     EXPECT_FALSE(why.empty()) << name;
     const fs::path p = Write(dir, name, bytes);
     EXPECT_FALSE(ReadPngGray16(p, w, h, out.data())) << name;
@@ -240,7 +247,8 @@ TEST(PngGray16, DamagedFilesAreDeclinedAndOpenImageIoRefusesThem) {
     PngOptions one = o;
     one.idat_chunk = 0;
     auto bad = EncodePng(w, h, samples, one);
-    const uint32_t len = (uint32_t{bad[idat]} << 24) | (bad[idat + 1] << 16) | (bad[idat + 2] << 8) | bad[idat + 3];
+    const uint32_t len =
+        (uint32_t{bad[idat]} << 24) | (bad[idat + 1] << 16) | (bad[idat + 2] << 8) | bad[idat + 3];
     uint8_t* adler = bad.data() + idat + 8 + len - 4;
     adler[3] ^= 0x01;
     const uint32_t crc = libdeflate_crc32(0, bad.data() + idat + 4, len + 4);

@@ -76,8 +76,7 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
       return;
     }
     const size_t dict = std::min(dict_bytes, kWindow);
-    if (dict > 0)
-      deflateSetDictionary(&z, raw.data() + dict_bytes - dict, static_cast<uInt>(dict));
+    if (dict > 0) deflateSetDictionary(&z, raw.data() + dict_bytes - dict, static_cast<uInt>(dict));
     p.deflated.resize(deflateBound(&z, n) + 64);
     z.next_in = const_cast<uint8_t*>(in);
     z.avail_in = static_cast<uInt>(n);
@@ -88,8 +87,8 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
       z.avail_out = static_cast<uInt>(p.deflated.size() - done);
       const int rc = deflate(&z, flush);
       done = p.deflated.size() - z.avail_out;
-      if (rc == Z_STREAM_END || (flush == Z_SYNC_FLUSH && rc == Z_OK && z.avail_out > 0 &&
-                                 z.avail_in == 0))
+      if (rc == Z_STREAM_END ||
+          (flush == Z_SYNC_FLUSH && rc == Z_OK && z.avail_out > 0 && z.avail_in == 0))
         break;
       if (rc != Z_OK && rc != Z_BUF_ERROR) {
         p.error = "zlib deflate failed";
@@ -101,7 +100,8 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
     deflateEnd(&z);
   });
   for (const Piece& p : out)
-    if (!p.error.empty()) MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << p.error << ")");
+    if (!p.error.empty())
+      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << p.error << ")");
 
   // The file: signature, IHDR, the zlib stream (header, pieces, Adler-32) as IDAT chunks, IEND.
   std::vector<uint8_t> head = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
@@ -116,14 +116,16 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
   unsigned cmf_flg = 0x78 * 256 + (flevel << 6);
   cmf_flg += 31 - cmf_flg % 31;
   uLong adler = 1;
-  for (const Piece& p : out) adler = ::adler32_combine(adler, p.adler, static_cast<z_off_t>(p.raw_size));
+  for (const Piece& p : out)
+    adler = ::adler32_combine(adler, p.adler, static_cast<z_off_t>(p.raw_size));
   std::vector<uint8_t> zhead = {static_cast<uint8_t>(cmf_flg >> 8), static_cast<uint8_t>(cmf_flg)};
   std::vector<uint8_t> ztail;
   PutBe32(&ztail, static_cast<uint32_t>(adler));
 
   WriteAtomically(path, [&](const std::filesystem::path& tmp) {
     std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(tmp.c_str(), "wb"), &std::fclose);
-    if (!f) MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << std::strerror(errno) << ")");
+    if (!f)
+      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << std::strerror(errno) << ")");
     bool ok = std::fwrite(head.data(), 1, head.size(), f.get()) == head.size();
     // One IDAT per piece (the zlib header rides in the first, the Adler-32 in the last): each
     // chunk's CRC covers its own bytes, computed here (~1 ms per MB).
@@ -152,7 +154,8 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
     PutChunk(&tail, "IEND", nullptr, 0);
     ok = ok && std::fwrite(tail.data(), 1, tail.size(), f.get()) == tail.size();
     ok = std::fclose(f.release()) == 0 && ok;
-    if (!ok) MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << std::strerror(errno) << ")");
+    if (!ok)
+      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << std::strerror(errno) << ")");
   });
 }
 

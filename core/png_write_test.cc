@@ -4,8 +4,8 @@
 #include "core/png_write.h"
 
 #include <OpenImageIO/imageio.h>
-
 #include <gtest/gtest.h>
+
 #include <random>
 #include <vector>
 
@@ -41,9 +41,10 @@ TEST(PngWrite, DecodesToTheSameSamples) {
     bool noise;
   };
   // 1001 x 3 x 3 bytes: ~87 rows a piece, so 300 rows make 4 pieces, the last one short.
-  for (const Case& k : {Case{1, 1, 1, 1, true}, Case{17, 1, 3, 1, true}, Case{1001, 300, 3, 1, true},
-                        Case{1001, 300, 3, 9, true}, Case{640, 700, 4, 0, true},
-                        Case{333, 999, 2, 1, true}, Case{2000, 500, 1, 6, false}}) {
+  for (const Case& k :
+       {Case{1, 1, 1, 1, true}, Case{17, 1, 3, 1, true}, Case{1001, 300, 3, 1, true},
+        Case{1001, 300, 3, 9, true}, Case{640, 700, 4, 0, true}, Case{333, 999, 2, 1, true},
+        Case{2000, 500, 1, 6, false}}) {
     ImageU8 im(k.w, k.h, k.nc);
     for (auto& v : im.data()) v = k.noise ? static_cast<uint8_t>(rng() & 0x3f) : 200;
     const fs::path path = dir / "map.png";

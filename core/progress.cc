@@ -33,8 +33,7 @@ void Progress::Advance(int64_t n) {
 }
 
 void Progress::Draw(int64_t done, bool final_line) {
-  const double s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   const double frac = done >= total_ ? 1.0 : static_cast<double>(done) / total_;
   if (tty_) {
     constexpr int kWidth = 30;

@@ -22,13 +22,15 @@ std::map<std::string, double> GridAttributes(const HeightField& hf) {
 void ReadGridAttributes(const fs::path& path, const std::map<std::string, double>& attrs,
                         HeightField* hf) {
   for (const char* key : {kAttrX0, kAttrY0, kAttrPixelSize}) {
-    if (!attrs.count(key)) MESOSCAN_BAD_INPUT(path.string() << ": missing header attribute '" << key << "'");
+    if (!attrs.count(key))
+      MESOSCAN_BAD_INPUT(path.string() << ": missing header attribute '" << key << "'");
   }
   hf->x0 = attrs.at(kAttrX0);
   hf->y0 = attrs.at(kAttrY0);
   hf->pixel_size = attrs.at(kAttrPixelSize);
   if (!(hf->pixel_size > 0) || !std::isfinite(hf->pixel_size))
-    MESOSCAN_BAD_INPUT(path.string() << ": header attribute '" << kAttrPixelSize << "': expected a positive number");
+    MESOSCAN_BAD_INPUT(path.string() << ": header attribute '" << kAttrPixelSize
+                                     << "': expected a positive number");
 }
 
 ImageF Plane(const ImageF& all, int c0, int n) {
@@ -92,16 +94,17 @@ void WriteScanFolder(const fs::path& dir, const Scan& scan) {
     tbb::parallel_invoke([&] { WritePointsExr(tmp / "points.exr", scan.points); },
                          [&] { WriteHeightExr(tmp / "height.exr", scan.height); },
                          [&] {
-                           WriteNormalExr(tmp / "normal.exr", scan.height,
-                                          scan.normals.empty() ? scan.height.Normals()
-                                                               : scan.normals);
+                           WriteNormalExr(
+                               tmp / "normal.exr", scan.height,
+                               scan.normals.empty() ? scan.height.Normals() : scan.normals);
                          });
     WriteJsonFile(tmp / "report.json", scan.report);
   });
 }
 
 Scan ReadScanFolder(const fs::path& dir) {
-  if (!fs::is_directory(dir)) MESOSCAN_BAD_INPUT(dir.string() << ": not a scan folder (no such directory)");
+  if (!fs::is_directory(dir))
+    MESOSCAN_BAD_INPUT(dir.string() << ": not a scan folder (no such directory)");
   Scan s;
   s.points = ReadPointsExr(dir / "points.exr");
   s.height = ReadHeightExr(dir / "height.exr");

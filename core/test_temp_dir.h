@@ -35,8 +35,9 @@ inline void RemoveAtExit(const std::filesystem::path& path) {
 // <temp>/mesoscan_<suite>_<pid>_<name>, removed now if a stale one exists and again at exit;
 // not created (for outputs that must not exist yet).
 inline std::filesystem::path TestTempPath(const std::string& suite, const std::string& name) {
-  const std::filesystem::path p = std::filesystem::temp_directory_path() /
-                                  ("mesoscan_" + suite + "_" + std::to_string(getpid()) + "_" + name);
+  const std::filesystem::path p =
+      std::filesystem::temp_directory_path() /
+      ("mesoscan_" + suite + "_" + std::to_string(getpid()) + "_" + name);
   std::error_code ec;
   std::filesystem::remove_all(p, ec);
   RemoveAtExit(p);

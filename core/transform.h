@@ -24,9 +24,7 @@ struct Rigid3d {
   Rigid3d operator*(const Rigid3d& o) const {
     return {rotation * o.rotation, rotation * o.translation + translation};
   }
-  Rigid3d Inverse() const {
-    return {rotation.transpose(), -(rotation.transpose() * translation)};
-  }
+  Rigid3d Inverse() const { return {rotation.transpose(), -(rotation.transpose() * translation)}; }
   Mat4d Matrix() const {
     Mat4d m = Mat4d::Identity();
     m.topLeftCorner<3, 3>() = rotation;

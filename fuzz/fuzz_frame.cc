@@ -32,7 +32,8 @@ void CheckPngFastPath(const std::filesystem::path& path, const mesoscan::ImageIn
   const long mul = info.bits_per_sample == 8 ? 257 : 1;
   for (size_t i = 0; i < fast.size(); ++i)
     if (std::lround(ref.data()[i] * scale) * mul != fast[i]) {
-      std::fprintf(stderr, "fuzz finding: the PNG fast path gives %d at sample %zu, OpenImageIO %g\n",
+      std::fprintf(stderr,
+                   "fuzz finding: the PNG fast path gives %d at sample %zu, OpenImageIO %g\n",
                    fast[i], i, ref.data()[i] * scale);
       std::abort();
     }

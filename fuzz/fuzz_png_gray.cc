@@ -14,7 +14,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   int w = 7, h = 3;
   if (size >= 24) {
     auto be32 = [&](size_t o) {
-      return (uint32_t{data[o]} << 24) | (uint32_t{data[o + 1]} << 16) | (uint32_t{data[o + 2]} << 8) | data[o + 3];
+      return (uint32_t{data[o]} << 24) | (uint32_t{data[o + 1]} << 16) |
+             (uint32_t{data[o + 2]} << 8) | data[o + 3];
     };
     const uint32_t fw = be32(16), fh = be32(20);
     if (fw > 0 && fh > 0 && fw <= (1u << 22) && fh <= (1u << 22) &&

@@ -1,6 +1,6 @@
 // libFuzzer: the session parser (session/session.h ReadSession) on arbitrary session.json bytes.
-#include "session/session.h"
 #include "fuzz/fuzz_util.h"
+#include "session/session.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace mesoscan;

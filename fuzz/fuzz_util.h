@@ -23,7 +23,8 @@ inline std::filesystem::path WorkDir() {
   struct Folder {
     std::filesystem::path path;
     Folder()
-        : path(std::filesystem::temp_directory_path() / ("mesoscan_fuzz_" + std::to_string(getpid()))) {
+        : path(std::filesystem::temp_directory_path() /
+               ("mesoscan_fuzz_" + std::to_string(getpid()))) {
       std::filesystem::create_directories(path);
     }
     ~Folder() {

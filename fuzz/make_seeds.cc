@@ -5,9 +5,9 @@
 #include <fstream>
 #include <string>
 
+#include "core/json.h"
 #include "session/patterns.h"
 #include "session/session.h"
-#include "core/json.h"
 
 namespace fs = std::filesystem;
 using namespace mesoscan;

@@ -1,7 +1,6 @@
 #include "heightfield/frame_corrections.h"
 
 #include <Eigen/Dense>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -118,9 +117,12 @@ constexpr int kBlockPixels = 256;
 
 const char* FrameGainMethodName(FrameGainMethod m) {
   switch (m) {
-    case FrameGainMethod::kJoint: return "joint";
-    case FrameGainMethod::kAlternating: return "als";
-    case FrameGainMethod::kFrameMeans: return "means";
+    case FrameGainMethod::kJoint:
+      return "joint";
+    case FrameGainMethod::kAlternating:
+      return "als";
+    case FrameGainMethod::kFrameMeans:
+      return "means";
   }
   return "?";
 }
@@ -152,9 +154,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
   FrameCorrections out;
   out.gains = initial_gains;
   out.positions_px.assign(std::max(nk, 0), 0.0);
-  if (nk < 8 || static_cast<int>(x.size()) != nk ||
-      static_cast<int>(initial_gains.size()) != nk || freq.empty() ||
-      samples.size() != freq.size() * static_cast<size_t>(nk))
+  if (nk < 8 || static_cast<int>(x.size()) != nk || static_cast<int>(initial_gains.size()) != nk ||
+      freq.empty() || samples.size() != freq.size() * static_cast<size_t>(nk))
     return out;
   const bool est_g = options.estimate_gains, est_d = options.estimate_positions;
   if (!est_g && !est_d) return out;
@@ -168,7 +169,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     for (int j = 0; j < n_all; j += stride) {
       if (!std::isfinite(freq[j]) || freq[j] == 0) continue;
       bool ok = true;
-      for (int k = 0; k < nk && ok; ++k) ok = std::isfinite(samples[static_cast<size_t>(j) * nk + k]);
+      for (int k = 0; k < nk && ok; ++k)
+        ok = std::isfinite(samples[static_cast<size_t>(j) * nk + k]);
       if (ok) p.pix.push_back(j);
     }
   }
@@ -454,11 +456,10 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
       n_ref += ok;
     }
   }
-  const int n_nuis =
-      (reference && reference->nuisance_per_pixel > 0 &&
-       reference->nuisance.size() == freq.size() * reference->nuisance_per_pixel)
-          ? reference->nuisance_per_pixel
-          : 0;
+  const int n_nuis = (reference && reference->nuisance_per_pixel > 0 &&
+                      reference->nuisance.size() == freq.size() * reference->nuisance_per_pixel)
+                         ? reference->nuisance_per_pixel
+                         : 0;
   constexpr int kMinReferencePixels = 200;
   const bool use_reference = n_ref >= kMinReferencePixels + 10 * n_nuis;
   auto in_band_from_reference = [&](std::vector<double>* g_io, const std::vector<double>& dd) {
@@ -627,8 +628,8 @@ FrameCorrections EstimateFrameCorrections(const std::vector<float>& samples, int
     if (!stopped && std::isfinite(c_b) && relevant && (!est_g || c_a - c_b > needed)) {
       g = std::move(gb);
       delta = std::move(db);
-      out.model = est_g ? (use_reference ? "gains+reference+positions" : "gains+positions")
-                        : "positions";
+      out.model =
+          est_g ? (use_reference ? "gains+reference+positions" : "gains+positions") : "positions";
     } else {
       out.in_band_pixels = after_a.in_band_pixels;
       out.in_band_correction[0] = after_a.in_band_correction[0];
@@ -731,9 +732,8 @@ std::vector<double> FrameMeanGains(const FrameStack& stack, const std::vector<in
 }
 
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
-                                        const FirstPassFits& first,
-                                        const FrequencyAt& f_map, std::vector<double>* x,
-                                        std::vector<float>* inv_gain,
+                                        const FirstPassFits& first, const FrequencyAt& f_map,
+                                        std::vector<double>* x, std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
                                         const PhaseReference* reference) {
   if (reference && !reference->empty() && options.method == FrameGainMethod::kJoint &&

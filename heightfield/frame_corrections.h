@@ -55,7 +55,7 @@ struct FrameCorrectionOptions {
   FrameGainMethod method = FrameGainMethod::kJoint;
   bool estimate_gains = true;
   bool estimate_positions = true;
-  int iterations = 6;      // Gauss-Newton iterations, >= 1
+  int iterations = 6;  // Gauss-Newton iterations, >= 1
   // With gains: stop the position model after its first Gauss-Newton step where that step
   // predicts a drop of the objective too small for the model to be chosen (a score test; the
   // prediction is then FrameCorrections::position_chi2_gain). false: always solved in full.
@@ -99,8 +99,8 @@ struct FrameCorrectionOptions {
 // the lens-shift frames' gains, which is what makes the in-band part of the gain jitter
 // identifiable (see EstimateFrameCorrections). Built by stage_gains.h MakePhaseReference.
 struct PhaseReference {
-  std::vector<uint32_t> pixels;  // stack pixels
-  std::vector<float> u_px;       // projector coordinate along the decoded axis, px
+  std::vector<uint32_t> pixels;   // stack pixels
+  std::vector<float> u_px;        // projector coordinate along the decoded axis, px
   std::vector<float> sigma_u_px;  // its predicted standard deviation, px
   // The phase-shift frames' own gain errors move u by a sinusoid of each period's phase (first
   // harmonic, scaled by offset / modulation, and second harmonic): per pixel, nuisance[q *
@@ -109,7 +109,7 @@ struct PhaseReference {
   // bias them.
   int nuisance_per_pixel = 0;
   std::vector<float> nuisance;
-  double ls_centre_px = 0.0;     // the lens-shift positions' centre (the fit's x = 0), px
+  double ls_centre_px = 0.0;  // the lens-shift positions' centre (the fit's x = 0), px
   // The lens-shift frames' samples at `pixels`, if the stream stage gathered them while the
   // frames decoded (else empty): CorrectLensShiftFrames reads them instead of the stack.
   GatheredSamples samples;
@@ -122,7 +122,7 @@ struct PhaseReference {
 struct PhaseConstraint {
   std::vector<double> phase;
   std::vector<double> sigma;
-  int nuisance_per_pixel = 0;   // PhaseReference::nuisance, per pixel of phase
+  int nuisance_per_pixel = 0;  // PhaseReference::nuisance, per pixel of phase
   std::vector<float> nuisance;
 };
 
@@ -138,8 +138,8 @@ struct FrameCorrections {
   // where that stopped them, FrameCorrectionOptions::stop_position_model_early).
   double position_chi2_gain = 0.0;
   bool position_model_stopped = false;  // ... stopped after its first step (a score test)
-  double view_residual_stripe = 0.0;  // see FrameCorrectionOptions::max_residual_stripe
-  bool valid = false;  // false: the starting gains and zero positions are returned
+  double view_residual_stripe = 0.0;    // see FrameCorrectionOptions::max_residual_stripe
+  bool valid = false;                   // false: the starting gains and zero positions are returned
   double position_rms_px = 0.0;
   // The in-band gain components set from the phase-shift reference (PhaseConstraint): the
   // pixels used, the correction applied in the last round (relative gain along cos / sin of
@@ -205,9 +205,8 @@ struct FirstPassFits {
 // too few usable reference pixels (200 + 10 per nuisance parameter), as before: frame means
 // where the view's residual stripe allows, else the given gains kept.
 FrameCorrections CorrectLensShiftFrames(const FrameStack& stack, const std::vector<int>& frames,
-                                        const FirstPassFits& first,
-                                        const FrequencyAt& f_map, std::vector<double>* x,
-                                        std::vector<float>* inv_gain,
+                                        const FirstPassFits& first, const FrequencyAt& f_map,
+                                        std::vector<double>* x, std::vector<float>* inv_gain,
                                         const FrameCorrectionOptions& options,
                                         const PhaseReference* reference = nullptr);
 

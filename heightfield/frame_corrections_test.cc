@@ -115,9 +115,10 @@ TEST(FrameCorrections, GainJitterToTheFloor) {
   const double e_none = PhaseRms(s, ones, zero), e_means = PhaseRms(s, means, zero),
                e_joint = PhaseRms(s, fc.gains, zero), e_true = PhaseRms(s, s.g, zero),
                e_clean = PhaseRms(clean, ones, zero);
-  std::printf("phase RMS (rad): no gains %.5f, frame means %.5f, joint %.5f, true gains %.5f, "
-              "no jitter %.5f\n",
-              e_none, e_means, e_joint, e_true, e_clean);
+  std::printf(
+      "phase RMS (rad): no gains %.5f, frame means %.5f, joint %.5f, true gains %.5f, "
+      "no jitter %.5f\n",
+      e_none, e_means, e_joint, e_true, e_clean);
   double gm = 0;
   for (double v : s.g) gm += v / s.nk;
   double ge = 0;
@@ -158,9 +159,10 @@ TEST(FrameCorrections, PositionErrorsUpToAnAffineMap) {
   for (int k = 0; k < s.nk; ++k) est[k] += s.delta[k] - truth[k];
   const double e_est = PhaseRms(s, fc.gains, est), e_true = PhaseRms(s, s.g, s.delta),
                e_nominal = PhaseRms(s, fc.gains, zero);
-  std::printf("phase RMS: nominal positions %.5f, estimated %.5f, true %.5f, true positions "
-              "with the estimated gains %.5f\n",
-              e_nominal, e_est, e_true, PhaseRms(s, fc.gains, s.delta));
+  std::printf(
+      "phase RMS: nominal positions %.5f, estimated %.5f, true %.5f, true positions "
+      "with the estimated gains %.5f\n",
+      e_nominal, e_est, e_true, PhaseRms(s, fc.gains, s.delta));
   // The in-band part of the gain jitter (0.5% here) cannot be told from in-band position errors
   // (see frame_corrections.cc) and stays at its start: ~6% above the truth in this setting.
   EXPECT_LE(e_est, 1.10 * e_true);
@@ -246,11 +248,12 @@ TEST(FrameCorrections, InBandGainsFromAPhaseReference) {
   ASSERT_TRUE(frozen.valid);
   EXPECT_EQ(with_ref.model, "gains+reference");
   EXPECT_GT(with_ref.in_band_pixels, 3500);
-  const double e_ref = PhaseRms(s, with_ref.gains, zero), e_frozen = PhaseRms(s, frozen.gains, zero),
-               e_true = PhaseRms(s, s.g, zero);
-  std::printf("phase RMS (rad): reference %.5f, in-band held at 1 %.5f, true gains %.5f; in-band "
-              "sigma %.1e\n",
-              e_ref, e_frozen, e_true, with_ref.in_band_sigma);
+  const double e_ref = PhaseRms(s, with_ref.gains, zero),
+               e_frozen = PhaseRms(s, frozen.gains, zero), e_true = PhaseRms(s, s.g, zero);
+  std::printf(
+      "phase RMS (rad): reference %.5f, in-band held at 1 %.5f, true gains %.5f; in-band "
+      "sigma %.1e\n",
+      e_ref, e_frozen, e_true, with_ref.in_band_sigma);
   // Tolerance from the estimate's own noise: an in-band gain error eps adds (d / a) eps / sqrt 2
   // RMS to a pixel's phase; allowed: 2 in_band_sigma (the ideal would be unbiased and at sigma).
   double da2 = 0;
@@ -263,7 +266,8 @@ TEST(FrameCorrections, InBandGainsFromAPhaseReference) {
   // Too few reference pixels: nothing from the reference (the caller falls back).
   PhaseConstraint few = pc;
   for (size_t j = 100; j < few.phase.size(); ++j) few.phase[j] = std::nan("");
-  const FrameCorrections none = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o, &few);
+  const FrameCorrections none =
+      EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, o, &few);
   EXPECT_EQ(none.in_band_pixels, 0);
   EXPECT_EQ(none.model, "gains");
 }
@@ -290,21 +294,26 @@ TEST(FrameCorrections, InBandReferenceNoiseIsShrunkWithoutJitter) {
       pc.phase.push_back(s.phase[j] + 0.3 + 0.1 * nd(rng));
       pc.sigma.push_back(0.1);
     }
-    const FrameCorrections a = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, shrunk, &pc);
-    const FrameCorrections b = EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, full, &pc);
+    const FrameCorrections a =
+        EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, shrunk, &pc);
+    const FrameCorrections b =
+        EstimateFrameCorrections(s.samples, s.nk, s.freq, s.x, ones, full, &pc);
     ASSERT_TRUE(a.valid);
     ASSERT_TRUE(b.valid);
     ASSERT_GT(a.in_band_pixels, 0);
     EXPECT_EQ(b.in_band_shrink, 1.0);
     EXPECT_GE(a.in_band_shrink, 0.0);
     EXPECT_LE(a.in_band_shrink, 1.0);
-    ms_shrunk += (std::pow(a.in_band_correction[0], 2) + std::pow(a.in_band_correction[1], 2)) / kDraws;
-    ms_full += (std::pow(b.in_band_correction[0], 2) + std::pow(b.in_band_correction[1], 2)) / kDraws;
+    ms_shrunk +=
+        (std::pow(a.in_band_correction[0], 2) + std::pow(a.in_band_correction[1], 2)) / kDraws;
+    ms_full +=
+        (std::pow(b.in_band_correction[0], 2) + std::pow(b.in_band_correction[1], 2)) / kDraws;
     predicted += 2 * b.in_band_sigma * b.in_band_sigma / kDraws;
   }
-  std::printf("in-band correction without jitter, RMS over %d draws: shrunk %.2e, full %.2e "
-              "(predicted %.2e)\n",
-              kDraws, std::sqrt(ms_shrunk), std::sqrt(ms_full), std::sqrt(predicted));
+  std::printf(
+      "in-band correction without jitter, RMS over %d draws: shrunk %.2e, full %.2e "
+      "(predicted %.2e)\n",
+      kDraws, std::sqrt(ms_shrunk), std::sqrt(ms_full), std::sqrt(predicted));
   EXPECT_GT(ms_full, 0.6 * predicted);
   EXPECT_LT(ms_full, 1.5 * predicted);
   EXPECT_LT(ms_shrunk, 0.5 * ms_full);

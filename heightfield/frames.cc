@@ -8,7 +8,6 @@
 #include <cstring>
 #include <string_view>
 
-#include "session/raw_frame.h"
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
@@ -17,6 +16,7 @@
 #include "core/progress.h"
 #include "core/robust_stats.h"
 #include "core/simd_clones.h"
+#include "session/raw_frame.h"
 
 namespace mesoscan {
 namespace {
@@ -35,9 +35,9 @@ struct DecodedFrame {
   int width = 0, height = 0, channels = 0;
   bool is_float = false;
   bool eight_bit = false;
-  bool direct = false;        // decoded into the caller's buffer (u16 left empty)
-  FrameSamples u16;           // interleaved
-  std::vector<float> f32;     // interleaved
+  bool direct = false;     // decoded into the caller's buffer (u16 left empty)
+  FrameSamples u16;        // interleaved
+  std::vector<float> f32;  // interleaved
 };
 
 // Decodes a frame. `direct` (optional): where a single-channel integer frame is stored as it is
@@ -124,7 +124,9 @@ void MarkAtLeast(const uint16_t* src, size_t n, uint16_t code, Mark&& mark) {
 }
 
 // Colour channels averaged (an alpha channel, 2nd of 2 or 4th of 4, ignored).
-int ColourChannels(int channels) { return (channels == 2 || channels == 4) ? channels - 1 : channels; }
+int ColourChannels(int channels) {
+  return (channels == 2 || channels == 4) ? channels - 1 : channels;
+}
 
 }  // namespace
 
@@ -153,7 +155,8 @@ void FrameStack::Gather(int k, size_t i0, size_t n, float* out) const {
 void FrameStack::Merge(FrameStack&& o) {
   if (o.width_ != width_ || o.height_ != height_ || o.is_float_ != is_float_ ||
       o.session_frames_ != session_frames_)
-    MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal, "FrameStack::Merge: stacks of different frames, sizes or storage");
+    MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal,
+                   "FrameStack::Merge: stacks of different frames, sizes or storage");
   for (int k = 0; k < num_frames(); ++k) {
     if (is_float_) {
       if (raw_float_[k].empty()) raw_float_[k] = std::move(o.raw_float_[k]);
@@ -185,16 +188,17 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
                       const FrameLoadOptions& options, const std::vector<uint8_t>* decode_only) {
   options.Check();
   if (decode_only && decode_only->size() != frame_indices.size())
-    MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal, "LoadFrames: decode_only has " << decode_only->size() << " entries for "
-                                                     << frame_indices.size() << " frames");
+    MESOSCAN_THROW(::mesoscan::ErrorKind::kInternal, "LoadFrames: decode_only has "
+                                                         << decode_only->size() << " entries for "
+                                                         << frame_indices.size() << " frames");
   auto decoded = [&](size_t k) { return !decode_only || (*decode_only)[k]; };
   const PinholeCamera& cam = session.rig.camera;
   FrameStack s;
   s.roi_ = ClipRoi(options.roi, cam.width, cam.height);
   if (s.roi_.w <= 0 || s.roi_.h <= 0)
     MESOSCAN_BAD_INPUT("roi: " << options.roi.x << "," << options.roi.y << "," << options.roi.w
-                               << "," << options.roi.h << " does not overlap the "
-                               << cam.width << "x" << cam.height << " camera image");
+                               << "," << options.roi.h << " does not overlap the " << cam.width
+                               << "x" << cam.height << " camera image");
   s.width_ = s.roi_.w;
   s.height_ = s.roi_.h;
   s.session_frames_ = frame_indices;
@@ -220,8 +224,8 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
   else
     s.raw_.assign(nf, {});
 
-  const uint16_t sat_code = static_cast<uint16_t>(
-      std::min(65535.0, std::floor(options.saturation_level * 65535.0)));
+  const uint16_t sat_code =
+      static_cast<uint16_t>(std::min(65535.0, std::floor(options.saturation_level * 65535.0)));
   std::atomic<int> eight_bit{0};
   // 1 where any frame saturates; frames decoded in parallel mark it through relaxed atomic
   // stores (only saturated samples write, so this costs nothing on well exposed frames).
@@ -239,16 +243,15 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
       const auto path = session.FramePath(f);
       const std::string label = path.string() + ": frames[" + std::to_string(f) + "]";
       // A grey integer frame covering the whole ROI decodes straight into the stack (no copy).
-      FrameSamples* direct =
-          (!any_float && s.roi_.x == 0 && s.roi_.y == 0 && s.roi_.w == cam.width &&
-           s.roi_.h == cam.height)
-              ? &s.raw_[k]
-              : nullptr;
+      FrameSamples* direct = (!any_float && s.roi_.x == 0 && s.roi_.y == 0 &&
+                              s.roi_.w == cam.width && s.roi_.h == cam.height)
+                                 ? &s.raw_[k]
+                                 : nullptr;
       DecodedFrame d = Decode(path, label, direct);
       if (d.width != cam.width || d.height != cam.height)
         MESOSCAN_BAD_INPUT(label << ": size " << d.width << "x" << d.height
-                                 << ", expected camera.width x camera.height = " << cam.width
-                                 << "x" << cam.height);
+                                 << ", expected camera.width x camera.height = " << cam.width << "x"
+                                 << cam.height);
       if (d.is_float && !any_float)  // not a PNG after all
         MESOSCAN_BAD_INPUT(label << ": a floating-point image in a file named .png");
       if (d.eight_bit) eight_bit.fetch_add(1);

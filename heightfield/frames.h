@@ -14,9 +14,9 @@
 #include <utility>
 #include <vector>
 
-#include "session/session.h"
 #include "core/image.h"
 #include "core/rect.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
@@ -92,8 +92,10 @@ class FrameStack {
   // that reads it); Gather / Value must not be called for it afterwards.
   void Release(int k) {
     if (k < 0 || k >= num_frames()) return;
-    if (is_float_) std::vector<float>().swap(raw_float_[k]);
-    else FrameSamples().swap(raw_[k]);
+    if (is_float_)
+      std::vector<float>().swap(raw_float_[k]);
+    else
+      FrameSamples().swap(raw_[k]);
   }
   // Moves in the frames that `other` (a stack of the same frame list, ROI and storage, loaded
   // with the complementary decode_only mask) holds and this one does not, and adds its saturated
@@ -132,13 +134,12 @@ class FrameStack {
 };
 
 // Decodes frames `frame_indices` of `session` in parallel (TBB, a progress bar "decode frames"),
-// grey (colour averaged), cropped to the ROI. Throws Error naming the frame on an unreadable file or
-// a size other than camera.width x camera.height. Float (EXR) frames are kept as float; a session
-// mixing float and integer frames is converted to float throughout.
-// decode_only (if given, one entry per frame_indices entry): only frames with a non-zero entry
-// are decoded, the others are left empty (as Release does) and do not count for saturated();
-// Merge then joins two such stacks (the driver decodes the lens-shift frames while it works on
-// the others).
+// grey (colour averaged), cropped to the ROI. Throws Error naming the frame on an unreadable file
+// or a size other than camera.width x camera.height. Float (EXR) frames are kept as float; a
+// session mixing float and integer frames is converted to float throughout. decode_only (if given,
+// one entry per frame_indices entry): only frames with a non-zero entry are decoded, the others are
+// left empty (as Release does) and do not count for saturated(); Merge then joins two such stacks
+// (the driver decodes the lens-shift frames while it works on the others).
 FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indices,
                       const FrameLoadOptions& options,
                       const std::vector<uint8_t>* decode_only = nullptr);
@@ -150,7 +151,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
 // relative residual is not an outlier (> median + 4 MAD). Returns g normalised to mean 1.
 // Gain patterns the per-pixel model can (nearly) absorb are left near 1 on purpose (see .cc).
 struct GainModel {
-  std::vector<int> frames;         // stack frame indices of the group
+  std::vector<int> frames;                  // stack frame indices of the group
   std::vector<std::vector<double>> design;  // design[k][p] for frame frames[k]
 };
 std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel& model,

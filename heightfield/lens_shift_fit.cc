@@ -20,9 +20,9 @@
 #endif
 
 #include "core/error.h"
+#include "core/fast_atan.h"
 #include "core/numbers.h"
 #include "core/simd_clones.h"
-#include "core/fast_atan.h"
 
 namespace mesoscan {
 namespace {
@@ -413,8 +413,8 @@ struct Objective {
   // J''' where it was evaluated at eps' = 0 with derivatives (the start: Halley's first step),
   // else NaN.
   double j3 = std::numeric_limits<double>::quiet_NaN();
-  double c[3] = {0, 0, 0};       // coefficients of (cos, sin, 1) at eps'
-  double dc[3] = {0, 0, 0};      // their eps' derivatives (with `derivatives` only)
+  double c[3] = {0, 0, 0};   // coefficients of (cos, sin, 1) at eps'
+  double dc[3] = {0, 0, 0};  // their eps' derivatives (with `derivatives` only)
   bool ok = false;
 };
 
@@ -602,10 +602,18 @@ void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder +
   for (int m = 0; m < kRows / 2; ++m) {
     const double re = kInvFact[m] * w(2 * m), im = kInvFact[m] * w(2 * m + 1);
     switch (m & 3) {
-      case 0: (*z_coef)[m] = Cd(re, im); break;
-      case 1: (*z_coef)[m] = Cd(-im, re); break;
-      case 2: (*z_coef)[m] = Cd(-re, -im); break;
-      default: (*z_coef)[m] = Cd(im, -re); break;
+      case 0:
+        (*z_coef)[m] = Cd(re, im);
+        break;
+      case 1:
+        (*z_coef)[m] = Cd(-im, re);
+        break;
+      case 2:
+        (*z_coef)[m] = Cd(-re, -im);
+        break;
+      default:
+        (*z_coef)[m] = Cd(im, -re);
+        break;
     }
   }
 }
@@ -614,16 +622,15 @@ void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder +
 
 namespace {
 
-
 // w[r] = sum_k basis_km[k * 4 kVec + r] y_k, y0 = sum_k y_k, y2 = sum_k y_k^2 with
 // y_k = b[k] - mean in double: the moments of the centred profile (two sets of accumulators
 // for even and odd k, added at the end; y0 and y2 in a second, 4-wide loop, which keeps the
 // first one within the 16 vector registers).
 template <int kVec>
 inline __attribute__((always_inline)) void AccumulateMomentsT(const double* basis_km,
-                                                               const float* b, int n,
-                                                               double mean, double* w,
-                                                               double* y0_out, double* y2_out) {
+                                                              const float* b, int n, double mean,
+                                                              double* w, double* y0_out,
+                                                              double* y2_out) {
   constexpr int kRows = 4 * kVec;
   const V4d zero = {0, 0, 0, 0};
   V4d acc0[kVec], acc1[kVec];
@@ -695,18 +702,26 @@ void ZCoefficients(const double* w, int rows, std::array<Cd, kOrder + 1>* z_coef
     }
     const double re = inv_fact * w[2 * m], im = inv_fact * w[2 * m + 1];
     switch (m & 3) {
-      case 0: (*z_coef)[m] = Cd(re, im); break;
-      case 1: (*z_coef)[m] = Cd(-im, re); break;
-      case 2: (*z_coef)[m] = Cd(-re, -im); break;
-      default: (*z_coef)[m] = Cd(im, -re); break;
+      case 0:
+        (*z_coef)[m] = Cd(re, im);
+        break;
+      case 1:
+        (*z_coef)[m] = Cd(-im, re);
+        break;
+      case 2:
+        (*z_coef)[m] = Cd(-re, -im);
+        break;
+      default:
+        (*z_coef)[m] = Cd(im, -re);
+        break;
     }
   }
 }
 
 // The kFast fit of one all-finite profile b (n samples, gathered contiguously).
 template <typename Scalar>
-LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, float mean,
-                     double f0, double f_start, const LensShiftFitOptions& options, Scalar* y) {
+LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, float mean, double f0,
+                     double f_start, const LensShiftFitOptions& options, Scalar* y) {
   const int n = t.n;
   const int p = options.fit_frequency ? 4 : 3;
   if (n < p) return InvalidFit(n, f0);
@@ -724,9 +739,7 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
   }
   const double two_pi_x = kTwoPi * t.x_scale;
   // Grid point nearest to the starting frequency.
-  auto nearest = [&](double f) {
-    return static_cast<int>(std::nearbyint((f - f0) / t.h));
-  };
+  auto nearest = [&](double f) { return static_cast<int>(std::nearbyint((f - f0) / t.h)); };
   int j = nearest(f_start);
   if (std::abs(j) > t.grid_half) return InvalidFit(n, f0);
   double eps = two_pi_x * (f_start - (f0 + j * t.h));
@@ -823,8 +836,9 @@ LensShiftFit FastFit(const LensShiftBatchFitter::Tables& t, const float* b, floa
       // Re-centre the Taylor expansion on the grid point nearest to the current frequency.
       const double f = f0 + j * t.h + eps / two_pi_x;
       const int jn = nearest(f);
-      if (std::abs(jn) > t.grid_half) return Finalize(0, 0, f, mean, 0, n, iterations, false, f0,
-                                                      options);  // frequency out of range
+      if (std::abs(jn) > t.grid_half)
+        return Finalize(0, 0, f, mean, 0, n, iterations, false, f0,
+                        options);  // frequency out of range
       j = jn;
       eps = two_pi_x * (f - (f0 + j * t.h));
       moments(j);
@@ -863,11 +877,11 @@ struct LaneInput {
 };
 
 struct LaneOutput {
-  double c[3][4];        // (a sin phi, a cos phi, d - mean) per lane
-  double j[4], y2[4];    // projected energy and sum of squared centred samples
-  double eps[4];         // final eps' (grid point 0)
+  double c[3][4];      // (a sin phi, a cos phi, d - mean) per lane
+  double j[4], y2[4];  // projected energy and sum of squared centred samples
+  double eps[4];       // final eps' (grid point 0)
   int64_t iterations[4];
-  int64_t redo[4];       // != 0: the lane left the common case, FastFit alone decides it
+  int64_t redo[4];  // != 0: the lane left the common case, FastFit alone decides it
   // Finalize's quantities: phi in (-pi, pi], a, sum y^2 - J, sqrt(max(SSR, 0) / n),
   // sigma_a / a and sigma_a (the SNR a / sigma_a is tested as a >= min_snr sigma_a).
   double phase[4], amplitude[4], ssr[4], residual_rms[4], phase_sigma[4], sigma_a[4];
@@ -956,7 +970,8 @@ inline __attribute__((always_inline)) void EvaluateLanes(const V4d* zr, const V4
   const V4d m2c = cc * (a2 * cc + b2 * cs) + cs * (b2 * cc + d2 * cs);
   o->j2 = 2.0 * (wu2 * cc + wv2 * cs) + 2.0 * (wu1 * cc1 + wv1 * cs1) -
           2.0 * (cc1 * mc_u + cs1 * mc_v) - m2c;
-  o->ok = regular & MESOSCAN_LANE_FINITE(o->j) & MESOSCAN_LANE_FINITE(o->j1) & MESOSCAN_LANE_FINITE(o->j2);
+  o->ok = regular & MESOSCAN_LANE_FINITE(o->j) & MESOSCAN_LANE_FINITE(o->j1) &
+          MESOSCAN_LANE_FINITE(o->j2);
   if constexpr (kThirdAtZero) {
     // The sine chains of the symmetric case are 0 (as above).
     const double s1 = kSymmetric ? 0.0 : e12[13], s2 = kSymmetric ? 0.0 : e12[15];
@@ -1087,10 +1102,18 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
     if (m > 0) inv_fact /= m;
     const V4d re = inv_fact * w[2 * m], im = inv_fact * w[2 * m + 1];
     switch (m & 3) {
-      case 0: zr[m] = re, zi[m] = im; break;
-      case 1: zr[m] = -im, zi[m] = re; break;
-      case 2: zr[m] = -re, zi[m] = -im; break;
-      default: zr[m] = im, zi[m] = -re; break;
+      case 0:
+        zr[m] = re, zi[m] = im;
+        break;
+      case 1:
+        zr[m] = -im, zi[m] = re;
+        break;
+      case 2:
+        zr[m] = -re, zi[m] = -im;
+        break;
+      default:
+        zr[m] = im, zi[m] = -re;
+        break;
     }
   }
   const double nd = n;
@@ -1109,8 +1132,9 @@ void FitFourLanes(const LaneInput* in, const float* yb, const double* mean_in, L
   for (int it = 0; it < in->max_iterations && LaneAny(active); ++it) {
     iterations -= active;  // active lanes are -1
     const V4l concave = o.j2 < 0;
-    V4d step = MESOSCAN_LANE_SELECT(concave, -o.j1 / MESOSCAN_LANE_SELECT(concave, o.j2, zero - 1.0),
-                          MESOSCAN_LANE_SELECT(o.j1 > 0, zero + kMaxStep, zero - kMaxStep));
+    V4d step =
+        MESOSCAN_LANE_SELECT(concave, -o.j1 / MESOSCAN_LANE_SELECT(concave, o.j2, zero - 1.0),
+                             MESOSCAN_LANE_SELECT(o.j1 > 0, zero + kMaxStep, zero - kMaxStep));
     if (it == 0) {  // FastFit's Halley step at the start
       const V4d q = -0.5 * step * o.j3 / MESOSCAN_LANE_SELECT(concave, o.j2, zero - 1.0);
       const V4l halley = concave & (MESOSCAN_LANE_ABS(q) <= 0.5);
@@ -1413,15 +1437,15 @@ LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride, double f_star
   switch (options_.fitter) {
     case LensShiftFitter::kLm: {
       LensShiftFit fit = FitLm(buf, x_.data(), n, f_start, options_);
-      if (fit.valid && std::abs(fit.frequency - f0_) > options_.max_frequency_deviation *
-                                                           std::abs(f0_))
+      if (fit.valid &&
+          std::abs(fit.frequency - f0_) > options_.max_frequency_deviation * std::abs(f0_))
         fit.valid = false;
       return fit;
     }
     case LensShiftFitter::kCeres: {
       LensShiftFit fit = FitCeres(buf, x_.data(), n, f_start, options_);
-      if (fit.valid && std::abs(fit.frequency - f0_) > options_.max_frequency_deviation *
-                                                           std::abs(f0_))
+      if (fit.valid &&
+          std::abs(fit.frequency - f0_) > options_.max_frequency_deviation * std::abs(f0_))
         fit.valid = false;
       return fit;
     }
@@ -1448,8 +1472,8 @@ LensShiftFit LensShiftBatchFitter::Fit(const float* b, int stride, double f_star
   return FastFit<float>(*tables_, buf, sum / n, f0_, f_start, options_, y);
 }
 
-void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride,
-                                   int sample_stride, int count, LensShiftFit* out) const {
+void LensShiftBatchFitter::FitMany(const float* b, std::ptrdiff_t profile_stride, int sample_stride,
+                                   int count, LensShiftFit* out) const {
   const int n = num_samples();
   auto single = [&](int p) { out[p] = Fit(b + p * profile_stride, sample_stride); };
   if (options_.fitter != LensShiftFitter::kFast || !options_.fit_frequency ||
@@ -1584,12 +1608,12 @@ constexpr int kLanes = 4;
 
 // The lanes' results (see FitBlock).
 struct BlockResult {
-  double phase[kLanes];      // phi at x = 0, (-pi, pi]
+  double phase[kLanes];           // phi at x = 0, (-pi, pi]
   double cc[kLanes], cs[kLanes];  // a sin phi, a cos phi
-  double offset[kLanes];     // d (the constant, the centring reference added back)
-  double ssr[kLanes];        // sum of squared residuals
-  double y0[kLanes];         // sum of the samples about the first (not finite: a sample was not)
-  int64_t ok[kLanes];        // != 0: the 3x3 system was regular
+  double offset[kLanes];          // d (the constant, the centring reference added back)
+  double ssr[kLanes];             // sum of squared residuals
+  double y0[kLanes];   // sum of the samples about the first (not finite: a sample was not)
+  int64_t ok[kLanes];  // != 0: the 3x3 system was regular
   // Finalize's figures of the lanes, vectorised (LensShiftRowFitter::FitRow, nk > 3 for the
   // last two): a = |(cc, cs)|, residual_rms, phase_sigma and the amplitude's SNR.
   double amplitude[kLanes], residual_rms[kLanes], phase_sigma[kLanes], snr[kLanes];

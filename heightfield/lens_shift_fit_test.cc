@@ -2,6 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+#include <Eigen/LU>
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -10,10 +13,6 @@
 #include <numbers>
 #include <random>
 #include <vector>
-
-#include <Eigen/Cholesky>
-#include <Eigen/Core>
-#include <Eigen/LU>
 
 #include "core/error.h"
 #include "core/numbers.h"
@@ -58,8 +57,7 @@ const LensShiftFitter kAllFitters[] = {LensShiftFitter::kFast, LensShiftFitter::
                                        LensShiftFitter::kCeres};
 
 TEST(LensShiftFit, NamesRoundTripAndOptionsCheck) {
-  for (LensShiftFitter f : kAllFitters)
-    EXPECT_EQ(ParseLensShiftFitter(LensShiftFitterName(f)), f);
+  for (LensShiftFitter f : kAllFitters) EXPECT_EQ(ParseLensShiftFitter(LensShiftFitterName(f)), f);
   EXPECT_THROW(ParseLensShiftFitter("newton"), Error);
   LensShiftFitOptions o;
   EXPECT_NO_THROW(o.Check());
@@ -93,7 +91,8 @@ TEST(LensShiftFit, CrlbMatchesClosedFormForCentredUniformPositions) {
   // Off-centre positions make phi and f strongly correlated: the bound grows a lot.
   auto x = CentredPositions(50);
   for (double& v : x) v += 2.0;
-  EXPECT_GT(LensShiftPhaseCrlb(0.01, 0.3, x, kF0), 5 * LensShiftPhaseCrlb(0.01, 0.3, x, kF0, false));
+  EXPECT_GT(LensShiftPhaseCrlb(0.01, 0.3, x, kF0),
+            5 * LensShiftPhaseCrlb(0.01, 0.3, x, kF0, false));
 }
 
 // Noise-free profiles: every fitter recovers every parameter to rounding (float samples carry
@@ -214,8 +213,8 @@ TEST(LensShiftFit, NegativeNominalFrequency) {
 
 void ExpectSane(const LensShiftFit& fit, const LensShiftFitOptions& o, const char* what) {
   SCOPED_TRACE(what);
-  for (double v : {fit.phase, fit.amplitude, fit.frequency, fit.offset, fit.residual_rms,
-                   fit.phase_sigma})
+  for (double v :
+       {fit.phase, fit.amplitude, fit.frequency, fit.offset, fit.residual_rms, fit.phase_sigma})
     EXPECT_TRUE(std::isfinite(v));
   EXPECT_LE(fit.iterations, 2 * o.max_iterations);  // LM: two stages of max_iterations
   if (fit.valid) {
@@ -254,8 +253,8 @@ TEST_P(LensShiftStress, DegenerateProfiles) {
   EXPECT_TRUE(r.valid);
   EXPECT_EQ(r.samples_used, 47);
   EXPECT_NEAR(PhaseDiff(r.phase, t.phase), 0.0, 2e-6);
-  EXPECT_FALSE(fit(std::vector<float>(50, std::numeric_limits<float>::quiet_NaN()), "all nan")
-                   .valid);
+  EXPECT_FALSE(
+      fit(std::vector<float>(50, std::numeric_limits<float>::quiet_NaN()), "all nan").valid);
   // Clipped (saturated) profile: symmetric clipping keeps the phase; the residual shows it.
   b = Profile(t, x, 0.0, &rng);
   for (float& v : b) v = std::clamp(v, 0.3f, 0.7f);
@@ -335,7 +334,8 @@ INSTANTIATE_TEST_SUITE_P(AllFitters, LensShiftStress, ::testing::ValuesIn(kAllFi
 // Randomised property test: the fast fitter is unbiased and efficient (reaches the CRLB).
 
 int PropertyCount() {
-  if (const char* env = std::getenv("MESOSCAN_PROPERTY_COUNT")) return std::max(1000, std::atoi(env));
+  if (const char* env = std::getenv("MESOSCAN_PROPERTY_COUNT"))
+    return std::max(1000, std::atoi(env));
 #if defined(NDEBUG) && !defined(__SANITIZE_ADDRESS__)
   return 1000000;
 #else
@@ -393,8 +393,8 @@ TEST(LensShiftFitProperty, UnbiasedAndEfficient) {
       }
       const double w = 2 * kPi;
       Eigen::Matrix4d fisher;
-      fisher << a * a * scc, a * ssc, w * a * a * sxcc, a * sc,  //
-          a * ssc, sss, w * a * sxsc, ss,                         //
+      fisher << a * a * scc, a * ssc, w * a * a * sxcc, a * sc,                //
+          a * ssc, sss, w * a * sxsc, ss,                                      //
           w * a * a * sxcc, w * a * sxsc, w * w * a * a * sxxcc, w * a * sxc,  //
           a * sc, ss, w * a * sxc, static_cast<double>(n);
       const LensShiftFit fit = fitters[which].Fit(b.data());
@@ -413,8 +413,8 @@ TEST(LensShiftFitProperty, UnbiasedAndEfficient) {
   });
   double s = 0, s2 = 0;
   int n_used = 0, n_invalid = 0;
-  for (int i = 0; i < batches; ++i) s += sum[i], s2 += sum2[i], n_used += used[i],
-                                    n_invalid += invalid[i];
+  for (int i = 0; i < batches; ++i)
+    s += sum[i], s2 += sum2[i], n_used += used[i], n_invalid += invalid[i];
   const double mean = s / n_used;
   const double var = s2 / n_used - mean * mean;
   RecordProperty("profiles", n_used);
@@ -454,9 +454,10 @@ TEST(LensShiftFit, FloatAccumulationErrorIsFarBelowTheNoise) {
         ASSERT_TRUE(rf.valid && rd.valid);
         worst = std::max(worst, std::abs(PhaseDiff(rf.phase, rd.phase)));
       }
-      std::printf("float vs double accumulation: N %d, offset/a %.0f: max |dphi| %.2e rad = "
-                  "%.2e sigma_phi\n",
-                  n, offset_ratio, worst, worst / sigma_phi);
+      std::printf(
+          "float vs double accumulation: N %d, offset/a %.0f: max |dphi| %.2e rad = "
+          "%.2e sigma_phi\n",
+          n, offset_ratio, worst, worst / sigma_phi);
       EXPECT_LT(worst, 0.01 * sigma_phi) << "n " << n << " offset/a " << offset_ratio;
     }
   }
@@ -491,8 +492,8 @@ TEST(LensShiftRowFit, MatchesThePerPixelFit) {
       const auto p = Profile(t, x, j % 7 == 0 ? 0.0 : 0.01, &rng);
       for (int k = 0; k < nk; ++k) b[static_cast<size_t>(k) * w + j] = p[k] / gain[k];
     }
-    f[5] = static_cast<float>(kF0 * 3);                                // off the tables
-    f[9] = std::numeric_limits<float>::quiet_NaN();                    // not finite
+    f[5] = static_cast<float>(kF0 * 3);              // off the tables
+    f[9] = std::numeric_limits<float>::quiet_NaN();  // not finite
     b[static_cast<size_t>(nk / 2) * w + 13] = std::numeric_limits<float>::quiet_NaN();
     for (int k = 0; k < nk; ++k) b[static_cast<size_t>(k) * w + 17] = 0.75f;  // constant
     use[21] = 0;
@@ -518,8 +519,7 @@ TEST(LensShiftRowFit, MatchesThePerPixelFit) {
       // Noise-free pixels: the residual is the float rounding of the samples (phase_sigma
       // 4e-8-1e-6 rad), and sum y^2 - J takes the double rounding of sum y^2 (~1e-16 of it),
       // which moves it by up to ~30 %: 1e-7 rad absolute.
-      EXPECT_NEAR(got.phase_sigma, ref.phase_sigma, 1e-6 * ref.phase_sigma + 1e-7)
-          << "pixel " << j;
+      EXPECT_NEAR(got.phase_sigma, ref.phase_sigma, 1e-6 * ref.phase_sigma + 1e-7) << "pixel " << j;
     }
     EXPECT_FALSE(out[5].valid);
     EXPECT_FALSE(out[9].valid);

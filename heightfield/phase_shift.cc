@@ -13,8 +13,8 @@
 #include <numeric>
 
 #include "core/error.h"
-#include "core/simd_clones.h"
 #include "core/fast_atan.h"
+#include "core/simd_clones.h"
 
 namespace mesoscan {
 namespace {
@@ -291,8 +291,7 @@ void SolveLanes(const double* pinv, const double* cosd, const double* sind, int 
 
 }  // namespace
 
-void WrappedPhaseSolver::SolveMany(const float* samples, size_t stride, int n,
-                                   Result* out) const {
+void WrappedPhaseSolver::SolveMany(const float* samples, size_t stride, int n, Result* out) const {
   const int k = num_samples();
   int j0 = 0;
 #if defined(__GNUC__) && !defined(__clang__)
@@ -420,11 +419,10 @@ TemporalUnwrapper::TemporalUnwrapper(std::vector<double> periods, double range_p
   if (separation_cycles_ < kMinSeparationCycles) {
     std::ostringstream list;
     for (size_t i = 0; i < periods_.size(); ++i) list << (i ? "/" : "") << periods_[i];
-    MESOSCAN_BAD_INPUT("unwrapping: periods " << list.str() << " px do not tell apart the columns "
-                                              << "of a " << range_px_
-                                              << " px wide projector (code separation "
-                                              << separation_cycles_ << " cycles < "
-                                              << kMinSeparationCycles << ")");
+    MESOSCAN_BAD_INPUT("unwrapping: periods "
+                       << list.str() << " px do not tell apart the columns "
+                       << "of a " << range_px_ << " px wide projector (code separation "
+                       << separation_cycles_ << " cycles < " << kMinSeparationCycles << ")");
   }
 }
 
@@ -478,7 +476,7 @@ UnwrapResult TemporalUnwrapper::Unwrap(const double* theta, const double* weight
   if (m > kMaxPeriods) return result;  // not a pattern set anyone projects
   // The per-period arrays are left uninitialised: only their first m entries are read (zeroing
   // all 16 cost a `rep stos` each per pixel, ~6% of the unwrapper's time at full resolution).
-  std::array<double, kMaxPeriods> t;  // wrapped phase in cycles [0, 1)
+  std::array<double, kMaxPeriods> t;     // wrapped phase in cycles [0, 1)
   std::array<double, kMaxPeriods> w_px;  // weight of the per-period estimate of u (px^-2)
   for (int i = 0; i < m; ++i) {
     if (!std::isfinite(theta[i]) || !(weight[i] > 0.0) || !std::isfinite(weight[i])) return result;
@@ -863,8 +861,8 @@ void TemporalUnwrapper::UnwrapFour(const double* theta, const double* weight, Un
   auto vabs = [](const V4d& v, V4d* out) {
     V4l b;
     __builtin_memcpy(&b, &v, sizeof(b));
-    b &= V4l{0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL,
-             0x7fffffffffffffffLL};
+    b &=
+        V4l{0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL};
     __builtin_memcpy(out, &b, sizeof(*out));
   };
   V4d tv[kM], wv[kM];

@@ -53,7 +53,7 @@ class WrappedPhaseSolver {
 
  private:
   std::vector<double> deltas_;
-  std::vector<double> pinv_;  // 3 x K row-major: rows A, B cos theta, B sin theta
+  std::vector<double> pinv_;       // 3 x K row-major: rows A, B cos theta, B sin theta
   std::vector<double> cos_, sin_;  // cos delta_k, sin delta_k (the residual's model)
   double cov_cc_ = 0, cov_ss_ = 0, cov_cs_ = 0;  // (M^T M)^-1 block of (B cos, B sin)
 };
@@ -63,7 +63,7 @@ struct UnwrapResult {
   // Consistency of the periods, in sigma units: sqrt(chi^2 / (periods - 1)) with chi^2 the
   // weighted squared circular residuals at u; ~1 for consistent data, 0 for a single period.
   double residual = 0.0;
-  bool valid = false;     // inputs finite, weights > 0 and residual <= the unwrapper's limit
+  bool valid = false;  // inputs finite, weights > 0 and residual <= the unwrapper's limit
   // u fell in an ambiguous edge band (TemporalUnwrapper::edge_margin_px()): valid is false.
   bool ambiguous_edge = false;
 };
@@ -129,8 +129,8 @@ class TemporalUnwrapper {
   std::vector<double> periods_;
   double range_px_;
   double max_residual_;
-  std::vector<int> order_;   // period indices, coarsest first
-  int anchor_ = 0;           // index of the coarsest period
+  std::vector<int> order_;          // period indices, coarsest first
+  int anchor_ = 0;                  // index of the coarsest period
   double separation_cycles_ = 0.0;  // over the column distances that are not edge pairs
   double edge_margin_px_ = 0.0;
   std::vector<double> inv_periods_;  // 1 / period

@@ -39,8 +39,8 @@ TEST(WrappedPhaseSolver, ExactRecoveryEqualAndUnequalSteps) {
   std::mt19937_64 rng(1);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   const std::vector<std::vector<double>> sets = {
-      EqualSteps(3), EqualSteps(4), EqualSteps(8), {0.0, 1.0, 2.5, 4.0}, {0.3, 0.9, 2.0},
-      {0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0}};
+      EqualSteps(3),        EqualSteps(4),   EqualSteps(8),
+      {0.0, 1.0, 2.5, 4.0}, {0.3, 0.9, 2.0}, {0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0}};
   for (const auto& deltas : sets) {
     const WrappedPhaseSolver solver(deltas);
     for (int trial = 0; trial < 200; ++trial) {
@@ -83,8 +83,8 @@ TEST(WrappedPhaseSolver, StridedSamplesAndBadInput) {
 TEST(WrappedPhaseSolver, SolveManyMatchesSolveBitForBit) {
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
-  const std::vector<std::vector<double>> sets = {EqualSteps(3), EqualSteps(4), EqualSteps(5),
-                                                 {0.0, 1.1, 2.9, 4.4}};
+  const std::vector<std::vector<double>> sets = {
+      EqualSteps(3), EqualSteps(4), EqualSteps(5), {0.0, 1.1, 2.9, 4.4}};
   auto bits = [](float v) {
     uint32_t b;
     std::memcpy(&b, &v, sizeof b);
@@ -104,7 +104,8 @@ TEST(WrappedPhaseSolver, SolveManyMatchesSolveBitForBit) {
                                          : kTwoPi * uni(rng);
         const double b = kind == 2 ? 0.0 : 0.5 * uni(rng);
         std::vector<float> f = Frames(deltas, 0.5, b, theta, kind == 3 ? 0.0 : 1e-3, &rng);
-        if (kind == 4) f[static_cast<size_t>(uni(rng) * k)] = std::numeric_limits<float>::quiet_NaN();
+        if (kind == 4)
+          f[static_cast<size_t>(uni(rng) * k)] = std::numeric_limits<float>::quiet_NaN();
         if (kind == 5) f[0] = std::numeric_limits<float>::infinity();
         for (int i = 0; i < k; ++i) tile[static_cast<size_t>(i) * stride + j] = f[i];
       }
@@ -132,7 +133,8 @@ TEST(WrappedPhaseSolver, NoiseVarianceMatchesTheory) {
   // standard error of sqrt(2 / 20000) = 1 %, so 5 % is a 5-sigma band.
   std::mt19937_64 rng(3);
   const double sigma = 0.002, b = 0.3, a = 0.5;
-  for (const auto& deltas : {EqualSteps(3), EqualSteps(5), std::vector<double>{0.0, 0.7, 2.9, 4.1}}) {
+  for (const auto& deltas :
+       {EqualSteps(3), EqualSteps(5), std::vector<double>{0.0, 0.7, 2.9, 4.1}}) {
     const WrappedPhaseSolver solver(deltas);
     if (deltas.size() != 4) {
       EXPECT_NEAR(solver.ThetaVariance(sigma, b), 2 * sigma * sigma / (deltas.size() * b * b),

@@ -86,15 +86,15 @@ struct ColumnHints {
 
 // Phase-shift stage: per period p (plan order) the wrapped phase, modulation and residual.
 struct PhaseShiftPixels {
-  std::vector<std::vector<float>> theta;         // [p][i], radians in [0, 2 pi)
-  std::vector<std::vector<float>> modulation;    // [p][i], B, linear units
+  std::vector<std::vector<float>> theta;       // [p][i], radians in [0, 2 pi)
+  std::vector<std::vector<float>> modulation;  // [p][i], B, linear units
   // [p][i], linear units; [p] empty for a period of 3 frames (their fit is exact: residual 0).
   std::vector<std::vector<float>> residual_rms;
   // White level: with a white frame the classify stage's white_level of every pixel (the stream
   // moves it here, PixelClasses::white_level is then empty until the driver moves it back for the
   // mixed pixels); without one 2 x the offset of the first period (kActive pixels, else NaN).
   std::vector<float> level;
-  int64_t pixels_lit = 0;    // kActive after this stage: lit, unsaturated, modulated
+  int64_t pixels_lit = 0;  // kActive after this stage: lit, unsaturated, modulated
   // The column unwrapped from these phases alone (stage_combine.h UnwrapPhaseShift); empty if
   // not made (the combine stage then searches the fringe orders).
   ColumnHints u_unwrapped;
@@ -103,9 +103,9 @@ struct PhaseShiftPixels {
 // Lens-shift stage: the fitted profile (heightfield/lens_shift_fit.h) per pixel; empty arrays
 // when the session has no lens-shift frames or they are not used.
 struct LensShiftPixels {
-  std::vector<float> phase0;        // phase at shift 0 with the pixel's frequency, radians
-  std::vector<float> amplitude;     // a, linear units (after luminance normalisation)
-  std::vector<float> frequency;     // f, cycles per projector px
+  std::vector<float> phase0;     // phase at shift 0 with the pixel's frequency, radians
+  std::vector<float> amplitude;  // a, linear units (after luminance normalisation)
+  std::vector<float> frequency;  // f, cycles per projector px
   // d and f are read by the frame corrections (on the frequency subsample) and the diagnostics
   // only: empty after a fixed-frequency pass unless LensShiftStageOptions::keep_offset_frequency
   // (issue 12: peak RSS).
@@ -121,13 +121,13 @@ struct LensShiftPixels {
 
 // Combine stage: unwrapping, paper Eq. 2 and Eq. 4.
 struct CombinedPixels {
-  std::vector<float> u;                // final projector column, px; NaN if rejected
+  std::vector<float> u;  // final projector column, px; NaN if rejected
   // Absolute column from phase shifting, px, and the unwrapping residual, sigma units (empty
   // without CombineOptions::keep_coarse unless the positions' reference needed them).
   std::vector<float> u_coarse;
   std::vector<float> unwrap_residual;
-  std::vector<float> confidence;       // [0, 1]; 0 if rejected
-  std::vector<float> sigma_u;          // predicted sigma of u, px
+  std::vector<float> confidence;  // [0, 1]; 0 if rejected
+  std::vector<float> sigma_u;     // predicted sigma of u, px
   // Which cue fixed u (points.exr `source`): 0 lens shift (phase shifting for the period),
   // 1 phase shifting alone.
   std::vector<uint8_t> source;

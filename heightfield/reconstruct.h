@@ -30,7 +30,6 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
 #include "core/image.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
@@ -48,6 +47,7 @@
 #include "heightfield/stage_phase_shift.h"
 #include "heightfield/stage_plan.h"
 #include "heightfield/stage_triangulate.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
@@ -162,11 +162,11 @@ struct ReconstructSummary {
   // classify, gains, phase shift), whose parts run at once.
   StageTimings cpu_s;
   double cpu_total_s = 0.0;
-  int64_t pixels_total = 0;    // camera pixels
-  int64_t pixels_roi = 0;      // inside ROI and mask
-  int64_t pixels_lit = 0;      // lit, unsaturated, modulated
-  int64_t pixels_fitted = 0;   // lens-shift profiles fitted (or phase-shift decoded if none)
-  int64_t pixels_valid = 0;    // points with confidence > 0
+  int64_t pixels_total = 0;   // camera pixels
+  int64_t pixels_roi = 0;     // inside ROI and mask
+  int64_t pixels_lit = 0;     // lit, unsaturated, modulated
+  int64_t pixels_fitted = 0;  // lens-shift profiles fitted (or phase-shift decoded if none)
+  int64_t pixels_valid = 0;   // points with confidence > 0
   int64_t pixels_saturated = 0;
   int64_t pixels_rejected_unwrap = 0;
   int64_t pixels_rejected_combination = 0;
@@ -176,7 +176,7 @@ struct ReconstructSummary {
   int lens_shift_frames = 0, phase_shift_frames = 0;
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated
   Json frame_corrections;  // lens-shift frames: FrameCorrections::ToJson() (null if not run)
-  std::string unwrapping;           // "temporal", "hierarchical" or "single"
+  std::string unwrapping;  // "temporal", "hierarchical" or "single"
   // Decoded projector axis: "x" (projector_u holds columns) or "y" (rows; horizontal fringes).
   std::string axis = "x";
   bool used_lens_shift = false;

@@ -435,8 +435,8 @@ TEST(StageCombine, RoundHalfAwayIsLround) {
     const double v = k % 2 ? big(rng) : small(rng);
     ASSERT_EQ(RoundHalfAway(v), std::lround(v)) << v;
   }
-  for (double v : {0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 0.49999999999999994, -0.49999999999999994,
-                   0.0, -0.0, 31999.5, -31999.5, 4503599627370495.5 / 4096.0})
+  for (double v : {0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 0.49999999999999994, -0.49999999999999994, 0.0,
+                   -0.0, 31999.5, -31999.5, 4503599627370495.5 / 4096.0})
     EXPECT_EQ(RoundHalfAway(v), std::lround(v)) << v;
   for (double v = -3.0; v <= 3.0; v = std::nextafter(v, 4.0) + 1e-3)
     ASSERT_EQ(RoundHalfAway(v), std::lround(v)) << v;
@@ -456,11 +456,26 @@ TEST(StageCombine, RoundHalfAwayDIsStdRoundBitForBit) {
     const double v = k % 2 ? big(rng) : small(rng);
     ASSERT_TRUE(same(v)) << v;
   }
-  for (double v : {0.0, -0.0, 0.3, -0.3, 0.5, -0.5, 0.49999999999999994, -0.49999999999999994,
-                   1.5, -1.5, 4503599627370495.5, -4503599627370495.5, 4503599627370496.0, 1e300,
-                   -1e300, std::numeric_limits<double>::infinity(),
+  for (double v : {0.0,
+                   -0.0,
+                   0.3,
+                   -0.3,
+                   0.5,
+                   -0.5,
+                   0.49999999999999994,
+                   -0.49999999999999994,
+                   1.5,
+                   -1.5,
+                   4503599627370495.5,
+                   -4503599627370495.5,
+                   4503599627370496.0,
+                   1e300,
+                   -1e300,
+                   std::numeric_limits<double>::infinity(),
                    -std::numeric_limits<double>::infinity(),
-                   std::numeric_limits<double>::quiet_NaN(), 5e-324, -5e-324})
+                   std::numeric_limits<double>::quiet_NaN(),
+                   5e-324,
+                   -5e-324})
     EXPECT_TRUE(same(v)) << v;
 }
 
@@ -495,8 +510,8 @@ TEST(StageCombine, LensShiftFinePhaseAndPeriodJumps) {
   // at a lower confidence; the period jump of good stripes is still rejected.
   PixelStates state_fb(3, PixelState::kActive);
   const CombinedPixels fb = CombinePhases(in.plan, in.ps, in.ls, {}, &state_fb);
-  EXPECT_EQ(state_fb, (PixelStates{PixelState::kActive, PixelState::kCombination,
-                                   PixelState::kActive}));
+  EXPECT_EQ(state_fb,
+            (PixelStates{PixelState::kActive, PixelState::kCombination, PixelState::kActive}));
   EXPECT_EQ(fb.source[0], 0);
   EXPECT_EQ(fb.source[2], 1);
   EXPECT_NEAR(fb.u[2], fb.u_coarse[2], 1e-6);
@@ -694,7 +709,8 @@ TEST(StageTriangulate, SameBitsAsTheTriangulatorOnEveryRig) {
         const size_t i = static_cast<size_t>(y) * w + x;
         const Vec3d ray = tri.CameraRay(x, y);
         const auto p = tri.Intersect(ray, c.u[i]);
-        ASSERT_EQ(state[i], p ? PixelState::kOk : PixelState::kNoIntersection) << variant << " " << i;
+        ASSERT_EQ(state[i], p ? PixelState::kOk : PixelState::kNoIntersection)
+            << variant << " " << i;
         if (!p) {
           EXPECT_TRUE(std::isnan(t.points.xyz(x, y, 2)));
           continue;

@@ -6,25 +6,24 @@
 
 #include "heightfield/reconstruct.h"
 
-#include <unistd.h>
-
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <filesystem>
 #include <functional>
 #include <random>
 
-#include "session/session.h"
 #include "core/image_io.h"
 #include "core/numbers.h"
-#include "core/scan_folder.h"
 #include "core/progress.h"
+#include "core/scan_folder.h"
 #include "core/test_temp_dir.h"
 #include "heightfield/frames.h"
-#include "sim/ground_truth.h"
 #include "heightfield/resample.h"
 #include "heightfield/triangulate.h"
+#include "session/session.h"
+#include "sim/ground_truth.h"
 
 namespace mesoscan {
 namespace {
@@ -42,8 +41,8 @@ Rig TestRig(int w, int h, bool distortion) {
   rig.projector.height = 600;
   rig.projector.K << 1650, 0, 399.5, 0, 1650, 299.5, 0, 0, 1;
   const double a = 20 * kPi / 180;
-  rig.projector.world_from_device.rotation << std::cos(a), 0, -std::sin(a), 0, -1, 0,
-      -std::sin(a), 0, -std::cos(a);
+  rig.projector.world_from_device.rotation << std::cos(a), 0, -std::sin(a), 0, -1, 0, -std::sin(a),
+      0, -std::cos(a);
   rig.projector.world_from_device.translation = Vec3d(0.0906, 0, 0.249);
   if (distortion) {
     // Strong enough to matter at these crops: a pinhole decoder is off by many microns.
@@ -144,8 +143,9 @@ Session WriteSynthetic(const fs::path& dir, const SyntheticOptions& o) {
       f.pattern.type = PatternType::kSine;
       f.pattern.period_px = p;
       f.pattern.phase = 2 * kPi * k / o.phases;
-      f.file = write("ps" + std::to_string(static_cast<int>(p)) + "_" + std::to_string(k),
-                     [&](double u) { return 0.5 + 0.5 * std::cos(2 * kPi * u / p + f.pattern.phase); });
+      f.file =
+          write("ps" + std::to_string(static_cast<int>(p)) + "_" + std::to_string(k),
+                [&](double u) { return 0.5 + 0.5 * std::cos(2 * kPi * u / p + f.pattern.phase); });
       s.frames.push_back(f);
     }
   for (int k = 0; k < o.ls_frames; ++k) {
@@ -186,8 +186,8 @@ class ReconstructTest : public ::testing::Test {
 TEST_F(ReconstructTest, TriangulatorInvertsProjectionWithDistortion) {
   const Rig rig = TestRig(64, 48, /*distortion=*/true);
   const Triangulator tri(rig.camera, rig.projector);
-  for (const Vec3d& p : {Vec3d(0.001, 0.002, 0.003), Vec3d(-0.004, 0.001, 0.0),
-                        Vec3d(0.0, -0.003, 0.006)}) {
+  for (const Vec3d& p :
+       {Vec3d(0.001, 0.002, 0.003), Vec3d(-0.004, 0.001, 0.0), Vec3d(0.0, -0.003, 0.006)}) {
     Vec2d c, q;
     ASSERT_TRUE(rig.camera.Project(p, &c));
     ASSERT_TRUE(rig.projector.Project(p, &q));
@@ -275,8 +275,8 @@ TEST_F(ReconstructTest, PhaseShiftOnlyHierarchicalEightBit) {
   // Cramer-Rao prediction from the residuals (6 phases, 3 residual degrees of freedom per
   // period, so the estimate itself scatters: 1.5x).
   ASSERT_GT(sum.predicted_depth_rms_m, 0);
-  EXPECT_LT(e.rms_m, 1.5 * sum.predicted_depth_rms_m) << e.rms_m << " vs predicted "
-                                                      << sum.predicted_depth_rms_m;
+  EXPECT_LT(e.rms_m, 1.5 * sum.predicted_depth_rms_m)
+      << e.rms_m << " vs predicted " << sum.predicted_depth_rms_m;
   EXPECT_LT(std::abs(e.mean_m), 0.2 * sum.predicted_depth_rms_m);
   EXPECT_EQ(e.gross, 0);
 }

@@ -169,8 +169,10 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   const int gh = static_cast<int>(gh_d);
   MESOSCAN_CHECK(gw > 0 && gh > 0);
   ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
-    if (a == 0) hf.z = ImageF(gw, gh, 1, kNaN);
-    else hf.confidence = ImageF(gw, gh, 1, 0.0f);
+    if (a == 0)
+      hf.z = ImageF(gw, gh, 1, kNaN);
+    else
+      hf.confidence = ImageF(gw, gh, 1, 0.0f);
   });
   const double max_edge2 = std::pow(options.max_edge_footprints * footprint, 2);
 

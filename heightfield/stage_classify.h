@@ -6,10 +6,10 @@
 
 #include <string>
 
-#include "session/session.h"
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_plan.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

@@ -34,7 +34,7 @@ long RoundHalfAway(double v) {
 double RoundHalfAwayD(double v) {
   if (!(std::abs(v) < 4503599627370496.0)) return std::round(v);  // 2^52: already an integer
   const double t = static_cast<double>(static_cast<int64_t>(v));  // truncated, exact
-  const double frac = v - t;                                        // exact
+  const double frac = v - t;                                      // exact
   const double r = frac >= 0.5 ? t + 1 : frac <= -0.5 ? t - 1 : t;
   return r == 0 ? std::copysign(0.0, v) : r;  // std::round keeps the sign of a zero
 }
@@ -156,16 +156,24 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
   // one core while the other waited).
   ParallelFor(6, [&](int64_t a) {
     switch (a) {
-      case 0: out.u.assign(np, kNaN); break;
+      case 0:
+        out.u.assign(np, kNaN);
+        break;
       case 1:
         if (coarse) out.u_coarse.assign(np, kNaN);
         break;
       case 2:
         if (coarse) out.unwrap_residual.assign(np, kNaN);
         break;
-      case 3: out.confidence.assign(np, 0.0f); break;
-      case 4: out.sigma_u.assign(np, kNaN); break;
-      default: out.source.assign(np, use_ls ? 0 : 1); break;
+      case 3:
+        out.confidence.assign(np, 0.0f);
+        break;
+      case 4:
+        out.sigma_u.assign(np, kNaN);
+        break;
+      default:
+        out.source.assign(np, use_ls ? 0 : 1);
+        break;
     }
   });
   const bool fallback = use_ls && options.phase_shift_fallback;

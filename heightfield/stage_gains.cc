@@ -1,13 +1,13 @@
 #include "heightfield/stage_gains.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
+
 #include <algorithm>
 #include <cmath>
 #include <functional>
 #include <optional>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_invoke.h>
-#include <tbb/parallel_reduce.h>
 
 #include "core/error.h"
 #include "core/numbers.h"
@@ -69,7 +69,8 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
   // About 1 in `stride` of the usable pixels, scattered by a multiplicative hash of the index (a
   // regular stride could fall on the same few columns of every row, i.e. the same few stripe
   // phases).
-  const uint64_t stride = std::max<uint64_t>(1, (n_usable + max_pixels - 1) / std::max(1, max_pixels));
+  const uint64_t stride =
+      std::max<uint64_t>(1, (n_usable + max_pixels - 1) / std::max(1, max_pixels));
   // The sample (a 64-bit division per pixel and the usable test) in parallel over fixed chunks,
   // kept in pixel order; the rest per sample pixel as before.
   constexpr size_t kChunk = 1 << 16;

@@ -1,5 +1,7 @@
 #include "heightfield/stage_lens_shift.h"
 
+#include <sys/resource.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -7,8 +9,6 @@
 #include <limits>
 #include <string>
 #include <utility>
-
-#include <sys/resource.h>
 
 #include "core/numbers.h"
 #include "core/parallel.h"
@@ -336,10 +336,10 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
           }
           if (!any) continue;
           const size_t stride = static_cast<size_t>(cnt);
-          for (int k = 0; k < nls; ++k) stack.Gather(ls_stack[k], i0, stride, buf.data() + k * stride);
+          for (int k = 0; k < nls; ++k)
+            stack.Gather(ls_stack[k], i0, stride, buf.data() + k * stride);
           f_map.Row(y, x0, cnt, f.data());
-          fitter.FitRow(buf.data(), stride, cnt, gain.data(), f.data(), use.data(),
-                        fits.data());
+          fitter.FitRow(buf.data(), stride, cnt, gain.data(), f.data(), use.data(), fits.data());
           for (int j = 0; j < cnt; ++j)
             if (use[j]) store(out, i0 + j, i0 + j, fits[j]);
         }
@@ -412,10 +412,9 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
             fits.phase.push_back(first.phase0[q]);
             fits.offset.push_back(first.offset[q]);
           }
-        const FrameCorrections fc =
-            CorrectLensShiftFrames(stack, ls_stack, fits,
-                                   [&](uint32_t i) { return f_map.At(i); }, &x, &inv_gain, fco,
-                                   &gains->phase_reference);
+        const FrameCorrections fc = CorrectLensShiftFrames(
+            stack, ls_stack, fits, [&](uint32_t i) { return f_map.At(i); }, &x, &inv_gain, fco,
+            &gains->phase_reference);
         for (int k = 0; k < nls; ++k) {
           const size_t f = static_cast<size_t>(plan.frames[ls_stack[k]]);
           if (f < gains->session_gain.size()) gains->session_gain[f] = 1.0 / inv_gain[ls_stack[k]];

@@ -61,7 +61,7 @@ struct QuadraticMap {
   void Terms(size_t x, size_t y, double* t) const;
   // Pixels (x0 .. x0 + n - 1, y) into out[0..n).
   void Row(int y, int x0, int n, float* out) const;
-  float At(size_t i) const;  // pixel i (row-major): the value Row gives it
+  float At(size_t i) const;             // pixel i (row-major): the value Row gives it
   std::vector<float> Evaluate() const;  // every pixel, row-major
 };
 // SmoothFrequencyMap's fit alone; false where it returns an empty map. With stride > 1, `f` is a

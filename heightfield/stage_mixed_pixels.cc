@@ -19,8 +19,10 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
   std::vector<float> z;
   std::vector<uint8_t> unlit;
   ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
-    if (a == 0) z.assign(np, kNaN);
-    else unlit.assign(np, 0);
+    if (a == 0)
+      z.assign(np, kNaN);
+    else
+      unlit.assign(np, 0);
   });
   ParallelForRows(grid.height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y)

@@ -88,8 +88,8 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   auto sine_frames = [&] {
     out.stack = LoadFrames(session, plan.frames, options.load, overlap ? &not_ls : nullptr);
     decoded_s = since();
-    out.classes = ClassifyPixels(out.stack, plan, rig.camera.width, rig.camera.height,
-                                 options.classify);
+    out.classes =
+        ClassifyPixels(out.stack, plan, rig.camera.width, rig.camera.height, options.classify);
     classified = out.classes.state;
     if (overlap && options.gains.normalize_luminance)
       gain_gatherer.SetPixels(GainSample(classified));

@@ -14,7 +14,6 @@
 
 #include <cstddef>
 
-#include "session/session.h"
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_classify.h"
@@ -22,6 +21,7 @@
 #include "heightfield/stage_gains.h"
 #include "heightfield/stage_phase_shift.h"
 #include "heightfield/stage_plan.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
@@ -34,12 +34,12 @@ struct StreamStageOptions {
 };
 
 struct StreamedFrames {
-  FrameStack stack;        // the lens-shift frames (every frame if the plan has none)
-  PixelClasses classes;    // classify, then moved on by the phase shift; with a white frame
-                           // white_level is moved to ps.level (see PhaseShiftPixels::level)
-  FrameGains gains;        // sine and lens-shift frames
+  FrameStack stack;      // the lens-shift frames (every frame if the plan has none)
+  PixelClasses classes;  // classify, then moved on by the phase shift; with a white frame
+                         // white_level is moved to ps.level (see PhaseShiftPixels::level)
+  FrameGains gains;      // sine and lens-shift frames
   PhaseShiftPixels ps;
-  double decode_s = 0.0;   // when the last frame was decoded, s after the call
+  double decode_s = 0.0;       // when the last frame was decoded, s after the call
   double phase_shift_s = 0.0;  // when the overlapped sine-frame work was done, s after the call
 };
 

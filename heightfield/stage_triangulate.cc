@@ -23,14 +23,24 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
   // One array per task (~90 MB at 3 Mpx: their page faults and fills were serial).
   ParallelFor(6, [&](int64_t a) {
     switch (a) {
-      case 0: points.xyz = ImageF(cam_w, cam_h, 3, kNaN); break;
-      case 1: points.confidence = ImageF(cam_w, cam_h, 1, 0.0f); break;
-      case 2: points.source = ImageF(cam_w, cam_h, 1, kNaN); break;
-      case 3: points.projector_u = ImageF(cam_w, cam_h, 1, kNaN); break;
+      case 0:
+        points.xyz = ImageF(cam_w, cam_h, 3, kNaN);
+        break;
+      case 1:
+        points.confidence = ImageF(cam_w, cam_h, 1, 0.0f);
+        break;
+      case 2:
+        points.source = ImageF(cam_w, cam_h, 1, kNaN);
+        break;
+      case 3:
+        points.projector_u = ImageF(cam_w, cam_h, 1, kNaN);
+        break;
       case 4:
         if (options.keep_dz_du) out.dz_du = ImageF(cam_w, cam_h, 1, kNaN);
         break;
-      default: out.sigma_z.assign(grid.pixels(), kNaN); break;
+      default:
+        out.sigma_z.assign(grid.pixels(), kNaN);
+        break;
     }
   });
   // The camera's pinhole rays (no distortion): normalised x per column (no skew) and y per row,

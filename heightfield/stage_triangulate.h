@@ -7,16 +7,16 @@
 
 #include <vector>
 
-#include "session/session.h"
 #include "core/image.h"
 #include "core/scan_folder.h"
 #include "heightfield/pixel_buffers.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
 struct TriangulateOptions {
   bool keep_dz_du = false;  // fill TriangulatedPoints::dz_du (diagnostics)
-  char axis = 'x';          // the decoded projector axis (ReconstructPlan::axis): u is a row for 'y'
+  char axis = 'x';  // the decoded projector axis (ReconstructPlan::axis): u is a row for 'y'
 };
 
 struct TriangulatedPoints {

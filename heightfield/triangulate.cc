@@ -14,7 +14,7 @@ Triangulator::Triangulator(const PinholeCamera& camera, const PinholeCamera& pro
 }
 
 std::optional<Vec3d> Triangulator::IntersectDevice(const Vec3d& ray_in_world,
-                                                    const Vec3d& ray_in_device, double u) const {
+                                                   const Vec3d& ray_in_device, double u) const {
   // The ray in projector device coordinates: p(t) = o + t d.
   const Vec3d& o = camera_centre_in_device_;
   const Vec3d& d = ray_in_device;

@@ -11,7 +11,6 @@
 #include <mutex>
 #include <sstream>
 
-#include "session/session.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -20,6 +19,7 @@
 #include "core/stage_timer.h"
 #include "maps/export_gltf.h"
 #include "maps/export_mesh.h"
+#include "session/session.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -45,11 +45,11 @@ ImageF CropImage(const ImageF& im, const PixelRect& c) {
 
 void CheckCrop(const PixelRect& c, int w, int h) {
   if (c.whole()) return;
-  if (c.x < 0 || c.y < 0 || c.w <= 0 || c.h <= 0 || c.x + c.w > w ||
-      c.y + c.h > h)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop " << c.x << "," << c.y << "," << c.w
-                                                        << "," << c.h << ": expected a rectangle inside the "
-                                                        << w << "x" << h << " height grid");
+  if (c.x < 0 || c.y < 0 || c.w <= 0 || c.h <= 0 || c.x + c.w > w || c.y + c.h > h)
+    MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop "
+                                          << c.x << "," << c.y << "," << c.w << "," << c.h
+                                          << ": expected a rectangle inside the " << w << "x" << h
+                                          << " height grid");
 }
 
 // Resamples a planar image from pixel size `src_p` to `dst_p` (same origin). Validity is
@@ -131,7 +131,8 @@ struct HeightRange {
 };
 
 HeightRange RangeOf(const ImageF& z) {
-  HeightRange r{std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(), 0};
+  HeightRange r{std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+                0};
   for (float v : z.data()) {
     if (!std::isfinite(v)) continue;
     r.min = std::min<double>(r.min, v);
@@ -184,8 +185,8 @@ void WritePly(const fs::path& path, const HeightField& hf, const ImageF& normals
       float nx = normals(i, j, 0), ny = normals(i, j, 1), nz = normals(i, j, 2);
       if (!std::isfinite(nx) || !std::isfinite(ny) || !std::isfinite(nz)) nx = 0, ny = 0, nz = 1;
       const float conf = hf.confidence.empty() ? 1.0f : hf.confidence(i, j);
-      rec.insert(rec.end(), {static_cast<float>(hf.X(i)), static_cast<float>(hf.Y(j)), z, nx, ny, nz,
-                             std::isfinite(conf) ? conf : 0.0f});
+      rec.insert(rec.end(), {static_cast<float>(hf.X(i)), static_cast<float>(hf.Y(j)), z, nx, ny,
+                             nz, std::isfinite(conf) ? conf : 0.0f});
       ++n;
     }
   }
@@ -226,7 +227,6 @@ ImageF NormaliseAlbedo(const ImageF& a) {
   return out;
 }
 
-
 Json GridJson(const HeightField& hf) {
   return {{"width_px", hf.width()},
           {"height_px", hf.height()},
@@ -234,8 +234,9 @@ Json GridJson(const HeightField& hf) {
           {"x0_m", hf.x0},
           {"y0_m", hf.y0},
           {"physical_size_m", {hf.width() * hf.pixel_size, hf.height() * hf.pixel_size}},
-          {"pixel_centre", "pixel (i, j) at world (x0 + i*pixel_size, y0 - j*pixel_size); row 0 is "
-                           "the +y edge (image up = world +y)"}};
+          {"pixel_centre",
+           "pixel (i, j) at world (x0 + i*pixel_size, y0 - j*pixel_size); row 0 is "
+           "the +y edge (image up = world +y)"}};
 }
 
 }  // namespace
@@ -256,7 +257,8 @@ std::string SessionPathFromReport(const Json& report) {
 
 void ExportOptions::Check() const {
   if (!exr && !png16 && !glb && !ply)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --format: expected at least one of exr,png16,glb,ply");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "export: --format: expected at least one of exr,png16,glb,ply");
   if (!(pixel_size_m >= 0) || !std::isfinite(pixel_size_m))
     MESOSCAN_THROW(ErrorKind::kUsage, "export: --pixel-size: expected a positive number of metres");
   if (max_triangles <= 0)
@@ -264,9 +266,11 @@ void ExportOptions::Check() const {
   if (!(mesh_tolerance_m >= 0) || !std::isfinite(mesh_tolerance_m))
     MESOSCAN_THROW(ErrorKind::kUsage, "export: mesh tolerance: expected a number >= 0 (metres)");
   if (name.empty() || name.find('/') != std::string::npos || name.find('\\') != std::string::npos)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --name '" << name << "': expected a plain file name prefix");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "export: --name '" << name << "': expected a plain file name prefix");
   if (!albedo.empty() && albedo.channels() != 1 && albedo.channels() != 3)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: albedo: expected 1 or 3 channels, got " << albedo.channels());
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "export: albedo: expected 1 or 3 channels, got " << albedo.channels());
 }
 
 std::string ExportSummary::BriefReport() const {
@@ -283,13 +287,17 @@ void ParseExportFormats(const std::string& list, ExportOptions* o) {
   std::stringstream ss(list);
   std::string item;
   while (std::getline(ss, item, ',')) {
-    if (item == "exr") o->exr = true;
-    else if (item == "png16" || item == "png") o->png16 = true;
-    else if (item == "glb" || item == "gltf") o->glb = true;
-    else if (item == "ply") o->ply = true;
+    if (item == "exr")
+      o->exr = true;
+    else if (item == "png16" || item == "png")
+      o->png16 = true;
+    else if (item == "glb" || item == "gltf")
+      o->glb = true;
+    else if (item == "ply")
+      o->ply = true;
     else
-      MESOSCAN_THROW(ErrorKind::kUsage, "export: --format: unknown format '" << item
-                                                                           << "' (expected exr, png16, glb, ply)");
+      MESOSCAN_THROW(ErrorKind::kUsage, "export: --format: unknown format '"
+                                            << item << "' (expected exr, png16, glb, ply)");
   }
 }
 
@@ -361,8 +369,7 @@ int EvenPhaseSet(const Session& s, const FramePlan& plan) {
 
 }  // namespace
 
-ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir,
-                         std::string* source) {
+ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std::string* source) {
   const Session s = ReadSession(session_dir, /*check_frames=*/false);
   int white = -1, black = -1;
   for (size_t i = 0; i < s.frames.size(); ++i) {
@@ -418,7 +425,8 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir,
         Vec2d uv;
         if (!s.rig.camera.Project(Vec3d(hf.X(i), hf.Y(j), z), &uv)) continue;
         // Bilinear at the projected position (pixel centres at integer coordinates).
-        const int u0 = static_cast<int>(std::floor(uv.x())), v0 = static_cast<int>(std::floor(uv.y()));
+        const int u0 = static_cast<int>(std::floor(uv.x())),
+                  v0 = static_cast<int>(std::floor(uv.y()));
         if (u0 < 0 || v0 < 0 || u0 + 1 >= wf.width() || v0 + 1 >= wf.height()) continue;
         const double a = uv.x() - u0, b = uv.y() - v0;
         for (int k = 0; k < nc; ++k) {
@@ -459,10 +467,10 @@ namespace {
 
 // Step 1 output: the export grid and the maps on it, before hole filling.
 struct ExportGrid {
-  HeightField hf;              // the scan's height field, cropped and resampled
-  ImageF normals;              // world normals on hf's grid (3 channels, NaN in holes)
-  ImageF confidence;           // [0, 1] on hf's grid (the scan's, else 1 where valid)
-  ImageF albedo;               // relative albedo (99th percentile 1), empty if none
+  HeightField hf;     // the scan's height field, cropped and resampled
+  ImageF normals;     // world normals on hf's grid (3 channels, NaN in holes)
+  ImageF confidence;  // [0, 1] on hf's grid (the scan's, else 1 where valid)
+  ImageF albedo;      // relative albedo (99th percentile 1), empty if none
   std::string albedo_source = "none";
 };
 
@@ -511,11 +519,11 @@ ExportGrid MakeExportGrid(const Scan& scan, const ExportOptions& o) {
 // sees a NaN and the 16-bit range stays [min, max].
 struct ExportHeights {
   HeightRange range;
-  float hole_value = 0;     // lowest valid height, m
-  double span = 0;          // max - min (>= 1e-9), m: the 16-bit PNG's scale
-  double midlevel = 0;      // -min / span: the 16-bit PNG's value of height 0
-  FillResult hole_fill;     // the filled field and which pixels were filled
-  ImageF filled;            // hole_fill's heights, remaining holes at hole_value
+  float hole_value = 0;  // lowest valid height, m
+  double span = 0;       // max - min (>= 1e-9), m: the 16-bit PNG's scale
+  double midlevel = 0;   // -min / span: the 16-bit PNG's value of height 0
+  FillResult hole_fill;  // the filled field and which pixels were filled
+  ImageF filled;         // hole_fill's heights, remaining holes at hole_value
 };
 
 // Fills the holes; the normals of filled pixels and of their measured neighbours are taken
@@ -539,8 +547,8 @@ ExportHeights FillExportHeights(const FillOptions& fill, ExportGrid* grid) {
         for (int dj = -1; dj <= 1 && !near; ++dj)
           for (int di = -1; di <= 1 && !near; ++di) {
             const int x = i + di, y = j + dj;
-            near = x >= 0 && y >= 0 && x < hf.width() && y < hf.height() &&
-                   h.hole_fill.filled(x, y);
+            near =
+                x >= 0 && y >= 0 && x < hf.width() && y < hf.height() && h.hole_fill.filled(x, y);
           }
         if (near)
           for (int k = 0; k < 3; ++k) grid->normals(i, j, k) = fn(i, j, k);
@@ -610,11 +618,16 @@ struct ExportMaps {
 std::string AddNormalMap(const ExportMaps& m, const std::string& format,
                          const std::string& pixel_type, ExportWriter* w) {
   const std::string fn = m.o.name + "_normal_" + m.conv + "." + format;
-  w->Add(fn, {{"role", "normal"}, {"format", format}, {"pixel_type", pixel_type},
-              {"channels", {"R", "G", "B"}}, {"convention", m.conv_text},
-              {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
-              {"colour_space", "Non-Color (raw data)"}},
-         "Blender: Image Texture '" + fn + "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
+  w->Add(fn,
+         {{"role", "normal"},
+          {"format", format},
+          {"pixel_type", pixel_type},
+          {"channels", {"R", "G", "B"}},
+          {"convention", m.conv_text},
+          {"encoding", "rgb = 0.5 + 0.5 * n (tangent space: +X right, +Z out)"},
+          {"colour_space", "Non-Color (raw data)"}},
+         "Blender: Image Texture '" + fn +
+             "' (Color Space Non-Color) -> Normal Map node (Tangent Space)" +
              (m.o.normals == NormalConvention::kDirectX ? "; DirectX: invert green first" : ""));
   return fn;
 }
@@ -623,16 +636,28 @@ std::string AddNormalMap(const ExportMaps& m, const std::string& format,
 void AddExrMaps(const ExportMaps& m, ExportWriter* w) {
   const HeightField& hf = m.grid.hf;
   const std::string f = m.o.name + "_height.exr";
-  w->Add(f, {{"role", "height"}, {"format", "exr"}, {"pixel_type", "float32"}, {"channels", {"Y"}},
-             {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", 0.0}, {"scale", 1.0},
-             {"meaning", "metres above the mount plane z = 0"}},
-         "Blender: Image Texture '" + f + "' (Color Space Non-Color) -> Displacement node or "
-         "Displace modifier (UV), Midlevel 0, Scale 1: metres (the modifier clamps values below 0: "
-         "for heights under the mount plane use the node or the 16-bit PNG)");
+  w->Add(f,
+         {{"role", "height"},
+          {"format", "exr"},
+          {"pixel_type", "float32"},
+          {"channels", {"Y"}},
+          {"units", "m"},
+          {"colour_space", "Non-Color (raw data)"},
+          {"midlevel", 0.0},
+          {"scale", 1.0},
+          {"meaning", "metres above the mount plane z = 0"}},
+         "Blender: Image Texture '" + f +
+             "' (Color Space Non-Color) -> Displacement node or "
+             "Displace modifier (UV), Midlevel 0, Scale 1: metres (the modifier clamps values "
+             "below 0: "
+             "for heights under the mount plane use the node or the 16-bit PNG)");
   w->Run(f, [&m, &hf, f, dir = w->dir()] {
     WriteExr(dir / f, m.heights.filled, {"Y"},
-             {{kAttrX0, hf.x0}, {kAttrY0, hf.y0}, {kAttrPixelSize, hf.pixel_size},
-              {"mesoscan:midlevel", 0.0}, {"mesoscan:scale", 1.0},
+             {{kAttrX0, hf.x0},
+              {kAttrY0, hf.y0},
+              {kAttrPixelSize, hf.pixel_size},
+              {"mesoscan:midlevel", 0.0},
+              {"mesoscan:scale", 1.0},
               {"mesoscan:hole_value", m.heights.hole_value}},
              {{"mesoscan:units", "m"}, {"mesoscan:content", "height above the mount plane"}});
   });
@@ -655,29 +680,38 @@ void AddPng16Maps(const ExportMaps& m, ExportWriter* w) {
   disp.precision(9);
   disp << "Blender: Image Texture '" << f << "' (Color Space Non-Color) -> Displacement Midlevel "
        << h.midlevel << ", Scale " << h.span << " (metres; see " << fs_ << ")";
-  w->Add(f, {{"role", "height"}, {"format", "png"}, {"pixel_type", "uint16"}, {"channels", {"Y"}},
-             {"units", "m"}, {"colour_space", "Non-Color (raw data)"}, {"midlevel", h.midlevel},
-             {"scale", h.span}, {"sidecar", fs_},
-             {"meaning", "metres = (value / 65535 - midlevel) * scale"}},
+  w->Add(f,
+         {{"role", "height"},
+          {"format", "png"},
+          {"pixel_type", "uint16"},
+          {"channels", {"Y"}},
+          {"units", "m"},
+          {"colour_space", "Non-Color (raw data)"},
+          {"midlevel", h.midlevel},
+          {"scale", h.span},
+          {"sidecar", fs_},
+          {"meaning", "metres = (value / 65535 - midlevel) * scale"}},
          disp.str());
-  Json sidecar = {{"format", kExportFormat},
-                  {"file", f},
-                  {"units", "m"},
-                  {"meaning", "height above the mount plane z = 0"},
-                  {"decode", "metres = (value / 65535 - midlevel) * scale = min + value / 65535 * (max - min)"},
-                  {"min_m", h.range.min},
-                  {"max_m", h.range.max},
-                  {"midlevel", h.midlevel},
-                  {"scale", h.span},
-                  {"quantisation_step_m", h.span / 65535.0},
-                  {"blender", {{"midlevel", h.midlevel}, {"scale", h.span}, {"color_space", "Non-Color"}}},
-                  {"arnold", {{"zero_value", h.midlevel}, {"height", h.span}}},
-                  {"hole_value_m", h.hole_value},
-                  {"pixel_size_m", hf.pixel_size},
-                  {"width_px", hf.width()},
-                  {"height_px", hf.height()},
-                  {"physical_size_m", {hf.width() * hf.pixel_size, hf.height() * hf.pixel_size}}};
-  w->Add(fs_, {{"role", "height sidecar"}, {"format", "json"}}, "the 16-bit height's min, max, midlevel, scale");
+  Json sidecar = {
+      {"format", kExportFormat},
+      {"file", f},
+      {"units", "m"},
+      {"meaning", "height above the mount plane z = 0"},
+      {"decode", "metres = (value / 65535 - midlevel) * scale = min + value / 65535 * (max - min)"},
+      {"min_m", h.range.min},
+      {"max_m", h.range.max},
+      {"midlevel", h.midlevel},
+      {"scale", h.span},
+      {"quantisation_step_m", h.span / 65535.0},
+      {"blender", {{"midlevel", h.midlevel}, {"scale", h.span}, {"color_space", "Non-Color"}}},
+      {"arnold", {{"zero_value", h.midlevel}, {"height", h.span}}},
+      {"hole_value_m", h.hole_value},
+      {"pixel_size_m", hf.pixel_size},
+      {"width_px", hf.width()},
+      {"height_px", hf.height()},
+      {"physical_size_m", {hf.width() * hf.pixel_size, hf.height() * hf.pixel_size}}};
+  w->Add(fs_, {{"role", "height sidecar"}, {"format", "json"}},
+         "the 16-bit height's min, max, midlevel, scale");
   w->Run(f, [&h, &hf, f, fs_, sidecar, dir = w->dir()] {
     ImageU16 q(hf.width(), hf.height(), 1);
     for (size_t p = 0; p < q.pixels(); ++p) {
@@ -688,25 +722,37 @@ void AddPng16Maps(const ExportMaps& m, ExportWriter* w) {
     WriteJsonFile(dir / fs_, sidecar);
   });
   const std::string fn = AddNormalMap(m, "png", "uint16", w);
-  w->Run(fn, [&m, fn, dir = w->dir()] { WritePng16(dir / fn, QuantizeU16(m.nmap), kPng16Compression); });
+  w->Run(fn, [&m, fn, dir = w->dir()] {
+    WritePng16(dir / fn, QuantizeU16(m.nmap), kPng16Compression);
+  });
 }
 
 // <name>_confidence.png and, with an albedo, <name>_albedo.png (sRGB).
 void AddMaskAndAlbedo(const ExportMaps& m, ExportWriter* w) {
   const ExportGrid& g = m.grid;
   const std::string f = m.o.name + "_confidence.png";
-  w->Add(f, {{"role", "confidence"}, {"format", "png"}, {"pixel_type", "uint8"}, {"channels", {"Y"}},
-             {"colour_space", "Non-Color (raw data)"}, {"meaning", "confidence in [0, 1]; 0 in holes"}},
+  w->Add(f,
+         {{"role", "confidence"},
+          {"format", "png"},
+          {"pixel_type", "uint8"},
+          {"channels", {"Y"}},
+          {"colour_space", "Non-Color (raw data)"},
+          {"meaning", "confidence in [0, 1]; 0 in holes"}},
          "Blender: Image Texture '" + f + "' (Color Space Non-Color): a mask, 0 in holes");
   w->Run(f, [&g, f, dir = w->dir()] { WritePng8(dir / f, QuantizeU8(g.confidence)); });
   if (g.albedo.empty()) return;
   const std::string fa = m.o.name + "_albedo.png";
-  w->Add(fa, {{"role", "albedo"}, {"format", "png"}, {"pixel_type", "uint8"},
-              {"channels", g.albedo.channels() == 3 ? Json{"R", "G", "B"} : Json{"Y"}},
-              {"colour_space", "sRGB"}, {"source", g.albedo_source},
-              {"meaning", "relative albedo: white-frame radiance (or twice a sine set's "
-                          "mean) minus black, 99th percentile = 1, "
-                          "no shading correction"}},
+  w->Add(fa,
+         {{"role", "albedo"},
+          {"format", "png"},
+          {"pixel_type", "uint8"},
+          {"channels", g.albedo.channels() == 3 ? Json{"R", "G", "B"} : Json{"Y"}},
+          {"colour_space", "sRGB"},
+          {"source", g.albedo_source},
+          {"meaning",
+           "relative albedo: white-frame radiance (or twice a sine set's "
+           "mean) minus black, 99th percentile = 1, "
+           "no shading correction"}},
          "Blender: Image Texture '" + fa + "' (Color Space sRGB) -> Principled BSDF Base Color");
   w->Run(fa, [&g, fa, dir = w->dir()] {
     WritePng8(dir / fa, QuantizeU8(g.albedo, /*srgb_encode=*/true));
@@ -716,9 +762,13 @@ void AddMaskAndAlbedo(const ExportMaps& m, ExportWriter* w) {
 // <name>.ply: the valid samples as points with normals and confidence.
 void AddPly(const ExportMaps& m, ExportWriter* w) {
   const std::string f = m.o.name + ".ply";
-  w->Add(f, {{"role", "points"}, {"format", "ply"}, {"units", "m"}, {"axes", "world: z up"},
-             {"properties", {"x", "y", "z", "nx", "ny", "nz", "confidence"}},
-             {"points", m.heights.range.valid}},
+  w->Add(f,
+         {{"role", "points"},
+          {"format", "ply"},
+          {"units", "m"},
+          {"axes", "world: z up"},
+          {"properties", {"x", "y", "z", "nx", "ny", "nz", "confidence"}},
+          {"points", m.heights.range.valid}},
          "MeshLab / CloudCompare: open '" + f + "' (metres, z up; confidence as a scalar field)");
   w->Run(f, [&m, f, dir = w->dir()] { WritePly(dir / f, m.grid.hf, m.grid.normals); });
 }
@@ -751,13 +801,19 @@ Json GlbExtras(const ExportMaps& m, const GridMesh& mesh) {
 
 // The GLB's manifest entry.
 Json GlbEntry(const ExportMaps& m, const GridMesh& mesh) {
-  return {{"role", "mesh"}, {"format", "glb"}, {"units", "m"},
+  return {{"role", "mesh"},
+          {"format", "glb"},
+          {"units", "m"},
           {"axes", "glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world"},
           {"uv", "sample (i, j) at ((i + 0.5)/W, (j + 0.5)/H), glTF top-left origin"},
-          {"triangles", mesh.triangles()}, {"vertices", mesh.vertices()},
-          {"max_triangles", m.o.max_triangles}, {"lossless_triangles", mesh.lossless_triangles},
-          {"max_height_error_m", mesh.max_height_error_m}, {"rtin_threshold_m", mesh.threshold_m},
-          {"uncovered_samples", mesh.uncovered_samples}, {"budget_met", mesh.budget_met},
+          {"triangles", mesh.triangles()},
+          {"vertices", mesh.vertices()},
+          {"max_triangles", m.o.max_triangles},
+          {"lossless_triangles", mesh.lossless_triangles},
+          {"max_height_error_m", mesh.max_height_error_m},
+          {"rtin_threshold_m", mesh.threshold_m},
+          {"uncovered_samples", mesh.uncovered_samples},
+          {"budget_met", mesh.budget_met},
           {"textures", m.grid.albedo.empty()
                            ? Json{"normal (OpenGL, 8-bit)"}
                            : Json{"normal (OpenGL, 8-bit)", "baseColor (sRGB, 8-bit)"}}};
@@ -776,7 +832,8 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
         EncodePng8(QuantizeU8(EncodeNormalMap(g.normals, NormalConvention::kOpenGl)), tex);
   });
   if (!g.albedo.empty())
-    texture_tasks.run([&g, parts, tex] { parts->albedo_png = EncodePng8(QuantizeU8(g.albedo, true), tex); });
+    texture_tasks.run(
+        [&g, parts, tex] { parts->albedo_png = EncodePng8(QuantizeU8(g.albedo, true), tex); });
   // The mesh (RTIN within the triangle budget).
   GridMeshOptions mo;
   mo.max_triangles = m.o.max_triangles;
@@ -798,7 +855,8 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   summary->vertices = mesh.vertices();
   summary->max_height_error_m = mesh.max_height_error_m;
   // The file: listed, then written once its textures are ready.
-  w->Add(f, GlbEntry(m, mesh), "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
+  w->Add(f, GlbEntry(m, mesh),
+         "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
   texture_tasks.wait();
   w->Run(f, [&g, parts, n, f, extras = GlbExtras(m, mesh), dir = w->dir()] {
     GlbContent c;
@@ -817,33 +875,37 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
 Json ExportManifest(const Scan& scan, const ExportMaps& m, const ExportWriter& w) {
   const ExportOptions& o = m.o;
   const ExportHeights& h = m.heights;
-  return {{"format", kExportFormat},
-          {"name", o.name},
-          {"units", "m"},
-          {"conventions",
-           {{"world", "metres; mount plane z = 0, +z up towards the rig"},
-            {"maps", "one grid for every map; row 0 is the +y edge, so image up = world +y"},
-            {"height", "metres above the mount plane; holes bounded by surface filled (see fill), the others with hole_value_m (see the confidence map)"},
-            {"normal_map", m.conv_text + "; tangent space +X = world x, +Y = world y on a flat sample"},
-            {"glb", "metres, glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world; normal texture OpenGL"},
-            {"exr_height_channel",
-             "Y: OpenEXR's luminance channel, read as grey (R = G = B) by Blender, OIIO and "
-             "Substance"}}},
-          {"grid", GridJson(m.grid.hf)},
-          {"source_grid", GridJson(scan.height)},
-          {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.w, o.crop.h}},
-          {"height_range_m", {h.range.min, h.range.max}},
-          {"hole_value_m", h.hole_value},
-          {"fill", {{"method", FillMethodName(o.fill.method)},
-                    {"max_hole_radius_m", o.fill.max_hole_radius_m},
-                    {"pixels_filled", h.hole_fill.filled_pixels},
-                    {"holes_filled", h.hole_fill.holes_filled},
-                    {"pixels_left", h.hole_fill.pixels_left},
-                    {"note", "filled pixels have confidence 0; the rest of the holes hold hole_value_m"}}},
-          {"valid_samples", h.range.valid},
-          {"albedo", m.grid.albedo_source},
-          {"files", w.files()},
-          {"how_to_load", w.hints()}};
+  return {
+      {"format", kExportFormat},
+      {"name", o.name},
+      {"units", "m"},
+      {"conventions",
+       {{"world", "metres; mount plane z = 0, +z up towards the rig"},
+        {"maps", "one grid for every map; row 0 is the +y edge, so image up = world +y"},
+        {"height",
+         "metres above the mount plane; holes bounded by surface filled (see fill), the others "
+         "with hole_value_m (see the confidence map)"},
+        {"normal_map", m.conv_text + "; tangent space +X = world x, +Y = world y on a flat sample"},
+        {"glb", "metres, glTF +Y up: (x, y, z)_gltf = (x, z, -y)_world; normal texture OpenGL"},
+        {"exr_height_channel",
+         "Y: OpenEXR's luminance channel, read as grey (R = G = B) by Blender, OIIO and "
+         "Substance"}}},
+      {"grid", GridJson(m.grid.hf)},
+      {"source_grid", GridJson(scan.height)},
+      {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.w, o.crop.h}},
+      {"height_range_m", {h.range.min, h.range.max}},
+      {"hole_value_m", h.hole_value},
+      {"fill",
+       {{"method", FillMethodName(o.fill.method)},
+        {"max_hole_radius_m", o.fill.max_hole_radius_m},
+        {"pixels_filled", h.hole_fill.filled_pixels},
+        {"holes_filled", h.hole_fill.holes_filled},
+        {"pixels_left", h.hole_fill.pixels_left},
+        {"note", "filled pixels have confidence 0; the rest of the holes hold hole_value_m"}}},
+      {"valid_samples", h.range.valid},
+      {"albedo", m.grid.albedo_source},
+      {"files", w.files()},
+      {"how_to_load", w.hints()}};
 }
 
 }  // namespace
@@ -855,18 +917,24 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
   const Stopwatch total;
   if (scan.height.width() < 2 || scan.height.height() < 2)
     MESOSCAN_BAD_INPUT("height.exr: the height grid is " << scan.height.width() << "x"
-                                                         << scan.height.height() << ", too small to export");
+                                                         << scan.height.height()
+                                                         << ", too small to export");
   // 1. The export grid: crop, resample; normals, confidence and albedo on it.
   ExportGrid grid = MakeExportGrid(scan, o);
   std::error_code ec;
   fs::create_directories(dir, ec);
-  if (!fs::is_directory(dir)) MESOSCAN_BAD_INPUT(dir.string() << ": cannot create the export folder");
+  if (!fs::is_directory(dir))
+    MESOSCAN_BAD_INPUT(dir.string() << ": cannot create the export folder");
   // 2. Holes filled for the DCC maps; the normal map encoded.
   const ExportHeights heights = FillExportHeights(o.fill, &grid);
   const bool gl = o.normals == NormalConvention::kOpenGl;
-  const ExportMaps maps{o, grid, heights, EncodeNormalMap(grid.normals, o.normals), gl ? "gl" : "dx",
-                        gl ? "OpenGL (+Y: green points to image up)"
-                           : "DirectX (-Y: green points to image down)"};
+  const ExportMaps maps{
+      o,
+      grid,
+      heights,
+      EncodeNormalMap(grid.normals, o.normals),
+      gl ? "gl" : "dx",
+      gl ? "OpenGL (+Y: green points to image up)" : "DirectX (-Y: green points to image down)"};
   // 3. The files, written in parallel (the writer waits for its tasks, also on an exception).
   ExportSummary summary;
   GlbParts glb;

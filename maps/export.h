@@ -73,10 +73,10 @@ struct ExportOptions {
 struct ExportSummary {
   std::vector<std::filesystem::path> files;  // every file written, manifest last
   Json manifest;
-  int64_t triangles = 0, vertices = 0;  // GLB mesh (0 if not written)
-  double max_height_error_m = 0.0;      // GLB mesh vs the height samples
-  double seconds = 0.0;                              // the whole export, wall time
-  std::map<std::string, double> seconds_per_file;    // each writer's wall time (run in parallel)
+  int64_t triangles = 0, vertices = 0;             // GLB mesh (0 if not written)
+  double max_height_error_m = 0.0;                 // GLB mesh vs the height samples
+  double seconds = 0.0;                            // the whole export, wall time
+  std::map<std::string, double> seconds_per_file;  // each writer's wall time (run in parallel)
   std::string BriefReport() const;
 };
 

@@ -63,7 +63,8 @@ int AddAccessor(tinygltf::Model* model, int view, int component_type, size_t cou
   return static_cast<int>(model->accessors.size() - 1);
 }
 
-int AddPngTexture(tinygltf::Model* model, const std::vector<uint8_t>& png, const std::string& name) {
+int AddPngTexture(tinygltf::Model* model, const std::vector<uint8_t>& png,
+                  const std::string& name) {
   tinygltf::Image image;
   image.name = name;
   image.mimeType = "image/png";
@@ -89,29 +90,32 @@ void WriteGlb(const fs::path& path, const GlbContent& c) {
 
   // 1. Vertex attributes in glTF axes: (x, y, z)_gltf = (x, z, -y)_world.
   std::vector<float> pos(nv * 3), nrm(nv * 3), tan(nv * 4), uv(nv * 2);
-  ParallelFor(static_cast<int64_t>(nv), [&](int64_t v) {
-    const int p = mesh.vertex_pixel[v], i = p % w, j = p / w;
-    const double x = hf.X(i), y = hf.Y(j), z = hf.z(i, j);
-    pos[3 * v + 0] = static_cast<float>(x);
-    pos[3 * v + 1] = static_cast<float>(z);
-    pos[3 * v + 2] = static_cast<float>(-y);
-    Vec3d n((*c.normals)(i, j, 0), (*c.normals)(i, j, 1), (*c.normals)(i, j, 2));
-    if (!n.allFinite() || n.norm() < 1e-6) n = Vec3d(0, 0, 1);
-    n.normalize();
-    // Tangent: world +x made orthogonal to the normal (a height-field normal has n_z > 0, so
-    // +x is never parallel to it).
-    Vec3d t = Vec3d(1, 0, 0) - n * n.x();
-    t.normalize();
-    nrm[3 * v + 0] = static_cast<float>(n.x());
-    nrm[3 * v + 1] = static_cast<float>(n.z());
-    nrm[3 * v + 2] = static_cast<float>(-n.y());
-    tan[4 * v + 0] = static_cast<float>(t.x());
-    tan[4 * v + 1] = static_cast<float>(t.z());
-    tan[4 * v + 2] = static_cast<float>(-t.y());
-    tan[4 * v + 3] = 1.0f;
-    uv[2 * v + 0] = static_cast<float>((i + 0.5) / w);
-    uv[2 * v + 1] = static_cast<float>((j + 0.5) / h);
-  }, 4096);
+  ParallelFor(
+      static_cast<int64_t>(nv),
+      [&](int64_t v) {
+        const int p = mesh.vertex_pixel[v], i = p % w, j = p / w;
+        const double x = hf.X(i), y = hf.Y(j), z = hf.z(i, j);
+        pos[3 * v + 0] = static_cast<float>(x);
+        pos[3 * v + 1] = static_cast<float>(z);
+        pos[3 * v + 2] = static_cast<float>(-y);
+        Vec3d n((*c.normals)(i, j, 0), (*c.normals)(i, j, 1), (*c.normals)(i, j, 2));
+        if (!n.allFinite() || n.norm() < 1e-6) n = Vec3d(0, 0, 1);
+        n.normalize();
+        // Tangent: world +x made orthogonal to the normal (a height-field normal has n_z > 0, so
+        // +x is never parallel to it).
+        Vec3d t = Vec3d(1, 0, 0) - n * n.x();
+        t.normalize();
+        nrm[3 * v + 0] = static_cast<float>(n.x());
+        nrm[3 * v + 1] = static_cast<float>(n.z());
+        nrm[3 * v + 2] = static_cast<float>(-n.y());
+        tan[4 * v + 0] = static_cast<float>(t.x());
+        tan[4 * v + 1] = static_cast<float>(t.z());
+        tan[4 * v + 2] = static_cast<float>(-t.y());
+        tan[4 * v + 3] = 1.0f;
+        uv[2 * v + 0] = static_cast<float>((i + 0.5) / w);
+        uv[2 * v + 1] = static_cast<float>((j + 0.5) / h);
+      },
+      4096);
   std::vector<double> pmin(3, std::numeric_limits<double>::infinity());
   std::vector<double> pmax(3, -std::numeric_limits<double>::infinity());
   for (size_t v = 0; v < nv; ++v) {
@@ -126,22 +130,23 @@ void WriteGlb(const fs::path& path, const GlbContent& c) {
   model.asset.version = "2.0";
   model.asset.generator = "mesoscan 0.1.0";
   model.buffers.resize(1);
-  constexpr int kArray = TINYGLTF_TARGET_ARRAY_BUFFER, kElements = TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER;
+  constexpr int kArray = TINYGLTF_TARGET_ARRAY_BUFFER,
+                kElements = TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER;
   constexpr int kFloat = TINYGLTF_COMPONENT_TYPE_FLOAT;
   tinygltf::Primitive prim;
   prim.mode = TINYGLTF_MODE_TRIANGLES;
-  prim.attributes["POSITION"] = AddAccessor(&model, AddView(&model, pos.data(), pos.size() * 4, kArray),
-                                            kFloat, nv, TINYGLTF_TYPE_VEC3, pmin, pmax);
-  prim.attributes["NORMAL"] = AddAccessor(&model, AddView(&model, nrm.data(), nrm.size() * 4, kArray),
-                                          kFloat, nv, TINYGLTF_TYPE_VEC3);
-  prim.attributes["TANGENT"] = AddAccessor(&model, AddView(&model, tan.data(), tan.size() * 4, kArray),
-                                           kFloat, nv, TINYGLTF_TYPE_VEC4);
-  prim.attributes["TEXCOORD_0"] = AddAccessor(&model, AddView(&model, uv.data(), uv.size() * 4, kArray),
-                                              kFloat, nv, TINYGLTF_TYPE_VEC2);
-  prim.indices = AddAccessor(&model,
-                             AddView(&model, mesh.indices.data(), mesh.indices.size() * 4, kElements),
-                             TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT, mesh.indices.size(),
-                             TINYGLTF_TYPE_SCALAR);
+  prim.attributes["POSITION"] =
+      AddAccessor(&model, AddView(&model, pos.data(), pos.size() * 4, kArray), kFloat, nv,
+                  TINYGLTF_TYPE_VEC3, pmin, pmax);
+  prim.attributes["NORMAL"] = AddAccessor(
+      &model, AddView(&model, nrm.data(), nrm.size() * 4, kArray), kFloat, nv, TINYGLTF_TYPE_VEC3);
+  prim.attributes["TANGENT"] = AddAccessor(
+      &model, AddView(&model, tan.data(), tan.size() * 4, kArray), kFloat, nv, TINYGLTF_TYPE_VEC4);
+  prim.attributes["TEXCOORD_0"] = AddAccessor(
+      &model, AddView(&model, uv.data(), uv.size() * 4, kArray), kFloat, nv, TINYGLTF_TYPE_VEC2);
+  prim.indices =
+      AddAccessor(&model, AddView(&model, mesh.indices.data(), mesh.indices.size() * 4, kElements),
+                  TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT, mesh.indices.size(), TINYGLTF_TYPE_SCALAR);
 
   tinygltf::Sampler sampler;
   sampler.magFilter = TINYGLTF_TEXTURE_FILTER_LINEAR;

@@ -19,13 +19,13 @@
 namespace mesoscan {
 
 struct GlbContent {
-  std::string name;                      // mesh, node and material name
-  const HeightField* grid = nullptr;     // the export grid
-  const ImageF* normals = nullptr;       // world unit normals on the grid (3 channels)
-  const GridMesh* mesh = nullptr;        // triangles over the grid
-  std::vector<uint8_t> normal_png;       // encoded PNG of the OpenGL normal map (required)
-  std::vector<uint8_t> base_color_png;   // encoded sRGB PNG of the albedo (may be empty)
-  Json extras = Json::object();          // node extras (Blender: object custom properties)
+  std::string name;                     // mesh, node and material name
+  const HeightField* grid = nullptr;    // the export grid
+  const ImageF* normals = nullptr;      // world unit normals on the grid (3 channels)
+  const GridMesh* mesh = nullptr;       // triangles over the grid
+  std::vector<uint8_t> normal_png;      // encoded PNG of the OpenGL normal map (required)
+  std::vector<uint8_t> base_color_png;  // encoded sRGB PNG of the albedo (may be empty)
+  Json extras = Json::object();         // node extras (Blender: object custom properties)
 };
 
 // Writes the GLB atomically. Throws Error naming the file on failure.

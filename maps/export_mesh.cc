@@ -17,7 +17,8 @@ namespace mesoscan {
 
 void GridMeshOptions::Check() const {
   if (max_triangles <= 0)
-    MESOSCAN_BAD_INPUT("export: --max-triangles: expected a positive number, got " << max_triangles);
+    MESOSCAN_BAD_INPUT("export: --max-triangles: expected a positive number, got "
+                       << max_triangles);
   if (!(tolerance_m >= 0.0) || !std::isfinite(tolerance_m))
     MESOSCAN_BAD_INPUT("export: mesh tolerance: expected a finite number >= 0 (metres)");
 }
@@ -47,8 +48,10 @@ class Rtin {
     // (power of two, 2..kMaxBlock) with the least of these forced triangles; ties: the larger.
     int64_t best = std::numeric_limits<int64_t>::max();
     for (int b = 2; b <= kMaxBlock; b *= 2) {
-      const int64_t nbx = std::max(1, (w_ - 1 + b - 1) / b), nby = std::max(1, (h_ - 1 + b - 1) / b);
-      const int64_t cost = 2 * nbx * nby + ((w_ - 1) % b ? 4 * h_ : 0) + ((h_ - 1) % b ? 4 * w_ : 0);
+      const int64_t nbx = std::max(1, (w_ - 1 + b - 1) / b),
+                    nby = std::max(1, (h_ - 1 + b - 1) / b);
+      const int64_t cost =
+          2 * nbx * nby + ((w_ - 1) % b ? 4 * h_ : 0) + ((h_ - 1) % b ? 4 * w_ : 0);
       if (cost <= best) best = cost, block_ = b;
     }
     nbx_ = std::max(1, (w_ - 1 + block_ - 1) / block_);
@@ -92,9 +95,12 @@ class Rtin {
     int64_t forced = 0;
     ForEachMidpoint([&](int x, int y, int mult) {
       const float e = Err(x, y);
-      if (e == kInf) forced += mult;
-      else if (mult == 2) errs2_.push_back(e);
-      else errs1_.push_back(e);
+      if (e == kInf)
+        forced += mult;
+      else if (mult == 2)
+        errs2_.push_back(e);
+      else
+        errs1_.push_back(e);
     });
     base_ = 2 * static_cast<int64_t>(nbx_) * nby_ + forced - dropped;
     max_finite_ = 0.0f;
@@ -134,8 +140,8 @@ class Rtin {
   float Err(int x, int y) const { return err_[static_cast<size_t>(y) * pw_ + x]; }
 
   // Own error of midpoint m of hypotenuse a-b with apexes c1, c2 (c2 may be absent).
-  float Own(int mx, int my, int ax, int ay, int bx, int by, int c1x, int c1y, bool has_c1,
-            int c2x, int c2y, bool has_c2) const {
+  float Own(int mx, int my, int ax, int ay, int bx, int by, int c1x, int c1y, bool has_c1, int c2x,
+            int c2y, bool has_c2) const {
     if (!Valid(mx, my) || !Valid(ax, ay) || !Valid(bx, by) || (has_c1 && !Valid(c1x, c1y)) ||
         (has_c2 && !Valid(c2x, c2y)))
       return kInf;
@@ -188,8 +194,9 @@ class Rtin {
           float e = Own(x, y, ax, ay, bx, by, c1x, c1y, true, c2x, c2y, true);
           if (e != kInf) {
             // Children of each triangle: midpoints of a-c and c-b (edges of the square).
-            e = std::max({e, Err((ax + c1x) / 2, (ay + c1y) / 2), Err((c1x + bx) / 2, (c1y + by) / 2),
-                          Err((ax + c2x) / 2, (ay + c2y) / 2), Err((c2x + bx) / 2, (c2y + by) / 2)});
+            e = std::max({e, Err((ax + c1x) / 2, (ay + c1y) / 2),
+                          Err((c1x + bx) / 2, (c1y + by) / 2), Err((ax + c2x) / 2, (ay + c2y) / 2),
+                          Err((c2x + bx) / 2, (c2y + by) / 2)});
           }
           Err(x, y) = e;
         }
@@ -197,8 +204,8 @@ class Rtin {
     });
   }
 
-  static void Diagonal(int x, int y, int h, bool main, int* ax, int* ay, int* bx, int* by,
-                       int* c1x, int* c1y, int* c2x, int* c2y) {
+  static void Diagonal(int x, int y, int h, bool main, int* ax, int* ay, int* bx, int* by, int* c1x,
+                       int* c1y, int* c2x, int* c2y) {
     if (main) {
       *ax = x - h, *ay = y - h, *bx = x + h, *by = y + h;
       *c1x = x + h, *c1y = y - h, *c2x = x - h, *c2y = y + h;
@@ -216,7 +223,8 @@ class Rtin {
       for (int y = 0; y < ph_; y += h) {
         const bool horizontal_row = (y % s) == 0;
         for (int x = horizontal_row ? h : 0; x < pw_; x += s) {
-          const int mult = horizontal_row ? (y - h >= 0) + (y + h < ph_) : (x - h >= 0) + (x + h < pw_);
+          const int mult =
+              horizontal_row ? (y - h >= 0) + (y + h < ph_) : (x - h >= 0) + (x + h < pw_);
           fn(x, y, mult);
         }
       }
@@ -249,10 +257,13 @@ class Rtin {
     }
     if (!Valid(ax, ay) || !Valid(bx, by) || !Valid(cx, cy)) return;
     // Counter-clockwise in world (x = i, y = -j) is clockwise in grid coordinates.
-    const int64_t cross = static_cast<int64_t>(bx - ax) * (cy - ay) - static_cast<int64_t>(by - ay) * (cx - ax);
+    const int64_t cross =
+        static_cast<int64_t>(bx - ax) * (cy - ay) - static_cast<int64_t>(by - ay) * (cx - ax);
     const int32_t pa = ay * w_ + ax, pb = by * w_ + bx, pc = cy * w_ + cx;
-    if (cross < 0) out->push_back({pa, pb, pc});
-    else out->push_back({pa, pc, pb});
+    if (cross < 0)
+      out->push_back({pa, pb, pc});
+    else
+      out->push_back({pa, pc, pb});
   }
 
   const HeightField& hf_;
@@ -290,14 +301,15 @@ double MeasureMaxError(const HeightField& hf, const std::vector<std::array<int32
               const int64_t l1 = static_cast<int64_t>(px[0] - px[2]) * (y - py[2]) -
                                  static_cast<int64_t>(py[0] - py[2]) * (x - px[2]);
               const int64_t l2 = area - l0 - l1;
-              const bool inside = area < 0 ? (l0 <= 0 && l1 <= 0 && l2 <= 0)
-                                           : (l0 >= 0 && l1 >= 0 && l2 >= 0);
+              const bool inside =
+                  area < 0 ? (l0 <= 0 && l1 <= 0 && l2 <= 0) : (l0 >= 0 && l1 >= 0 && l2 >= 0);
               if (!inside) continue;
               const double z = hf.z(x, y);
               MESOSCAN_DCHECK(std::isfinite(z));
               const double interp =
                   (static_cast<double>(l0) * pz[0] + static_cast<double>(l1) * pz[1] +
-                   static_cast<double>(l2) * pz[2]) / static_cast<double>(area);
+                   static_cast<double>(l2) * pz[2]) /
+                  static_cast<double>(area);
               acc = std::max(acc, std::abs(z - interp));
               std::atomic_ref<uint8_t>((*covered)[static_cast<size_t>(y) * w + x])
                   .store(1, std::memory_order_relaxed);
@@ -340,8 +352,10 @@ GridMesh TriangulateHeightField(const HeightField& hf, const GridMeshOptions& op
       uint32_t lo = std::bit_cast<uint32_t>(tol), hi = std::bit_cast<uint32_t>(rtin.max_finite());
       while (hi - lo > 1) {
         const uint32_t mid = lo + (hi - lo) / 2;
-        if (rtin.Emitted(std::bit_cast<float>(mid)) <= options.max_triangles) hi = mid;
-        else lo = mid;
+        if (rtin.Emitted(std::bit_cast<float>(mid)) <= options.max_triangles)
+          hi = mid;
+        else
+          lo = mid;
       }
       t = std::bit_cast<float>(hi);
     }

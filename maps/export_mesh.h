@@ -35,11 +35,11 @@ struct GridMesh {
   // Three vertex indices per triangle, counter-clockwise seen from +z (world), i.e. with the
   // outward normal pointing up.
   std::vector<uint32_t> indices;
-  double threshold_m = 0.0;           // the RTIN split threshold used (metres)
-  double max_height_error_m = 0.0;    // measured max |z_sample - mesh| over covered samples
-  int64_t lossless_triangles = 0;     // triangles of the lossless mesh (threshold 0)
-  int64_t valid_samples = 0;          // finite samples in the height field
-  int64_t uncovered_samples = 0;      // finite samples in no triangle (isolated by holes)
+  double threshold_m = 0.0;         // the RTIN split threshold used (metres)
+  double max_height_error_m = 0.0;  // measured max |z_sample - mesh| over covered samples
+  int64_t lossless_triangles = 0;   // triangles of the lossless mesh (threshold 0)
+  int64_t valid_samples = 0;        // finite samples in the height field
+  int64_t uncovered_samples = 0;    // finite samples in no triangle (isolated by holes)
   bool budget_met = true;
 
   int64_t triangles() const { return static_cast<int64_t>(indices.size() / 3); }

@@ -67,11 +67,13 @@ int64_t CountTJunctions(const HeightField& hf, const GridMesh& m) {
   int64_t n = 0;
   for (int64_t t = 0; t < m.triangles(); ++t) {
     for (int e = 0; e < 3; ++e) {
-      const int p = m.vertex_pixel[m.indices[3 * t + e]], q = m.vertex_pixel[m.indices[3 * t + (e + 1) % 3]];
+      const int p = m.vertex_pixel[m.indices[3 * t + e]],
+                q = m.vertex_pixel[m.indices[3 * t + (e + 1) % 3]];
       const int px = p % w, py = p / w, qx = q % w, qy = q / w;
       const int sx = (qx > px) - (qx < px), sy = (qy > py) - (qy < py);
       // RTIN edges are axis-aligned or diagonal: step one grid point at a time.
-      for (int x = px + sx, y = py + sy; x != qx || y != qy; x += sx, y += sy) n += verts.count(y * w + x);
+      for (int x = px + sx, y = py + sy; x != qx || y != qy; x += sx, y += sy)
+        n += verts.count(y * w + x);
     }
   }
   return n;
@@ -126,7 +128,8 @@ TEST(ExportMesh, BudgetIsMetAndTheStatedErrorIsTheTrueError) {
   const int w = 257, h = 129;
   const HeightField hf = MakeGrid(w, h, [](int i, int j) {
     const double x = i - 128.0, y = j - 64.0;
-    return 5e-4 * std::exp(-(x * x + y * y) / (2 * 40.0 * 40.0)) + 2e-5 * std::sin(0.3 * i) * std::cos(0.2 * j);
+    return 5e-4 * std::exp(-(x * x + y * y) / (2 * 40.0 * 40.0)) +
+           2e-5 * std::sin(0.3 * i) * std::cos(0.2 * j);
   });
   double previous_error = std::numeric_limits<double>::infinity();
   for (int64_t budget : {500, 4000, 30000}) {
@@ -151,7 +154,7 @@ TEST(ExportMesh, NoTriangleAcrossHolesAndNoCracks) {
   const HeightField hf = MakeGrid(w, h, [](int i, int j) {
     const double dx = i - 60.0, dy = j - 40.0;
     if (dx * dx + dy * dy < 15.0 * 15.0) return std::nan("");  // a shadow
-    if (i == 100 && j == 80) return std::nan("");               // a single dropped sample
+    if (i == 100 && j == 80) return std::nan("");              // a single dropped sample
     return 3e-4 * std::sin(0.05 * i) + 1e-4 * std::cos(0.07 * j);
   });
   for (int64_t budget : {3000, 1 << 30}) {

@@ -1,14 +1,13 @@
 #include "maps/export.h"
 
-#include <unistd.h>
-
 #include <gtest/gtest.h>
 #include <tiny_gltf.h>
+#include <unistd.h>
 
 #include <cmath>
-#include <vector>
 #include <cstring>
 #include <fstream>
+#include <vector>
 
 #include "core/error.h"
 #include "core/fs.h"
@@ -66,10 +65,9 @@ fs::path ExportOnly(const Scan& scan, const std::string& formats, const std::str
 tinygltf::Model LoadGlb(const fs::path& glb) {
   tinygltf::Model model;
   tinygltf::TinyGLTF loader;
-  loader.SetImageLoader(
-      [](tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int,
-         void*) { return true; },
-      nullptr);
+  loader.SetImageLoader([](tinygltf::Image*, const int, std::string*, std::string*, int, int,
+                           const unsigned char*, int, void*) { return true; },
+                        nullptr);
   std::string err, warn;
   EXPECT_TRUE(loader.LoadBinaryFromFile(&model, &err, &warn, glb.string())) << glb << ": " << err;
   return model;
@@ -79,8 +77,9 @@ TEST(Export, WritesEveryFileAndAManifestAndNoTemporaries) {
   const Scan scan = MakeScan();
   const fs::path dir = TempDir("all");
   const ExportSummary sum = ExportScan(scan, SmallOptions("coin"), dir);
-  for (const char* f : {"coin_height.exr", "coin_height.png", "coin_height.json", "coin_normal_gl.png",
-                        "coin_normal_gl.exr", "coin_confidence.png", "coin.glb", "coin.ply", "manifest.json"})
+  for (const char* f :
+       {"coin_height.exr", "coin_height.png", "coin_height.json", "coin_normal_gl.png",
+        "coin_normal_gl.exr", "coin_confidence.png", "coin.glb", "coin.ply", "manifest.json"})
     EXPECT_TRUE(fs::exists(dir / f)) << f;
   EXPECT_EQ(sum.files.back(), dir / "manifest.json");
   for (const auto& e : fs::directory_iterator(dir))
@@ -89,7 +88,8 @@ TEST(Export, WritesEveryFileAndAManifestAndNoTemporaries) {
   EXPECT_EQ(m.at("format"), "mesoscan-export/1");
   EXPECT_EQ(m.at("units"), "m");
   EXPECT_EQ(m.at("files").size() + 1, sum.files.size());
-  for (const auto& f : m.at("files")) EXPECT_TRUE(fs::exists(dir / f.at("file").get<std::string>()));
+  for (const auto& f : m.at("files"))
+    EXPECT_TRUE(fs::exists(dir / f.at("file").get<std::string>()));
   EXPECT_DOUBLE_EQ(m.at("grid").at("pixel_size_m").get<double>(), 50e-6);
   EXPECT_DOUBLE_EQ(m.at("grid").at("physical_size_m")[0].get<double>(), 96 * 50e-6);
   EXPECT_EQ(m.at("albedo"), "none");  // none given, session lookup off
@@ -102,7 +102,7 @@ TEST(Export, HeightExrIsMetresInChannelYWithTheGridAttributes) {
   ASSERT_EQ(info.channel_names, std::vector<std::string>{"Y"});
   EXPECT_TRUE(info.is_float);
   EXPECT_NEAR(info.float_attributes.at("mesoscan:pixel_size"), 50e-6, 5e-12);  // float32
-  EXPECT_NEAR(info.float_attributes.at("mesoscan:x0"), -2.4e-3, 2e-10);  // float32 attribute
+  EXPECT_NEAR(info.float_attributes.at("mesoscan:x0"), -2.4e-3, 2e-10);        // float32 attribute
   EXPECT_EQ(info.float_attributes.at("mesoscan:midlevel"), 0.0);
   EXPECT_EQ(info.float_attributes.at("mesoscan:scale"), 1.0);
   const ImageF y = ReadExrChannels(dir / "s_height.exr", {"Y"});
@@ -119,7 +119,8 @@ TEST(Export, HeightExrIsMetresInChannelYWithTheGridAttributes) {
           const int x = i + di, yy = j + dj;
           if (x < 0 || yy < 0 || x >= hf.width() || yy >= hf.height()) continue;
           near_hole[static_cast<size_t>(yy) * hf.width() + x] = true;
-          if (std::isfinite(hf.z(x, yy))) lo = std::min(lo, hf.z(x, yy)), hi = std::max(hi, hf.z(x, yy));
+          if (std::isfinite(hf.z(x, yy)))
+            lo = std::min(lo, hf.z(x, yy)), hi = std::max(hi, hf.z(x, yy));
         }
     }
   for (size_t p = 0; p < y.pixels(); ++p) {
@@ -136,7 +137,8 @@ TEST(Export, HeightExrIsMetresInChannelYWithTheGridAttributes) {
   const ImageF n = ReadExrChannels(dir / "s_normal_gl.exr", {"R", "G", "B"});
   for (size_t p = 0; p < n.pixels(); ++p) {
     if (!std::isfinite(scan.normals.data()[p]) || near_hole[p]) continue;
-    for (int k = 0; k < 3; ++k) EXPECT_NEAR(2 * n.channel(k)[p] - 1, scan.normals.channel(k)[p], 1e-6);
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(2 * n.channel(k)[p] - 1, scan.normals.channel(k)[p], 1e-6);
   }
 }
 
@@ -176,7 +178,8 @@ TEST(Export, NormalMapConventionsDifferOnlyInGreen) {
     for (int dj = -1; dj <= 1; ++dj)
       for (int di = -1; di <= 1; ++di) {
         const int x = i + di, y = j + dj;
-        if (x >= 0 && y >= 0 && x < gl.width() && y < gl.height() && !std::isfinite(scan.height.z(x, y)))
+        if (x >= 0 && y >= 0 && x < gl.width() && y < gl.height() &&
+            !std::isfinite(scan.height.z(x, y)))
           return true;
       }
     return false;
@@ -208,7 +211,8 @@ TEST(Export, GlbHoldsTheHeightFieldInMetresYUpWithExtras) {
   const tinygltf::Model model = LoadGlb(dir / "s.glb");
   ASSERT_EQ(model.meshes.size(), 1u);
   const auto& prim = model.meshes[0].primitives[0];
-  for (const char* a : {"POSITION", "NORMAL", "TANGENT", "TEXCOORD_0"}) ASSERT_TRUE(prim.attributes.count(a)) << a;
+  for (const char* a : {"POSITION", "NORMAL", "TANGENT", "TEXCOORD_0"})
+    ASSERT_TRUE(prim.attributes.count(a)) << a;
   const auto& pa = model.accessors[prim.attributes.at("POSITION")];
   const auto& pv = model.bufferViews[pa.bufferView];
   const float* pos = reinterpret_cast<const float*>(model.buffers[0].data.data() + pv.byteOffset);
@@ -218,7 +222,8 @@ TEST(Export, GlbHoldsTheHeightFieldInMetresYUpWithExtras) {
   const int w = hf.width();
   for (size_t v = 0; v < pa.count; ++v) {
     const double x = pos[3 * v], y = -pos[3 * v + 2], z = pos[3 * v + 1];
-    const int i = static_cast<int>(std::lround(hf.I(x))), j = static_cast<int>(std::lround(hf.J(y)));
+    const int i = static_cast<int>(std::lround(hf.I(x))),
+              j = static_cast<int>(std::lround(hf.J(y)));
     ASSERT_NEAR(hf.X(i), x, 1e-9);
     ASSERT_NEAR(hf.Y(j), y, 1e-9);
     ASSERT_EQ(z, hf.z(i, j)) << i << "," << j;
@@ -271,7 +276,8 @@ TEST(Export, CropAndPixelSizeKeepWorldPositions) {
   // A plane, so resampled heights are exact: z = a x + b y + c.
   HeightField& hf = scan.height;
   for (int j = 0; j < hf.height(); ++j)
-    for (int i = 0; i < hf.width(); ++i) hf.z(i, j) = static_cast<float>(0.02 * hf.X(i) - 0.01 * hf.Y(j) + 1e-4);
+    for (int i = 0; i < hf.width(); ++i)
+      hf.z(i, j) = static_cast<float>(0.02 * hf.X(i) - 0.01 * hf.Y(j) + 1e-4);
   PixelRect crop{10, 6, 40, 30};
   const HeightField c = CropAndResample(hf, crop, 0.0);
   EXPECT_EQ(c.width(), 40);
@@ -316,7 +322,9 @@ TEST(Export, AlbedoIsWrittenAsSrgbAndTexturesTheGlb) {
   EXPECT_EQ(info.bits_per_sample, 8);
   // Scaled so the 99th percentile is 1, then sRGB-encoded: decode and compare shapes.
   const double scale = 1.0 / (0.2 + 0.6 * 95 / 96.0);
-  auto decode = [](double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); };
+  auto decode = [](double v) {
+    return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4);
+  };
   EXPECT_NEAR(decode(a(10, 10)), (0.2 + 0.6 * 10 / 96.0) * scale, 0.01);
   const tinygltf::Model model = LoadGlb(dir / "s.glb");
   ASSERT_EQ(model.materials.size(), 1u);

@@ -50,16 +50,16 @@ struct MapSelection {
 };
 
 struct MapsOptions {
-  PixelRect crop;                  // region of the scan's height grid; whole() = everything
-  FillOptions fill;                // hole filling (default harmonic)
-  FlattenOptions flatten;          // default none
-  bool tile = false;               // make a tileable square of tile_options.size_m
+  PixelRect crop;          // region of the scan's height grid; whole() = everything
+  FillOptions fill;        // hole filling (default harmonic)
+  FlattenOptions flatten;  // default none
+  bool tile = false;       // make a tileable square of tile_options.size_m
   TileOptions tile_options;
   AoOptions ao;
   double curvature_sigma_px = 1.0;  // Gaussian before the curvature, pixels, >= 0
   MapSelection maps;
   NormalConvention normals = NormalConvention::kOpenGl;
-  std::string name = "scan";       // file name prefix, no path separators
+  std::string name = "scan";  // file name prefix, no path separators
   // Optional linear albedo on the scan's height grid (as ExportOptions::albedo); empty: the
   // session's white frame (report.json "session") when readable.
   ImageF albedo;

@@ -22,8 +22,10 @@ double Diff(const ImageF& z, int x, int y, int dir, bool periodic) {
   const int n = dir == 0 ? w : h;
   const int c = dir == 0 ? x : y;
   auto at = [&](int k) -> double {
-    if (periodic) k = Wrap(k, n);
-    else if (k < 0 || k >= n) return std::nan("");
+    if (periodic)
+      k = Wrap(k, n);
+    else if (k < 0 || k >= n)
+      return std::nan("");
     return dir == 0 ? z(k, y) : z(x, k);
   };
   const double zc = at(c), zp = at(c + 1), zm = at(c - 1);
@@ -64,13 +66,16 @@ ImageF AmbientOcclusion(const HeightField& hf, const AoOptions& o, bool periodic
   const int w = hf.width(), h = hf.height();
   const double radius_px = std::max(1.0, o.radius_m / hf.pixel_size);
   // Sample offsets per azimuth (pixels, quadratic spacing from 1 px), and their distances.
-  struct Tap { float dx, dy, dist_m; };
+  struct Tap {
+    float dx, dy, dist_m;
+  };
   std::vector<Tap> taps;
   for (int d = 0; d < o.directions; ++d) {
     const double a = 2 * kPi * (d + 0.5) / o.directions;
     for (int s = 1; s <= o.steps; ++s) {
       const double t = static_cast<double>(s) / o.steps;
-      const double r = std::max(static_cast<double>(s) / o.steps * 1.0, 1.0 + (radius_px - 1.0) * t * t);
+      const double r =
+          std::max(static_cast<double>(s) / o.steps * 1.0, 1.0 + (radius_px - 1.0) * t * t);
       taps.push_back({static_cast<float>(r * std::cos(a)), static_cast<float>(r * std::sin(a)),
                       static_cast<float>(r * hf.pixel_size)});
     }
@@ -129,9 +134,12 @@ ImageF MeanCurvature(const HeightField& hf, double sigma_px, bool periodic) {
         const double zy = -(at(x, y + 1) - at(x, y - 1)) / (2 * p);
         const double zxx = (at(x + 1, y) - 2 * c + at(x - 1, y)) / (p * p);
         const double zyy = (at(x, y + 1) - 2 * c + at(x, y - 1)) / (p * p);
-        const double zxy = -(at(x + 1, y + 1) - at(x + 1, y - 1) - at(x - 1, y + 1) + at(x - 1, y - 1)) / (4 * p * p);
+        const double zxy =
+            -(at(x + 1, y + 1) - at(x + 1, y - 1) - at(x - 1, y + 1) + at(x - 1, y - 1)) /
+            (4 * p * p);
         const double g = 1 + zx * zx + zy * zy;
-        const double hm = -((1 + zy * zy) * zxx - 2 * zx * zy * zxy + (1 + zx * zx) * zyy) / (2 * std::pow(g, 1.5));
+        const double hm = -((1 + zy * zy) * zxx - 2 * zx * zy * zxy + (1 + zx * zx) * zyy) /
+                          (2 * std::pow(g, 1.5));
         if (std::isfinite(hm)) k(x, y) = static_cast<float>(hm);
       }
   });
@@ -149,7 +157,8 @@ ImageF ProjectorIrradiance(const HeightField& hf, const ImageF& n, const Vec3d& 
         if (!std::isfinite(z) || !std::isfinite(n(x, y, 0))) continue;
         const Vec3d d = c - Vec3d(hf.X(x), hf.Y(y), z);
         const double r2 = d.squaredNorm();
-        const double cosi = (n(x, y, 0) * d.x() + n(x, y, 1) * d.y() + n(x, y, 2) * d.z()) / std::sqrt(r2);
+        const double cosi =
+            (n(x, y, 0) * d.x() + n(x, y, 1) * d.y() + n(x, y, 2) * d.z()) / std::sqrt(r2);
         if (cosi > 1e-3) e(x, y) = static_cast<float>(cosi / r2);
       }
   });

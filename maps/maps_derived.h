@@ -13,9 +13,9 @@ namespace mesoscan {
 ImageF NormalsOf(const HeightField& hf, bool periodic);
 
 struct AoOptions {
-  int directions = 12;        // azimuths sampled, >= 4
-  int steps = 12;             // samples per azimuth (quadratically spaced out to the radius), >= 2
-  double radius_m = 1.0e-3;   // horizon search radius, metres, > 0
+  int directions = 12;       // azimuths sampled, >= 4
+  int steps = 12;            // samples per azimuth (quadratically spaced out to the radius), >= 2
+  double radius_m = 1.0e-3;  // horizon search radius, metres, > 0
   void Check() const;
 };
 
@@ -36,6 +36,7 @@ ImageF MeanCurvature(const HeightField& hf, double sigma_px, bool periodic);
 // the inverse square law, the simulator's shading model), divided by its median over the grid;
 // NaN where z or the normal is NaN or the sample faces away. Dividing the white frame's
 // radiance by it leaves albedo.
-ImageF ProjectorIrradiance(const HeightField& hf, const ImageF& normals, const Vec3d& projector_centre);
+ImageF ProjectorIrradiance(const HeightField& hf, const ImageF& normals,
+                           const Vec3d& projector_centre);
 
 }  // namespace mesoscan

@@ -28,7 +28,8 @@ TEST(MapsDerived, AoIsOneOnAPlaneAndMatchesAVGroove) {
   // groove (|cos phi| of it along azimuth phi): AO = mean_phi 1 / (1 + (tan 30 |cos phi|)^2).
   const double t = std::tan(30 * kPi / 180);
   for (int y = 0; y < hf.height(); ++y)
-    for (int x = 0; x < hf.width(); ++x) hf.z(x, y) = static_cast<float>(std::abs(x - 100) * hf.pixel_size * t);
+    for (int x = 0; x < hf.width(); ++x)
+      hf.z(x, y) = static_cast<float>(std::abs(x - 100) * hf.pixel_size * t);
   const ImageF groove = AmbientOcclusion(hf, o, false);
   double expect = 0;
   for (int d = 0; d < o.directions; ++d) {
@@ -41,7 +42,8 @@ TEST(MapsDerived, AoIsOneOnAPlaneAndMatchesAVGroove) {
   // Periodic: a tile's AO wraps (a groove at the edge occludes like one in the middle).
   HeightField g2 = Grid(64, 64, 10e-6);
   for (int y = 0; y < 64; ++y)
-    for (int x = 0; x < 64; ++x) g2.z(x, y) = static_cast<float>(std::abs(((x + 32) % 64) - 32) * 10e-6 * t);
+    for (int x = 0; x < 64; ++x)
+      g2.z(x, y) = static_cast<float>(std::abs(((x + 32) % 64) - 32) * 10e-6 * t);
   const ImageF wrapped = AmbientOcclusion(g2, o, true);
   EXPECT_NEAR(wrapped(0, 10), wrapped(0, 40), 1e-6);
   EXPECT_LT(wrapped(0, 10), 0.95);
@@ -53,7 +55,8 @@ TEST(MapsDerived, MeanCurvatureOfASphere) {
   for (int y = 0; y < 201; ++y)
     for (int x = 0; x < 201; ++x) {
       const double dx = (x - 100) * 10e-6, dy = (y - 100) * 10e-6;
-      hf.z(x, y) = static_cast<float>(std::sqrt(radius * radius - dx * dx - dy * dy) - radius + 1e-3);
+      hf.z(x, y) =
+          static_cast<float>(std::sqrt(radius * radius - dx * dx - dy * dy) - radius + 1e-3);
     }
   const ImageF k = MeanCurvature(hf, 0.0, false);
   // float32 heights of ~1 mm: second differences carry ~1e-10 m / (1e-5 m)^2 = 1 /m of noise.

@@ -2,11 +2,10 @@
 
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
-#include <opencv2/imgproc.hpp>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <vector>
 
@@ -22,7 +21,7 @@ constexpr int kDy[4] = {0, 0, 1, -1};
 struct Component {
   std::vector<int> pixels;  // flat indices y * w + x
   bool touches_border = false;
-  float radius_px = 0.0f;   // largest distance from a hole pixel to a measured pixel
+  float radius_px = 0.0f;  // largest distance from a hole pixel to a measured pixel
 };
 
 // 4-connected components of the NaN pixels.
@@ -129,7 +128,10 @@ void SolveHole(const Component& c, FillMethod method, int w, int h, const float*
       double vals[5];
       for (int k = -1; k < 4; ++k) {
         const int nx = k < 0 ? x : x + kDx[k], ny = k < 0 ? y : y + kDy[k];
-        if (nx < 0 || ny < 0 || nx >= w || ny >= h) { ok = false; break; }
+        if (nx < 0 || ny < 0 || nx >= w || ny >= h) {
+          ok = false;
+          break;
+        }
         const int q = ny * w + nx;
         const double coef = k < 0 ? -4.0 : 1.0;
         const int j = index_of(q);
@@ -182,8 +184,8 @@ void SolveHole(const Component& c, FillMethod method, int w, int h, const float*
 
 void FillOptions::Check() const {
   if (!(max_hole_radius_m > 0) || !std::isfinite(max_hole_radius_m))
-    MESOSCAN_THROW(ErrorKind::kUsage, "fill: max hole radius " << max_hole_radius_m
-                                                                << " m: expected > 0");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "fill: max hole radius " << max_hole_radius_m << " m: expected > 0");
 }
 
 FillMethod ParseFillMethod(const std::string& t) {
@@ -195,9 +197,12 @@ FillMethod ParseFillMethod(const std::string& t) {
 
 const char* FillMethodName(FillMethod m) {
   switch (m) {
-    case FillMethod::kHarmonic: return "harmonic";
-    case FillMethod::kBiharmonic: return "biharmonic";
-    case FillMethod::kNone: return "none";
+    case FillMethod::kHarmonic:
+      return "harmonic";
+    case FillMethod::kBiharmonic:
+      return "biharmonic";
+    case FillMethod::kNone:
+      return "none";
   }
   return "?";
 }

@@ -4,7 +4,8 @@
 // thin-plate / biharmonic equation on the grid with a sparse Cholesky factorisation (Eigen);
 // large holes (inscribed radius above a limit: the outside of the sample, a missing region) stay
 // NaN. Holes reaching the grid's border are filled only when narrow too (a crack or the shadowed
-// gaps of a fabric that run to the edge of the field of view), with no constraint at the border. Filled pixels are marked in `filled` and get confidence 0.
+// gaps of a fabric that run to the edge of the field of view), with no constraint at the border.
+// Filled pixels are marked in `filled` and get confidence 0.
 //
 // Harmonic fill error bound (discrete maximum principle): inside a hole contained in a disc of
 // radius R centred at c, |z_fill - z_true| <= max|lap z_true| / 4 * (R^2 - |x - c|^2) + max

@@ -2,10 +2,9 @@
 
 #include <gtest/gtest.h>
 
-#include <opencv2/photo.hpp>
-
 #include <cmath>
 #include <iostream>
+#include <opencv2/photo.hpp>
 #include <random>
 #include <vector>
 
@@ -31,7 +30,9 @@ HeightField Surface() {
   return hf;
 }
 
-struct Disc { int cx, cy, r; };
+struct Disc {
+  int cx, cy, r;
+};
 const std::vector<Disc> kDiscs = {{40, 40, 6}, {120, 60, 12}, {190, 140, 18}, {70, 150, 9}};
 
 HeightField WithHoles(const HeightField& truth, std::vector<int>* disc_of) {
@@ -91,7 +92,8 @@ TEST(MapsFill, HarmonicFillWithinTheMaximumPrincipleBound) {
   for (int y = 0; y < truth.height(); ++y)
     for (int x = 0; x < w; ++x) {
       const int k = disc_of[y * w + x];
-      src.at<uint16_t>(y, x) = k >= 0 ? 0 : static_cast<uint16_t>(std::lround((truth.z(x, y) - zlo) / q));
+      src.at<uint16_t>(y, x) =
+          k >= 0 ? 0 : static_cast<uint16_t>(std::lround((truth.z(x, y) - zlo) / q));
       mask.at<uint8_t>(y, x) = k >= 0 ? 255 : 0;
       if (k < 0) {
         EXPECT_EQ(r.field.z(x, y), truth.z(x, y));
@@ -167,7 +169,8 @@ TEST(MapsFill, BiharmonicBeatsHarmonicOnASmoothSurface) {
     for (size_t p = 0; p < disc_of.size(); ++p)
       if (disc_of[p] >= 0) e[k] += std::pow(r.field.z.data()[p] - truth.z.data()[p], 2);
   }
-  std::cout << "hole RMS: harmonic " << std::sqrt(e[0]) << ", biharmonic " << std::sqrt(e[1]) << " (sum)\n";
+  std::cout << "hole RMS: harmonic " << std::sqrt(e[0]) << ", biharmonic " << std::sqrt(e[1])
+            << " (sum)\n";
   EXPECT_LT(e[1], e[0]);
 }
 

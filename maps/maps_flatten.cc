@@ -1,11 +1,10 @@
 #include "maps/maps_flatten.h"
 
 #include <Eigen/Dense>
-#include <opencv2/imgproc.hpp>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 
 #include "core/error.h"
@@ -86,10 +85,11 @@ PolyFit FitPolynomial(const ImageF& z, const ImageU8& mask, int degree, const Fl
 
 void FlattenOptions::Check() const {
   if (poly_degree < 1 || poly_degree > 6)
-    MESOSCAN_THROW(ErrorKind::kUsage, "--flatten poly:" << poly_degree << ": expected a degree 1..6");
-  if (!(highpass_wavelength_m > 0) || !std::isfinite(highpass_wavelength_m))
     MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--flatten highpass: wavelength " << highpass_wavelength_m * 1e3 << " mm: expected > 0");
+                   "--flatten poly:" << poly_degree << ": expected a degree 1..6");
+  if (!(highpass_wavelength_m > 0) || !std::isfinite(highpass_wavelength_m))
+    MESOSCAN_THROW(ErrorKind::kUsage, "--flatten highpass: wavelength "
+                                          << highpass_wavelength_m * 1e3 << " mm: expected > 0");
   if (irls_iterations < 1 || !(huber_k > 0))
     MESOSCAN_THROW(ErrorKind::kUsage, "flatten: irls_iterations >= 1 and huber_k > 0 expected");
 }
@@ -106,8 +106,10 @@ FlattenOptions ParseFlatten(const std::string& t) {
     MESOSCAN_THROW(ErrorKind::kUsage,
                    "--flatten '" << t << "': expected none, plane, poly:N or highpass:MM");
   };
-  if (t == "none") o.method = FlattenMethod::kNone;
-  else if (t == "plane") o.method = FlattenMethod::kPlane;
+  if (t == "none")
+    o.method = FlattenMethod::kNone;
+  else if (t == "plane")
+    o.method = FlattenMethod::kPlane;
   else if (t.rfind("poly:", 0) == 0) {
     o.method = FlattenMethod::kPoly;
     const double d = number(t.substr(5));
@@ -126,10 +128,16 @@ FlattenOptions ParseFlatten(const std::string& t) {
 std::string FlattenName(const FlattenOptions& o) {
   std::ostringstream s;
   switch (o.method) {
-    case FlattenMethod::kNone: return "none";
-    case FlattenMethod::kPlane: return "plane";
-    case FlattenMethod::kPoly: s << "poly:" << o.poly_degree; return s.str();
-    case FlattenMethod::kHighpass: s << "highpass:" << o.highpass_wavelength_m * 1e3; return s.str();
+    case FlattenMethod::kNone:
+      return "none";
+    case FlattenMethod::kPlane:
+      return "plane";
+    case FlattenMethod::kPoly:
+      s << "poly:" << o.poly_degree;
+      return s.str();
+    case FlattenMethod::kHighpass:
+      s << "highpass:" << o.highpass_wavelength_m * 1e3;
+      return s.str();
   }
   return "?";
 }
@@ -169,7 +177,8 @@ ImageF NormalisedGaussianBlur(const ImageF& z, double sigma_px, bool periodic) {
   for (int y = 0; y < sh; ++y)
     for (int x = 0; x < sw; ++x) {
       const float d = den.at<float>(y, x);
-      low.at<float>(y, x) = d > 1e-6f ? num.at<float>(y, x) / d : std::numeric_limits<float>::quiet_NaN();
+      low.at<float>(y, x) =
+          d > 1e-6f ? num.at<float>(y, x) / d : std::numeric_limits<float>::quiet_NaN();
     }
   ImageF out(w, h, 1);
   if (f == 1) {
@@ -186,9 +195,9 @@ ImageF NormalisedGaussianBlur(const ImageF& z, double sigma_px, bool periodic) {
         const double fx = std::clamp((x + 0.5) / f - 0.5, 0.0, sw - 1.0);
         const int x0 = std::min(static_cast<int>(fx), sw - 1), x1 = std::min(x0 + 1, sw - 1);
         const double a = fx - x0;
-        out(x, y) = static_cast<float>((1 - a) * (1 - b) * low.at<float>(y0, x0) +
-                                       a * (1 - b) * low.at<float>(y0, x1) +
-                                       (1 - a) * b * low.at<float>(y1, x0) + a * b * low.at<float>(y1, x1));
+        out(x, y) = static_cast<float>(
+            (1 - a) * (1 - b) * low.at<float>(y0, x0) + a * (1 - b) * low.at<float>(y0, x1) +
+            (1 - a) * b * low.at<float>(y1, x0) + a * b * low.at<float>(y1, x1));
       }
     }
   });
@@ -209,7 +218,9 @@ FlattenResult Flatten(const HeightField& hf, const ImageU8& mask, const FlattenO
   // 1. The robust plane or polynomial.
   // The high-pass first removes a quadratic: the normalised Gaussian is biased at the grid's
   // border by the local slope times sigma, so what it filters must be nearly flat there.
-  const int degree = o.method == FlattenMethod::kPoly ? o.poly_degree : o.method == FlattenMethod::kHighpass ? 2 : 1;
+  const int degree = o.method == FlattenMethod::kPoly       ? o.poly_degree
+                     : o.method == FlattenMethod::kHighpass ? 2
+                                                            : 1;
   const PolyFit fit = FitPolynomial(hf.z, mask, degree, o);
   r.coefficients.assign(fit.c.data(), fit.c.data() + fit.c.size());
   ParallelForRows(h, [&](int r0, int r1) {
@@ -225,9 +236,11 @@ FlattenResult Flatten(const HeightField& hf, const ImageU8& mask, const FlattenO
     ImageF resid(w, h, 1);
     for (size_t p = 0; p < resid.pixels(); ++p) {
       const bool use = mask.empty() || mask.data()[p] != 0;
-      resid.data()[p] = use ? hf.z.data()[p] - r.removed.data()[p] : std::numeric_limits<float>::quiet_NaN();
+      resid.data()[p] =
+          use ? hf.z.data()[p] - r.removed.data()[p] : std::numeric_limits<float>::quiet_NaN();
     }
-    const double sigma_px = o.highpass_wavelength_m * std::sqrt(std::log(2.0) / 2.0) / kPi / hf.pixel_size;
+    const double sigma_px =
+        o.highpass_wavelength_m * std::sqrt(std::log(2.0) / 2.0) / kPi / hf.pixel_size;
     const ImageF low = NormalisedGaussianBlur(resid, sigma_px);
     for (size_t p = 0; p < low.pixels(); ++p)
       if (std::isfinite(low.data()[p])) r.removed.data()[p] += low.data()[p];

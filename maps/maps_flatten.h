@@ -20,18 +20,18 @@ enum class FlattenMethod { kNone, kPlane, kPoly, kHighpass };
 
 struct FlattenOptions {
   FlattenMethod method = FlattenMethod::kNone;
-  int poly_degree = 2;                   // kPoly: total degree, 1..6
-  double highpass_wavelength_m = 5e-3;   // kHighpass: cutoff wavelength, metres, > 2 pixels
-  int irls_iterations = 8;               // robust fit iterations, >= 1
-  double huber_k = 1.5;                  // Huber threshold in robust sigmas, > 0
+  int poly_degree = 2;                  // kPoly: total degree, 1..6
+  double highpass_wavelength_m = 5e-3;  // kHighpass: cutoff wavelength, metres, > 2 pixels
+  int irls_iterations = 8;              // robust fit iterations, >= 1
+  double huber_k = 1.5;                 // Huber threshold in robust sigmas, > 0
   void Check() const;
 };
 
 struct FlattenResult {
-  HeightField field;           // the flattened height (NaN where the input is NaN)
-  ImageF removed;              // the removed low-frequency part, metres, finite everywhere
+  HeightField field;                 // the flattened height (NaN where the input is NaN)
+  ImageF removed;                    // the removed low-frequency part, metres, finite everywhere
   std::vector<double> coefficients;  // plane / polynomial (normalised coordinates, see .cc)
-  std::string description;     // e.g. "plane: tilt 0.52 deg"
+  std::string description;           // e.g. "plane: tilt 0.52 deg"
   double seconds = 0.0;
 };
 

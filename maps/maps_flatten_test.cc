@@ -29,7 +29,8 @@ HeightField TiltedBent(ImageF* texture, bool holes) {
       const double t = Texture(u, v);
       (*texture)(x, y) = static_cast<float>(t);
       const double shape = 2e-3 + std::tan(1.5 * kPi / 180) * (u - 0.01) + 0.004 * v -
-                           0.3e-3 * std::pow((u - 0.012) / 0.012, 2) + 0.1e-3 * std::pow((v - 0.01) / 0.01, 2);
+                           0.3e-3 * std::pow((u - 0.012) / 0.012, 2) +
+                           0.1e-3 * std::pow((v - 0.01) / 0.01, 2);
       hf.z(x, y) = static_cast<float>(shape + t);
       if (holes && (x - 300) * (x - 300) + (y - 120) * (y - 120) < 400) hf.z(x, y) = NAN;
     }

@@ -61,7 +61,8 @@ double Autocorrelation(const ImageF& t, int s, int axis) {
 int BestShift(const ImageF& t, int axis) {
   const int n = t.width();
   int best = n / 2;
-  double best_c = Autocorrelation(t, best, axis) + 0.2;  // the half shift wins unless clearly beaten
+  double best_c =
+      Autocorrelation(t, best, axis) + 0.2;  // the half shift wins unless clearly beaten
   for (int s = n / 3; s <= 2 * n / 3; ++s) {
     const double c = Autocorrelation(t, s, axis);
     if (c > best_c) best_c = c, best = s;
@@ -115,8 +116,7 @@ ImageF MirrorPeriodic(const ImageF& t) {
   ImageF out(n, n, t.channels());
   for (int c = 0; c < t.channels(); ++c)
     for (int y = 0; y < n; ++y)
-      for (int x = 0; x < n; ++x)
-        out(x, y, c) = t(x < s ? x : n - 1 - x, y < s ? y : n - 1 - y, c);
+      for (int x = 0; x < n; ++x) out(x, y, c) = t(x < s ? x : n - 1 - x, y < s ? y : n - 1 - y, c);
   return out;
 }
 
@@ -152,12 +152,16 @@ SeamStats MeasureSeams(const ImageF& z) {
       const double v = z(x, y);
       const double dx = z((x + 1) % w, y) - v, dy = z(x, (y + 1) % h) - v;
       if (std::isfinite(dx)) {
-        if (x == w - 1) sx += dx * dx, ++nsx;
-        else ix += dx * dx, ++nix;
+        if (x == w - 1)
+          sx += dx * dx, ++nsx;
+        else
+          ix += dx * dx, ++nix;
       }
       if (std::isfinite(dy)) {
-        if (y == h - 1) sy += dy * dy, ++nsy;
-        else iy += dy * dy, ++niy;
+        if (y == h - 1)
+          sy += dy * dy, ++nsy;
+        else
+          iy += dy * dy, ++niy;
       }
     }
   // Per-column (x) and per-row (y) interior gradient RMS, and their scatter.
@@ -211,13 +215,14 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
     MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << o.size_m * 1e3 << " mm: under 8 grid pixels of "
                                                 << hf.pixel_size * 1e6 << " um");
   if (src > w || src > h)
-    MESOSCAN_BAD_INPUT("height.exr: the " << w << "x" << h << " grid ("
-                                          << w * hf.pixel_size * 1e3 << " x " << h * hf.pixel_size * 1e3
+    MESOSCAN_BAD_INPUT("height.exr: the " << w << "x" << h << " grid (" << w * hf.pixel_size * 1e3
+                                          << " x " << h * hf.pixel_size * 1e3
                                           << " mm) is smaller than the --tile square of "
                                           << src * hf.pixel_size * 1e3 << " mm");
   // 1. The hole-free square with the fewest filled pixels, nearest to the centre.
   const auto holes = Integral(w, h, [&](int x, int y) { return !std::isfinite(hf.z(x, y)); });
-  const auto fills = Integral(w, h, [&](int x, int y) { return !filled.empty() && filled(x, y) != 0; });
+  const auto fills =
+      Integral(w, h, [&](int x, int y) { return !filled.empty() && filled(x, y) != 0; });
   int64_t best_fill = std::numeric_limits<int64_t>::max();
   double best_d = 0;
   int bx = -1, by = -1;
@@ -227,7 +232,8 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
       if (BoxSum(holes, w, x, y, src) != 0) continue;
       const int64_t f = BoxSum(fills, w, x, y, src);
       const double d = (x - cx) * (x - cx) + (y - cy) * (y - cy);
-      if (f < best_fill || (f == best_fill && d < best_d)) best_fill = f, best_d = d, bx = x, by = y;
+      if (f < best_fill || (f == best_fill && d < best_d))
+        best_fill = f, best_d = d, bx = x, by = y;
     }
   if (bx < 0)
     MESOSCAN_BAD_INPUT("height.exr: no hole-free square of " << src * hf.pixel_size * 1e3
@@ -249,7 +255,8 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
   r.field.pixel_size = hf.pixel_size;
   r.field.x0 = hf.X(bx);
   r.field.y0 = hf.Y(by);
-  if (!hf.confidence.empty()) r.field.confidence = periodic(CropSquare(hf.confidence, bx, by, src), false);
+  if (!hf.confidence.empty())
+    r.field.confidence = periodic(CropSquare(hf.confidence, bx, by, src), false);
   if (!albedo.empty()) r.albedo = periodic(CropSquare(albedo, bx, by, src), true);
   if (!filled.empty()) {
     ImageF fsq(src, src, 1);

@@ -41,7 +41,9 @@ struct SeamStats {
   double column_spread_x = 0, row_spread_y = 0;
   // Both seams pooled: the RMS of the two ratios (each seam against its own axis' interior,
   // since an anisotropic texture has different gradients along x and y).
-  double pooled_ratio() const { return std::sqrt(0.5 * (ratio_x() * ratio_x() + ratio_y() * ratio_y())); }
+  double pooled_ratio() const {
+    return std::sqrt(0.5 * (ratio_x() * ratio_x() + ratio_y() * ratio_y()));
+  }
   double ratio_x() const { return interior_rms_x > 0 ? seam_rms_x / interior_rms_x : 0; }
   double ratio_y() const { return interior_rms_y > 0 ? seam_rms_y / interior_rms_y : 0; }
 };

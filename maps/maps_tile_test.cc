@@ -25,8 +25,7 @@ HeightField RandomSurface(unsigned seed) {
   for (float v : hf.z.data()) s2 += v * v;
   const double scale = 20e-6 / std::sqrt(s2 / hf.z.pixels());
   for (int y = 0; y < hf.height(); ++y)
-    for (int x = 0; x < hf.width(); ++x)
-      hf.z(x, y) = static_cast<float>(hf.z(x, y) * scale);
+    for (int x = 0; x < hf.width(); ++x) hf.z(x, y) = static_cast<float>(hf.z(x, y) * scale);
   return hf;
 }
 
@@ -43,8 +42,9 @@ TEST(MapsTile, BlendSeamGradientsMatchTheInterior) {
     std::cout << t.BriefReport() << "\n";
     EXPECT_EQ(t.size_px, 400);
     const SeamStats& s = t.seams_after;
-    const double pooled = std::sqrt((s.seam_rms_x * s.seam_rms_x + s.seam_rms_y * s.seam_rms_y) /
-                                    (s.interior_rms_x * s.interior_rms_x + s.interior_rms_y * s.interior_rms_y));
+    const double pooled =
+        std::sqrt((s.seam_rms_x * s.seam_rms_x + s.seam_rms_y * s.seam_rms_y) /
+                  (s.interior_rms_x * s.interior_rms_x + s.interior_rms_y * s.interior_rms_y));
     EXPECT_NEAR(pooled, 1.0, 0.10);
     EXPECT_NEAR(s.ratio_x(), 1.0, 0.20);
     EXPECT_NEAR(s.ratio_y(), 1.0, 0.20);
@@ -57,7 +57,8 @@ TEST(MapsTile, BlendSeamGradientsMatchTheInterior) {
     m /= n * n, ms /= n * n;
     for (int y = 0; y < n; ++y)
       for (int x = 0; x < n; ++x)
-        s2 += std::pow(t.field.z(x, y) - m, 2), ss2 += std::pow(hf.z(t.src_x + x, t.src_y + y) - ms, 2);
+        s2 += std::pow(t.field.z(x, y) - m, 2),
+            ss2 += std::pow(hf.z(t.src_x + x, t.src_y + y) - ms, 2);
     EXPECT_NEAR(std::sqrt(s2 / ss2), 1.0, 0.10);
   }
 }
@@ -72,7 +73,7 @@ TEST(MapsTile, MirrorIsContinuousAndAvoidsHoles) {
   o.method = TileMethod::kMirror;
   const TileResult t = MakeTile(hf, ImageF(), ImageU8(), o);
   EXPECT_EQ(t.size_px, 160);
-  EXPECT_GE(t.src_x, 197);  // right of the last hole column (196)
+  EXPECT_GE(t.src_x, 197);                            // right of the last hole column (196)
   EXPECT_NEAR(t.seams_after.seam_rms_x, 0.0, 1e-12);  // mirrored: no step, a crease
   for (float v : t.field.z.data()) ASSERT_TRUE(std::isfinite(v));
   o.size_m = 50e-3;

@@ -2,11 +2,11 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstdint>
 #include <cmath>
-#include <vector>
+#include <cstdint>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "core/error.h"
 #include "core/module.h"
@@ -52,7 +52,8 @@ cv::Mat LumDiff2(const cv::Mat& a, const cv::Mat& b) {
     const cv::Vec3f* br = b.ptr<cv::Vec3f>(y);
     float* dr = d.ptr<float>(y);
     for (int x = 0; x < a.cols; ++x) {
-      const double v = Luminance(Rgb(ar[x][0] - br[x][0], ar[x][1] - br[x][1], ar[x][2] - br[x][2]));
+      const double v =
+          Luminance(Rgb(ar[x][0] - br[x][0], ar[x][1] - br[x][1], ar[x][2] - br[x][2]));
       dr[x] = static_cast<float>(v * v);
     }
   }
@@ -89,8 +90,10 @@ RenderResult SyntheticDenoiseInput(int cw, int ch) {
       const bool sample = (x - cw / 2) * (x - cw / 2) + (y - ch / 2) * (y - ch / 2) < ch * ch / 5;
       r.sample_mask(x, y) = sample ? 1.0f : 0.0f;
       r.depth(x, y) = 1.0f + 0.01f * rnd();
-      const float nx = sample ? 0.3f * (rnd() - 0.5f) : 0.0f, ny = sample ? 0.3f * (rnd() - 0.5f) : 0.0f;
-      r.normal(x, y, 0) = nx, r.normal(x, y, 1) = ny, r.normal(x, y, 2) = std::sqrt(1 - nx * nx - ny * ny);
+      const float nx = sample ? 0.3f * (rnd() - 0.5f) : 0.0f,
+                  ny = sample ? 0.3f * (rnd() - 0.5f) : 0.0f;
+      r.normal(x, y, 0) = nx, r.normal(x, y, 1) = ny,
+                     r.normal(x, y, 2) = std::sqrt(1 - nx * nx - ny * ny);
       for (int c = 0; c < 3; ++c) {
         r.half[0](x, y, c) = rnd(), r.half[1](x, y, c) = rnd();
         r.radiance(x, y, c) = 0.5f * (r.half[0](x, y, c) + r.half[1](x, y, c));
@@ -119,7 +122,8 @@ double MeasureDenoiseTimeReserve(int width, int height, double time_budget_s,
   const auto t1 = Clock::now();
   (void)DenoisePreview(r, options);
   const auto t2 = Clock::now();
-  const double per_pixel = std::chrono::duration<double>(t2 - t1).count() / (static_cast<double>(cw) * ch);
+  const double per_pixel =
+      std::chrono::duration<double>(t2 - t1).count() / (static_cast<double>(cw) * ch);
   const double spent = std::chrono::duration<double>(t2 - t0).count();
   // 1.25x the predicted time (the load may change before the render ends), plus what the
   // measurement itself took (it comes out of the same budget).
@@ -129,8 +133,9 @@ double MeasureDenoiseTimeReserve(int width, int height, double time_budget_s,
 ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   const ImageF& L = r.radiance;
   const int w = L.width(), h = L.height();
-  MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0 && o.bilateral >= 0 && o.bilateral <= 4 &&
-                 o.bilateral_sigma > 0 && o.blend >= 0 && o.correction >= 0 && o.correction < 1);
+  MESOSCAN_CHECK(o.max_radius >= 1 && o.window >= 0 && o.eps > 0 && o.bilateral >= 0 &&
+                 o.bilateral <= 4 && o.bilateral_sigma > 0 && o.blend >= 0 && o.correction >= 0 &&
+                 o.correction < 1);
   MESOSCAN_CHECK(r.normal.width() == w && r.depth.width() == w && r.albedo.width() == w &&
                  r.sample_mask.width() == w && r.half[0].width() == w && r.half[1].width() == w);
   cv::Mat full = Demodulate(L, r.albedo);
@@ -165,16 +170,15 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
   // Candidate 0: the raw pixel; then the guided filters, radius by radius.
   std::vector<cv::Mat> cand = {full};
   std::vector<cv::Mat> scores = {score(half[0], half[1])};
-  for (int rad = 1; rad <= o.max_radius; rad *= 2)
-    {
-      cv::Mat fa, fb;
-      Ximgproc().GuidedFilter(guide, half[0], fa, rad, eps);
-      Ximgproc().GuidedFilter(guide, half[1], fb, rad, eps);
-      scores.push_back(score(fa, fb));
-      // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
-      // the output for the mean of the halves.
-      cand.push_back(0.5 * (fa + fb));
-    }
+  for (int rad = 1; rad <= o.max_radius; rad *= 2) {
+    cv::Mat fa, fb;
+    Ximgproc().GuidedFilter(guide, half[0], fa, rad, eps);
+    Ximgproc().GuidedFilter(guide, half[1], fb, rad, eps);
+    scores.push_back(score(fa, fb));
+    // The filter is linear in its input for a fixed guide: the mean of the halves' outputs is
+    // the output for the mean of the halves.
+    cand.push_back(0.5 * (fa + fb));
+  }
   // Joint (cross) bilateral filters on the same guide: they average the pixels whose features
   // match (the same reeding phase along the coin's rim), where an affine fit over a window
   // cannot follow the glossy response to the normal. Linear in the input for a fixed guide.
@@ -192,12 +196,14 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
     for (int x = 0; x < w; ++x) {
       float b = scores[0].at<float>(y, x);
       for (size_t k = 1; k < cand.size(); ++k)
-        if (scores[k].at<float>(y, x) < b) b = scores[k].at<float>(y, x), choice.at<uchar>(y, x) = static_cast<uchar>(k);
+        if (scores[k].at<float>(y, x) < b)
+          b = scores[k].at<float>(y, x), choice.at<uchar>(y, x) = static_cast<uchar>(k);
     }
   cv::Mat out(h, w, CV_32FC3, cv::Scalar(0, 0, 0));
   if (o.blend <= 0) {
     for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) out.at<cv::Vec3f>(y, x) = cand[choice.at<uchar>(y, x)].at<cv::Vec3f>(y, x);
+      for (int x = 0; x < w; ++x)
+        out.at<cv::Vec3f>(y, x) = cand[choice.at<uchar>(y, x)].at<cv::Vec3f>(y, x);
   } else {
     // Soft selection: each candidate weighted by the share of the (2 blend + 1)^2 neighbours
     // that chose it (the per-pixel choice is itself noisy).
@@ -207,7 +213,8 @@ ImageF DenoisePreview(const RenderResult& r, const DenoiseOptions& o) {
       ind.convertTo(ind, CV_32F, 1.0 / 255);
       cv::blur(ind, ind, cv::Size(2 * o.blend + 1, 2 * o.blend + 1));
       for (int y = 0; y < h; ++y)
-        for (int x = 0; x < w; ++x) out.at<cv::Vec3f>(y, x) += ind.at<float>(y, x) * cand[k].at<cv::Vec3f>(y, x);
+        for (int x = 0; x < w; ++x)
+          out.at<cv::Vec3f>(y, x) += ind.at<float>(y, x) * cand[k].at<cv::Vec3f>(y, x);
     }
   }
   ImageF res(w, h, 3);

@@ -30,7 +30,8 @@ RenderResult Synthetic(int w, int h, double sigma, Truth truth, uint64_t seed) {
         const double v = t + noise(rng);
         for (int c = 0; c < 3; ++c) r.half[k](x, y, c) = static_cast<float>(v);
       }
-      for (int c = 0; c < 3; ++c) r.radiance(x, y, c) = 0.5f * (r.half[0](x, y, c) + r.half[1](x, y, c));
+      for (int c = 0; c < 3; ++c)
+        r.radiance(x, y, c) = 0.5f * (r.half[0](x, y, c) + r.half[1](x, y, c));
     }
   return r;
 }
@@ -53,7 +54,8 @@ double Step(int x, int) { return x < 32 ? 1.0 : 2.0; }
 // Without noise (the two halves agree) the raw pixel always wins: the image comes back as it
 // was, whatever its detail.
 TEST(Denoise, NoiseFreeRenderIsUnchanged) {
-  const RenderResult r = Synthetic(48, 40, 0.0, [](int x, int y) { return 1.0 + ((x * 7 + y * 3) % 5); }, 1);
+  const RenderResult r = Synthetic(
+      48, 40, 0.0, [](int x, int y) { return 1.0 + ((x * 7 + y * 3) % 5); }, 1);
   const ImageF d = DenoisePreview(r);
   for (size_t i = 0; i < r.radiance.data().size(); ++i)
     ASSERT_NEAR(d.data()[i], r.radiance.data()[i], 1e-6 * r.radiance.data()[i]);
@@ -98,7 +100,8 @@ TEST(Denoise, CorrectionFactorTradesNoiseForBias) {
       const ImageF d = DenoisePreview(r, o);
       // The blur at the step: the mean pull of the columns either side towards the other side.
       for (int y = 0; y < 64; ++y)
-        for (int x = 28; x < 32; ++x) edge[k] += ((d(x, y, 1) - 1.0) + (2.0 - d(63 - x, y, 1))) / (64 * 8);
+        for (int x = 28; x < 32; ++x)
+          edge[k] += ((d(x, y, 1) - 1.0) + (2.0 - d(63 - x, y, 1))) / (64 * 8);
       flat[k] += Rmse(d, Step, 0, 24);
     }
   }
@@ -129,7 +132,8 @@ TEST(Denoise, KeepsTheMeanOfFlatNoise) {
 // is below 0.4 of the raw one (measured 0.32); with the guided filters alone (bilateral = 0) it
 // is not (measured 0.59).
 RenderResult Reeded(double sigma, uint64_t seed) {
-  RenderResult r = Synthetic(64, 64, sigma, [](int x, int) { return (x / 2) % 3 == 1 ? 3.0 : 1.0; }, seed);
+  RenderResult r = Synthetic(
+      64, 64, sigma, [](int x, int) { return (x / 2) % 3 == 1 ? 3.0 : 1.0; }, seed);
   for (int y = 0; y < 64; ++y)
     for (int x = 0; x < 64; ++x) {
       const int phase = (x / 2) % 3;

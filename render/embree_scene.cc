@@ -56,8 +56,8 @@ constexpr int kTileCells = 64;  // grid primitives cover at most 64 x 64 cells
 
 struct Geometry {
   enum class Kind { kHeightField, kPlane } kind = Kind::kPlane;
-  HeightField hf;       // kHeightField
-  double plane_z = 0;   // kPlane
+  HeightField hf;      // kHeightField
+  double plane_z = 0;  // kPlane
 };
 
 // Bilinear patch of cell (i, j): z = c0 + c1 a + c2 b + c3 a b with a along +i, b along +j.
@@ -154,8 +154,7 @@ struct EmbreeScene::Impl {
     const int jc = static_cast<int>(std::floor(hf.J(pf.y())));
     // Window in t: the float error plus the triangle/bilinear deviation, along z.
     const double dev = LocalTriangleDeviation(hf, ic, jc);
-    const double window =
-        (2e-6 + 1e-6 * std::abs(t_float) + dev) / std::max(std::abs(d.z()), 0.05);
+    const double window = (2e-6 + 1e-6 * std::abs(t_float) + dev) / std::max(std::abs(d.z()), 0.05);
     const double t_lo = std::max(t_near, t_float - window),
                  t_hi = std::min(t_far, t_float + window);
     const Vec3d p0 = o + t_lo * d, p1 = o + t_hi * d;
@@ -241,9 +240,9 @@ int EmbreeScene::AddHeightField(const HeightField& hf) {
   geo.hf = hf;
   if (grids.empty()) MESOSCAN_BAD_INPUT("height field: no cell with four finite corners");
   RTCGeometry g = rtcNewGeometry(impl_->device->get(), RTC_GEOMETRY_TYPE_GRID);
-  float* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0,
-                                                         RTC_FORMAT_FLOAT3, 3 * sizeof(float),
-                                                         static_cast<size_t>(w) * h));
+  float* v =
+      static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                  3 * sizeof(float), static_cast<size_t>(w) * h));
   for (int j = 0; j < h; ++j)
     for (int i = 0; i < w; ++i) {
       float* p = v + 3 * (static_cast<size_t>(j) * w + i);

@@ -30,11 +30,11 @@ std::string EmbreeVersion();
 class EmbreeDevice;
 
 struct RayHit {
-  double t = 0.0;       // distance along the (unit) ray direction, metres
-  Vec3d point;          // world point on the surface (bilinear patch or plane), metres
-  Vec3d normal;         // unit geometric normal (+z side of the height field / plane)
-  int geometry = -1;    // id returned by AddHeightField / AddPlane
-  bool refined = true;  // false if the double refinement failed and the float hit was kept
+  double t = 0.0;            // distance along the (unit) ray direction, metres
+  Vec3d point;               // world point on the surface (bilinear patch or plane), metres
+  Vec3d normal;              // unit geometric normal (+z side of the height field / plane)
+  int geometry = -1;         // id returned by AddHeightField / AddPlane
+  bool refined = true;       // false if the double refinement failed and the float hit was kept
   double shadow_lift = 0.0;  // metres: how far the triangulated surface may lie above `point`
 };
 

@@ -72,8 +72,8 @@ EnvironmentMap EnvironmentMap::FromImage(const ImageF& rgb, double scale) {
 EnvironmentMap EnvironmentMap::Load(const std::filesystem::path& path, double scale) {
   const ImageF im = ReadImage(path);
   if (im.channels() < 3)
-    MESOSCAN_BAD_INPUT(path.string() << ": environment map: expected RGB channels, got "
-                                     << im.channels());
+    MESOSCAN_BAD_INPUT(path.string()
+                       << ": environment map: expected RGB channels, got " << im.channels());
   return FromImage(im, scale);
 }
 
@@ -131,7 +131,8 @@ std::filesystem::path EnvironmentMap::NamedPath(const std::string& name) {
   for (const auto& n : NamedEnvironments())
     if (n == name) {
       const std::filesystem::path p =
-          std::filesystem::path("/usr/share/blender/datafiles/studiolights/world") / (name + ".exr");
+          std::filesystem::path("/usr/share/blender/datafiles/studiolights/world") /
+          (name + ".exr");
       if (std::filesystem::exists(p)) return p;
     }
   return {};
@@ -154,7 +155,9 @@ std::optional<EnvSample> EnvironmentMap::Sample(const Vec2& u) const {
   // Row, then column within the row; the remainders of u place the point inside the texel
   // (keeping the sampler's stratification).
   const double ty = u.y() * total;
-  int y = static_cast<int>(std::upper_bound(row_cdf_.begin(), row_cdf_.end(), ty) - row_cdf_.begin()) - 1;
+  int y =
+      static_cast<int>(std::upper_bound(row_cdf_.begin(), row_cdf_.end(), ty) - row_cdf_.begin()) -
+      1;
   y = std::clamp(y, 0, h - 1);
   while (y > 0 && !(row_cdf_[y + 1] > row_cdf_[y])) --y;
   const double row_mass = row_cdf_[y + 1] - row_cdf_[y];
@@ -174,7 +177,8 @@ std::optional<EnvSample> EnvironmentMap::Sample(const Vec2& u) const {
   // Uniform in (u, v) inside the texel: pdf_uv = P(texel) * w * h; per solid angle divide by
   // the Jacobian 2 pi^2 sin(theta).
   const double pdf = texel_mass / total * w * h / (kTwoPi * kPi * sin_theta);
-  return EnvSample{FromMap(UvToDirection(uv)), Rgb(rgb_(x, y, 0), rgb_(x, y, 1), rgb_(x, y, 2)), pdf};
+  return EnvSample{FromMap(UvToDirection(uv)), Rgb(rgb_(x, y, 0), rgb_(x, y, 1), rgb_(x, y, 2)),
+                   pdf};
 }
 
 Rgb EnvironmentMap::LeAndPdf(const Vec3& w, double* pdf) const {

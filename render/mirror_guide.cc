@@ -23,8 +23,8 @@ bool MirrorGuide::Useful(const EnvironmentMap& env, const Brdf& brdf) {
 
 MirrorGuide::MirrorGuide(const EnvironmentMap& env, const Brdf& brdf, const Options& o)
     : nphi_(o.phi_cells), nz_(o.z_cells) {
-  MESOSCAN_CHECK(nphi_ >= 1 && nz_ >= 1 && o.env_samples >= 1 && o.floor > 0 &&
-                 o.max_select >= 0 && o.max_select < 1);
+  MESOSCAN_CHECK(nphi_ >= 1 && nz_ >= 1 && o.env_samples >= 1 && o.floor > 0 && o.max_select >= 0 &&
+                 o.max_select < 1);
   const int cells = nphi_ * nz_;
   cell_solid_angle_ = kTwoPi / nphi_ / nz_;
   // Luminance of the radiance the flat field (normal +z, world frame = BRDF frame) reflects
@@ -32,28 +32,31 @@ MirrorGuide::MirrorGuide(const EnvironmentMap& env, const Brdf& brdf, const Opti
   // combined by the power heuristic.
   const int side = std::max(1, static_cast<int>(std::lround(std::sqrt(o.env_samples))));
   std::vector<double> lum(cells, 0.0);
-  ParallelFor(cells, [&](int64_t c) {
-    const int iz = static_cast<int>(c / nphi_), ip = static_cast<int>(c % nphi_);
-    const double z = -(iz + 0.5) / nz_, r = std::sqrt(std::max(0.0, 1 - z * z));
-    const double phi = (ip + 0.5) / nphi_ * kTwoPi;
-    const Vec3 wo(-r * std::cos(phi), -r * std::sin(phi), -z);  // towards the viewer, z > 0
-    Rgb L = Rgb::Zero();
-    for (int a = 0; a < side; ++a)
-      for (int b = 0; b < side; ++b) {
-        const Vec2 u((a + 0.5) / side, (b + 0.5) / side);
-        if (auto ls = env.Sample(u); ls && ls->wi.z() > 0) {
-          const Rgb f = brdf.f(wo, ls->wi);
-          L += f * ls->Le * (ls->wi.z() * Power(ls->pdf, brdf.Pdf(wo, ls->wi)) / ls->pdf);
-        }
-        if (auto bs = brdf.Sample(wo, u); bs && bs->pdf > 0 && bs->wi.z() > 0) {
-          double env_pdf = 0;
-          const Rgb Le = env.LeAndPdf(bs->wi, &env_pdf);
-          L += bs->f * Le * (bs->wi.z() * Power(bs->pdf, env_pdf) / bs->pdf);
-        }
-      }
-    const double y = Luminance(L);
-    lum[c] = std::isfinite(y) ? std::max(0.0, y) : 0.0;
-  }, 16);
+  ParallelFor(
+      cells,
+      [&](int64_t c) {
+        const int iz = static_cast<int>(c / nphi_), ip = static_cast<int>(c % nphi_);
+        const double z = -(iz + 0.5) / nz_, r = std::sqrt(std::max(0.0, 1 - z * z));
+        const double phi = (ip + 0.5) / nphi_ * kTwoPi;
+        const Vec3 wo(-r * std::cos(phi), -r * std::sin(phi), -z);  // towards the viewer, z > 0
+        Rgb L = Rgb::Zero();
+        for (int a = 0; a < side; ++a)
+          for (int b = 0; b < side; ++b) {
+            const Vec2 u((a + 0.5) / side, (b + 0.5) / side);
+            if (auto ls = env.Sample(u); ls && ls->wi.z() > 0) {
+              const Rgb f = brdf.f(wo, ls->wi);
+              L += f * ls->Le * (ls->wi.z() * Power(ls->pdf, brdf.Pdf(wo, ls->wi)) / ls->pdf);
+            }
+            if (auto bs = brdf.Sample(wo, u); bs && bs->pdf > 0 && bs->wi.z() > 0) {
+              double env_pdf = 0;
+              const Rgb Le = env.LeAndPdf(bs->wi, &env_pdf);
+              L += bs->f * Le * (bs->wi.z() * Power(bs->pdf, env_pdf) / bs->pdf);
+            }
+          }
+        const double y = Luminance(L);
+        lum[c] = std::isfinite(y) ? std::max(0.0, y) : 0.0;
+      },
+      16);
   double mean = 0;
   for (const double v : lum) mean += v / cells;
   // The floor keeps every downward direction reachable (and the table usable when the field
@@ -86,17 +89,20 @@ MirrorGuide::MirrorGuide(const EnvironmentMap& env, const Brdf& brdf, const Opti
     const double phi = (ip + 0.5) / nphi_ * kTwoPi;
     centre[c] = Vec3(r * std::cos(phi), r * std::sin(phi), z);
   }
-  ParallelFor(kSelTheta, [&](int64_t t) {
-    const double th = (t + 0.5) / kSelTheta * kPi;
-    for (int p = 0; p < kSelPhi; ++p) {
-      const double ph = (p + 0.5) / kSelPhi * kTwoPi;
-      const Vec3 n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th));
-      double mass = 0;
-      for (int c = 0; c < cells; ++c)
-        if (centre[c].dot(n) > 0) mass += cdf_[c + 1] - cdf_[c];
-      select_[t * kSelPhi + p] = static_cast<float>(o.max_select * mass / total);
-    }
-  }, 1);
+  ParallelFor(
+      kSelTheta,
+      [&](int64_t t) {
+        const double th = (t + 0.5) / kSelTheta * kPi;
+        for (int p = 0; p < kSelPhi; ++p) {
+          const double ph = (p + 0.5) / kSelPhi * kTwoPi;
+          const Vec3 n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th));
+          double mass = 0;
+          for (int c = 0; c < cells; ++c)
+            if (centre[c].dot(n) > 0) mass += cdf_[c + 1] - cdf_[c];
+          select_[t * kSelPhi + p] = static_cast<float>(o.max_select * mass / total);
+        }
+      },
+      1);
 }
 
 int MirrorGuide::Cell(const Vec3& w) const {
@@ -167,7 +173,8 @@ bool MirrorGuide::Prepare(const Brdf& brdf, const Vec3& s, const Vec3& t, const 
 Vec3 MirrorGuide::Sample(const Local& local, const Vec2& u, double* pdf) const {
   // Block by the product weights, then a cell within the block by the table, then uniform.
   const double tb = u.x() * local.cdf[kCoarse];
-  int b = static_cast<int>(std::upper_bound(local.cdf, local.cdf + kCoarse + 1, tb) - local.cdf) - 1;
+  int b =
+      static_cast<int>(std::upper_bound(local.cdf, local.cdf + kCoarse + 1, tb) - local.cdf) - 1;
   b = std::clamp(b, 0, kCoarse - 1);
   while (b > 0 && !(local.cdf[b + 1] > local.cdf[b])) --b;
   const double fb = std::clamp((tb - local.cdf[b]) / (local.cdf[b + 1] - local.cdf[b]), 0.0, 1.0);

@@ -78,12 +78,12 @@ class MirrorGuide {
  private:
   int Cell(const Vec3& w) const;
   int Block(int cell) const;
-  std::vector<double> block_mass_;   // kCoarse: the table's probability per block
-  std::vector<Vec3> block_centre_;   // kCoarse: world direction at each block's centre
+  std::vector<double> block_mass_;  // kCoarse: the table's probability per block
+  std::vector<Vec3> block_centre_;  // kCoarse: world direction at each block's centre
   int nphi_, nz_;
-  std::vector<double> cdf_;   // nphi_ * nz_ + 1, over cells (z-major)
-  std::vector<double> pdf_;   // per cell, per unit solid angle
-  std::vector<double> lum_;   // per cell: reflected luminance + floor
+  std::vector<double> cdf_;  // nphi_ * nz_ + 1, over cells (z-major)
+  std::vector<double> pdf_;  // per cell, per unit solid angle
+  std::vector<double> lum_;  // per cell: reflected luminance + floor
   double mean_lum_ = 0;
   double cell_solid_angle_ = 0;
   // Selection probability over normals: n_theta x n_phi table (theta from +z in [0, pi],

@@ -76,7 +76,8 @@ TEST(MirrorGuide, SampleMatchesPdf) {
       expect[bin(w)] += g.Pdf(w) * 2 * kPi / (static_cast<double>(fp) * fz) * n;
     }
   double chi2 = 0;
-  for (int b = 0; b < bp * bz; ++b) chi2 += (count[b] - expect[b]) * (count[b] - expect[b]) / expect[b];
+  for (int b = 0; b < bp * bz; ++b)
+    chi2 += (count[b] - expect[b]) * (count[b] - expect[b]) / expect[b];
   EXPECT_LT(chi2, 70.0);  // 31 dof: p < 1e-4 beyond ~70
 }
 
@@ -119,7 +120,8 @@ void ExpectLocalProductIsANormalisedDensity(const Brdf& copper) {
     for (int ip = 0; ip < nphi; ++ip) {
       const double z = -1 + 2 * (iz + 0.5) / nz, r = std::sqrt(1 - z * z);
       const double phi = 2 * kPi * (ip + 0.5) / nphi;
-      sum += g.Pdf(local, Vec3(r * std::cos(phi), r * std::sin(phi), z)) * (4 * kPi / (double(nphi) * nz));
+      sum += g.Pdf(local, Vec3(r * std::cos(phi), r * std::sin(phi), z)) *
+             (4 * kPi / (double(nphi) * nz));
     }
   EXPECT_NEAR(sum, 1.0, 1e-9);
   std::mt19937_64 rng(3);
@@ -134,7 +136,9 @@ void ExpectLocalProductIsANormalisedDensity(const Brdf& copper) {
   EXPECT_EQ(g.Pdf(local, Vec3(0, 0, -1)), 0.0);
 }
 
-TEST(MirrorGuide, LocalProductIsANormalisedDensity) { ExpectLocalProductIsANormalisedDensity(Copper()); }
+TEST(MirrorGuide, LocalProductIsANormalisedDensity) {
+  ExpectLocalProductIsANormalisedDensity(Copper());
+}
 
 // The same copper tabulated into the MERL layout, where Prepare weighs the blocks by the table's
 // cheap stand-in (MerlBrdf::ProxyLuminance) instead of full lookups: still a normalised density
@@ -142,14 +146,16 @@ TEST(MirrorGuide, LocalProductIsANormalisedDensity) { ExpectLocalProductIsANorma
 // lookups (total variation distance of the two block distributions < 0.03; 0.006 measured).
 TEST(MirrorGuide, LocalProductWithAMeasuredTableUsesItsProxy) {
   const Brdf ggx = Copper();
-  const Brdf merl(MerlBrdf::Tabulate([&](const Vec3& wo, const Vec3& wi) { return ggx.f(wo, wi); }));
+  const Brdf merl(
+      MerlBrdf::Tabulate([&](const Vec3& wo, const Vec3& wi) { return ggx.f(wo, wi); }));
   ExpectLocalProductIsANormalisedDensity(merl);
   const EnvironmentMap sky = EnvironmentMap::Sky(25, 200, 128);
   const MirrorGuide g(sky, merl);
   const Vec3 n = Vec3(-0.8, -0.42, 0.42).normalized();
   const Vec3 s = Vec3(0, 0, 1).cross(n).normalized(), t = n.cross(s);
-  const Vec3 wo = Vec3(Vec3(0, -0.64, 0.77).normalized().dot(s), Vec3(0, -0.64, 0.77).normalized().dot(t),
-                       Vec3(0, -0.64, 0.77).normalized().dot(n));
+  const Vec3 wo =
+      Vec3(Vec3(0, -0.64, 0.77).normalized().dot(s), Vec3(0, -0.64, 0.77).normalized().dot(t),
+           Vec3(0, -0.64, 0.77).normalized().dot(n));
   MirrorGuide::Local proxy, full;
   ASSERT_TRUE(g.Prepare(merl, s, t, n, wo, &proxy));
   // The full lookups: the same table behind a Brdf that is not a MerlBrdf (GGX, what it tabulates).
@@ -159,7 +165,7 @@ TEST(MirrorGuide, LocalProductWithAMeasuredTableUsesItsProxy) {
   for (int b = 0; b < blocks; ++b)
     tv += 0.5 * std::abs((proxy.cdf[b + 1] - proxy.cdf[b]) / proxy.cdf[blocks] -
                          (full.cdf[b + 1] - full.cdf[b]) / full.cdf[blocks]);
-  EXPECT_LT(tv, 0.03);  // 0.006 measured
+  EXPECT_LT(tv, 0.03);                             // 0.006 measured
   EXPECT_NE(proxy.cdf[blocks], full.cdf[blocks]);  // the proxy was used
 }
 

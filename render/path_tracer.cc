@@ -19,7 +19,8 @@ namespace mesoscan {
 void RenderOptions::Check() const {
   if (width < 1 || height < 1) MESOSCAN_BAD_INPUT("render: --size must be at least 1x1");
   if (min_spp < 1 || max_spp < min_spp)
-    MESOSCAN_BAD_INPUT("render: expected 1 <= min_spp <= max_spp, got " << min_spp << ", " << max_spp);
+    MESOSCAN_BAD_INPUT("render: expected 1 <= min_spp <= max_spp, got " << min_spp << ", "
+                                                                        << max_spp);
   if (max_spp > (1 << 24)) MESOSCAN_BAD_INPUT("render: --spp must be at most 16777216");
   if (!(noise >= 0) || !std::isfinite(noise)) MESOSCAN_BAD_INPUT("render: --noise must be >= 0");
   if (!(time_limit_s >= 0) || !std::isfinite(time_limit_s))
@@ -28,8 +29,9 @@ void RenderOptions::Check() const {
   if (!(allocate_spp >= 0) || !std::isfinite(allocate_spp) || allocate_spp > (1 << 24))
     MESOSCAN_BAD_INPUT("render: allocate_spp must be in [0, 16777216]");
   if (allocate_pilot_spp < 0 || allocate_radius < 1 || !(allocate_floor > 0 && allocate_floor <= 1))
-    MESOSCAN_BAD_INPUT("render: expected allocate_pilot_spp >= 0, allocate_radius >= 1, "
-                       "allocate_floor in (0, 1]");
+    MESOSCAN_BAD_INPUT(
+        "render: expected allocate_pilot_spp >= 0, allocate_radius >= 1, "
+        "allocate_floor in (0, 1]");
   if (!(allocate_denoise_tau > 0) || !std::isfinite(allocate_denoise_tau) ||
       !(allocate_denoise_max >= 1) || !std::isfinite(allocate_denoise_max) ||
       allocate_denoise_pilot_spp < 1)
@@ -40,7 +42,8 @@ void RenderOptions::Check() const {
     MESOSCAN_BAD_INPUT("render: resample_candidates must be in [0, 16]");
   if (!(elevation_deg > 0 && elevation_deg <= 90))
     MESOSCAN_BAD_INPUT("render: elevation must be in (0, 90] degrees");
-  if (!(fov_deg >= 0 && fov_deg < 180)) MESOSCAN_BAD_INPUT("render: fov must be in (0, 180) degrees");
+  if (!(fov_deg >= 0 && fov_deg < 180))
+    MESOSCAN_BAD_INPUT("render: fov must be in (0, 180) degrees");
   if (!(relief_scale > 0) || !std::isfinite(relief_scale))
     MESOSCAN_BAD_INPUT("render: relief_scale must be > 0");
   if (camera) {
@@ -102,7 +105,8 @@ struct Scene {
     if (!albedo) return Rgb::Ones();
     const int i = std::clamp(static_cast<int>(std::lround(hf->I(p.x()))), 0, albedo->width() - 1);
     const int j = std::clamp(static_cast<int>(std::lround(hf->J(p.y()))), 0, albedo->height() - 1);
-    if (albedo->channels() >= 3) return Rgb((*albedo)(i, j, 0), (*albedo)(i, j, 1), (*albedo)(i, j, 2));
+    if (albedo->channels() >= 3)
+      return Rgb((*albedo)(i, j, 0), (*albedo)(i, j, 1), (*albedo)(i, j, 2));
     return Rgb::Constant((*albedo)(i, j, 0));
   }
 };
@@ -135,14 +139,15 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
   bool prev_cv = false;      // the previous vertex was a mount vertex with the control variate
   const bool env_sampled = !env.is_constant();
   for (int depth = 0;; ++depth) {
-    const auto hit =
-        scene.embree.Intersect(origin, dir, 1e-9, 1e30, depth == 0 ? scene.camera_mask : EmbreeScene::kMaskAll);
+    const auto hit = scene.embree.Intersect(origin, dir, 1e-9, 1e30,
+                                            depth == 0 ? scene.camera_mask : EmbreeScene::kMaskAll);
     if (depth == 0) first->sample = hit && hit->geometry == scene.hf_id;
     if (!hit) {
       if (!prev_cv) {
         double env_pdf = 0;
         const Rgb Le = env.LeAndPdf(dir, &env_pdf);
-        const double w = (prev_brdf_pdf > 0 && env_sampled) ? PowerHeuristic(prev_brdf_pdf, env_pdf) : 1.0;
+        const double w =
+            (prev_brdf_pdf > 0 && env_sampled) ? PowerHeuristic(prev_brdf_pdf, env_pdf) : 1.0;
         L += beta * Le * w;
       }
       break;
@@ -171,7 +176,9 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
       first->depth = hit->t;
       first->albedo = on_mount ? mount.albedo() : tint;
     }
-    auto f = [&](const Vec3& wi) -> Rgb { return on_mount ? mount.f(wo, wi) : Rgb(brdf.f(wo, wi) * tint); };
+    auto f = [&](const Vec3& wi) -> Rgb {
+      return on_mount ? mount.f(wo, wi) : Rgb(brdf.f(wo, wi) * tint);
+    };
     // Continuation density: BRDF sampling, mixed with the mirrored-environment sampler with
     // probability cg at surface vertices whose tangent plane lets it aim somewhere (one-sample
     // mixture: the same mixture density in both MIS weights against the light sample).
@@ -179,7 +186,8 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     // (MirrorGuide::Prepare), so it aims where the field's reflection and this lobe overlap.
     double cg = (scene.guide && !on_mount) ? scene.guide->SelectProbability(n) : 0.0;
     MirrorGuide::Local gl;
-    if (cg < kMinGuideSelect || !scene.guide->Prepare(brdf, frame.s, frame.t, frame.n, wo, &gl)) cg = 0;
+    if (cg < kMinGuideSelect || !scene.guide->Prepare(brdf, frame.s, frame.t, frame.n, wo, &gl))
+      cg = 0;
     auto mix = [&](double pb, const Vec3& wi) {
       double p = pb;
       if (cg > 0) p = (1 - cg) * p + cg * scene.guide->Pdf(gl, frame.FromLocal(wi));
@@ -255,8 +263,10 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
         if (cand[j] && cand[j]->pdf > 0 && cand[j]->wi.z() > 0) {
           const Vec3 d = frame.FromLocal(cand[j]->wi);
           target[j] = Luminance(cand[j]->f) * cand[j]->wi.z() * scene.guide->Radiance(d);
-          if (target[j] > 0 && std::isfinite(target[j])) w[j] = target[j] / cand[j]->pdf;
-          else target[j] = 0;
+          if (target[j] > 0 && std::isfinite(target[j]))
+            w[j] = target[j] / cand[j]->pdf;
+          else
+            target[j] = 0;
         }
         wsum += w[j];
       }
@@ -316,8 +326,8 @@ PinholeCamera MakeCamera(const HeightField& hf, double zmin, double zmax, const 
     const double el = o.elevation_deg * kPi / 180, az = o.azimuth_deg * kPi / 180;
     const double half = 0.5 * std::max(ey, ex / cam.aspect) / 0.9;
     const double dist = half / cam.tan_half + 0.5 * (zmax - zmin);
-    cam.eye = target + dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
-                                   std::sin(el));
+    cam.eye = target +
+              dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
   }
   cam.fwd = (target - cam.eye).normalized();
   cam.right = cam.fwd.cross(Vec3(0, 0, 1));
@@ -334,12 +344,14 @@ PinholeCamera MakeCamera(const HeightField& hf, double zmin, double zmax, const 
 // suffices; a ray inside the rectangle's column is above the surface at zmax and below it at the
 // plane, so it crosses the surface first.) Camera rays then skip the plane; secondary rays
 // still see it (it shades the sample's lower hemisphere).
-bool CameraCannotSeeMount(const HeightField& hf, double zmax, double plane_z, const PinholeCamera& cam) {
+bool CameraCannotSeeMount(const HeightField& hf, double zmax, double plane_z,
+                          const PinholeCamera& cam) {
   for (const float z : hf.z.data())
     if (!std::isfinite(z)) return false;
   if (!(cam.eye.z() > zmax)) return false;
   const double x_lo = hf.X(0), x_hi = hf.X(hf.width() - 1);
-  const double y_lo = std::min(hf.Y(0), hf.Y(hf.height() - 1)), y_hi = std::max(hf.Y(0), hf.Y(hf.height() - 1));
+  const double y_lo = std::min(hf.Y(0), hf.Y(hf.height() - 1)),
+               y_hi = std::max(hf.Y(0), hf.Y(hf.height() - 1));
   for (const double px : {-1.0, 1.0})
     for (const double py : {-1.0, 1.0}) {
       const Vec3 d = cam.Direction(px, py);
@@ -355,8 +367,8 @@ bool CameraCannotSeeMount(const HeightField& hf, double zmax, double plane_z, co
 // Per-pixel accumulators: two interleaved half-buffers (even / odd sample numbers).
 struct PixelState {
   double a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
-  int n = 0;        // samples taken
-  int hits = 0;     // camera rays that hit the height field
+  int n = 0;     // samples taken
+  int hits = 0;  // camera rays that hit the height field
   double normal[3] = {0, 0, 0}, depth = 0, albedo[3] = {0, 0, 0};  // sums over the samples
   double cost = 0;  // seconds spent on its samples (for the error-driven allocation)
   bool done = false;
@@ -409,9 +421,9 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
     std::vector<double> s(static_cast<size_t>(W + 1) * (H + 1), 0.0);
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x)
-        s[static_cast<size_t>(y + 1) * (W + 1) + x + 1] = a[static_cast<size_t>(y) * W + x] +
-            s[static_cast<size_t>(y) * (W + 1) + x + 1] + s[static_cast<size_t>(y + 1) * (W + 1) + x] -
-            s[static_cast<size_t>(y) * (W + 1) + x];
+        s[static_cast<size_t>(y + 1) * (W + 1) + x + 1] =
+            a[static_cast<size_t>(y) * W + x] + s[static_cast<size_t>(y) * (W + 1) + x + 1] +
+            s[static_cast<size_t>(y + 1) * (W + 1) + x] - s[static_cast<size_t>(y) * (W + 1) + x];
     return s;
   };
   std::vector<double> sv, sc, scost, scount;
@@ -470,7 +482,8 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
   wsum = 0;
   for (size_t i = 0; i < n; ++i) {
     w[i] = std::max(w[i], floor);
-    if (o.allocate_by_cost && mean_cps > 0) w[i] /= std::sqrt(std::max(cps[i], 0.05 * mean_cps) / mean_cps);
+    if (o.allocate_by_cost && mean_cps > 0)
+      w[i] /= std::sqrt(std::max(cps[i], 0.05 * mean_cps) / mean_cps);
     if (!px[i].done) wsum += w[i];
   }
   if (!(wsum > 0)) wsum = 1, std::fill(w.begin(), w.end(), 1.0 / std::max<int64_t>(active, 1));
@@ -489,8 +502,10 @@ void AllocateSamples(const std::vector<PixelState>& px, int W, int H, const Rend
     const PixelState& p = px[i];
     if (p.done) continue;
     const double give = (by_weight ? w[i] : deficit[i]) * scale;
-    uint64_t h = (static_cast<uint64_t>(i) << 20) ^ (static_cast<uint64_t>(round) << 8) ^ (o.seed * 0x9E3779B97F4A7C15ull);
-    h ^= h >> 33, h *= 0xff51afd7ed558ccdull, h ^= h >> 33, h *= 0xc4ceb9fe1a85ec53ull, h ^= h >> 33;
+    uint64_t h = (static_cast<uint64_t>(i) << 20) ^ (static_cast<uint64_t>(round) << 8) ^
+                 (o.seed * 0x9E3779B97F4A7C15ull);
+    h ^= h >> 33, h *= 0xff51afd7ed558ccdull, h ^= h >> 33, h *= 0xc4ceb9fe1a85ec53ull,
+        h ^= h >> 33;
     const double u = (h >> 11) * 0x1.0p-53;
     const double g = std::min<double>(o.max_spp, p.n + std::floor(give + u));
     (*goal)[i] = static_cast<int>(g);
@@ -522,10 +537,12 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     zmax = std::max(zmax, static_cast<double>(z));
   }
   if (zmin > zmax) MESOSCAN_BAD_INPUT("render: the height field has no valid sample");
-  if (options.albedo && (options.albedo->width() != hf.width() || options.albedo->height() != hf.height()))
-    MESOSCAN_BAD_INPUT("render: the albedo map (" << options.albedo->width() << "x"
-                       << options.albedo->height() << ") does not match the height field ("
-                       << hf.width() << "x" << hf.height() << ")");
+  if (options.albedo &&
+      (options.albedo->width() != hf.width() || options.albedo->height() != hf.height()))
+    MESOSCAN_BAD_INPUT("render: the albedo map ("
+                       << options.albedo->width() << "x" << options.albedo->height()
+                       << ") does not match the height field (" << hf.width() << "x" << hf.height()
+                       << ")");
 
   Scene scene;
   scene.hf = &hf;
@@ -604,11 +621,14 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   // budget on a slow or loaded machine); adaptivity still waits for min_spp.
   // A sample budget (allocate_spp) is spent like a time budget, in rounds from 1 spp.
   const double sample_budget = options.allocate_spp * static_cast<double>(W) * H;
-  int target = options.time_limit_s > 0 || sample_budget > 0 ? 1 : std::min(options.min_spp, options.max_spp);
+  int target = options.time_limit_s > 0 || sample_budget > 0
+                   ? 1
+                   : std::min(options.min_spp, options.max_spp);
   int active = W * H;
   // Error-driven allocation under a time or sample budget (RenderOptions::allocate_*): per-pixel
   // goals instead of one uniform target, once every pixel has the pilot's samples.
-  const bool allocate = (options.time_limit_s > 0 || sample_budget > 0) && options.allocate_pilot_spp > 0;
+  const bool allocate =
+      (options.time_limit_s > 0 || sample_budget > 0) && options.allocate_pilot_spp > 0;
   bool allocating = false;
   std::vector<int> goal;
   double round_start_s = 0, round_start_samples = 0, round_start_cost = 0;
@@ -686,8 +706,8 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
             const double sx = (x + jx) / W * 2 - 1;
             const double sy = 1 - (y + jy) / H * 2;
             FirstHit first;
-            const Rgb L = TracePath(scene, brdf, mount, env, cam.eye, cam.Direction(sx, sy),
-                                    sampler, &first);
+            const Rgb L =
+                TracePath(scene, brdf, mount, env, cam.eye, cam.Direction(sx, sy), sampler, &first);
             double* acc = (p.n & 1) ? p.b : p.a;
             for (int c = 0; c < 3; ++c) {
               acc[c] += L[c];
@@ -698,7 +718,8 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
             p.hits += first.sample;
             ++local;
           }
-          p.cost += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_pixel).count();
+          p.cost +=
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - t_pixel).count();
         }
       }
       samples.fetch_add(local, std::memory_order_relaxed);
@@ -749,9 +770,9 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
       // its sample count depend on its samples, and the display-space test stops the bright rim
       // that dominates the linear error first).
       if (options.noise > 0 && !allocate && p.n >= options.min_spp && p.n >= 4) {
-        const double v = result.tone.exposure *
-                         Luminance(Rgb(result.radiance(x, y, 0), result.radiance(x, y, 1),
-                                       result.radiance(x, y, 2)));
+        const double v =
+            result.tone.exposure * Luminance(Rgb(result.radiance(x, y, 0), result.radiance(x, y, 1),
+                                                 result.radiance(x, y, 2)));
         const double err = std::sqrt(var_s[i]) * result.tone.exposure *
                            ToneCurveSlope(std::max(0.0, v), result.tone.white);
         if (err < options.noise) {
@@ -772,7 +793,8 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     if (sample_budget > 0 && static_cast<double>(samples.load()) >= sample_budget - 0.5) break;
     target = std::min(options.max_spp, 2 * target);
     // A sample budget without allocation: uniform rounds up to the budget's spp.
-    if (sample_budget > 0 && !allocate) target = std::min(target, static_cast<int>(std::ceil(options.allocate_spp)));
+    if (sample_budget > 0 && !allocate)
+      target = std::min(target, static_cast<int>(std::ceil(options.allocate_spp)));
   }
   progress.Finish();
   result.summary.seconds = elapsed();
@@ -813,8 +835,8 @@ ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask) {
     for (size_t i = 0; i < n; ++i) {
       if (pass == 0 && mask && mask->pixels() == n && !(mask->channel(0)[i] > 0.5f)) continue;
       if (pass == 0 && !(mask && mask->pixels() == n)) continue;
-      const float l = static_cast<float>(Luminance(
-          Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i])));
+      const float l = static_cast<float>(
+          Luminance(Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i])));
       lum.push_back(l);
       log_sum += std::log(1e-6 + std::max(0.0f, l));
     }

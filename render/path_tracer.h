@@ -42,7 +42,7 @@ struct RenderOptions {
   double azimuth_deg = -90.0;     // camera azimuth from +x towards +y (-90: looking from -y)
   double fov_deg = 0.0;           // vertical field of view; 0: 30 degrees
   std::optional<CameraSpec> camera;  // explicit camera; else framed from elevation/azimuth
-  double relief_scale = 1.0;      // multiplies heights (exaggerated relief for previews), > 0
+  double relief_scale = 1.0;         // multiplies heights (exaggerated relief for previews), > 0
   Rgb mount_albedo = Rgb::Constant(0.3);  // Lambert mount plane seen through holes
   // Spatially varying base colour: RGB (or 1-channel) on the height field's grid, multiplies the
   // surface BRDF (nearest sample). nullptr: the BRDF as given.
@@ -103,8 +103,8 @@ struct RenderSummary {
   int rounds = 0;
   double seconds = 0;
   double mean_spp = 0;
-  bool mount_visible = true;     // false: camera rays skipped the mount plane
-  bool mirror_guide = false;     // the mirrored-environment sampler was used
+  bool mount_visible = true;  // false: camera rays skipped the mount plane
+  bool mirror_guide = false;  // the mirrored-environment sampler was used
   std::string BriefReport() const;
 };
 
@@ -118,13 +118,13 @@ struct RenderResult {
   ImageF sample_mask;  // 1 channel: fraction of each pixel's camera rays that hit the height field
   // Feature buffers of the camera rays' first hits, averaged over each pixel's samples (zero
   // where a ray escaped): for the optional preview denoiser (render/denoise.h).
-  ImageF normal;    // 3 channels: world-space shading normal, facing the camera
-  ImageF depth;     // 1 channel: distance from the eye, metres
-  ImageF albedo;    // 3 channels: the base colour the hit multiplies (the scan's tint on the
-                    // height field, the mount's albedo on the mount)
-  ImageF half[2];   // 3 channels each: the means of the even and of the odd samples
-  ImageF spp;       // 1 channel: samples taken per pixel
-  ToneMapping tone;    // metered on the sample (mask > 0.5), not on the mount
+  ImageF normal;     // 3 channels: world-space shading normal, facing the camera
+  ImageF depth;      // 1 channel: distance from the eye, metres
+  ImageF albedo;     // 3 channels: the base colour the hit multiplies (the scan's tint on the
+                     // height field, the mount's albedo on the mount)
+  ImageF half[2];    // 3 channels each: the means of the even and of the odd samples
+  ImageF spp;        // 1 channel: samples taken per pixel
+  ToneMapping tone;  // metered on the sample (mask > 0.5), not on the mount
   RenderSummary summary;
 };
 

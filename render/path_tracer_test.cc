@@ -8,7 +8,6 @@
 
 #include "core/progress.h"
 #include "render/embree_scene.h"
-
 #include "render/env_map.h"
 
 namespace mesoscan {
@@ -85,12 +84,12 @@ TEST(PathTracer, FlatLambertUnderSkyMatchesQuadrature) {
   o.elevation_deg = 90;
   o.fov_deg = 5;
   const double albedo = 0.6;
-  const ImageF im = RenderHeightField(FlatField(), Brdf(LambertBrdf(Rgb::Constant(albedo))), env, o);
+  const ImageF im =
+      RenderHeightField(FlatField(), Brdf(LambertBrdf(Rgb::Constant(albedo))), env, o);
   // The central 2x2 pixels see only the height field (the border of the frame sees the mount).
   double mean = 0;
   for (int y = 1; y < 3; ++y)
-    for (int x = 1; x < 3; ++x)
-      mean += Luminance(Rgb(im(x, y, 0), im(x, y, 1), im(x, y, 2))) / 4;
+    for (int x = 1; x < 3; ++x) mean += Luminance(Rgb(im(x, y, 0), im(x, y, 1), im(x, y, 2))) / 4;
   // The quadrature resolves the 2-degree sun only to ~1%: a 2% tolerance.
   EXPECT_NEAR(mean / (albedo / kPi * E), 1.0, 0.02);
 }
@@ -156,8 +155,9 @@ TEST(PathTracer, UndersideOverABlackMountIsBlack) {
   o.mount_albedo = Rgb::Zero();
   o.max_depth = 8;
   for (bool hole : {false, true}) {
-    const ImageF im = RenderHeightField(SlabWithHole(zs, hole), Brdf(LambertBrdf(Rgb::Constant(0.8))),
-                                        EnvironmentMap::Constant(Rgb::Constant(1.0)), o);
+    const ImageF im =
+        RenderHeightField(SlabWithHole(zs, hole), Brdf(LambertBrdf(Rgb::Constant(0.8))),
+                          EnvironmentMap::Constant(Rgb::Constant(1.0)), o);
     EXPECT_LT(im(0, 0, 1), 1e-3) << "hole " << hole;
   }
 }
@@ -218,7 +218,8 @@ TEST(PathTracer, MountUnderAGreySlabMatchesAnIndependentWalk) {
   const ImageF im = RenderHeightField(SlabWithHole(zs), Brdf(LambertBrdf(Rgb::Constant(rho_s))),
                                       EnvironmentMap::Constant(Rgb::Constant(L)), o);
   // Tolerance: 4 sigma of the walk + 1% (the sampler's own noise at 16384 spp is far below).
-  EXPECT_NEAR(im(0, 0, 0), ref, 4 * ref_sigma + 0.01 * ref) << "walk " << ref << " +- " << ref_sigma;
+  EXPECT_NEAR(im(0, 0, 0), ref, 4 * ref_sigma + 0.01 * ref)
+      << "walk " << ref << " +- " << ref_sigma;
 }
 
 // The white furnace: an albedo-1 Lambert relief with holes over an albedo-1 mount under a
@@ -251,7 +252,8 @@ HeightField BumpyField() {
   HeightField hf = FlatField(64, 1e-4);
   for (int j = 0; j < 64; ++j)
     for (int i = 0; i < 64; ++i)
-      hf.z(i, j) = static_cast<float>(3e-4 + 1.5e-4 * std::sin(i * 0.35 + 0.3) * std::cos(j * 0.27));
+      hf.z(i, j) =
+          static_cast<float>(3e-4 + 1.5e-4 * std::sin(i * 0.35 + 0.3) * std::cos(j * 0.27));
   return hf;
 }
 
@@ -266,7 +268,8 @@ void CheckDirectLightingAtPoints(const Brdf& brdf, const char* what) {
   scene.AddHeightField(hf);
   scene.AddPlane(-1e-6, 10 * 64e-4 + 1.0);
   scene.Commit();
-  for (const Vec3& target : {Vec3(0.4e-3, -0.7e-3, 0), Vec3(-1.1e-3, 0.9e-3, 0), Vec3(1.5e-3, 1.2e-3, 0)}) {
+  for (const Vec3& target :
+       {Vec3(0.4e-3, -0.7e-3, 0), Vec3(-1.1e-3, 0.9e-3, 0), Vec3(1.5e-3, 1.2e-3, 0)}) {
     const Vec3 p(target.x(), target.y(), hf.Sample(target.x(), target.y()));
     const Vec3 eye = p + 0.05 * Vec3(0.3, -0.5, 0.81).normalized();
     const Vec3 dir = (p - eye).normalized();
@@ -331,12 +334,14 @@ TEST(EnvironmentMap, UpperHemisphereIrradianceMatchesQuadrature) {
     const double th = (i + 0.5) / nt * 0.5 * kPi;
     for (int j = 0; j < np; ++j) {
       const double ph = (j + 0.5) / np * 2 * kPi;
-      E += env.Le(SphericalDirection(th, ph)) * (std::cos(th) * std::sin(th) * (0.5 * kPi / nt) * (2 * kPi / np));
+      E += env.Le(SphericalDirection(th, ph)) *
+           (std::cos(th) * std::sin(th) * (0.5 * kPi / nt) * (2 * kPi / np));
     }
   }
   const Rgb closed = env.UpperHemisphereIrradiance();
   for (int c = 0; c < 3; ++c) EXPECT_NEAR(closed[c] / E[c], 1.0, 1e-3) << c;
-  EXPECT_NEAR(EnvironmentMap::Constant(Rgb::Constant(2.0)).UpperHemisphereIrradiance()[1], 2 * kPi, 1e-12);
+  EXPECT_NEAR(EnvironmentMap::Constant(Rgb::Constant(2.0)).UpperHemisphereIrradiance()[1], 2 * kPi,
+              1e-12);
 }
 
 // Far from the sample the mount sees the open sky: with the control variate its radiance is the
@@ -357,11 +362,13 @@ TEST(PathTracer, OpenMountIsNoiseFree) {
     // Looking down at the mount 0.3 m away from a 3 mm field.
     o.camera = CameraSpec{Vec3(0.3, 0, 0.1), Vec3(0.3, 0.0, 0)};
     RenderSummary summary;
-    const ImageF im = RenderHeightField(FlatField(), Brdf(LambertBrdf(Rgb::Constant(0.6))), env, o, &summary);
+    const ImageF im =
+        RenderHeightField(FlatField(), Brdf(LambertBrdf(Rgb::Constant(0.6))), env, o, &summary);
     EXPECT_TRUE(summary.mount_visible);
     for (int y = 0; y < o.height; ++y)
       for (int x = 0; x < o.width; ++x)
-        for (int c = 0; c < 3; ++c) EXPECT_NEAR(im(x, y, c) / expected[c], 1.0, 1e-6) << x << "," << y;
+        for (int c = 0; c < 3; ++c)
+          EXPECT_NEAR(im(x, y, c) / expected[c], 1.0, 1e-6) << x << "," << y;
   }
 }
 
@@ -383,7 +390,8 @@ TEST(PathTracer, InvisibleMountIsSkippedWithoutChangingTheImage) {
   const ImageF b = RenderHeightField(hf, brdf, env, o, &traced);
   EXPECT_FALSE(skipped.mount_visible);
   EXPECT_TRUE(traced.mount_visible);
-  for (int c = 0; c < 3; ++c) EXPECT_EQ(std::memcmp(a.channel(c), b.channel(c), a.pixels() * sizeof(float)), 0);
+  for (int c = 0; c < 3; ++c)
+    EXPECT_EQ(std::memcmp(a.channel(c), b.channel(c), a.pixels() * sizeof(float)), 0);
   // Default framing: the mount shows around the field.
   o = SmallSkyRender(3);
   RenderHeightField(hf, brdf, env, o, &traced);
@@ -407,7 +415,8 @@ TEST(PathTracer, TwoSeedsDifferByThePredictedVariance) {
   const EnvironmentMap env = EnvironmentMap::Sky(35, 10, 64);
   const Brdf brdf(LambertBrdf(Rgb::Constant(0.6)));
   std::vector<ImageF> im;
-  for (uint64_t seed = 1; seed <= 10; ++seed) im.push_back(RenderHeightField(hf, brdf, env, SmallSkyRender(seed)));
+  for (uint64_t seed = 1; seed <= 10; ++seed)
+    im.push_back(RenderHeightField(hf, brdf, env, SmallSkyRender(seed)));
   double d2 = 0, var2 = 0;
   for (size_t i = 0; i < im[0].pixels(); ++i) {
     const double d = im[0].channel(1)[i] - im[1].channel(1)[i];
@@ -446,7 +455,8 @@ TEST(EnvironmentMap, SamplingPassesChiSquare) {
     double u = 0.5 - std::atan2(w.y(), w.x()) / (2 * kPi);
     u -= std::floor(u);
     const double v = std::acos(std::clamp(w.z(), -1.0, 1.0)) / kPi;
-    return std::min(nv - 1, static_cast<int>(v * nv)) * nu + std::min(nu - 1, static_cast<int>(u * nu));
+    return std::min(nv - 1, static_cast<int>(v * nv)) * nu +
+           std::min(nu - 1, static_cast<int>(u * nu));
   };
   std::vector<double> observed(nu * nv, 0), expected(nu * nv, 0);
   uint64_t st = 5;
@@ -466,7 +476,8 @@ TEST(EnvironmentMap, SamplingPassesChiSquare) {
         for (int b = 0; b < sub; ++b) {
           const double v = (bv + (a + 0.5) / sub) / nv, u = (bu + (b + 0.5) / sub) / nu;
           const double th = v * kPi, ph = (0.5 - u) * 2 * kPi;
-          p += env.Pdf(SphericalDirection(th, ph)) * std::sin(th) * (kPi / nv / sub) * (2 * kPi / nu / sub);
+          p += env.Pdf(SphericalDirection(th, ph)) * std::sin(th) * (kPi / nv / sub) *
+               (2 * kPi / nu / sub);
         }
       expected[bv * nu + bu] = p * kSamples;
     }
@@ -592,7 +603,8 @@ TEST(PathTracer, MirrorGuideLeavesTheImageUnbiased) {
   EXPECT_LT(std::abs(z_score(all)), 4.0);
   EXPECT_LT(std::abs(z_score(rim)), 4.0);
   bool differ = false;
-  for (size_t i = 0; i < first[0].pixels(); ++i) differ = differ || first[0].channel(1)[i] != first[1].channel(1)[i];
+  for (size_t i = 0; i < first[0].pixels(); ++i)
+    differ = differ || first[0].channel(1)[i] != first[1].channel(1)[i];
   EXPECT_TRUE(differ);
 }
 
@@ -656,8 +668,8 @@ TEST(PathTracer, FeatureBuffersDescribeTheFirstHit) {
   o.albedo = &albedo;
   const Vec3 centre(hf.X(15.5), hf.Y(15.5), 0);
   o.camera = CameraSpec{centre + Vec3(0, 0, 0.01), centre};
-  const RenderResult r = Render(hf, Brdf(LambertBrdf(Rgb::Constant(0.7))),
-                                EnvironmentMap::Constant(Rgb::Ones()), o);
+  const RenderResult r =
+      Render(hf, Brdf(LambertBrdf(Rgb::Constant(0.7))), EnvironmentMap::Constant(Rgb::Ones()), o);
   for (int y = 0; y < 8; ++y)
     for (int x = 0; x < 8; ++x) {
       EXPECT_NEAR(r.normal(x, y, 2), 1.0, 1e-6);
@@ -740,8 +752,10 @@ TEST(PathTracer, ErrorDrivenAllocationIsUnbiasedAndHelps) {
         a += y / ref.pixels();
         mse[g] += (y - lum(ref, i)) * (y - lum(ref, i));
         total += r.spp.channel(0)[i];
-        if (bright[i]) t += y, ++n_top, spp_top += r.spp.channel(0)[i];
-        else spp_rest += r.spp.channel(0)[i];
+        if (bright[i])
+          t += y, ++n_top, spp_top += r.spp.channel(0)[i];
+        else
+          spp_rest += r.spp.channel(0)[i];
       }
       all[g].push_back(a);
       top[g].push_back(t / n_top);

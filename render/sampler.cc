@@ -21,7 +21,8 @@ struct SobolMatrices {
     for (int k = 1; k <= 64; ++k) {
       if (k > 1) m = (m << 1) ^ m;
       // v_k = m_k * 2^-k; top 32 bits of the fraction = m_k * 2^(32 - k).
-      v1[k - 1] = k <= 32 ? static_cast<uint32_t>(m << (32 - k)) : static_cast<uint32_t>(m >> (k - 32));
+      v1[k - 1] =
+          k <= 32 ? static_cast<uint32_t>(m << (32 - k)) : static_cast<uint32_t>(m >> (k - 32));
       v0[k - 1] = k <= 32 ? (1u << (32 - k)) : 0u;
     }
     for (int b = 0; b < 8; ++b)
@@ -118,7 +119,8 @@ ZSobolSampler::ZSobolSampler(int log2_spp, int width, int height, uint64_t seed)
 }
 
 void ZSobolSampler::StartPixelSample(int x, int y, uint32_t sample) {
-  const uint64_t m = (Morton2(static_cast<uint32_t>(x), static_cast<uint32_t>(y)) << log2_spp_) | sample;
+  const uint64_t m =
+      (Morton2(static_cast<uint32_t>(x), static_cast<uint32_t>(y)) << log2_spp_) | sample;
   if ((m >> log2_spp_) != (morton_index_ >> log2_spp_) || generation_ == 0) {
     if (++generation_ == 0) {  // wrapped: clear the stamps
       std::fill(std::begin(cached_for_), std::end(cached_for_), 0u);
@@ -147,7 +149,8 @@ uint64_t ZSobolSampler::PermutedIndex(uint64_t dimension_hash) {
       for (int i = base4_digits_ - 1; i >= first_pixel_digit; --i) {
         const int shift = 2 * i;
         const int digit = static_cast<int>((morton_index_ >> shift) & 3);
-        const int p = static_cast<int>((MixBits((morton_index_ >> (shift + 2)) ^ dimension_hash) >> 24) % 24);
+        const int p =
+            static_cast<int>((MixBits((morton_index_ >> (shift + 2)) ^ dimension_hash) >> 24) % 24);
         part |= static_cast<uint64_t>(perms.p[p][digit]) << shift;
       }
       pixel_part_[dimension_] = part;

@@ -57,7 +57,8 @@ TEST(ZSobolSampler, SixteenSamplesAreANetInEveryDimensionPair) {
           const int nx = 1 << bx, ny = 16 / nx;
           std::set<int> cells;
           for (int i = 0; i < 16; ++i)
-            cells.insert(static_cast<int>(u[i][2 * d] * nx) * ny + static_cast<int>(u[i][2 * d + 1] * ny));
+            cells.insert(static_cast<int>(u[i][2 * d] * nx) * ny +
+                         static_cast<int>(u[i][2 * d + 1] * ny));
           EXPECT_EQ(cells.size(), 16u) << "log2_spp " << log2_spp << " pixel " << px << " dim " << d
                                        << " partition " << nx << "x" << ny;
         }

@@ -1,8 +1,8 @@
 // libmesoscan_ximgproc.so (interface: render/ximgproc_module.h): cv::ximgproc's filters.
 
-#include <opencv2/ximgproc.hpp>
-
 #include "render/ximgproc_module.h"
+
+#include <opencv2/ximgproc.hpp>
 
 namespace mesoscan {
 namespace {

@@ -13,8 +13,8 @@ class XimgprocModule {
   virtual ~XimgprocModule() = default;
   virtual void GuidedFilter(const cv::Mat& guide, const cv::Mat& src, cv::Mat& dst, int radius,
                             double eps) const = 0;
-  virtual void JointBilateralFilter(const cv::Mat& joint, const cv::Mat& src, cv::Mat& dst,
-                                    int d, double sigma_color, double sigma_space) const = 0;
+  virtual void JointBilateralFilter(const cv::Mat& joint, const cv::Mat& src, cv::Mat& dst, int d,
+                                    double sigma_color, double sigma_space) const = 0;
 };
 
 // The module, loaded on the first call. Throws Error(kInternal) if it cannot be loaded.

@@ -95,7 +95,8 @@ std::vector<double> ParsePeriodList(const std::string& text, const std::string& 
     periods.push_back(p);
   }
   if (!text.empty() && text.back() == ',')
-    MESOSCAN_THROW(ErrorKind::kUsage, option << ": '" << text << "': a period is missing after ','");
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   option << ": '" << text << "': a period is missing after ','");
   return periods;
 }
 

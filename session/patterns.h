@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "session/session.h"
 #include "core/image.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

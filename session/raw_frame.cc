@@ -106,10 +106,11 @@ ImageU16 ReadRawMosaic(const std::filesystem::path& path, const std::string& lab
   // The raw plugin explicitly: a DNG is also a valid TIFF, and OIIO's TIFF reader would claim it.
   std::string err;
   bool no_reader = false;
-  auto in = Oiio().Open(path.string(), "raw", {ImageAttribute::String("raw:Demosaic", "none")}, &err, &no_reader);
+  auto in = Oiio().Open(path.string(), "raw", {ImageAttribute::String("raw:Demosaic", "none")},
+                        &err, &no_reader);
   if (no_reader)
-    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (OpenImageIO has no raw plugin: "
-                           << OneLine(err) << ")");
+    MESOSCAN_BAD_INPUT(
+        who << ": cannot read camera raw (OpenImageIO has no raw plugin: " << OneLine(err) << ")");
   if (!in) MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(err) << ")");
   const ImageHeader& spec = in->header();
   if (spec.channels != 1)

@@ -7,11 +7,11 @@
 #include <fstream>
 #include <random>
 
-#include "session/patterns.h"
-#include "session/session.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "session/patterns.h"
+#include "session/session.h"
 
 namespace mesoscan {
 namespace {

@@ -12,12 +12,12 @@
 #include <set>
 #include <sstream>
 
-#include "session/raw_frame.h"
 #include "core/error.h"
-#include "core/output_dir.h"
 #include "core/fs.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "core/parallel.h"
+#include "session/raw_frame.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -177,8 +177,8 @@ class Parser {
   PinholeCamera Device(const Json& obj, const std::string& parent,
                        bool* uncalibrated = nullptr) const {
     PinholeCamera cam;
-    if (uncalibrated && (!Find(obj, "K") || !Find(obj, "distortion") ||
-                         !Find(obj, "world_from_device"))) {
+    if (uncalibrated &&
+        (!Find(obj, "K") || !Find(obj, "distortion") || !Find(obj, "world_from_device"))) {
       *uncalibrated = true;
       // Whatever is present is an initial guess: validated, then kept.
       const std::string side = "an integer in [1, " + std::to_string(kMaxImageSide) + "]";
@@ -188,8 +188,8 @@ class Parser {
                                             Join(parent, "height"), 1, kMaxImageSide, side));
       Json full = obj;
       if (!Find(obj, "K"))
-        full["K"] = {{1.0, 0.0, 0.5 * (cam.width - 1)}, {0.0, 1.0, 0.5 * (cam.height - 1)},
-                     {0.0, 0.0, 1.0}};
+        full["K"] = {
+            {1.0, 0.0, 0.5 * (cam.width - 1)}, {0.0, 1.0, 0.5 * (cam.height - 1)}, {0.0, 0.0, 1.0}};
       if (!Find(obj, "distortion")) full["distortion"] = {0, 0, 0, 0, 0};
       if (!Find(obj, "world_from_device"))
         full["world_from_device"] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}};
@@ -327,11 +327,14 @@ ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const
                            const fs::path& root) {
   std::error_code ec;
   const fs::path real = fs::weakly_canonical(path, ec);
-  if (ec) MESOSCAN_BAD_INPUT(label << ": cannot resolve the path (" << ec.message() << ") (" << key << ")");
+  if (ec)
+    MESOSCAN_BAD_INPUT(label << ": cannot resolve the path (" << ec.message() << ") (" << key
+                             << ")");
   const fs::path real_root = fs::weakly_canonical(fs::absolute(root), ec);
   if (!ec && !PathIsWithin(real, real_root))
     MESOSCAN_BAD_INPUT(label << ": resolves to " << real.string()
-                             << ", outside the session folder (a symlink leaving it) (" << key << ")");
+                             << ", outside the session folder (a symlink leaving it) (" << key
+                             << ")");
   if (!fs::exists(path)) MESOSCAN_BAD_INPUT(label << ": file not found (" << key << ")");
   try {
     return ReadImageLayout(path);
@@ -685,7 +688,8 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s) {
   ParallelFor(static_cast<int64_t>(n), [&](int64_t i) {
     const Frame& f = s.frames[i];
     try {
-      ImageInfo info = ReadInfoLabelled(s.FramePath(i), f.file, Index("frames", i) + ".file", s.root);
+      ImageInfo info =
+          ReadInfoLabelled(s.FramePath(i), f.file, Index("frames", i) + ".file", s.root);
       const bool raw = IsRawExtension(f.file);
       const bool ok = raw ? (info.width / 2 == w && info.height / 2 == h)
                           : (info.width == w && info.height == h);
@@ -783,7 +787,8 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
                              << col << ")");
   } catch (const Json::exception& e) {  // e.g. a number beyond double range (K = 1e999)
     std::string what = e.what();
-    if (const size_t close = what.find("] "); close != std::string::npos) what = what.substr(close + 2);
+    if (const size_t close = what.find("] "); close != std::string::npos)
+      what = what.substr(close + 2);
     MESOSCAN_BAD_INPUT(label << ": not valid JSON (" << what << ")");
   }
   Session s =

@@ -9,9 +9,9 @@
 #include <limits>
 #include <random>
 
-#include "session/patterns.h"
 #include "core/fs.h"
 #include "core/image_io.h"
+#include "session/patterns.h"
 
 namespace mesoscan {
 namespace {

@@ -1,13 +1,11 @@
 #include "sim/board_sim.h"
 
-
 #include <atomic>
 #include <cmath>
 #include <numbers>
 #include <optional>
 #include <sstream>
 
-#include "session/patterns.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -15,6 +13,7 @@
 #include "core/parallel.h"
 #include "core/progress.h"
 #include "core/stage_timer.h"
+#include "session/patterns.h"
 
 namespace fs = std::filesystem;
 
@@ -83,7 +82,8 @@ class BoardTexture {
   double At(double x, double y) const {
     x = std::clamp(x, 0.0, static_cast<double>(w_));
     y = std::clamp(y, 0.0, static_cast<double>(h_));
-    const int ix = std::min(static_cast<int>(x), w_ - 1), iy = std::min(static_cast<int>(y), h_ - 1);
+    const int ix = std::min(static_cast<int>(x), w_ - 1),
+              iy = std::min(static_cast<int>(y), h_ - 1);
     const double ax = x - ix, ay = y - iy;
     auto s = [&](int xx, int yy) { return sat_[static_cast<size_t>(yy) * (w_ + 1) + xx]; };
     return (1 - ay) * ((1 - ax) * s(ix, iy) + ax * s(ix + 1, iy)) +
@@ -97,13 +97,15 @@ class BoardTexture {
 
 void BoardSimOptions::Check() const {
   if (board.cols < 2 || board.rows < 2 || !(board.square_m > 0))
-    BOARD_USAGE("--object: expected board:checker:COLSxROWS:SQUARE_MM or "
-                "board:charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
+    BOARD_USAGE(
+        "--object: expected board:checker:COLSxROWS:SQUARE_MM or "
+        "board:charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
   for (double v : pose)
     if (!std::isfinite(v)) BOARD_USAGE("--pose: expected six finite numbers");
   if (!(dark_albedo >= 0 && dark_albedo <= 1 && light_albedo >= 0 && light_albedo <= 1))
     BOARD_USAGE("board albedo: expected values in [0, 1]");
-  if (!(margin_squares >= 0 && margin_squares < 100)) BOARD_USAGE("board margin: expected [0, 100)");
+  if (!(margin_squares >= 0 && margin_squares < 100))
+    BOARD_USAGE("board margin: expected [0, 100)");
   for (double p : ps_periods_y_px)
     if (!(p > 2.0) || !std::isfinite(p))
       BOARD_USAGE("--ps-periods-y: expected periods > 2 px, got " << p);
@@ -126,8 +128,7 @@ std::array<double, 6> ParseBoardPose(const std::string& text) {
       pose[n] = std::stod(item, &used);
       if (used != item.size() || !std::isfinite(pose[n])) throw std::invalid_argument(item);
     } catch (const std::exception&) {
-      BOARD_USAGE("--pose: '" << text
-                              << "': expected six numbers rx,ry,rz,tx,ty,tz (degrees, mm)");
+      BOARD_USAGE("--pose: '" << text << "': expected six numbers rx,ry,rz,tx,ty,tz (degrees, mm)");
     }
     ++n;
   }
@@ -139,8 +140,8 @@ Rigid3d BoardPoseToRigid(const std::array<double, 6>& pose) {
   const Vec3d r(pose[0], pose[1], pose[2]);
   const double angle = r.norm() * std::numbers::pi / 180.0;
   Rigid3d t;
-  t.rotation = angle > 0 ? Eigen::AngleAxisd(angle, r.normalized()).toRotationMatrix()
-                         : Mat3d::Identity();
+  t.rotation =
+      angle > 0 ? Eigen::AngleAxisd(angle, r.normalized()).toRotationMatrix() : Mat3d::Identity();
   t.translation = Vec3d(pose[3], pose[4], pose[5]) * 1e-3;
   return t;
 }
@@ -189,9 +190,7 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   plan.lens_shift_frames = 0;
   plan.white = o.white;
   plan.black = o.black;
-  plan.extension = bo.frame_format == "bmp"    ? ".bmp"
-                   : bo.frame_format == "tif8" ? ".tif"
-                                               : ".png";
+  plan.extension = bo.frame_format == "bmp" ? ".bmp" : bo.frame_format == "tif8" ? ".tif" : ".png";
   const std::vector<Frame> frames = MakeStandardFrames(plan);
   struct SineSet {
     char axis;
@@ -333,10 +332,9 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
                     // fill factor: its amplitude times exp(-2 pi^2 s^2 / p^2) sinc(fill / p).
                     const double pf = sets[si].period;
                     const double arg = std::numbers::pi * o.fill_factor / pf;
-                    const double att =
-                        std::exp(-2.0 * std::numbers::pi * std::numbers::pi * sigma * sigma /
-                                 (pf * pf)) *
-                        std::sin(arg) / arg;
+                    const double att = std::exp(-2.0 * std::numbers::pi * std::numbers::pi * sigma *
+                                                sigma / (pf * pf)) *
+                                       std::sin(arg) / arg;
                     set_cos[si] = sh * 0.5 * att * std::cos(rate[si] * x);
                     set_sin[si] = sh * 0.5 * att * std::sin(rate[si] * x);
                   }
@@ -358,14 +356,13 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
                                    : mean;  // the board is simulated with a linear projector
                 value *= gains[f];
                 if (o.noise > 0)
-                  value += noise.Sigma(mean) *
-                           NormalOf(SplitMix((o.seed << 40) ^ (static_cast<uint64_t>(f) << 32) ^
-                                             pix));
-                const int dn =
-                    static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
-                images[f][pix] = eight_bit ? static_cast<uint16_t>(dn)
-                                           : static_cast<uint16_t>(std::lround(
-                                                 dn * (65535.0 / dn_max)));
+                  value +=
+                      noise.Sigma(mean) *
+                      NormalOf(SplitMix((o.seed << 40) ^ (static_cast<uint64_t>(f) << 32) ^ pix));
+                const int dn = static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
+                images[f][pix] = eight_bit
+                                     ? static_cast<uint16_t>(dn)
+                                     : static_cast<uint16_t>(std::lround(dn * (65535.0 / dn_max)));
               }
             }
             progress.Advance();

@@ -1,9 +1,9 @@
 #pragma once
-// The virtual rig looking at a calibration board: a printed checkerboard or ChArUco board (heightfield/
-// calibrate_board.h) at any pose in front of the rig, rendered analytically (ray-plane
-// intersection, no Embree: the board is one plane), with sine patterns along both projector
-// axes, distortion on both devices (the rig's), sensor noise as sim/README.md, frames as 16-bit
-// PNG or 8-bit PNG/BMP/TIFF. Writes a calibration session (spec "Calibration sessions": the
+// The virtual rig looking at a calibration board: a printed checkerboard or ChArUco board
+// (heightfield/ calibrate_board.h) at any pose in front of the rig, rendered analytically
+// (ray-plane intersection, no Embree: the board is one plane), with sine patterns along both
+// projector axes, distortion on both devices (the rig's), sensor noise as sim/README.md, frames as
+// 16-bit PNG or 8-bit PNG/BMP/TIFF. Writes a calibration session (spec "Calibration sessions": the
 // rig holds only device sizes); the true rig and the board pose are kept under the session's
 // "simulation" key for tests.
 
@@ -26,7 +26,7 @@ struct BoardSimOptions {
   // Albedo of the dark squares and of the paper (light squares and the margin). A printed
   // low-contrast board (grey squares on white): dark 0.45, light 0.8.
   double dark_albedo = 0.06, light_albedo = 0.85;
-  double margin_squares = 1.0;  // paper beyond the checker, squares
+  double margin_squares = 1.0;      // paper beyond the checker, squares
   double background_albedo = 0.25;  // beyond the paper (the mount, far away)
   // Sine periods along projector y (the x periods are SimulateOptions::ps_periods_px).
   std::vector<double> ps_periods_y_px;

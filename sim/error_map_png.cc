@@ -1,5 +1,8 @@
 #include "sim/error_map_png.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <opencv2/core.hpp>
@@ -7,9 +10,6 @@
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include "core/image_io.h"
 
@@ -53,26 +53,27 @@ void WriteErrorMapPng(const std::filesystem::path& path, const ImageF& error, do
   label(hi.str(), out_w - 80);
   ImageU8 im(out_w, h + bar_h, 3);
   const cv::Vec3b* lut = viridis.ptr<cv::Vec3b>(0);
-  tbb::parallel_for(tbb::blocked_range<int>(0, h + bar_h, 64), [&](const tbb::blocked_range<int>& r) {
-    for (int y = r.begin(); y < r.end(); ++y) {
-      uint8_t* rgb[3] = {&im(0, y, 0), &im(0, y, 1), &im(0, y, 2)};
-      if (y >= h) {  // the bar; OpenCV is BGR
-        const cv::Vec3b* row = bar.ptr<cv::Vec3b>(y - h);
-        for (int x = 0; x < out_w; ++x)
-          for (int c = 0; c < 3; ++c) rgb[c][x] = row[x][2 - c];
-        continue;
-      }
-      for (int x = 0; x < w; ++x) {
-        const float v = error(x, y);
-        cv::Vec3b px(0, 0, 0);  // NaN: black
-        if (std::isfinite(v))
-          px = lut[static_cast<uint8_t>(std::clamp(std::abs(v) / max_m, 0.0, 1.0) * 255)];
-        for (int c = 0; c < 3; ++c) rgb[c][x] = px[2 - c];
-      }
-      for (int x = w; x < out_w; ++x)
-        for (int c = 0; c < 3; ++c) rgb[c][x] = 255;
-    }
-  });
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, h + bar_h, 64), [&](const tbb::blocked_range<int>& r) {
+        for (int y = r.begin(); y < r.end(); ++y) {
+          uint8_t* rgb[3] = {&im(0, y, 0), &im(0, y, 1), &im(0, y, 2)};
+          if (y >= h) {  // the bar; OpenCV is BGR
+            const cv::Vec3b* row = bar.ptr<cv::Vec3b>(y - h);
+            for (int x = 0; x < out_w; ++x)
+              for (int c = 0; c < 3; ++c) rgb[c][x] = row[x][2 - c];
+            continue;
+          }
+          for (int x = 0; x < w; ++x) {
+            const float v = error(x, y);
+            cv::Vec3b px(0, 0, 0);  // NaN: black
+            if (std::isfinite(v))
+              px = lut[static_cast<uint8_t>(std::clamp(std::abs(v) / max_m, 0.0, 1.0) * 255)];
+            for (int c = 0; c < 3; ++c) rgb[c][x] = px[2 - c];
+          }
+          for (int x = w; x < out_w; ++x)
+            for (int c = 0; c < 3; ++c) rgb[c][x] = 255;
+        }
+      });
   // zlib level 1, rows unfiltered: a full-resolution map (2176 x 1482 RGB) is written several
   // times faster than at the default level (0.18 s; libpng's adaptive filters at level 1: 0.40 s,
   // and a 70% larger file: the colour-mapped noise defeats the row predictors).

@@ -97,8 +97,7 @@ GroundTruthPoints ReadGroundTruthPoints(const Session& session) {
 
 GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
                                              const PixelRect& roi, double gross_threshold_m) {
-  return EvaluateAgainstGroundTruth(ReadGroundTruthPoints(session), points, roi,
-                                    gross_threshold_m);
+  return EvaluateAgainstGroundTruth(ReadGroundTruthPoints(session), points, roi, gross_threshold_m);
 }
 
 GroundTruthErrors EvaluateAgainstGroundTruth(const GroundTruthPoints& gt_points,

@@ -6,13 +6,13 @@
 
 #include <functional>
 
-#include "session/session.h"
 #include "core/image.h"
 #include "core/image_io.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
 #include "heightfield/frames.h"
 #include "heightfield/reconstruct.h"
+#include "session/session.h"
 
 namespace mesoscan {
 

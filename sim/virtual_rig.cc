@@ -1,5 +1,6 @@
 #include "sim/virtual_rig.h"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -9,10 +10,7 @@
 #include <map>
 #include <sstream>
 
-#include <Eigen/Dense>
-
 #include "assets/objects.h"
-#include "session/patterns.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
@@ -20,16 +18,17 @@
 #include "core/numbers.h"
 #include "core/parallel.h"
 #include "core/progress.h"
-#include "core/stage_timer.h"
 #include "core/scan_folder.h"
+#include "core/stage_timer.h"
 #include "render/embree_scene.h"
+#include "session/patterns.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
 
 namespace {
 
-constexpr int kTableSamplesPerPx = 128;  // light tables: samples per projector pixel
+constexpr int kTableSamplesPerPx = 128;   // light tables: samples per projector pixel
 constexpr double kMaxSigmaStepPx = 0.02;  // light tables: largest blur step between levels
 // zlib level of the frame PNGs: level 1 encodes noisy 16-bit frames ~2.5x faster than the
 // default 6 for ~2% larger files (PNG encoding dominated the simulation's CPU time).
@@ -47,7 +46,9 @@ struct Rng {
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
     return z ^ (z >> 31);
   }
-  double Uniform() { return (static_cast<double>(Next() >> 11) + 0.5) * (1.0 / 9007199254740992.0); }
+  double Uniform() {
+    return (static_cast<double>(Next() >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+  }
   // Standard normal by Box-Muller, two per call pair.
   double Normal() {
     if (has_spare) {
@@ -76,8 +77,8 @@ double Phi(double z) { return 0.5 * std::erfc(-z / std::sqrt(2.0)); }
 // blur levels sigma_l = sigma_min + l * step, on x = x_lo + k / R (sim/README.md "Light").
 struct LightTables {
   int levels = 0;
-  int n = 0;       // samples per level
-  int x_lo = 0;    // x of sample 0 (integer projector px)
+  int n = 0;                // samples per level
+  int x_lo = 0;             // x of sample 0 (integer projector px)
   std::vector<float> data;  // level-major
 
   // Bilinear in (x, level); 0 outside the table (far from any projector pixel).
@@ -111,7 +112,8 @@ std::vector<float> Kernel(double sigma, double fill, int half_support) {
   std::vector<float> k(n);
   for (int i = 0; i < n; ++i) {
     const double t = -half_support + static_cast<double>(i) / kTableSamplesPerPx;
-    k[i] = static_cast<float>((Phi((t + 0.5 * fill) / sigma) - Phi((t - 0.5 * fill) / sigma)) / fill);
+    k[i] =
+        static_cast<float>((Phi((t + 0.5 * fill) / sigma) - Phi((t - 0.5 * fill) / sigma)) / fill);
   }
   return k;
 }
@@ -252,8 +254,7 @@ Sample Shade(const RigView& view, const Vec2d& uv) {
   l /= r;
   const double cos_i = hit->normal.dot(l);
   if (!(cos_i > 0)) return s;
-  if (view.options.shadows &&
-      view.scene.Occluded(EmbreeScene::ShadowRayOrigin(*hit), l, 0.0, r))
+  if (view.options.shadows && view.scene.Occluded(EmbreeScene::ShadowRayOrigin(*hit), l, 0.0, r))
     return s;
   const SimulateOptions& o = view.options;
   s.sigma = o.blur_sigma_px + o.defocus_px_per_m * std::abs(s.point.z() - view.focus_z);
@@ -268,7 +269,7 @@ struct RayCastResult {
   SubsampleCache cache;               // x and shading set; gain and level by PrepareSubsamples
   std::vector<float> v, sigma;        // per subsample: projector v, blur sigma (px)
   std::vector<float> ambient_albedo;  // per pixel: mean albedo of its subsamples
-  ImageF gt_points;  // per pixel: X, Y, Z of the centre ray's hit, lit_fraction, relief
+  ImageF gt_points;        // per pixel: X, Y, Z of the centre ray's hit, lit_fraction, relief
   int64_t lit_pixels = 0;  // pixels whose centre sees a lit surface
   int64_t rays = 0;        // camera rays cast
 };
@@ -376,8 +377,9 @@ void PrepareSubsamples(const BlurLevels& levels, const std::vector<std::vector<f
         const float level = levels.Level(rc->sigma[k]);
         cache.level[k] = level;
         cache.shading[k] *= rows.Lookup(rc->v[k], level);
-        cache.gain[k] = static_cast<float>(along_y ? ShifterGain(options, prj, rc->v[k], cache.x[k])
-                                                   : ShifterGain(options, prj, cache.x[k], rc->v[k]));
+        cache.gain[k] =
+            static_cast<float>(along_y ? ShifterGain(options, prj, rc->v[k], cache.x[k])
+                                       : ShifterGain(options, prj, cache.x[k], rc->v[k]));
       },
       4096);
   rc->v = {};
@@ -515,7 +517,8 @@ HeightField GroundTruthHeight(const PinholeCamera& cam, const SceneObject& objec
   gt.z = ImageF(gw, gh, 1);
   ParallelForRows(gh, [&](int j0, int j1) {
     for (int j = j0; j < j1; ++j)
-      for (int i = 0; i < gw; ++i) gt.z(i, j) = static_cast<float>(object.SurfaceZ(gt.X(i), gt.Y(j)));
+      for (int i = 0; i < gw; ++i)
+        gt.z(i, j) = static_cast<float>(object.SurfaceZ(gt.X(i), gt.Y(j)));
   });
   return gt;
 }
@@ -541,27 +544,29 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
                       {"focus_height_m", focus_z},
                       {"gamma", options.projector_gamma},
                       {"blur_sigma_range_px", {levels.sigma_min, levels.Sigma(levels.count - 1)}}};
-  sim["lens_shifter_gain"] = {
-      {"formula", "g = 1 + gx*un + gy*vn + gr*(un^2 + vn^2), un = (u - cx)/(W/2), "
-                  "vn = (v - cy)/(H/2), (u, v) projector pixel at shift 0"},
-      {"gx", options.shift_gain_x},
-      {"gy", options.shift_gain_y},
-      {"gr", options.shift_gain_r}};
-  sim["radiometry"] = {
-      {"formula", "value = exposure * gain_f * (mean over subsamples of albedo * cos_i * "
-                  "(r0/r)^2 * L(u - s*g) * R(v) + ambient * albedo)"},
-      {"exposure", options.exposure},
-      {"ambient", options.ambient},
-      {"reference_distance_m", r0}};
+  sim["lens_shifter_gain"] = {{"formula",
+                               "g = 1 + gx*un + gy*vn + gr*(un^2 + vn^2), un = (u - cx)/(W/2), "
+                               "vn = (v - cy)/(H/2), (u, v) projector pixel at shift 0"},
+                              {"gx", options.shift_gain_x},
+                              {"gy", options.shift_gain_y},
+                              {"gr", options.shift_gain_r}};
+  sim["radiometry"] = {{"formula",
+                        "value = exposure * gain_f * (mean over subsamples of albedo * cos_i * "
+                        "(r0/r)^2 * L(u - s*g) * R(v) + ambient * albedo)"},
+                       {"exposure", options.exposure},
+                       {"ambient", options.ambient},
+                       {"reference_distance_m", r0}};
   sim["noise"] = {{"scale", options.noise},
                   {"full_well_e", options.full_well_e},
                   {"read_noise_e", options.read_noise_e},
                   {"adc_bits", options.adc_bits},
                   {"gain_jitter", options.gain_jitter},
-                  {"variance", "scale^2 * (m / full_well_e + (read_noise_e / full_well_e)^2) + "
-                               "q^2/12, q = 1/(2^adc_bits - 1), m in [0, 1]"},
-                  {"png", "16-bit, DN replicated to 16 bits: png = DN << (16 - bits) | "
-                          "DN >> (2*bits - 16); png / 65535 = DN / (2^bits - 1)"}};
+                  {"variance",
+                   "scale^2 * (m / full_well_e + (read_noise_e / full_well_e)^2) + "
+                   "q^2/12, q = 1/(2^adc_bits - 1), m in [0, 1]"},
+                  {"png",
+                   "16-bit, DN replicated to 16 bits: png = DN << (16 - bits) | "
+                   "DN >> (2*bits - 16); png / 65535 = DN / (2^bits - 1)"}};
   sim["frame_gains"] = draws.gains;
   sim["shift_position_errors_px"] = draws.position_errors;
   sim["seed"] = options.seed;
@@ -582,7 +587,8 @@ void SimulateOptions::Check() const {
       SIM_USAGE("--ps-periods: expected periods > 2 px, got " << p);
   if (!ps_periods_px.empty() && ps_phases < 3)
     SIM_USAGE("--ps-phases: expected >= 3, got " << ps_phases);
-  if (ls_frames != 0 && ls_frames < 4) SIM_USAGE("--ls-frames: expected 0 or >= 4, got " << ls_frames);
+  if (ls_frames != 0 && ls_frames < 4)
+    SIM_USAGE("--ls-frames: expected 0 or >= 4, got " << ls_frames);
   if (ps_periods_px.empty() && ls_frames == 0 && !white && !black)
     SIM_USAGE("frame plan: no frames requested");
   if (axis != 'x' && axis != 'y') SIM_USAGE("--axis: expected x or y, got '" << axis << "'");
@@ -600,11 +606,13 @@ void SimulateOptions::Check() const {
     SIM_USAGE("--shift-gain: expected |gx| + |gy| + 2|gr| < 0.5");
   if (!(projector_gamma > 0 && projector_gamma <= 5))
     SIM_USAGE("--projector-gamma: expected (0, 5], got " << projector_gamma);
-  if (!(exposure > 0 && exposure <= 100)) SIM_USAGE("--exposure: expected (0, 100], got " << exposure);
+  if (!(exposure > 0 && exposure <= 100))
+    SIM_USAGE("--exposure: expected (0, 100], got " << exposure);
   if (!(ambient >= 0 && ambient <= 10)) SIM_USAGE("--ambient: expected [0, 10], got " << ambient);
   if (!(noise >= 0 && noise <= 100)) SIM_USAGE("--noise: expected [0, 100], got " << noise);
   if (!(full_well_e > 0)) SIM_USAGE("--full-well: expected > 0 electrons, got " << full_well_e);
-  if (!(read_noise_e >= 0)) SIM_USAGE("--read-noise: expected >= 0 electrons, got " << read_noise_e);
+  if (!(read_noise_e >= 0))
+    SIM_USAGE("--read-noise: expected >= 0 electrons, got " << read_noise_e);
   if (adc_bits < 8 || adc_bits > 16) SIM_USAGE("--adc-bits: expected 8..16, got " << adc_bits);
   if (!(shift_position_error_px >= 0 && shift_position_error_px < 0.5))
     SIM_USAGE("--shift-position-error: expected [0, 0.5) px, got " << shift_position_error_px);
@@ -616,8 +624,9 @@ void SimulateOptions::Check() const {
 
 double NoiseModel::Variance(double mean) const {
   const double q = 1.0 / ((1 << adc_bits) - 1);
-  return scale * scale * (std::max(mean, 0.0) / full_well_e +
-                          (read_noise_e / full_well_e) * (read_noise_e / full_well_e)) +
+  return scale * scale *
+             (std::max(mean, 0.0) / full_well_e +
+              (read_noise_e / full_well_e) * (read_noise_e / full_well_e)) +
          q * q / 12.0;
 }
 
@@ -715,7 +724,8 @@ FramePlanOptions SimulationFramePlan(const SimulateOptions& o, const Rig& rig) {
   plan.lens_shift_frames = o.ls_frames;
   if (o.ls_frames > 0) {
     if (!rig.lens_shifter)
-      SIM_USAGE("--ls-frames " << o.ls_frames << ": the rig has no lens_shifter (use --ls-frames 0)");
+      SIM_USAGE("--ls-frames " << o.ls_frames
+                               << ": the rig has no lens_shifter (use --ls-frames 0)");
     plan.range_steps = rig.lens_shifter->range_steps;
     const int64_t positions = int64_t{plan.range_steps[1]} - plan.range_steps[0] + 1;
     if (o.ls_frames > positions)
@@ -734,9 +744,9 @@ std::vector<Frame> MakeSimulationFrames(const SimulateOptions& o, const Rig& rig
 std::string SimulateSummary::BriefReport() const {
   std::ostringstream os;
   os << std::fixed << std::setprecision(2) << "simulated " << frames << " frames of " << width
-     << "x" << height << " (" << rays << " camera rays, " << lit_pixels
-     << " lit pixels) in " << seconds_total << " s (scene " << seconds_scene << " s, ray cast "
-     << seconds_raycast << " s, frames " << seconds_frames << " s)";
+     << "x" << height << " (" << rays << " camera rays, " << lit_pixels << " lit pixels) in "
+     << seconds_total << " s (scene " << seconds_scene << " s, ray cast " << seconds_raycast
+     << " s, frames " << seconds_frames << " s)";
   return os.str();
 }
 
@@ -746,9 +756,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   SimulateSummary summary;
   const Rig rig = ResolveRig(options);
   if (rig.lens_shifter && rig.lens_shifter->axis != options.axis && options.ls_frames > 0)
-    SIM_USAGE("--rig: the lens shifter moves along axis \"" << rig.lens_shifter->axis
-                                                           << "\", expected \"" << options.axis
-                                                           << "\" as --axis");
+    SIM_USAGE("--rig: the lens shifter moves along axis \""
+              << rig.lens_shifter->axis << "\", expected \"" << options.axis << "\" as --axis");
   const std::vector<Frame> frames = MakeSimulationFrames(options, rig);
 
   // The scene: the object on the mount plane z = 0.
@@ -783,8 +792,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     fs::create_directories(dir / "frames");
     Progress progress("simulate: frames", static_cast<int64_t>(frames.size()));
     ParallelFor(static_cast<int64_t>(frames.size()), [&](int64_t f) {
-      const ImageU16 image = RenderFrame(frames[f], f, tables.tables[tables.frame_table[f]], rig,
-                                         rc, draws, options);
+      const ImageU16 image =
+          RenderFrame(frames[f], f, tables.tables[tables.frame_table[f]], rig, rc, draws, options);
       WritePng16(dir / frames[f].file, image, kPngCompressionLevel);
       progress.Advance();
     });
@@ -798,7 +807,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     session.rig = rig;
     session.frames = frames;
     session.ground_truth = GroundTruth{"gt_points.exr", "gt_height.exr"};
-    session.extra["simulation"] = SimulationRecord(options, object, focus_z, levels, view.r0, draws);
+    session.extra["simulation"] =
+        SimulationRecord(options, object, focus_z, levels, view.r0, draws);
     WriteSessionJson(session);
   });
   summary.seconds_frames = t_frames.Seconds();

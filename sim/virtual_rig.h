@@ -7,16 +7,16 @@
 
 #include <array>
 #include <cstdint>
-#include <limits>
 #include <filesystem>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
 
-#include "session/patterns.h"
-#include "session/session.h"
 #include "core/json.h"
 #include "core/rect.h"
+#include "session/patterns.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
@@ -53,8 +53,8 @@ struct SimulateOptions {
   bool shadows = true;  // occlusion rays towards the projector (cast shadows)
 
   // ---- projector optics ----
-  double fill_factor = 0.9;       // lit fraction of the pixel pitch along each axis, (0, 1]
-  double blur_sigma_px = 0.35;    // Gaussian blur sigma at the focus distance, projector px, > 0
+  double fill_factor = 0.9;     // lit fraction of the pixel pitch along each axis, (0, 1]
+  double blur_sigma_px = 0.35;  // Gaussian blur sigma at the focus distance, projector px, > 0
   // The projector is focused on the plane z = focus_height_m (a Scheimpflug projector focused
   // parallel to the mount); sigma = blur_sigma_px + defocus_px_per_m * |z - focus_height_m|.
   double defocus_px_per_m = 200;  // sigma growth per metre off the focus plane, >= 0
@@ -135,7 +135,7 @@ FramePlanOptions SimulationFramePlan(const SimulateOptions& options, const Rig& 
 std::vector<Frame> MakeSimulationFrames(const SimulateOptions& options, const Rig& rig);
 
 struct SimulateSummary {
-  int width = 0, height = 0;   // camera image size
+  int width = 0, height = 0;  // camera image size
   int frames = 0;
   int64_t rays = 0;            // camera rays cast (subsamples + centre rays)
   int64_t lit_pixels = 0;      // pixels whose centre sees a surface lit by the projector

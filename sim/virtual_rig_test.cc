@@ -126,8 +126,8 @@ TEST_F(PlaneSession, NoiselessFramesMatchTheAnalyticLightModel) {
         double light = 0, albedo = 0;
         for (int b = 0; b < S; ++b)
           for (int a = 0; a < S; ++a) {
-            const Vec3d d = cam.RayDirectionInWorld(
-                Vec2d(px + (a + 0.5) / S - 0.5, py + (b + 0.5) / S - 0.5));
+            const Vec3d d =
+                cam.RayDirectionInWorld(Vec2d(px + (a + 0.5) / S - 0.5, py + (b + 0.5) / S - 0.5));
             // Ray / bar plane z = (x - kBarX0) * slope.
             const double t = ((cc.x() - kBarX0) * slope - cc.z()) / (d.z() - d.x() * slope);
             const Vec3d p = cc + t * d;

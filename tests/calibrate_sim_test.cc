@@ -14,16 +14,16 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "session/session.h"
+#include "calibration/calibrate.h"
+#include "calibration/calibrate_mount.h"
+#include "calibration/calibrate_shifter.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/progress.h"
 #include "core/scan_folder.h"
-#include "calibration/calibrate.h"
-#include "calibration/calibrate_mount.h"
-#include "calibration/calibrate_shifter.h"
 #include "heightfield/reconstruct.h"
+#include "session/session.h"
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 #include "tests/cli_util.h"
@@ -50,10 +50,10 @@ const CalibrationBoard& Board() {
 // about both axes, turns up to 20 degrees about the normal, +-15 mm in height.
 const std::vector<std::array<double, 6>>& Poses() {
   static const std::vector<std::array<double, 6>> p = {
-      {0, 0, 0, 0, 0, 0},          {30, 0, 0, 0, 0, 5},          {-30, 0, 10, 0, 0, 5},
-      {0, 30, -10, 0, 0, 0},       {0, -30, 5, 0, 0, 10},        {25, 25, 20, -5, 5, 0},
-      {-25, 25, -20, 5, -5, 8},    {25, -25, 15, 5, 5, -5},      {-25, -25, -15, -5, -5, 12},
-      {35, 0, 20, 0, 0, -8},       {0, 35, -20, 0, 0, 15},       {-20, -20, 5, 8, 0, 0},
+      {0, 0, 0, 0, 0, 0},       {30, 0, 0, 0, 0, 5},     {-30, 0, 10, 0, 0, 5},
+      {0, 30, -10, 0, 0, 0},    {0, -30, 5, 0, 0, 10},   {25, 25, 20, -5, 5, 0},
+      {-25, 25, -20, 5, -5, 8}, {25, -25, 15, 5, 5, -5}, {-25, -25, -15, -5, -5, 12},
+      {35, 0, 20, 0, 0, -8},    {0, 35, -20, 0, 0, 15},  {-20, -20, 5, 8, 0, 0},
       {20, 20, 0, -8, 0, -10}};
   return p;
 }
@@ -86,7 +86,8 @@ fs::path ViewCache() {
 class FileLock {
  public:
   explicit FileLock(const fs::path& path) : fd_(open(path.c_str(), O_CREAT | O_RDWR, 0644)) {
-    if (fd_ < 0 || flock(fd_, LOCK_EX) != 0) throw std::runtime_error("cannot lock " + path.string());
+    if (fd_ < 0 || flock(fd_, LOCK_EX) != 0)
+      throw std::runtime_error("cannot lock " + path.string());
   }
   ~FileLock() {
     flock(fd_, LOCK_UN);
@@ -121,7 +122,8 @@ struct Fixture : public ::testing::Test {
     const FileLock lock(cache.parent_path() / "calibrate_sim.lock");
     if (!fs::exists(cache / "complete")) {
       for (const auto& e : fs::directory_iterator(cache.parent_path()))
-        if (e.path().filename().string().rfind("calibrate_sim_views_", 0) == 0) fs::remove_all(e.path());
+        if (e.path().filename().string().rfind("calibrate_sim_views_", 0) == 0)
+          fs::remove_all(e.path());
       for (size_t i = 0; i < Poses().size(); ++i) {
         bo.pose = Poses()[i];
         so.seed = 100 + i;
@@ -196,9 +198,10 @@ TEST_F(CalibrateSim, RecoversTheRigFromTwelvePoses) {
     }
   }
   const double obs_cam = std::sqrt(sc / nc), obs_prj = std::sqrt(sp / np);
-  std::printf("observation error RMS: camera corners %.4f px, projector corners %.4f px (%d of %d "
-              "decoded)\n",
-              obs_cam, obs_prj, np, nc);
+  std::printf(
+      "observation error RMS: camera corners %.4f px, projector corners %.4f px (%d of %d "
+      "decoded)\n",
+      obs_cam, obs_prj, np, nc);
   EXPECT_EQ(np, nc);
   const auto& cam = r.rig.camera;
   const auto& prj = r.rig.projector;
@@ -229,19 +232,20 @@ TEST_F(CalibrateSim, RecoversTheRigFromTwelvePoses) {
     const Vec3d t_cv(j["prj_from_cam_translation_m"][0].get<double>(),
                      j["prj_from_cam_translation_m"][1].get<double>(),
                      j["prj_from_cam_translation_m"][2].get<double>());
-    std::printf("OpenCV stereoCalibrate: camera fx %.3f cx %.3f cy %.3f, projector fx %.3f cx %.3f "
-                "cy %.3f, translation error %.4f mm, rotation %.5f deg (true %.5f), RMS %.4f px\n",
-                j["camera"]["fx"].get<double>(), j["camera"]["cx"].get<double>(),
-                j["camera"]["cy"].get<double>(), j["projector"]["fx"].get<double>(),
-                j["projector"]["cx"].get<double>(), j["projector"]["cy"].get<double>(),
-                (t_cv - rel_true.translation).norm() * 1e3,
-                j["prj_from_cam_rotation_deg"].get<double>(), AngleDeg(rel_true.rotation),
-                j["rms_px"].get<double>());
+    std::printf(
+        "OpenCV stereoCalibrate: camera fx %.3f cx %.3f cy %.3f, projector fx %.3f cx %.3f "
+        "cy %.3f, translation error %.4f mm, rotation %.5f deg (true %.5f), RMS %.4f px\n",
+        j["camera"]["fx"].get<double>(), j["camera"]["cx"].get<double>(),
+        j["camera"]["cy"].get<double>(), j["projector"]["fx"].get<double>(),
+        j["projector"]["cx"].get<double>(), j["projector"]["cy"].get<double>(),
+        (t_cv - rel_true.translation).norm() * 1e3, j["prj_from_cam_rotation_deg"].get<double>(),
+        AngleDeg(rel_true.rotation), j["rms_px"].get<double>());
   }
   EXPECT_LT(dt_mm, 0.02);
   EXPECT_LT(dr_deg, 0.01);
   // The world is the mount board, which lies at the true world origin: absolute poses too.
-  const double cam_mm = (cam.world_from_device.translation - t.camera.world_from_device.translation).norm() * 1e3;
+  const double cam_mm =
+      (cam.world_from_device.translation - t.camera.world_from_device.translation).norm() * 1e3;
   std::printf("camera centre error %.4f mm\n", cam_mm);
   EXPECT_LT(cam_mm, 0.1);
   // Reprojection RMS consistent with the observation noise: the adjustment fits n - p of the
@@ -284,9 +288,9 @@ TEST_F(CalibrateSim, BadInput) {
     EXPECT_NE(msg.find(away.string()), std::string::npos) << msg;
   }
   // The CLI: the skipped view is named, exit 3.
-  const CliResult cli = RunMesoscan("calibrate " + (*sessions_)[1].string() + " " + away.string() + " " +
-                                    (*sessions_)[2].string() + " --board checker:10x7:6 --out " +
-                                    Dir("bad_rig.json").string());
+  const CliResult cli = RunMesoscan(
+      "calibrate " + (*sessions_)[1].string() + " " + away.string() + " " +
+      (*sessions_)[2].string() + " --board checker:10x7:6 --out " + Dir("bad_rig.json").string());
   EXPECT_EQ(cli.code, 3) << cli.output;
   EXPECT_NE(cli.output.find("skipped"), std::string::npos) << cli.output;
   EXPECT_FALSE(fs::exists(Dir("bad_rig.json")));
@@ -298,9 +302,9 @@ TEST_F(CalibrateSim, BadInput) {
   EXPECT_FALSE(w.found);
   EXPECT_NE(w.problem.find("no 9x7 checkerboard found"), std::string::npos) << w.problem;
   // Board descriptions that cannot be: one line naming --board, usage (exit 2).
-  for (const char* bad : {"checker:1x7:6", "charuco:11x8:6:7:DICT_5X5_100",
-                          "charuco:11x8:6:4.5:DICT_9X9_1", "charuco:30x30:6:4.5:DICT_4X4_50",
-                          "charuco:11x8:6"}) {
+  for (const char* bad :
+       {"checker:1x7:6", "charuco:11x8:6:7:DICT_5X5_100", "charuco:11x8:6:4.5:DICT_9X9_1",
+        "charuco:30x30:6:4.5:DICT_4X4_50", "charuco:11x8:6"}) {
     try {
       CalibrationBoard::Parse(bad, "--board");
       ADD_FAILURE() << bad << " accepted";
@@ -312,10 +316,10 @@ TEST_F(CalibrateSim, BadInput) {
   }
   EXPECT_EQ(CalibrationBoard::Parse("charuco:5x4:10:7:4x4_50", "t").ToString(),
             "charuco:5x4:10:7:DICT_4X4_50");
-  const CliResult usage = RunMesoscan("calibrate " + (*sessions_)[1].string() + " " +
-                                      (*sessions_)[2].string() + " " + (*sessions_)[3].string() +
-                                      " --board charuco:11x8:6:4.5:DICT_FOO --out " +
-                                      Dir("usage_rig.json").string());
+  const CliResult usage =
+      RunMesoscan("calibrate " + (*sessions_)[1].string() + " " + (*sessions_)[2].string() + " " +
+                  (*sessions_)[3].string() + " --board charuco:11x8:6:4.5:DICT_FOO --out " +
+                  Dir("usage_rig.json").string());
   EXPECT_EQ(usage.code, 2) << usage.output;
   EXPECT_NE(usage.output.find("unknown ArUco dictionary"), std::string::npos) << usage.output;
   // A ChArUco description for a checkerboard session: no board, named.
@@ -386,7 +390,8 @@ TEST(CalibrateCharuco, BoardsPartlyOutOfView) {
           "simulate --object board:charuco:11x8:6:4.5:DICT_5X5_100 --rig " + rig_file.string() +
           " --pose " + pose.str() +
           " --ps-periods 800,50 --ps-periods-y 600,37.5 --ps-phases 3 --no-white --no-black "
-          "--supersample 1 --seed 301 --out " + dir.string());
+          "--supersample 1 --seed 301 --out " +
+          dir.string());
       ASSERT_EQ(r.code, 0) << r.output;
     } else {
       SimulateBoard(so, bo, dir);
@@ -408,13 +413,16 @@ TEST(CalibrateCharuco, BoardsPartlyOutOfView) {
       ++nc;
       ++n;
     }
-    if (i + 1 == poses.size()) partial = n;
-    else EXPECT_EQ(n, board.num_corners()) << dirs[i];
+    if (i + 1 == poses.size())
+      partial = n;
+    else
+      EXPECT_EQ(n, board.num_corners()) << dirs[i];
   }
   const double obs_cam = std::sqrt(sc / nc);
-  std::printf("ChArUco: camera corners RMS %.4f px over %d corners; half-out view: %d of %d "
-              "corners\n",
-              obs_cam, nc, partial, board.num_corners());
+  std::printf(
+      "ChArUco: camera corners RMS %.4f px over %d corners; half-out view: %d of %d "
+      "corners\n",
+      obs_cam, nc, partial, board.num_corners());
   EXPECT_LT(obs_cam, 0.06);  // the checker's: 0.032 px
   EXPECT_GT(partial, 15);
   EXPECT_LT(partial, 55);
@@ -567,9 +575,10 @@ TEST_F(CalibrateSim, CoinAndMountWithTheCalibratedRig) {
       ++n;
     }
     const double rms = std::sqrt(s / n);
-    std::printf("empty mount: z RMS %.3f um with the calibrated rig, %.3f um with the true rig "
-                "(%d pixels)\n",
-                rms * 1e6, std::sqrt(s_true / n) * 1e6, n);
+    std::printf(
+        "empty mount: z RMS %.3f um with the calibrated rig, %.3f um with the true rig "
+        "(%d pixels)\n",
+        rms * 1e6, std::sqrt(s_true / n) * 1e6, n);
     EXPECT_GT(n, 100000);
     EXPECT_LT(rms, 2e-6);
     fs::remove(flat);
@@ -625,10 +634,11 @@ void CommandLineEmptyMount(const Rig& truth, const std::vector<fs::path>& sessio
   // separates a rig error from a gross failure: a 50 px period jump moves a point by millimetres,
   // a wrong plane by the mount's whole relief, >= 100 times the noise.
   const Json& plane = j["mount"];
-  std::printf("mount plane: RMS %.3f um, robust sigma %.3f um, predicted %.3f um, RMS of "
-              "distance / predicted %.4f\n",
-              plane["rms_um"].get<double>(), plane["robust_sigma_um"].get<double>(),
-              plane["predicted_rms_um"].get<double>(), plane["rms_over_predicted"].get<double>());
+  std::printf(
+      "mount plane: RMS %.3f um, robust sigma %.3f um, predicted %.3f um, RMS of "
+      "distance / predicted %.4f\n",
+      plane["rms_um"].get<double>(), plane["robust_sigma_um"].get<double>(),
+      plane["predicted_rms_um"].get<double>(), plane["rms_over_predicted"].get<double>());
   EXPECT_GT(plane["predicted_rms_um"].get<double>(), 0.0) << plane.dump();
   EXPECT_LT(plane["rms_over_predicted"].get<double>(), 20.0) << plane.dump();
   EXPECT_GT(j["mount"]["inliers"].get<double>(), 0.95 * j["mount"]["points"].get<double>());
@@ -705,9 +715,10 @@ TEST_F(CalibrateSim, EmptyMountAndLensShifter) {
   const double centre_um = (ec.translation - tc.translation).norm() * 1e6;
   const double rot_deg = AngleDeg(ec.rotation * tc.rotation.transpose());
   const double height_um = (ec.translation.z() - tc.translation.z()) * 1e6;
-  std::printf("empty-mount world: camera centre %.2f um from the truth (height %.2f um), "
-              "rotation %.5f deg\n",
-              centre_um, height_um, rot_deg);
+  std::printf(
+      "empty-mount world: camera centre %.2f um from the truth (height %.2f um), "
+      "rotation %.5f deg\n",
+      centre_um, height_um, rot_deg);
   // The plane's own uncertainty is ~0.002 um and 1e-5 deg; the calibrated rig's own errors
   // dominate (relative pose 0.009 mm / 0.008 deg: its scale puts the camera ~10 um off while the
   // mount itself reconstructs at z = 0, checked below). As the board-on-mount world: 0.1 mm.
@@ -735,9 +746,10 @@ TEST_F(CalibrateSim, EmptyMountAndLensShifter) {
     ++n;
   }
   const double rms_pixel = std::sqrt(se / n), rms_model = std::sqrt(se_model / n);
-  std::printf("steps per px over the view: per-pixel RMS error %.2f steps, model %.3f steps, "
-              "nominal %.1f steps (%d pixels)\n",
-              rms_pixel, rms_model, std::sqrt(se_nominal / n), n);
+  std::printf(
+      "steps per px over the view: per-pixel RMS error %.2f steps, model %.3f steps, "
+      "nominal %.1f steps (%d pixels)\n",
+      rms_pixel, rms_model, std::sqrt(se_nominal / n), n);
   EXPECT_GT(n, 1000000);
   // S and the gains within 5 sigma of the fit (its noise, from the pixels' own scatter; measured
   // 2150.19 +- 0.12 and gains within 1.6 sigma).
@@ -768,9 +780,10 @@ TEST_F(CalibrateSim, EmptyMountAndLensShifter) {
       ++m;
     }
     const double rms = std::sqrt(sq / m);
-    std::printf("coin (empty-mount world): depth RMS calibrated vs true rig %.3f um over %d "
-                "pixels, %d > 10 um\n",
-                rms * 1e6, m, gross);
+    std::printf(
+        "coin (empty-mount world): depth RMS calibrated vs true rig %.3f um over %d "
+        "pixels, %d > 10 um\n",
+        rms * 1e6, m, gross);
     EXPECT_GT(m, 100000);
     EXPECT_LT(rms, 1e-6);
     EXPECT_EQ(gross, 0);
@@ -787,9 +800,10 @@ TEST_F(CalibrateSim, EmptyMountAndLensShifter) {
       ++m;
     }
     const double rms = std::sqrt(sq / m);
-    std::printf("fresh empty mount (empty-mount world): z RMS %.3f um with the calibrated rig, "
-                "%.3f um with the true rig (%d pixels)\n",
-                rms * 1e6, std::sqrt(sq_true / m) * 1e6, m);
+    std::printf(
+        "fresh empty mount (empty-mount world): z RMS %.3f um with the calibrated rig, "
+        "%.3f um with the true rig (%d pixels)\n",
+        rms * 1e6, std::sqrt(sq_true / m) * 1e6, m);
     EXPECT_GT(m, 100000);
     EXPECT_LT(rms, 2e-6);
   }
@@ -881,9 +895,10 @@ TEST(CalibrateRealShape, EightBitBmpSixteenPeriodsPlusCue) {
     mean_err += Vec2d(pc.u[i], pc.v[i]) - up;
     ++ok;
   }
-  std::printf("real shape: %d of %zu row pixels decoded, (u, v) RMS error %.3f px, mean %.3f "
-              "%.3f px\n",
-              ok, pixels.size(), std::sqrt(su / ok), mean_err.x() / ok, mean_err.y() / ok);
+  std::printf(
+      "real shape: %d of %zu row pixels decoded, (u, v) RMS error %.3f px, mean %.3f "
+      "%.3f px\n",
+      ok, pixels.size(), std::sqrt(su / ok), mean_err.x() / ok, mean_err.y() / ok);
   EXPECT_GT(ok, 600);
   EXPECT_LT(std::sqrt(su / ok), 0.5);  // 8-bit, 3 phases: per-pixel noise, no gross errors
   fs::remove_all(dir);

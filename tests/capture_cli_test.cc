@@ -7,13 +7,13 @@
 #include <random>
 
 #include "capture/lens_shifter_sim.h"
-#include "session/patterns.h"
-#include "session/raw_frame.h"
 #include "capture/sequencer.h"
-#include "session/session.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/image_io.h"
 #include "heightfield/frames.h"
+#include "session/patterns.h"
+#include "session/raw_frame.h"
+#include "session/session.h"
 #include "tests/cli_util.h"
 
 namespace mesoscan {
@@ -248,8 +248,8 @@ TEST_F(CaptureCommand, CalibrationPlanCapturesBothAxesAndMatchesTheBoardSimulati
   }
 
   // A calibration plan takes no lens-shift frames; an unknown plan is a usage error.
-  for (const char* extra : {"--plan calibration --ls-frames 8", "--plan turntable",
-                            "--periods-y 30,7"}) {
+  for (const char* extra :
+       {"--plan calibration --ls-frames 8", "--plan turntable", "--periods-y 30,7"}) {
     const CliResult bad = RunMesoscan("-q capture --out " + (dir_ / "bad").string() + " --rig " +
                                       (dir_ / "sizes.json").string() + " --camera screen " +
                                       "--display " + display() + " " + extra);
@@ -304,9 +304,9 @@ TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheck) {
   s.rig = SmallTestRig(32, 24, 64, 48, true);
   s.frames = {Frame{"frames/white.png", Pattern{}, 0}};
   std::ofstream(dir / "rig.json") << Json{{"rig", SessionToJson(s)["rig"]}}.dump(2);
-  const CliResult r = RunMesoscan("-q capture --rehearse --out " + (dir / "R").string() +
-                                  " --rig " + (dir / "rig.json").string() +
-                                  " --periods 7,11 --ls-frames 4 --settle 0");
+  const CliResult r =
+      RunMesoscan("-q capture --rehearse --out " + (dir / "R").string() + " --rig " +
+                  (dir / "rig.json").string() + " --periods 7,11 --ls-frames 4 --settle 0");
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_TRUE(fs::exists(dir / "R" / "session.json"));
   EXPECT_FALSE(fs::exists(dir / "R" / kCaptureJournal));

@@ -10,11 +10,11 @@
 #include <fstream>
 #include <sstream>
 
-#include "session/patterns.h"
-#include "session/session.h"
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/scan_folder.h"
+#include "session/patterns.h"
+#include "session/session.h"
 
 namespace mesoscan {
 namespace {

@@ -14,9 +14,8 @@
 //  - `mesoscan export` prints where the exports are and one "how to load" line per map.
 // The consumer helpers are shared with tests/export_consumers_test.cc (tests/export_consumers.h).
 
-#include <unistd.h>
-
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -64,13 +63,15 @@ class ExportCoin : public ::testing::Test {
     if (status_ == 0) status_ = RunMesoscan("-q reconstruct " + session + " --out " + scan, &out);
     log_ += out;
     // A: every format, as `make demo` runs it (not quiet: its printout is checked).
-    if (status_ == 0) status_ = RunMesoscan("export " + scan + " --out " + Q(root_ / "a"), &export_log_);
+    if (status_ == 0)
+      status_ = RunMesoscan("export " + scan + " --out " + Q(root_ / "a"), &export_log_);
     log_ += export_log_;
     // C: the decimated mesh.
     if (status_ == 0)
-      status_ = RunMesoscan("-q export " + scan + " --out " + Q(root_ / "c") + " --format glb --max-triangles " +
-                                std::to_string(kDecimatedTriangles),
-                            &out);
+      status_ =
+          RunMesoscan("-q export " + scan + " --out " + Q(root_ / "c") +
+                          " --format glb --max-triangles " + std::to_string(kDecimatedTriangles),
+                      &out);
     log_ += out;
     if (status_ != 0) return;
     scan_ = new Scan(ReadScanFolder(root_ / "coin.scan"));
@@ -82,7 +83,8 @@ class ExportCoin : public ::testing::Test {
     scan_ = nullptr;
     mesh_ = nullptr;
     std::error_code ec;
-    fs::remove_all(root_, ec);  // each ctest case is its own process: do not leave its folder behind
+    fs::remove_all(root_,
+                   ec);  // each ctest case is its own process: do not leave its folder behind
   }
   void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
 
@@ -112,7 +114,8 @@ TEST(ExportCoinDemo, DemoScriptSimulatesThisCoin) {
   demo << in.rdbuf();
   EXPECT_NE(demo.str().find(std::string("\"$M\" ") + kDemoSimulate + " "), std::string::npos)
       << "scripts/demo no longer simulates `" << kDemoSimulate << "`: update kDemoSimulate";
-  // The demo's export step is not quiet, so it prints the lines ExportPrintsOneLoadLinePerMap checks.
+  // The demo's export step is not quiet, so it prints the lines ExportPrintsOneLoadLinePerMap
+  // checks.
   EXPECT_NE(demo.str().find("\"$M\" export "), std::string::npos);
 }
 
@@ -120,7 +123,9 @@ TEST(ExportCoinDemo, DemoScriptSimulatesThisCoin) {
 // again (~20 s of CPU): the checks that need no Blender share one case, as fixture methods.
 void ExportCoin::ExpectExportPrintsWhereAndOneLoadLinePerMap() {
   const Json m = ReadJsonFile(root_ / "a/manifest.json");
-  EXPECT_NE(export_log_.find("exports in " + fs::absolute(root_ / "a").lexically_normal().string() + ":\n"), std::string::npos)
+  EXPECT_NE(export_log_.find("exports in " + fs::absolute(root_ / "a").lexically_normal().string() +
+                             ":\n"),
+            std::string::npos)
       << export_log_;
   std::set<std::string> roles;
   for (const auto& f : m.at("files")) {
@@ -137,7 +142,8 @@ void ExportCoin::ExpectExportPrintsWhereAndOneLoadLinePerMap() {
     }
   }
   // Every map of the issue, the albedo from the session's white frame included.
-  for (const char* r : {"height", "height sidecar", "normal", "confidence", "albedo", "mesh", "points"})
+  for (const char* r :
+       {"height", "height sidecar", "normal", "confidence", "albedo", "mesh", "points"})
     EXPECT_TRUE(roles.count(r)) << r;
 }
 
@@ -164,7 +170,8 @@ void ExportCoin::ExpectOiioReadsEveryExrWithItsChannelsAndAttributes() {
 }
 
 void ExportCoin::ExpectDecimatedGlbMeetsItsBudgetWithAStatedError() {
-  const Json lossless = MeshEntry(root_ / "a/manifest.json"), dec = MeshEntry(root_ / "c/manifest.json");
+  const Json lossless = MeshEntry(root_ / "a/manifest.json"),
+             dec = MeshEntry(root_ / "c/manifest.json");
   ASSERT_FALSE(lossless.is_null());
   ASSERT_FALSE(dec.is_null());
   // Lossless: every sample of a complete triangle is a vertex, no height error.
@@ -200,7 +207,8 @@ void ExportCoin::ExpectFilledHolesWithinTheirBorderRange() {
   std::vector<int> label(static_cast<size_t>(w) * ht, -1);
   int64_t filled = 0, regions = 0, outside = 0, near_rim = 0;
   for (int start = 0; start < w * ht; ++start) {
-    if (std::isfinite(s.z.data()[start]) || h.data()[start] == hole_value || label[start] >= 0) continue;
+    if (std::isfinite(s.z.data()[start]) || h.data()[start] == hole_value || label[start] >= 0)
+      continue;
     std::vector<int> stack{start}, pixels;
     label[start] = static_cast<int>(regions);
     float lo = 1e9f, hi = -1e9f;
@@ -261,11 +269,13 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
   const Json side = ReadJsonFile(root_ / "a/coin_height.json");
   // Sample pixels (mesh vertices): every 3rd of every 3rd row, and the whole rows and columns
   // through the coin's centre (its diameter along x and y).
-  const int ci = static_cast<int>(std::lround(hf.I(0.0))), cj = static_cast<int>(std::lround(hf.J(0.0)));
+  const int ci = static_cast<int>(std::lround(hf.I(0.0))),
+            cj = static_cast<int>(std::lround(hf.J(0.0)));
   std::vector<std::pair<int, int>> pixels;
   for (int j = 0; j < h; ++j)
     for (int i = 0; i < w; ++i)
-      if (mesh_->vertex[static_cast<size_t>(j) * w + i] && ((i % 3 == 0 && j % 3 == 0) || i == ci || j == cj))
+      if (mesh_->vertex[static_cast<size_t>(j) * w + i] &&
+          ((i % 3 == 0 && j % 3 == 0) || i == ci || j == cj))
         pixels.emplace_back(i, j);
   Json samples = Json::array(), points = Json::array();
   for (const auto& [i, j] : pixels) {
@@ -291,7 +301,8 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
   for (size_t k = 0; k < pixels.size(); ++k) {
     const auto [i, j] = pixels[k];
     z_blender[k] = at[k][2].get<double>();
-    worst_xy = std::max({worst_xy, std::abs(at[k][0].get<double>() - hf.X(i)), std::abs(at[k][1].get<double>() - hf.Y(j))});
+    worst_xy = std::max({worst_xy, std::abs(at[k][0].get<double>() - hf.X(i)),
+                         std::abs(at[k][1].get<double>() - hf.Y(j))});
     worst_z = std::max(worst_z, std::abs(z_blender[k] - hf.z(i, j)));
   }
   EXPECT_LT(worst_xy, 1e-6);
@@ -320,13 +331,15 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
     }
   }
   for (const auto* v : {&mount, &field, &rim, &letters, &between}) ASSERT_GE(v->size(), 50u);
-  const double predicted = ReadJsonFile(root_ / "coin.scan/report.json").at("summary").at("predicted_depth_rms_m");
+  const double predicted =
+      ReadJsonFile(root_ / "coin.scan/report.json").at("summary").at("predicted_depth_rms_m");
   const double z_mount = Median(mount), z_field = Median(field), z_rim = Median(rim);
   const double letter_relief = Median(letters) - Median(between);
-  std::cout << "coin in Blender: size " << size_x * 1e3 << " mm, relief " << relief * 1e6 << " um; medians: mount "
-            << z_mount * 1e6 << " um, field " << z_field * 1e6 << " um, rim " << z_rim * 1e6
-            << " um, letters " << letter_relief * 1e6 << " um above the field (" << letters.size() << " / "
-            << between.size() << " samples); predicted depth rms " << predicted * 1e6 << " um\n";
+  std::cout << "coin in Blender: size " << size_x * 1e3 << " mm, relief " << relief * 1e6
+            << " um; medians: mount " << z_mount * 1e6 << " um, field " << z_field * 1e6
+            << " um, rim " << z_rim * 1e6 << " um, letters " << letter_relief * 1e6
+            << " um above the field (" << letters.size() << " / " << between.size()
+            << " samples); predicted depth rms " << predicted * 1e6 << " um\n";
   // Each a median over >= 50 samples of noise predicted_depth_rms: well within one rms.
   EXPECT_NEAR(z_mount, 0.0, predicted);
   EXPECT_NEAR(z_field, kField, predicted);
@@ -342,7 +355,8 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
     std::vector<std::pair<double, double>> profile;  // (position, z)
     for (size_t k = 0; k < pixels.size(); ++k) {
       const auto [i, j] = pixels[k];
-      if (along_x ? j == cj : i == ci) profile.emplace_back(along_x ? hf.X(i) : hf.Y(j), z_blender[k]);
+      if (along_x ? j == cj : i == ci)
+        profile.emplace_back(along_x ? hf.X(i) : hf.Y(j), z_blender[k]);
     }
     std::sort(profile.begin(), profile.end());
     size_t first = profile.size(), last = 0;
@@ -359,8 +373,8 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
   const double shadow = 1.3e-3 * std::tan(20.0 * kPi / 180);
   for (const bool along_x : {true, false}) {
     const auto [inner, outer] = diameter(along_x);
-    std::cout << "coin diameter in Blender along " << (along_x ? "x" : "y") << ": between " << inner * 1e3
-              << " and " << outer * 1e3 << " mm\n";
+    std::cout << "coin diameter in Blender along " << (along_x ? "x" : "y") << ": between "
+              << inner * 1e3 << " and " << outer * 1e3 << " mm\n";
     EXPECT_LE(inner, 2 * kCoinRadius);
     EXPECT_GE(inner, 2 * kCoinRadius - 2 * (0.1e-3 + px));
     EXPECT_GE(outer, 2 * kCoinRadius);
@@ -375,14 +389,16 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
   // Nodes: the float itself. EXR through the Displace modifier: Blender's image texture clamps
   // values below 0 (the mount's noise), float32-rounded at 0.5 (6e-8 m); export.cc's hint
   // says so. PNG: within half its quantisation step.
-  auto scan_z = [&](size_t k) { return static_cast<double>(hf.z(pixels[k].first, pixels[k].second)); };
+  auto scan_z = [&](size_t k) {
+    return static_cast<double>(hf.z(pixels[k].first, pixels[k].second));
+  };
   const double step = side.at("quantisation_step_m");
   EXPECT_DOUBLE_EQ(step, side.at("scale").get<double>() / 65535.0);
   const double max_nodes = MaxDeviation(r.at("displace_exr_nodes"), pixels.size(), scan_z);
   const double max_png = MaxDeviation(r.at("displace_png"), pixels.size(), scan_z);
   const double max_exr = MaxDeviation(r.at("displace_exr"), pixels.size(), scan_z);
-  const double max_clamped =
-      MaxDeviation(r.at("displace_exr"), pixels.size(), [&](size_t k) { return std::max(0.0, scan_z(k)); });
+  const double max_clamped = MaxDeviation(r.at("displace_exr"), pixels.size(),
+                                          [&](size_t k) { return std::max(0.0, scan_z(k)); });
   std::cout << "coin displacement in Blender (" << pixels.size() << " samples): EXR (nodes) "
             << max_nodes * 1e6 << " um, 16-bit PNG " << max_png * 1e6 << " um (step " << step * 1e6
             << " um), EXR (Displace modifier) " << max_exr * 1e6 << " um, " << max_clamped * 1e6
@@ -408,7 +424,8 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
     for (int j = 0; j < h; ++j) {
       for (int i = 0; i < w; ++i) {
         const double x = hf.X(i), y = hf.Y(j), rr = std::hypot(x, y);
-        if (!std::isfinite(hf.z(i, j)) || rr < r0 || rr > r1 || x * dir_x + y * dir_y < rr * std::cos(kPi / 6) ||
+        if (!std::isfinite(hf.z(i, j)) || rr < r0 || rr > r1 ||
+            x * dir_x + y * dir_y < rr * std::cos(kPi / 6) ||
             std::hypot(scan_->normals(i, j, 0), scan_->normals(i, j, 1)) < 0.2)
           continue;
         const std::array<double, 3> b = BakedNormal(bake, i, j);
@@ -431,9 +448,11 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
       const double lx = light.first, ly = light.second;
       const auto facing = flank(f.r0, f.r1, f.outwards * lx, f.outwards * ly);
       const auto away = flank(f.r0, f.r1, -f.outwards * lx, -f.outwards * ly);
-      auto lit = [&](const std::array<double, 3>& n) { return (lx * n[0] + ly * n[1] + n[2]) / std::sqrt(2.0); };
-      std::cout << "coin " << f.name << ", light from (" << lx << ", " << ly << ", 1): facing side lit "
-                << lit(facing) << ", far side " << lit(away) << "\n";
+      auto lit = [&](const std::array<double, 3>& n) {
+        return (lx * n[0] + ly * n[1] + n[2]) / std::sqrt(2.0);
+      };
+      std::cout << "coin " << f.name << ", light from (" << lx << ", " << ly
+                << ", 1): facing side lit " << lit(facing) << ", far side " << lit(away) << "\n";
       EXPECT_GT(lit(facing), lit(away) + 0.1) << f.name << " light (" << lx << ", " << ly << ")";
       EXPECT_GT(lx * facing[0] + ly * facing[1], 0.1) << f.name;
       EXPECT_LT(lx * away[0] + ly * away[1], -0.1) << f.name;

@@ -8,9 +8,8 @@
 //    config; its measurements come back as JSON and the C++ tests compare them with the scan;
 //  - OpenImageIO's iinfo / oiiotool.
 
-#include <sys/wait.h>
-
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <algorithm>
 #include <array>
@@ -76,7 +75,8 @@ struct GltfValidation {
 };
 inline GltfValidation ValidateGlb(const fs::path& glb) {
   GltfValidation v;
-  const int status = RunCommand("NO_COLOR=1 " + Q(kGltfTransform) + " validate " + Q(glb), &v.report);
+  const int status =
+      RunCommand("NO_COLOR=1 " + Q(kGltfTransform) + " validate " + Q(glb), &v.report);
   const size_t e = v.report.find("ERROR");
   const size_t w = v.report.find("WARNING", e == std::string::npos ? 0 : e);
   if (status != 0 || e == std::string::npos || w == std::string::npos) return v;
@@ -127,7 +127,8 @@ inline void ExpectOiiotoolStatsMatch(const fs::path& exr, const HeightField& hf)
   double zmin = INFINITY, zmax = -INFINITY;
   for (float v : hf.z.data())
     if (std::isfinite(v)) zmin = std::min<double>(zmin, v), zmax = std::max<double>(zmax, v);
-  for (const auto& [key, expected] : {std::pair{"Stats Min: ", zmin}, std::pair{"Stats Max: ", zmax}}) {
+  for (const auto& [key, expected] :
+       {std::pair{"Stats Min: ", zmin}, std::pair{"Stats Max: ", zmax}}) {
     const size_t at = out.find(key);
     ASSERT_NE(at, std::string::npos) << out;
     EXPECT_NEAR(std::stod(out.substr(at + 11)), expected, 5.01e-7) << key << out;
@@ -193,8 +194,8 @@ inline LosslessMesh LosslessMeshOf(const HeightField& hf) {
       const std::array<std::array<int, 6>, 2> tris =
           main ? std::array<std::array<int, 6>, 2>{{{ci, cj, ci + 1, cj + 1, ci + 1, cj},
                                                     {ci, cj, ci + 1, cj + 1, ci, cj + 1}}}
-               : std::array<std::array<int, 6>, 2>{{{ci, cj + 1, ci + 1, cj, ci, cj},
-                                                    {ci, cj + 1, ci + 1, cj, ci + 1, cj + 1}}};
+               : std::array<std::array<int, 6>, 2>{
+                     {{ci, cj + 1, ci + 1, cj, ci, cj}, {ci, cj + 1, ci + 1, cj, ci + 1, cj + 1}}};
       for (const auto& t : tris) {
         if (!ok(t[0], t[1]) || !ok(t[2], t[3]) || !ok(t[4], t[5])) continue;
         for (int k = 0; k < 6; k += 2) m.vertex[static_cast<size_t>(t[k + 1]) * w + t[k]] = true;
@@ -206,7 +207,8 @@ inline LosslessMesh LosslessMeshOf(const HeightField& hf) {
       if (!m.vertex[static_cast<size_t>(j) * w + i]) continue;
       ++m.vertices;
       const double p[3] = {hf.X(i), hf.Y(j), hf.z(i, j)};
-      for (int k = 0; k < 3; ++k) m.lo[k] = std::min(m.lo[k], p[k]), m.hi[k] = std::max(m.hi[k], p[k]);
+      for (int k = 0; k < 3; ++k)
+        m.lo[k] = std::min(m.lo[k], p[k]), m.hi[k] = std::max(m.hi[k], p[k]);
     }
   }
   return m;
@@ -215,7 +217,8 @@ inline LosslessMesh LosslessMeshOf(const HeightField& hf) {
 // Blender's GLB import: one mesh object with the lossless mesh's vertex count and bounding box
 // within 1e-6 m (the bound), the node extras naming the height map in metres, and a
 // Normal Map node fed by an image texture.
-inline void ExpectGlbImportMatches(const Json& g, const LosslessMesh& mesh, const std::string& height_map) {
+inline void ExpectGlbImportMatches(const Json& g, const LosslessMesh& mesh,
+                                   const std::string& height_map) {
   EXPECT_EQ(g.at("objects"), 1);
   EXPECT_EQ(g.at("vertices").get<int64_t>(), mesh.vertices);
   for (int k = 0; k < 3; ++k) {

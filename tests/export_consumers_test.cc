@@ -12,9 +12,10 @@
 // with the command that installs it. tests/export_coin_test.cc runs the same checks on the demo
 // coin; the helpers are in tests/export_consumers.h.
 
-#include <unistd.h>
+#include "tests/export_consumers.h"
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <filesystem>
@@ -22,7 +23,6 @@
 
 #include "core/json.h"
 #include "core/scan_folder.h"
-#include "tests/export_consumers.h"
 
 namespace mesoscan {
 namespace {
@@ -75,8 +75,8 @@ Scan MakeScan() {
 class ExportConsumers : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() /
-            ("mesoscan_export_consumers_test_" + std::to_string(getpid()));
+    root_ =
+        fs::temp_directory_path() / ("mesoscan_export_consumers_test_" + std::to_string(getpid()));
     fs::remove_all(root_);
     fs::create_directories(root_);
     scan_ = new Scan(MakeScan());
@@ -94,7 +94,8 @@ class ExportConsumers : public ::testing::Test {
   static void TearDownTestSuite() {
     delete scan_;
     std::error_code ec;
-    fs::remove_all(root_, ec);  // each ctest case is its own process: do not leave its folder behind
+    fs::remove_all(root_,
+                   ec);  // each ctest case is its own process: do not leave its folder behind
   }
 
   void SetUp() override {
@@ -120,7 +121,8 @@ TEST_F(ExportConsumers, GltfTransformValidateReportsNoErrors) {
 }
 
 TEST_F(ExportConsumers, OiioReadsEveryExrWithItsChannelsAndAttributes) {
-  if (FindOnPath("iinfo").empty()) GTEST_SKIP() << "iinfo missing: apt-get install openimageio-tools";
+  if (FindOnPath("iinfo").empty())
+    GTEST_SKIP() << "iinfo missing: apt-get install openimageio-tools";
   ExpectIinfoReadsExr(root_ / "a/synthetic_height.exr", scan_->height, "Y", true);
   ExpectIinfoReadsExr(root_ / "a/synthetic_normal_gl.exr", scan_->height, "R, G, B", false);
   ExpectOiiotoolStatsMatch(root_ / "a/synthetic_height.exr", scan_->height);
@@ -179,7 +181,8 @@ TEST_F(ExportConsumers, BlenderImportsTheGlbDisplacesByTheMapsAndReadsTheNormalH
   // Lit side: a light from the upper right (+x, +y, +z). The big bump's upper-right flank (at
   // 1 sigma towards +x+y) faces it, its lower-left flank faces away.
   auto lit = [&](const Json& bake, double x, double y) {
-    const int i = static_cast<int>(std::lround(hf.I(x))), j = static_cast<int>(std::lround(hf.J(y)));
+    const int i = static_cast<int>(std::lround(hf.I(x))),
+              j = static_cast<int>(std::lround(hf.J(y)));
     const std::array<double, 3> b = BakedNormal(bake, i, j);
     return (b[0] + b[1] + b[2]) / std::sqrt(3.0);
   };

@@ -32,8 +32,8 @@ namespace {
 namespace fs = std::filesystem;
 
 struct Result {
-  int code = -1;            // exit code; -1: killed by a signal (an abort is a failure here)
-  std::string out, err;     // stdout, stderr
+  int code = -1;         // exit code; -1: killed by a signal (an abort is a failure here)
+  std::string out, err;  // stdout, stderr
   double seconds = 0;
   int ErrLines() const {
     int n = 0;
@@ -43,7 +43,8 @@ struct Result {
 };
 
 fs::path Work() {
-  static const fs::path w = fs::temp_directory_path() / ("mesoscan_hostile_" + std::to_string(getpid()));
+  static const fs::path w =
+      fs::temp_directory_path() / ("mesoscan_hostile_" + std::to_string(getpid()));
   return w;
 }
 
@@ -57,9 +58,8 @@ std::string Exe() {
 // `mesoscan <args>` with a 60 s timeout (a hang is killed: exit -1) and a 6 GB address space.
 Result Cli(const std::string& args, const std::string& env = "") {
   const fs::path out = Work() / "stdout.txt", err = Work() / "stderr.txt";
-  const std::string cmd = "ulimit -v 6000000; " + env + " timeout -s KILL 60 " +
-                          Exe() + " -q " + args + " >" + out.string() +
-                          " 2>" + err.string();
+  const std::string cmd = "ulimit -v 6000000; " + env + " timeout -s KILL 60 " + Exe() + " -q " +
+                          args + " >" + out.string() + " 2>" + err.string();
   const auto t0 = std::chrono::steady_clock::now();
   const int status = std::system(cmd.c_str());
   Result r;
@@ -75,8 +75,8 @@ std::map<std::string, std::pair<uintmax_t, int64_t>> Snapshot(const fs::path& di
   std::map<std::string, std::pair<uintmax_t, int64_t>> m;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
     if (!e.is_regular_file()) continue;
-    m[fs::relative(e.path(), dir).string()] = {
-        e.file_size(), e.last_write_time().time_since_epoch().count()};
+    m[fs::relative(e.path(), dir).string()] = {e.file_size(),
+                                               e.last_write_time().time_since_epoch().count()};
   }
   return m;
 }
@@ -170,9 +170,11 @@ TEST_F(Hostile, Item1_ExportRenderAndSimulateRefuseTheirInputs) {
   ExpectRefused(Cli("export " + Q(*scan_) + " --out " + Q(*scan_)), 2, "is the input");
   ExpectRefused(Cli("export " + Q(*scan_) + " --out " + Q(*session_)), 2, "is the input");
   ExpectRefused(Cli("export " + Q(*scan_) + " --out " + Q(Work())), 2, "contains the input");
-  ExpectRefused(Cli("render " + Q(*scan_) + " --out " + Q(*scan_) + " --size 32x24 --spp 1 --min-spp 1"), 2,
-                "is the input");
-  ExpectRefused(Cli("render " + Q(*scan_) + " --out " + Q(*scan_ / "r") + " --size 32x24 --spp 1 --min-spp 1"),
+  ExpectRefused(
+      Cli("render " + Q(*scan_) + " --out " + Q(*scan_) + " --size 32x24 --spp 1 --min-spp 1"), 2,
+      "is the input");
+  ExpectRefused(Cli("render " + Q(*scan_) + " --out " + Q(*scan_ / "r") +
+                    " --size 32x24 --spp 1 --min-spp 1"),
                 2, "lies inside the input");
   EXPECT_FALSE(fs::exists(*scan_ / "r"));
   // simulate --object FILE.exr --out (a folder around it)
@@ -201,10 +203,9 @@ TEST_F(Hostile, Item1_ExistingForeignFolderNeedsForce) {
   const fs::path foreign = Work() / "foreign";
   fs::create_directories(foreign);
   std::ofstream(foreign / "thesis.tex") << "years of work";
-  for (const std::string& cmd :
-       {"reconstruct " + Q(*session_), "export " + Q(*scan_),
-        "render " + Q(*scan_) + " --size 32x24 --spp 1 --min-spp 1",
-        std::string("simulate --object plane --crop 32x24+1000+700")})
+  for (const std::string& cmd : {"reconstruct " + Q(*session_), "export " + Q(*scan_),
+                                 "render " + Q(*scan_) + " --size 32x24 --spp 1 --min-spp 1",
+                                 std::string("simulate --object plane --crop 32x24+1000+700")})
     ExpectRefused(Cli(cmd + " --out " + Q(foreign)), 2, "--force");
   EXPECT_EQ(ReadTextFile(foreign / "thesis.tex"), "years of work");
   // --force replaces it; a second run replaces its own output without --force.
@@ -219,7 +220,9 @@ TEST_F(Hostile, Item1_RerunsOfEveryCommandReplaceTheirOwnOutput) {
   const fs::path e = Work() / "rerun_E", r = Work() / "rerun_R", sc = Work() / "rerun_SC";
   for (int i = 0; i < 2; ++i) {
     EXPECT_EQ(Cli("export " + Q(*scan_) + " --out " + Q(e) + " --format exr").code, 0);
-    EXPECT_EQ(Cli("render " + Q(*scan_) + " --out " + Q(r) + " --size 32x24 --spp 1 --min-spp 1").code, 0);
+    EXPECT_EQ(
+        Cli("render " + Q(*scan_) + " --out " + Q(r) + " --size 32x24 --spp 1 --min-spp 1").code,
+        0);
     EXPECT_EQ(Cli("reconstruct " + Q(*session_) + " --out " + Q(sc) + " --roi 0,0,40,30").code, 0);
   }
   // No temporaries or backups are left next to them.
@@ -233,8 +236,8 @@ TEST_F(Hostile, Item1_RerunsOfEveryCommandReplaceTheirOwnOutput) {
 // ---- 2. Aborts ----------------------------------------------------------------------------
 
 TEST_F(Hostile, Item2_RenderRefusesNumbersEmbreeWouldAbortOn) {
-  const std::string base = "render " + Q(*scan_) + " --out " + Q(Work() / "R") +
-                           " --size 64x48 --spp 4 --min-spp 1";
+  const std::string base =
+      "render " + Q(*scan_) + " --out " + Q(Work() / "R") + " --size 64x48 --spp 4 --min-spp 1";
   ExpectRefused(Cli(base + " --relief 1e30"), 2, "--relief");
   ExpectRefused(Cli(base + " --azimuth nan"), 2, "--azimuth");
   ExpectRefused(Cli(base + " --elevation inf"), 2, "--elevation");
@@ -244,7 +247,8 @@ TEST_F(Hostile, Item2_RenderRefusesNumbersEmbreeWouldAbortOn) {
 TEST_F(Hostile, Item2_RenderRefusesHostileHeightFields) {
   const fs::path bad = CopyScan("SC_bad");
   HeightField hf = ReadHeightExr(*scan_ / "height.exr");
-  const std::string base = "render " + Q(bad) + " --out " + Q(Work() / "R") + " --size 32x24 --spp 1 --min-spp 1";
+  const std::string base =
+      "render " + Q(bad) + " --out " + Q(Work() / "R") + " --size 32x24 --spp 1 --min-spp 1";
   HeightField h = hf;
   h.z(3, 3) = 1e30f;
   WriteHeightExr(bad / "height.exr", h);
@@ -468,7 +472,8 @@ TEST_F(Hostile, Item6_CheckRefusesWhatReconstructWould) {
   const std::string first = FirstFrame(same);
   for (const Json& f : js["frames"]) {
     const std::string file = f["file"];
-    if (file != first) fs::copy_file(same / first, same / file, fs::copy_options::overwrite_existing);
+    if (file != first)
+      fs::copy_file(same / first, same / file, fs::copy_options::overwrite_existing);
   }
   ExpectRefused(Cli("reconstruct " + Q(same) + " --out " + Q(Work() / "SC6")), 3, "session.json");
   EXPECT_FALSE(fs::exists(Work() / "SC6"));
@@ -517,15 +522,16 @@ TEST_F(Hostile, Item8_ExitCodesMatchTheReadme) {
   fs::create_symlink(s / frame, s / frame);  // a link to itself
   ExpectRefused(Cli("check " + Q(s)), 3, frame);
   fs::remove_all(s);
-  ExpectRefused(Cli("export " + Q(*scan_) + " --out " + Q(Work() / "E8") +
-                    " --crop 2147483647,0,1,1"),
-                2, "--crop");
+  ExpectRefused(
+      Cli("export " + Q(*scan_) + " --out " + Q(Work() / "E8") + " --crop 2147483647,0,1,1"), 2,
+      "--crop");
   std::ofstream(Work() / "a_file") << "x";
   ExpectRefused(Cli("render " + Q(*scan_) + " --out " + Q(Work() / "a_file") + " --size 8x8"), 2,
                 "not a folder");
   ExpectRefused(Cli("reconstruct " + Q(*session_) + " --out ''"), 2, "--out");
-  ExpectRefused(Cli("reconstruct " + Q(*session_) + " --out " + Q(Work() / "SC8") + " --fitter bogus"),
-                2, "--fitter");
+  ExpectRefused(
+      Cli("reconstruct " + Q(*session_) + " --out " + Q(Work() / "SC8") + " --fitter bogus"), 2,
+      "--fitter");
   EXPECT_FALSE(fs::exists(Work() / "E8"));
   EXPECT_FALSE(fs::exists(Work() / "SC8"));
   fs::remove(Work() / "a_file");

@@ -11,9 +11,8 @@
 //    Cycles render of its true displacement matches a plane displaced by the EXR in Python, and
 //    the tile repeated 2 x 2 under raking light shows no seam (an untiled crop does).
 
-#include <unistd.h>
-
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -62,7 +61,8 @@ Synthetic MakeSynthetic() {
   s.truth = hf;
   for (int j = 0; j < h; ++j)
     for (int i = 0; i < w; ++i) {
-      const bool small = ((i - 37) % 61 == 0 || (i - 38) % 61 == 0) && i < w - 5 && (j % 47) >= 10 && (j % 47) < 13;
+      const bool small = ((i - 37) % 61 == 0 || (i - 38) % 61 == 0) && i < w - 5 &&
+                         (j % 47) >= 10 && (j % 47) < 13;
       const bool large = std::hypot(i - 100.0, j - 480.0) < 40;  // 2 mm: stays a hole
       if (small || large) hf.z(i, j) = std::nanf(""), hf.confidence(i, j) = 0.0f;
     }
@@ -84,24 +84,28 @@ class MapsCli : public ::testing::Test {
     WriteScanFolder(root_ / "metal.scan", syn_->scan);
     WriteExr(root_ / "albedo.exr", syn_->albedo, {"Y"});
     const std::string scan = Q(root_ / "metal.scan");
-    status_ = RunMesoscan("maps " + scan + " --out " + Q(root_ / "tiled") + " --flatten poly:2 --tile 8 --albedo " +
-                              Q(root_ / "albedo.exr"),
+    status_ = RunMesoscan("maps " + scan + " --out " + Q(root_ / "tiled") +
+                              " --flatten poly:2 --tile 8 --albedo " + Q(root_ / "albedo.exr"),
                           &log_);
     // The untiled control: a square crop of the same size, flattened the same way.
     std::string out;
     const int n = static_cast<int>(std::lround(kTileMm * 1e-3 / kPixel));
-    untiled_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "untiled") + " --flatten poly:2 --crop 200,100," +
-                                      std::to_string(n) + "," + std::to_string(n) + " --maps height,normal,ao",
+    untiled_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "untiled") +
+                                      " --flatten poly:2 --crop 200,100," + std::to_string(n) +
+                                      "," + std::to_string(n) + " --maps height,normal,ao",
                                   &out);
     log_ += out;
     // The whole sample flattened, for the texture check.
-    whole_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "whole") + " --flatten poly:2 --maps height,confidence", &out);
+    whole_status_ = RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "whole") +
+                                    " --flatten poly:2 --maps height,confidence",
+                                &out);
     log_ += out;
   }
   static void TearDownTestSuite() {
     delete syn_;
     std::error_code ec;
-    fs::remove_all(root_, ec);  // each ctest case is its own process: do not leave its folder behind
+    fs::remove_all(root_,
+                   ec);  // each ctest case is its own process: do not leave its folder behind
   }
   void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
   static inline fs::path root_;
@@ -131,9 +135,10 @@ TEST_F(MapsCli, WritesAFinishedTileableMapSet) {
   const Json& tile = m.at("tile");
   const auto ratio = tile.at("seam_gradient_ratio");
   const auto spread = tile.at("interior_column_row_spread");
-  std::cout << "seam/interior gradient RMS: pooled " << tile.at("seam_gradient_ratio_pooled") << ", x "
-            << ratio[0] << ", y " << ratio[1] << " (interior columns scatter " << spread[0] << ", rows "
-            << spread[1] << "); untiled crop " << tile.at("seam_gradient_ratio_untiled") << "\n";
+  std::cout << "seam/interior gradient RMS: pooled " << tile.at("seam_gradient_ratio_pooled")
+            << ", x " << ratio[0] << ", y " << ratio[1] << " (interior columns scatter "
+            << spread[0] << ", rows " << spread[1] << "); untiled crop "
+            << tile.at("seam_gradient_ratio_untiled") << "\n";
   EXPECT_NEAR(tile.at("seam_gradient_ratio_pooled").get<double>(), 1.0, 0.10);
   EXPECT_NEAR(ratio[0].get<double>(), 1.0, 2.5 * spread[0].get<double>());
   EXPECT_NEAR(ratio[1].get<double>(), 1.0, 2.5 * spread[1].get<double>());
@@ -182,7 +187,8 @@ TEST_F(MapsCli, FlattenedHeightIsTheTexture) {
       if (!std::isfinite(s) || !mask.data()[p]) continue;
       ASSERT_NEAR(z.data()[p] + removed.data()[p], s, 1e-9);
       const double x = t.X(i), y = t.Y(j);
-      const double shape = 0.8e-3 + 0.010 * x - 0.006 * y - 0.15e-3 * (x * x + y * y) / (kMaterialHalfM * kMaterialHalfM);
+      const double shape = 0.8e-3 + 0.010 * x - 0.006 * y -
+                           0.15e-3 * (x * x + y * y) / (kMaterialHalfM * kMaterialHalfM);
       tex[p] = t.z.data()[p] - shape;
       mz += z.data()[p], mt += tex[p], ++cnt;
     }
@@ -190,7 +196,9 @@ TEST_F(MapsCli, FlattenedHeightIsTheTexture) {
   // The texture's own quadratic, by plain least squares (one iteration: no robust weights).
   HeightField tf = t;
   for (size_t p = 0; p < tex.size(); ++p)
-    tf.z.data()[p] = std::isfinite(syn_->scan.height.z.data()[p]) && mask.data()[p] ? static_cast<float>(tex[p]) : NAN;
+    tf.z.data()[p] = std::isfinite(syn_->scan.height.z.data()[p]) && mask.data()[p]
+                         ? static_cast<float>(tex[p])
+                         : NAN;
   FlattenOptions ls = ParseFlatten("poly:2");
   ls.irls_iterations = 1;
   const FlattenResult own = Flatten(tf, ImageU8(), ls);
@@ -205,22 +213,40 @@ TEST_F(MapsCli, FlattenedHeightIsTheTexture) {
     raw2 += std::pow((z.data()[p] - mz) - (tex[p] - mt), 2);
     t2 += std::pow(tex[p] - mt, 2);
   }
-  std::cout << "flattened vs texture: " << std::sqrt(e2 / t2) * 100 << "% RMS (vs the raw texture with its "
+  std::cout << "flattened vs texture: " << std::sqrt(e2 / t2) * 100
+            << "% RMS (vs the raw texture with its "
             << "own quadratic: " << std::sqrt(raw2 / t2) * 100 << "%) over " << cnt << " px\n";
   EXPECT_LT(std::sqrt(e2 / t2), 0.01);
 }
 
 TEST_F(MapsCli, BadInputIsOneLineAndNoOutput) {
   std::string out;
-  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "nope.scan") + " --out " + Q(root_ / "bad1"), &out), 3) << out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "nope.scan") + " --out " + Q(root_ / "bad1"), &out), 3)
+      << out;
   EXPECT_FALSE(fs::exists(root_ / "bad1"));
-  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad2") + " --flatten poly:9", &out), 2) << out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad2") +
+                            " --flatten poly:9",
+                        &out),
+            2)
+      << out;
   EXPECT_NE(out.find("--flatten"), std::string::npos) << out;
-  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad3") + " --tile 200", &out), 3) << out;
+  EXPECT_EQ(
+      RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad3") + " --tile 200",
+                  &out),
+      3)
+      << out;
   EXPECT_NE(out.find("--tile"), std::string::npos) << out;
   EXPECT_FALSE(fs::exists(root_ / "bad3"));
-  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad4") + " --fill cubic", &out), 2) << out;
-  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad5") + " --maps height,gloss", &out), 2) << out;
+  EXPECT_EQ(RunMesoscan(
+                "maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad4") + " --fill cubic",
+                &out),
+            2)
+      << out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "bad5") +
+                            " --maps height,gloss",
+                        &out),
+            2)
+      << out;
 }
 
 TEST_F(MapsCli, ExportWritesTheMapSetNextToTheRawExports) {
@@ -272,9 +298,12 @@ TEST_F(MapsCli, BlenderImportsTheSetAtTrueScaleAndTheTileHasNoSeam) {
   EXPECT_EQ(r.at("displacement").at("space"), "WORLD");
   EXPECT_EQ(r.at("displacement_method"), "DISPLACEMENT");
   const Json& links = r.at("links");
-  auto has = [&](const std::string& l) { return std::find(links.begin(), links.end(), l) != links.end(); };
+  auto has = [&](const std::string& l) {
+    return std::find(links.begin(), links.end(), l) != links.end();
+  };
   EXPECT_TRUE(has("height.Color->mesoscan displacement.Height")) << links.dump();
-  EXPECT_TRUE(has("mesoscan displacement.Displacement->Material Output.Displacement")) << links.dump();
+  EXPECT_TRUE(has("mesoscan displacement.Displacement->Material Output.Displacement"))
+      << links.dump();
   EXPECT_TRUE(has("normal.Color->mesoscan normal map.Color")) << links.dump();
   EXPECT_TRUE(has("albedo.Color->mesoscan albedo x ao.Color1")) << links.dump();
   EXPECT_TRUE(has("ao.Color->mesoscan albedo x ao.Color2")) << links.dump();
@@ -289,7 +318,8 @@ TEST_F(MapsCli, BlenderImportsTheSetAtTrueScaleAndTheTileHasNoSeam) {
   // same plane undisplaced), which is itself visible (> 0.5% of the mean).
   const Json& ren = r.at("render");
   EXPECT_GT(ren.at("addon_vs_flat_mean_abs").get<double>(), 0.005 * ren.at("mean").get<double>());
-  EXPECT_LT(ren.at("addon_vs_reference_mean_abs").get<double>(), 0.1 * ren.at("addon_vs_flat_mean_abs").get<double>());
+  EXPECT_LT(ren.at("addon_vs_reference_mean_abs").get<double>(),
+            0.1 * ren.at("addon_vs_flat_mean_abs").get<double>());
   // The seam: the tile repeated 2 x 2 under raking light; the rendered change across the seam
   // is no outlier among the image's other columns (rows): |z| < 2, and its ratio to their mean
   // is within 0.6-1.4 (the dents are ~40 px wide, so single columns scatter widely); the

@@ -15,10 +15,10 @@
 #include <numeric>
 #include <vector>
 
-#include "session/session.h"
 #include "core/scan_folder.h"
 #include "heightfield/frames.h"
 #include "heightfield/triangulate.h"
+#include "session/session.h"
 
 namespace mesoscan::testing {
 

@@ -11,9 +11,9 @@
 #include <filesystem>
 #include <string>
 
-#include "tests/cli_util.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "tests/cli_util.h"
 
 namespace mesoscan {
 namespace {
@@ -26,7 +26,8 @@ const fs::path kCoinEdge = fs::path(MESOSCAN_SHARED_DIR) / "spec/examples/coin-e
 TEST(ReconstructCli, CoinEdgeBeatsThePlainDecoder) {
   if (!fs::exists(kCoinEdge / "session.json")) GTEST_SKIP() << "no example at " << kCoinEdge;
   const fs::path out = TempDir("coin_edge.scan");
-  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string());
+  const CliResult r =
+      RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string());
   ASSERT_EQ(r.code, 0) << r.output;
   for (const char* f : {"points.exr", "height.exr", "normal.exr", "report.json", "error_map.png"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
@@ -55,8 +56,8 @@ TEST(ReconstructCli, CoinEdgeBeatsThePlainDecoder) {
 TEST(ReconstructCli, RoiAndPhaseShiftOnly) {
   if (!fs::exists(kCoinEdge / "session.json")) GTEST_SKIP() << "no example at " << kCoinEdge;
   const fs::path out = TempDir("roi.scan");
-  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
-                               " --roi 40,30,64,48 --no-lens-shift --threads 1");
+  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
+                                  out.string() + " --roi 40,30,64,48 --no-lens-shift --threads 1");
   ASSERT_EQ(r.code, 0) << r.output;
   const Json report = ReadJsonFile(out / "report.json");
   EXPECT_EQ(report.at("summary").at("pixels").at("roi").get<int64_t>(), 64 * 48);
@@ -71,15 +72,15 @@ TEST(ReconstructCli, RoiAndPhaseShiftOnly) {
 TEST(ReconstructCli, ExportFromReconstruct) {
   if (!fs::exists(kCoinEdge / "session.json")) GTEST_SKIP() << "no example at " << kCoinEdge;
   const fs::path out = TempDir("export.scan");
-  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " + out.string() +
-                               " --roi 40,30,64,48 --export glb,png16");
+  const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
+                                  out.string() + " --roi 40,30,64,48 --export glb,png16");
   ASSERT_EQ(r.code, 0) << r.output;
   for (const char* f : {"export/scan.glb", "export/scan_height.png", "export/scan_height.json",
                         "export/manifest.json"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
   EXPECT_FALSE(fs::exists(out / "export/scan_height.exr"));  // only the formats asked for
   const CliResult bad = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
-                                 out.string() + "2 --export tiff");
+                                    out.string() + "2 --export tiff");
   EXPECT_EQ(bad.code, 2) << bad.output;
   EXPECT_FALSE(fs::exists(out.string() + "2"));  // refused before any work
   fs::remove_all(out);

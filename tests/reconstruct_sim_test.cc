@@ -13,17 +13,17 @@
 #include <numeric>
 
 #include "assets/objects.h"
-#include "session/session.h"
 #include "core/image_io.h"
 #include "core/numbers.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
-#include "sim/ground_truth.h"
 #include "heightfield/lens_shift_fit.h"
 #include "heightfield/reconstruct.h"
 #include "heightfield/stage_classify.h"
 #include "heightfield/stage_gains.h"
 #include "heightfield/stage_stream.h"
+#include "session/session.h"
+#include "sim/ground_truth.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {
@@ -62,8 +62,8 @@ TEST(ReconstructSim, TiltedPlaneAtTheCramerRaoFloor) {
   int64_t n = 0;
   for (float v : e.error.data()) n += std::isfinite(v);
   ASSERT_GT(n, 1000);
-  const double crlb = LensShiftDepthCrlbRms(s, sum.diagnostics, e.error,
-                                           [&](double m) { return noise.Sigma(m); });
+  const double crlb =
+      LensShiftDepthCrlbRms(s, sum.diagnostics, e.error, [&](double m) { return noise.Sigma(m); });
   std::printf("tilted plane: depth RMS %.3f um, CRLB %.3f um, ratio %.3f, coverage %.4f\n",
               e.rms_m * 1e6, crlb * 1e6, e.rms_m / crlb, e.coverage);
   EXPECT_GE(e.coverage, 0.99);
@@ -85,8 +85,8 @@ TEST(ReconstructSim, LensShiftHalvesThePhaseShiftError) {
   const Session sl = ReadSession(dl), sp = ReadSession(dp);
   const GroundTruthErrors el = EvaluateAgainstGroundTruth(sl, Reconstruct(sl, {}).points);
   const GroundTruthErrors ep = EvaluateAgainstGroundTruth(sp, Reconstruct(sp, {}).points);
-  std::printf("LS 50 + PS 9: %.3f um; PS 21: %.3f um; ratio %.3f\n", el.rms_m * 1e6,
-              ep.rms_m * 1e6, el.rms_m / ep.rms_m);
+  std::printf("LS 50 + PS 9: %.3f um; PS 21: %.3f um; ratio %.3f\n", el.rms_m * 1e6, ep.rms_m * 1e6,
+              el.rms_m / ep.rms_m);
   EXPECT_GE(el.coverage, 0.99);
   // Phase shifting alone (21 frames) rejects ~5% of this crop (unwrapping/confidence); its
   // coverage is reported, not asserted (the issue asserts the RMS ratio).

@@ -36,8 +36,8 @@ fs::path SmallScan() {
 }
 
 std::string Base(const fs::path& out, const std::string& env = "sky") {
-  return "render " + SmallScan().string() + " --out " + out.string() + " --brdf lambert --env " + env +
-         " --size 24x18 --spp 16 --threads 2";
+  return "render " + SmallScan().string() + " --out " + out.string() + " --brdf lambert --env " +
+         env + " --size 24x18 --spp 16 --threads 2";
 }
 
 bool SameFile(const fs::path& a, const fs::path& b) {
@@ -49,7 +49,8 @@ bool SameFile(const fs::path& a, const fs::path& b) {
 }
 
 TEST(RenderCli, SeedsReproduceAndDiffer) {
-  const fs::path a = CliTempDir("render", "a"), b = CliTempDir("render", "b"), c = CliTempDir("render", "c");
+  const fs::path a = CliTempDir("render", "a"), b = CliTempDir("render", "b"),
+                 c = CliTempDir("render", "c");
   ASSERT_EQ(RunMesoscan(Base(a) + " --seed 5").code, 0);
   ASSERT_EQ(RunMesoscan(Base(b) + " --seed 5").code, 0);
   ASSERT_EQ(RunMesoscan(Base(c) + " --seed 6").code, 0);
@@ -75,7 +76,8 @@ TEST(RenderCli, DenoiseWritesBesideTheRawPreview) {
 
 TEST(RenderCli, CameraTurntableCompareAlbedo) {
   const fs::path d = CliTempDir("render", "features");
-  const auto r = RunMesoscan(Base(d) + " --camera eye=0,-0.004,0.006:target=0,0,0:fov=35 --env-rotation 90 "
+  const auto r = RunMesoscan(Base(d) +
+                             " --camera eye=0,-0.004,0.006:target=0,0,0:fov=35 --env-rotation 90 "
                              "--turntable 3 --compare ggx --albedo 0.8,0.5,0.3");
   ASSERT_EQ(r.code, 0) << r.output;
   for (const char* f : {"preview.png", "preview.exr", "side_by_side.png", "turntable.gif",

@@ -12,14 +12,14 @@
 #include <fstream>
 #include <limits>
 
-#include "session/session.h"
 #include "core/image_io.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
-#include "maps/export.h"
 #include "heightfield/lens_shift_fit.h"
-#include "sim/ground_truth.h"
 #include "heightfield/reconstruct.h"
+#include "maps/export.h"
+#include "session/session.h"
+#include "sim/ground_truth.h"
 #include "sim/virtual_rig.h"
 #include "tests/plain_ls_decoder.h"
 
@@ -37,7 +37,7 @@ Session SimulateAndRead(const SimulateOptions& so, const fs::path& dir) {
 
 struct Figures {
   GroundTruthErrors e;
-  double crlb = 0;          // RMS Cramer-Rao depth floor over the scored pixels, m
+  double crlb = 0;  // RMS Cramer-Rao depth floor over the scored pixels, m
   ReconstructSummary sum;
   Scan scan;
 };
@@ -55,9 +55,9 @@ Figures RunCase(const Session& s, const SimulateOptions& so, const ReconstructOp
 }
 
 void Print(const char* label, const Figures& f) {
-  std::printf("%-34s RMS %.3f um, median |e| %.3f um, CRLB %.3f um (RMS/CRLB %.3f), coverage %.4f\n",
-              label, f.e.rms_m * 1e6, f.e.median_abs_m * 1e6, f.crlb * 1e6, f.e.rms_m / f.crlb,
-              f.e.coverage);
+  std::printf(
+      "%-34s RMS %.3f um, median |e| %.3f um, CRLB %.3f um (RMS/CRLB %.3f), coverage %.4f\n", label,
+      f.e.rms_m * 1e6, f.e.median_abs_m * 1e6, f.crlb * 1e6, f.e.rms_m / f.crlb, f.e.coverage);
 }
 
 // Row 1 (and row 2, on this simulator): the coin with 15 lens-shift frames and strong ambient
@@ -150,10 +150,11 @@ TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
       ++n;
     }
     const double r0 = std::sqrt(e2[0] / c2[0]), r1 = std::sqrt(e2[1] / c2[1]);
-    std::printf("floor bin %d [%.3f, %.3f) um, %lld px: RMS/floor no jitter %.3f, jitter 0.02 "
-                "%.3f (x%.3f; alternating gains, before: %.3f)\n",
-                k, edges[k] * 1e6, edges[k + 1] * 1e6, static_cast<long long>(n), r0, r1, r1 / r0,
-                std::sqrt(e2[2] / c2[2]));
+    std::printf(
+        "floor bin %d [%.3f, %.3f) um, %lld px: RMS/floor no jitter %.3f, jitter 0.02 "
+        "%.3f (x%.3f; alternating gains, before: %.3f)\n",
+        k, edges[k] * 1e6, edges[k + 1] * 1e6, static_cast<long long>(n), r0, r1, r1 / r0,
+        std::sqrt(e2[2] / c2[2]));
     // Target 1.05x; the measured 1.016-1.024x is ~5 standard errors of a bin's RMS (1/sqrt(2n),
     // n ~ 2e4) below it. Also at the floor in absolute terms (the tilted-plane test's 1.15).
     EXPECT_LE(r1, 1.05 * r0) << "bin " << k;
@@ -189,10 +190,10 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   testing::IntersectPoints(&f.scan.points, &plain);
   const GroundTruthErrors ep = EvaluateAgainstGroundTruth(s, f.scan.points);
   const GroundTruthErrors eq = EvaluateAgainstGroundTruth(s, plain);
-  std::printf("leaf (blur 0.7), same %lld pixels: pipeline RMS %.3f um, plain LS %.3f um; "
-              "CRLB %.3f um\n",
-              static_cast<long long>(ep.pixels_both), ep.rms_m * 1e6, eq.rms_m * 1e6,
-              f.crlb * 1e6);
+  std::printf(
+      "leaf (blur 0.7), same %lld pixels: pipeline RMS %.3f um, plain LS %.3f um; "
+      "CRLB %.3f um\n",
+      static_cast<long long>(ep.pixels_both), ep.rms_m * 1e6, eq.rms_m * 1e6, f.crlb * 1e6);
   EXPECT_GT(ep.pixels_both, 50000);
   EXPECT_LE(ep.rms_m, eq.rms_m);
   fs::remove_all(dir);
@@ -236,10 +237,11 @@ TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
       c_min[k] = std::min<double>(c_min[k], conf);
     }
   const double r_ls = n[0] ? std::sqrt(s2[0] / n[0]) : 0, r_ps = n[1] ? std::sqrt(s2[1] / n[1]) : 0;
-  std::printf("lens-shift pixels %lld (RMS error / predicted sigma %.3f, confidence %.2f-%.2f); "
-              "phase-shift pixels %lld (%.3f, confidence %.2f-%.2f)\n",
-              static_cast<long long>(n[0]), r_ls, c_min[0], c_max[0],
-              static_cast<long long>(n[1]), r_ps, c_min[1], c_max[1]);
+  std::printf(
+      "lens-shift pixels %lld (RMS error / predicted sigma %.3f, confidence %.2f-%.2f); "
+      "phase-shift pixels %lld (%.3f, confidence %.2f-%.2f)\n",
+      static_cast<long long>(n[0]), r_ls, c_min[0], c_max[0], static_cast<long long>(n[1]), r_ps,
+      c_min[1], c_max[1]);
   EXPECT_GE(f.e.coverage, 0.99);
   EXPECT_GT(n[1], 1000);  // the fallback is exercised
   EXPECT_LE(r_ps, 1.2);
@@ -262,9 +264,9 @@ TEST(RobustReconstruct, SimulatorFocusesAtTheObjectsMidHeight) {
   EXPECT_GT(focus, 0.5e-3);
   so.focus_height_m = 0.0;
   Simulate(so, dir);
-  EXPECT_EQ(ReadJsonFile(dir / "session.json")["simulation"]["projector"]["focus_height_m"]
-                .get<double>(),
-            0.0);
+  EXPECT_EQ(
+      ReadJsonFile(dir / "session.json")["simulation"]["projector"]["focus_height_m"].get<double>(),
+      0.0);
   fs::remove_all(dir);
 }
 
@@ -282,7 +284,8 @@ TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
   const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
   ReconstructOptions nopos;
   nopos.correct_positions = false;
-  const Figures clean = RunCase(a, s0), corrected = RunCase(b, s1), uncorrected = RunCase(b, s1, nopos);
+  const Figures clean = RunCase(a, s0), corrected = RunCase(b, s1),
+                uncorrected = RunCase(b, s1, nopos);
   Print("coin, exact positions", clean);
   Print("coin, 0.02 px errors, estimated", corrected);
   Print("coin, 0.02 px errors, nominal", uncorrected);
@@ -389,12 +392,12 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
             ++wrong[on];
         }
     }
-    std::printf("low signal, ambient %.0f, jitter %.2f: points wrong by > 1 mm %lld -> %lld, "
-                "right %lld -> %lld, rejected as isolated %lld%s\n",
-                k.ambient, k.jitter, static_cast<long long>(wrong[0]),
-                static_cast<long long>(wrong[1]), static_cast<long long>(right[0]),
-                static_cast<long long>(right[1]), static_cast<long long>(isolated),
-                k.asserted ? "" : " (not asserted)");
+    std::printf(
+        "low signal, ambient %.0f, jitter %.2f: points wrong by > 1 mm %lld -> %lld, "
+        "right %lld -> %lld, rejected as isolated %lld%s\n",
+        k.ambient, k.jitter, static_cast<long long>(wrong[0]), static_cast<long long>(wrong[1]),
+        static_cast<long long>(right[0]), static_cast<long long>(right[1]),
+        static_cast<long long>(isolated), k.asserted ? "" : " (not asserted)");
     if (k.asserted) {
       EXPECT_LE(wrong[1], right[1] / 1000) << "ambient " << k.ambient << ", jitter " << k.jitter;
       EXPECT_GE(right[1], right[0]) << "ambient " << k.ambient << ", jitter " << k.jitter;
@@ -403,8 +406,9 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
   }
 }
 
-// Stress (issue 13): 8-bit frames, weak stripes (strong ambient light, blur), saturation in 10% of the frames, gain jitter and shifter position errors: no NaN
-// where confidence > 0, finite frame corrections.
+// Stress (issue 13): 8-bit frames, weak stripes (strong ambient light, blur), saturation in 10% of
+// the frames, gain jitter and shifter position errors: no NaN where confidence > 0, finite frame
+// corrections.
 TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
   Progress::SetEnabled(false);
   SimulateOptions so;
@@ -448,11 +452,12 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
         rel.push_back(d.ls_amplitude(x, y) / d.white_level(x, y));
   std::sort(rel.begin(), rel.end());
   const double med = rel.empty() ? 0 : rel[rel.size() / 2];
-  std::printf("stress: %d frames saturated, stripe amplitude / white median %.4f (p10 %.4f), "
-              "%lld points, %lld saturated pixels, frame corrections %s\n",
-              saturated_frames, med, rel.empty() ? 0.0 : rel[rel.size() / 10],
-              static_cast<long long>(sum.pixels_valid), static_cast<long long>(sum.pixels_saturated),
-              sum.frame_corrections.dump().c_str());
+  std::printf(
+      "stress: %d frames saturated, stripe amplitude / white median %.4f (p10 %.4f), "
+      "%lld points, %lld saturated pixels, frame corrections %s\n",
+      saturated_frames, med, rel.empty() ? 0.0 : rel[rel.size() / 10],
+      static_cast<long long>(sum.pixels_valid), static_cast<long long>(sum.pixels_saturated),
+      sum.frame_corrections.dump().c_str());
   // Note: the amplitude of the pixels whose stripe fit is valid stays ~10% of white here (the
   // weaker ones fail their fit and fall back); the 0.5% level is exercised by
   // frame_corrections_test and lens_shift_fit_test, not by this session.
@@ -493,7 +498,6 @@ TEST(RobustReconstruct, CuePeriodEqualToTheProjectorWidth) {
   EXPECT_GE(f.e.coverage, 0.95);
   fs::remove_all(dir);
 }
-
 
 // ---- Issue 13, item 5 and the rest: horizontal fringes, k1-only distortion, no white/black ----
 
@@ -766,14 +770,17 @@ TEST(RobustReconstruct, WeakStripesConfidenceIsHonest) {
     testing::IntersectPoints(&q.scan.points, &p.scan.points);
     const double rms_q = EvaluateAgainstGroundTruth(s, q.scan.points).rms_m;
     const double rms_p = EvaluateAgainstGroundTruth(s, p.scan.points).rms_m;
-    std::printf("weak stripes, blur %.2f, same pixels: pipeline %.3f um, phase shifting alone "
-                "%.3f um\n", blur, rms_q * 1e6, rms_p * 1e6);
+    std::printf(
+        "weak stripes, blur %.2f, same pixels: pipeline %.3f um, phase shifting alone "
+        "%.3f um\n",
+        blur, rms_q * 1e6, rms_p * 1e6);
     EXPECT_LE(rms_q, 1.02 * rms_p) << "blur " << blur;
-    std::printf("weak stripes, blur %.2f: amplitude/white %.4f (noise-free); coverage %.4f; "
-                "lens-shift pixels %lld (RMS e/sigma %.3f), phase-shift pixels %lld (%.3f); RMS "
-                "%.3f um\n",
-                blur, amplitude, f.e.coverage, static_cast<long long>(n[0]), r0,
-                static_cast<long long>(n[1]), r1, f.e.rms_m * 1e6);
+    std::printf(
+        "weak stripes, blur %.2f: amplitude/white %.4f (noise-free); coverage %.4f; "
+        "lens-shift pixels %lld (RMS e/sigma %.3f), phase-shift pixels %lld (%.3f); RMS "
+        "%.3f um\n",
+        blur, amplitude, f.e.coverage, static_cast<long long>(n[0]), r0,
+        static_cast<long long>(n[1]), r1, f.e.rms_m * 1e6);
     EXPECT_EQ(bad, 0);
     EXPECT_GT(f.sum.pixels_saturated, 500);
     EXPECT_GE(f.e.coverage, 0.9);
@@ -812,10 +819,11 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
               pipe * 1e6, plain * 1e6);
   const Json& fc = jit.sum.frame_corrections;
   ASSERT_TRUE(fc.is_object());
-  std::printf("frame corrections: model %s, in-band from %d phase-shift pixels, correction "
-              "%s, sigma %.1e\n",
-              fc["model"].get<std::string>().c_str(), fc["in_band_pixels"].get<int>(),
-              fc["in_band_correction"].dump().c_str(), fc["in_band_sigma"].get<double>());
+  std::printf(
+      "frame corrections: model %s, in-band from %d phase-shift pixels, correction "
+      "%s, sigma %.1e\n",
+      fc["model"].get<std::string>().c_str(), fc["in_band_pixels"].get<int>(),
+      fc["in_band_correction"].dump().c_str(), fc["in_band_sigma"].get<double>());
   EXPECT_GT(fc["in_band_pixels"].get<int>(), 5000);  // the phase-shift reference was used
   EXPECT_GE(jit.e.coverage, clean.e.coverage - 0.002);
   EXPECT_LE(jit.e.rms_m, 1.05 * clean.e.rms_m);
@@ -830,9 +838,9 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
 // within 5% (the issue's jitter allowance) of the same session with the alternating gains, which
 // leave the in-band gains at 1, i.e. right here: applied in full (before the shrinkage), the
 // reference's noise made it 1.236 um against 1.088 um here (seeds 1-3: 1.39-1.44 um against
-// 1.02-1.08 um), and 1.200 um with jitter (now 1.110). With 2% jitter: at or below the plain decoder
-// and the alternating gains (the jitter's own cost is not held to 5% here: the reference's noise
-// is the floor of what it can correct, reported).
+// 1.02-1.08 um), and 1.200 um with jitter (now 1.110). With 2% jitter: at or below the plain
+// decoder and the alternating gains (the jitter's own cost is not held to 5% here: the reference's
+// noise is the floor of what it can correct, reported).
 TEST(RobustReconstruct, InBandReferenceOnATinyViewOfTheTiltedBar) {
   Progress::SetEnabled(false);
   const BarJitterPair pair("tiny", 24, 18);

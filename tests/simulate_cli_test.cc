@@ -10,10 +10,10 @@
 #include <filesystem>
 #include <string>
 
-#include "tests/cli_util.h"
-#include "session/session.h"
 #include "core/image_io.h"
 #include "core/scan_folder.h"
+#include "session/session.h"
+#include "tests/cli_util.h"
 
 namespace mesoscan {
 namespace {
@@ -30,8 +30,8 @@ int Lines(const std::string& s) {
 TEST(SimulateCli, WritesAReadableSessionWithGroundTruth) {
   const fs::path out = TempDir("coin");
   const CliResult r = RunMesoscan("-q simulate --object coin --rig paper --out " + out.string() +
-                       " --crop 64x48+1200+690 --ls-frames 8 --supersample 2 --seed 3"
-                       " --object-pixel-size 40e-6");
+                                  " --crop 64x48+1200+690 --ls-frames 8 --supersample 2 --seed 3"
+                                  " --object-pixel-size 40e-6");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s = ReadSession(out);
   EXPECT_EQ(s.frames.size(), 9u + 8u + 2u);
@@ -61,8 +61,9 @@ TEST(SimulateCli, WritesAReadableSessionWithGroundTruth) {
 
 TEST(SimulateCli, ProjectorGammaIsRecorded) {
   const fs::path out = TempDir("gamma");
-  const CliResult r = RunMesoscan("-q simulate --object plane --out " + out.string() +
-                       " --crop 16x16+1080+700 --ls-frames 0 --projector-gamma 2.2 --noise 0");
+  const CliResult r =
+      RunMesoscan("-q simulate --object plane --out " + out.string() +
+                  " --crop 16x16+1080+700 --ls-frames 0 --projector-gamma 2.2 --noise 0");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s = ReadSession(out);
   EXPECT_EQ(s.rig.projector_response.kind, Response::Kind::kGamma);
@@ -74,7 +75,7 @@ TEST(SimulateCli, RigFileRoundTrip) {
   // A RIG.json holding the rig of a simulated session reproduces it.
   const fs::path first = TempDir("rig1"), second = TempDir("rig2");
   ASSERT_EQ(RunMesoscan("-q simulate --object plane --out " + first.string() +
-                " --crop 16x16+1080+700 --ls-frames 0 --noise 0 --supersample 1")
+                        " --crop 16x16+1080+700 --ls-frames 0 --noise 0 --supersample 1")
                 .code,
             0);
   const Session s1 = ReadSession(first);
@@ -87,8 +88,9 @@ TEST(SimulateCli, RigFileRoundTrip) {
     fwrite(text.data(), 1, text.size(), f);
     fclose(f);
   }
-  const CliResult r = RunMesoscan("-q simulate --object plane --rig " + rig_file.string() + " --out " +
-                       second.string() + " --ls-frames 0 --noise 0 --supersample 1");
+  const CliResult r =
+      RunMesoscan("-q simulate --object plane --rig " + rig_file.string() + " --out " +
+                  second.string() + " --ls-frames 0 --noise 0 --supersample 1");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s2 = ReadSession(second);
   EXPECT_EQ(s2.rig.camera.width, 16);
@@ -132,8 +134,9 @@ TEST(SimulateCli, BadValuesExitWithOneLine) {
 TEST(SimulateCli, HelpDescribesTheOptions) {
   const CliResult r = RunMesoscan("simulate --help");
   EXPECT_EQ(r.code, 0);
-  for (const char* opt : {"--object", "--rig", "--out", "--ps-periods", "--ps-phases", "--ls-frames",
-                          "--noise", "--seed", "--crop", "--supersample", "--projector-gamma"})
+  for (const char* opt :
+       {"--object", "--rig", "--out", "--ps-periods", "--ps-phases", "--ls-frames", "--noise",
+        "--seed", "--crop", "--supersample", "--projector-gamma"})
     EXPECT_NE(r.output.find(opt), std::string::npos) << opt;
 }
 
