@@ -1,5 +1,5 @@
 // mesoscan reconstruct SESSION --out SCAN: a capture session to a scan folder
-// (shared/spec/scan-outputs.md) through heightfield/reconstruct.h.
+// (docs/formats.md) through heightfield/reconstruct.h.
 
 #include <tbb/parallel_invoke.h>
 

@@ -1,5 +1,5 @@
 #pragma once
-// `mesoscan capture --rehearse`: a full capture without hardware (issue 10 item 9). The
+// `mesoscan capture --rehearse`: a full capture without hardware. The
 // projector window opens on a private Xvfb server, the screen camera reads it back, and the
 // lens-shifter controller is the simulator of capture/lens_shifter_sim.h on a pseudo-terminal,
 // driven through the same serial protocol as the real one.

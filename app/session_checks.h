@@ -1,5 +1,5 @@
 #pragma once
-// What `reconstruct` would refuse, for `check` too (issue 10 item 6), and errors of the
+// What `reconstruct` would refuse, for `check` too, and errors of the
 // pipeline that name no file given the session's session.json (item 8).
 
 #include "core/scan_folder.h"

@@ -52,7 +52,7 @@ SceneObject MakeTiltedPlane(double pixel_size_m = 50e-6);
 // deep and lateral veins 45 um deep.
 SceneObject MakeLeaf(double pixel_size_m = 20e-6);
 
-// Material samples (a material, not an object: scanned into tileable maps, issue 15): a square
+// Material samples (a material, not an object: scanned into tileable maps): a square
 // of 2 * kMaterialHalfM lying on the mount with a slight tilt (1.0% along x, 0.6% along y) and a
 // 0.15 mm sag towards its corners.
 inline constexpr double kMaterialHalfM = 15e-3;

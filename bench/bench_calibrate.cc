@@ -1,4 +1,4 @@
-// Calibration of six board sessions of 12 full-resolution frames each (issue 11's bench): the
+// Calibration of six board sessions of 12 full-resolution frames each: the
 // held-back real captures' shape (8-bit BMP frames 1688 x 1352, projector 1824 x 1140, 3 phases of
 // a one-period cue and 16 periods per axis, no white frame, a low-contrast 13x9 board of 10 mm
 // squares), simulated once with default noise (0.5% per-frame gain jitter included) and reused.

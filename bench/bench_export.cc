@@ -1,5 +1,5 @@
 // Export of a full-resolution scan (the paper rig's 2176 x 1434 camera grid, 55 um pixels:
-// 3.1 M samples), all formats and each alone. Target (issue 4): all formats <= 5 s.
+// 3.1 M samples), all formats and each alone. Target: all formats <= 5 s.
 // Figures: wall time (real time), GLB triangles and its stated max height error; a CSV goes to
 // $MESOSCAN_BENCH_OUT/bench_export.csv.
 

@@ -718,7 +718,7 @@ int main(int argc, char** argv) {
                "fitter,N,ns_per_profile,profiles_per_s,phase_rms_rad,crlb_rms_rad,rms_over_crlb,"
                "valid_fraction,speedup_vs_ceres\n");
   // Timing for the CSV: each fitter again on the same profiles, single thread, in thread CPU
-  // time (this machine is shared: wall time includes other processes' slices, and a busy
+  // time (the machine may be shared: wall time includes other processes' slices, and a busy
   // sibling hyperthread inflates CPU time too). Blocks of profiles per fitter, interleaved
   // over kRounds rounds so that every fitter sees the same load; the fastest block counts.
   constexpr int kRounds = 5;

@@ -1,4 +1,4 @@
-// Lens-shift stage benchmark (issue 12): the reconstruction's stage 4 (FitLensShift) alone on a
+// Lens-shift stage benchmark: the reconstruction's stage 4 (FitLensShift) alone on a
 // full-resolution session whose frames are decoded once, run several times. Figures, not
 // assertions. Per run: wall time and process CPU time (all threads; the machine is shared, CPU
 // time depends much less on the load than wall time) of the stage and of its steps (4-parameter

@@ -1,4 +1,4 @@
-// Full-resolution scan to a finished material map set (issue 15; target < 3 s on 2 cores):
+// Full-resolution scan to a finished material map set (target < 3 s on 2 cores):
 // the paper rig's 2176 x 1434 grid of 55 um (3.1 M samples) covered by a woven material lying
 // tilted and sagging, with thread-gap shadows (clusters of holes) and 1 um noise; fill, flatten,
 // tile, every map, written. Cases: the finished tile (harmonic / biharmonic fill), every map on

@@ -6,7 +6,7 @@
 //     difference of two scans of the same object with different noise seeds, divided by sqrt 2 so
 //     it is a per-scan figure) and the ratio of the RMS to the Cramer-Rao floor of the simulator's
 //     noise model. Written to table1.csv and plotted (error against run time) in table1.png.
-//  1b. Table 1 with the disturbances of real rigs (issue 13, Table1Disturbances): LS 50 + PS 9
+//  1b. Table 1 with the disturbances of real rigs (Table1Disturbances): LS 50 + PS 9
 //     with gain jitter 0 / 0.02 (joint frame gains, the older alternating gains, frame means) and
 //     with lens-shifter position errors 0 / 0.02 px RMS (estimated, and nominal positions), each
 //     with the plain fixed-frequency least-squares decoder (tests/plain_ls_decoder.h) on the same
@@ -98,13 +98,13 @@ std::vector<Row> Table1(const fs::path& work) {
   struct Config {
     std::string name;
     int phases, ls;
-    double jitter = 0.005, position_error = 0.0;  // issue 13 rows: disturbances of real rigs
+    double jitter = 0.005, position_error = 0.0;  // rows with the disturbances of real rigs
   };
   const std::vector<Config> configs = {{"PS 9", 3, 0},           {"PS 21", 7, 0},
                                        {"LS 15 + PS 9", 3, 15},  {"LS 25 + PS 9", 3, 25},
                                        {"LS 50 + PS 9", 3, 50},  {"LS 100 + PS 9", 3, 100},
                                        {"LS 200 + PS 9", 3, 200}};
-  // The rows with disturbances of real rigs (issue 13) are Table1Disturbances below.
+  // The rows with disturbances of real rigs are Table1Disturbances below.
   std::vector<Row> rows;
   for (const Config& c : configs) {
     Session sessions[2];
@@ -382,8 +382,8 @@ void FullResolution(const fs::path& work, const fs::path& out) {
     rounds.push_back(r);
   }
   WriteTextFile(out / "fullres.csv", csv);
-  // Issue 12's goals, each the median over the rounds (ratios per round, then the median), with
-  // the range.
+  // The full-resolution goals, each the median over the rounds (ratios per round, then the
+  // median), with the range.
   auto median = [&](double (*f)(const Round&), double* lo, double* hi) {
     std::vector<double> v;
     for (const Round& r : rounds) v.push_back(f(r));
@@ -393,7 +393,7 @@ void FullResolution(const fs::path& work, const fs::path& out) {
     const size_t n = v.size();
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
   };
-  // Issue 12's goals: what, the figure of a round, its unit, the goal.
+  // The goals: what, the figure of a round, its unit, the goal.
   struct Figure {
     const char* what;
     double (*of)(const Round&);
@@ -516,7 +516,7 @@ int FullResolutionChild(const fs::path& dir, const fs::path& scan_dir, const fs:
   return 0;
 }
 
-// ==== Issue 13: Table 1 with the disturbances of real rigs (owned by issue 13; kept apart from
+// ==== Table 1 with the disturbances of real rigs (kept apart from
 // Table1 above so that the two can change independently) ====
 struct DisturbedRow {
   std::string config;
@@ -619,7 +619,7 @@ void WriteTable1Disturbances(const fs::path& work, const fs::path& out) {
   WriteTextFile(out / "table1_disturbances.csv", csv);
   std::printf("bench_reconstruct: wrote %s\n", (out / "table1_disturbances.csv").c_str());
 }
-// ==== end of issue 13's Table 1 rows ====
+// ==== end of the Table 1 rows with disturbances ====
 
 }  // namespace
 }  // namespace mesoscan

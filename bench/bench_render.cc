@@ -1,4 +1,4 @@
-// The preview renderer against Blender Cycles 3.4 on the same scenes, in the same run (issue 14):
+// The preview renderer against Blender Cycles 3.4 on the same scenes, in the same run:
 //   relief      the procedural coin, hole-free (Lambert 0.7 on a 0.3 mount)
 //   coin-holes  the same coin with 8% of its samples NaN (holes down to the mount)
 //   slab-hole   a 20 mm slab 1 mm above the mount with a 4 mm square hole

@@ -115,7 +115,7 @@ else:
     bg.inputs["Color"].default_value = (c[0], c[1], c[2], 1.0)
     bg.inputs["Strength"].default_value = 1.0
 
-# Cycles: the settings of issue 14 (box filter, no denoising or clamping, fixed samples).
+# Cycles: the comparison's settings (box filter, no denoising or clamping, fixed samples).
 scene.render.engine = "CYCLES"
 cy = scene.cycles
 cy.device = "CPU"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The demo preview's error against time (issue 14: "make demo's preview reaches 3% relative RMSE
-# in the time it takes"). Makes the demo's coin scan as scripts/demo does (if DEMO_OUT has none),
+# The demo preview's error against time (the goal: make demo's preview reaches 3% relative RMSE
+# in the time it takes). Makes the demo's coin scan as scripts/demo does (if DEMO_OUT has none),
 # then runs bench_render's demo section: two independent 1024-spp references of the demo's render
 # (seeds 1 and 1001, cached in build/bench-results/render/demo_ref_1024spp[_seed1001]_<key>.exr,
 # key = a hash of the height field; their mean is the reference and their difference its own

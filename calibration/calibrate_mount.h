@@ -1,5 +1,5 @@
 #pragma once
-// The mount plane from a session of the empty mount (issue 11, item 5), and the scan of a flat
+// The mount plane from a session of the empty mount, and the scan of a flat
 // target with a rig held in memory that it and the lens-shifter calibration
 // (calibration/calibrate_shifter.h) share.
 //
@@ -8,7 +8,7 @@
 // and/or lens-shift frames on the bare mount) is decoded and triangulated with the calibrated
 // camera and projector by the reconstruction's own stages (heightfield/reconstruct.h, stages
 // 0-6), a plane is fitted robustly to the points, and the world becomes: z = 0 on that plane, +z
-// towards the rig (shared/spec/session-format.md "Conventions"); x along the camera's x axis
+// towards the rig (docs/formats.md "Conventions"); x along the camera's x axis
 // projected onto the plane, y = z cross x, the origin where the camera's optical axis meets the
 // plane (a camera looking straight down gives the paper rig's world).
 

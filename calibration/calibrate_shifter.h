@@ -1,5 +1,5 @@
 #pragma once
-// The lens shifter's steps_per_px and its variation over the image (issue 11, item 4) from the
+// The lens shifter's steps_per_px and its variation over the image from the
 // lens-shift frames of a flat target (the empty mount, or a board lying on it) scanned with the
 // calibrated rig (calibration/calibrate_mount.h ScanFlatTarget).
 //

@@ -180,7 +180,7 @@ TEST_F(SequencerTest, InterruptedThenResumedEqualsUninterrupted) {
   ExpectSameSession(dir_ / "whole", dir_ / "parts");
 }
 
-// Issue 10 item 9: a kill between writing session.json and removing the journal leaves both;
+// A kill between writing session.json and removing the journal leaves both;
 // the re-run finishes that step (the journal goes) instead of refusing the completed session.
 TEST_F(SequencerTest, AJournalLeftBesideTheCompletedSessionIsRemovedOnReRun) {
   auto screen = MakeScreenCamera(*projector_, kCamW, kCamH, false);

@@ -1,6 +1,6 @@
 #pragma once
-// A bounded cache of large memory blocks whose freed pages back the next allocations (issue 12:
-// system time). A full-resolution reconstruction allocates ~1.3 GB of large blocks in turn (the
+// A bounded cache of large memory blocks whose freed pages back the next allocations
+// (system time). A full-resolution reconstruction allocates ~1.3 GB of large blocks in turn (the
 // frame stack, the PNG decoders' buffers, the per-pixel arrays of every stage, the EXR writers'),
 // while at most ~450 MB of them are alive at once. Each fresh page costs a minor fault, ~1.8 us
 // in the VM we measure on (the kernel zeroes and maps it), against ~0.07 us to overwrite a page

@@ -1,5 +1,5 @@
 #pragma once
-// The allocator of a process that reconstructs (issue 12: peak RSS and system time).
+// The allocator of a process that reconstructs (peak RSS and system time).
 // - Blocks of 1 MB and more (frames, per-pixel arrays, images, the PNG decoder's scratch) come
 //   from the large block cache (core/large_block_cache.h), which keeps freed pages for the next
 //   allocations instead of mapping fresh ones. Full-resolution coin, CLI: minor page faults

@@ -12,7 +12,7 @@ namespace fs = std::filesystem;
 namespace {
 // The scan folder's EXRs are written uncompressed (WriteExrPlanes): ZIP saves ~20 % on this noisy
 // float data but costs ~2.5 s of CPU per full-resolution scan, more than the reconstruction
-// itself (issue 3's end-to-end goal). Readers take any EXR compression; `mesoscan export`
+// itself (the end-to-end goal). Readers take any EXR compression; `mesoscan export`
 // compresses its files.
 
 std::map<std::string, double> GridAttributes(const HeightField& hf) {

@@ -1,5 +1,5 @@
 #pragma once
-// The scan folder of shared/spec/scan-outputs.md: points.exr, height.exr, normal.exr,
+// The scan folder of docs/formats.md: points.exr, height.exr, normal.exr,
 // report.json. Reader and writer; the writer builds the folder atomically.
 
 #include <filesystem>

@@ -1,6 +1,6 @@
 #pragma once
 // libpng's default error handler prints "libpng error: ..." to stderr before OpenImageIO turns
-// the failure into an error that mesoscan reports in its own one line (issue 10 item 8). The
+// the failure into an error that mesoscan reports in its own one line. The
 // CLI replaces the C `stderr` stream with one that drops such lines and passes everything else
 // through unchanged and unbuffered.
 

@@ -46,7 +46,7 @@
 namespace mesoscan {
 
 // How the pipeline sets the gains of the lens-shift frames: the joint estimate (default), the
-// alternating least squares of frames.h alone (the pre-issue-13 behaviour), or frame means over
+// alternating least squares of frames.h alone (the older behaviour), or frame means over
 // the fitted pixels (the classic baseline).
 enum class FrameGainMethod { kJoint, kAlternating, kFrameMeans };
 const char* FrameGainMethodName(FrameGainMethod m);  // "joint", "als", "means"

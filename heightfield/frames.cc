@@ -395,7 +395,7 @@ std::vector<double> EstimateFrameGains(const std::vector<float>& by_frame, size_
     const Eigen::MatrixXd pinv = (Mg.transpose() * Mg).ldlt().solve(Mg.transpose());
     // The ungained model (nk x n) and each pixel's relative residual, by blocks of pixels on the
     // pool (each column's products and sums as in one product over all of them: ~80 ms serial
-    // right after the last lens-shift frame at full resolution, issue 12).
+    // right after the last lens-shift frame at full resolution).
     Eigen::MatrixXd model_val(nk, static_cast<Eigen::Index>(n));
     std::vector<double> rel(n);
     constexpr size_t kBlock = 2048;
@@ -420,7 +420,7 @@ std::vector<double> EstimateFrameGains(const std::vector<float>& by_frame, size_
     for (size_t j = 0; j < n; ++j) use[j] = std::isfinite(rel[j]) && rel[j] <= limit;
     // Each frame's sums in pixel order, all frames in one pass down the (frame-major) columns:
     // the frames in parallel strode across both matrices, a cache miss per sample (~10 ms an
-    // iteration right after the last lens-shift frame at full resolution, issue 12).
+    // iteration right after the last lens-shift frame at full resolution).
     std::vector<double> num(nk, 0.0), den(nk, 0.0);
     for (size_t j = 0; j < n; ++j) {
       if (!use[j]) continue;

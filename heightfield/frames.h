@@ -57,7 +57,7 @@ struct FrameLoadOptions {
 };
 
 // Some frames' 16-bit samples at a few pixels, gathered while the frames decode
-// (FrameLoadOptions::on_decoded; issue 12: scattered reads off the time after the last frame).
+// (FrameLoadOptions::on_decoded: scattered reads off the time after the last frame).
 struct GatheredSamples {
   std::vector<uint32_t> pixels;                         // stack pixels
   std::vector<std::vector<uint16_t>> codes;             // codes[k][j]: stack frame k at pixels[j]

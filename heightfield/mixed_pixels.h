@@ -1,5 +1,5 @@
 #pragma once
-// Mixed pixels (issue 3, item 9). A camera pixel integrates light over its footprint, so where the
+// Mixed pixels. A camera pixel integrates light over its footprint, so where the
 // footprint spans two surfaces (a depth step) or a lit and a shadowed part, the decoded projector
 // column is the brightness-weighted mean of what the pixel sees: the point lands between the two
 // surfaces, or off the surface along the pixel's centre ray. Such points are rejected (NaN,
@@ -11,7 +11,7 @@
 //    sigma. A genuine local extreme (a ridge, a thread) lies outside both extrapolations and is
 //    kept; so is a point that agrees with either side.
 //  - outlier: the point disagrees with every side that has two valid neighbours by more than
-//    max(outlier_footprints * camera footprint, 8 s_p) (the coarse test of session 1, kept for
+//    max(outlier_footprints * camera footprint, 8 s_p) (the first, coarse test, kept for
 //    isolated spikes and points next to holes).
 //  - dimmed step: the point is darker (white level) than `dim_ratio` times the brighter of its
 //    two neighbours, deviates from one side's extrapolation by more than `dim_sigmas`, and sits

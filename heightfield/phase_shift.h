@@ -1,7 +1,7 @@
 #pragma once
 // Phase-shift decoding and temporal unwrapping.
 //
-// Convention (shared/spec/session-format.md, "Patterns"): the projector shows
+// Convention (docs/formats.md, "Patterns"): the projector shows
 //   0.5 + 0.5 cos(2 pi u / period + delta)
 // so a camera pixel seeing projector column u records I_k = A + B cos(theta + delta_k) with
 // theta = 2 pi u / period (mod 2 pi). WrappedPhaseSolver recovers theta per period;

@@ -108,7 +108,7 @@ struct LensShiftPixels {
   std::vector<float> frequency;  // f, cycles per projector px
   // d and f are read by the frame corrections (on the frequency subsample) and the diagnostics
   // only: empty after a fixed-frequency pass unless LensShiftStageOptions::keep_offset_frequency
-  // (issue 12: peak RSS).
+  // (peak RSS).
   std::vector<float> offset;        // d
   std::vector<float> residual_rms;  // linear units
   std::vector<float> samples;       // samples used

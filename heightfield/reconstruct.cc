@@ -32,7 +32,7 @@ void SummarizeFrames(const ReconstructPlan& plan, const FrameGains& gains,
                      const Json& frame_corrections, double ls_offset_px, ReconstructSummary* sum) {
   sum->frame_gains = gains.session_gain;
   sum->frame_corrections = frame_corrections;
-  if (sum->frame_corrections.is_object())  // issue 13: the positions' constant, from phase shifting
+  if (sum->frame_corrections.is_object())  // the positions' constant, from phase shifting
     sum->frame_corrections["phase_shift_offset_px"] = ls_offset_px;
   sum->unwrapping = plan.unwrapping;
   sum->axis = std::string(1, plan.axis);

@@ -1,6 +1,6 @@
 #pragma once
-// The reconstruction pipeline (issue 3): a capture session (shared/spec/session-format.md) to a
-// scan (shared/spec/scan-outputs.md). Reconstruct() is a short driver that chains and times the
+// The reconstruction pipeline: a capture session (docs/formats.md) to a
+// scan (docs/formats.md). Reconstruct() is a short driver that chains and times the
 // stages, each a function in its own file with its options struct; they pass plain
 // struct-of-arrays records on the ROI (heightfield/pixel_buffers.h) and one per-pixel state array
 // (PixelState: why a pixel has no point; each rejection is owned by one stage).

@@ -170,7 +170,7 @@ TEST(StagePlan, GroupsSineSetsSortsLensShiftAndFindsWhiteBlack) {
   EXPECT_THROW(MakeReconstructPlan(none, {}), Error);
 }
 
-// Horizontal fringes (issue 13): the decoded axis is the lens shifter's when a sine set lies
+// Horizontal fringes: the decoded axis is the lens shifter's when a sine set lies
 // along it, else x, else y; the unwrapping range is the projector's extent along that axis.
 TEST(StagePlan, DecodesOneAxis) {
   auto along = [](Frame f, char axis) {

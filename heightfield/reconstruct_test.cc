@@ -1,5 +1,5 @@
 // Unit tests of the reconstruction pipeline on tiny synthetic sessions written here from the
-// pattern definitions of shared/spec/session-format.md (ideal band-limited profiles, no optics),
+// pattern definitions of docs/formats.md (ideal band-limited profiles, no optics),
 // independent of the virtual rig: sign and half-pixel conventions, the centre-of-range phase
 // mapping with a per-pixel frequency, distortion on both devices, phase-shift-only decoding of a
 // hierarchical pattern set from 8-bit frames, rejection of pixels mixing two surfaces.

@@ -26,13 +26,13 @@ struct CombineOptions {
   // The lens-shift fit had 4 free parameters (frequency fitted and not smoothed): the noise
   // sigma's degrees of freedom.
   bool four_parameter_fit = false;
-  // Graceful defocus (issue 13): with lens shift, a pixel whose lens-shift fit failed or fell
+  // Graceful defocus: with lens shift, a pixel whose lens-shift fit failed or fell
   // below min_confidence (defocus blurred the 2-px stripes away) takes the phase-shift estimate
   // of u instead, with its own predicted sigma (systematic_phase_noise included) and its
   // confidence scaled by phase_shift_fallback_confidence, in (0, 1]; source 1 there.
   bool phase_shift_fallback = true;
   double phase_shift_fallback_confidence = 0.5;
-  // Issue 13: where the lens-shift stage estimated the shifter positions (frame_corrections
+  // Where the lens-shift stage estimated the shifter positions (frame_corrections
   // model with "positions"), they are known only up to an affine map: the per-pixel frequency
   // absorbs its slope, but its constant (the mean position error of the lens-shift frames against
   // the calibrated shift 0) moves every lens-shift u alike. The phase-shift frames, taken at
@@ -52,7 +52,7 @@ struct CombineOptions {
   bool keep_coarse = true;
 };
 
-// Phase shifting's own absolute column (issue 12): u of every kActive pixel, unwrapped with the
+// Phase shifting's own absolute column: u of every kActive pixel, unwrapped with the
 // noise the phase-shift frames show (their residuals, else 1% of the white level), in 16 bits
 // (ColumnHints: a fraction of a period is all the fringe orders need), none where the unwrapping
 // fails or elsewhere; empty if the plan has no periods. The stream stage runs it while

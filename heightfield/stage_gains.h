@@ -23,7 +23,7 @@ struct GainOptions {
 struct FrameGains {
   std::vector<float> inv_gain;       // per stack frame: 1 / gain
   std::vector<double> session_gain;  // per session frame (1 where not estimated)
-  // For the lens-shift stage's frame corrections (issue 13): the projector coordinate from
+  // For the lens-shift stage's frame corrections: the projector coordinate from
   // phase shifting alone at a sample of pixels (MakePhaseReference); empty if not made.
   PhaseReference phase_reference;
 };

@@ -360,7 +360,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     PixelSubset subset;
     subset.stride = std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
     // The 4-parameter fits of the subsample on its own grid (cw x ch): the full-size arrays
-    // are made only for the fixed-frequency pass, after the frame corrections (issue 12: they
+    // are made only for the fixed-frequency pass, after the frame corrections (they
     // are 75 MB at 3 Mpx, and the frame corrections are the stage's peak).
     const int sub = subset.stride, cw = (w + sub - 1) / sub, ch = (h + sub - 1) / sub;
     LensShiftPixels first;
@@ -398,7 +398,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
     if (have_map) {
       LensShiftFitOptions fo2 = fo;
       fo2.fit_frequency = false;
-      if (!box) {  // issue 13: joint frame gains and shifter positions
+      if (!box) {  // joint frame gains and shifter positions
         FrameCorrectionOptions fco;
         fco.method = options.frame_gain_method;
         fco.estimate_positions = options.correct_positions;

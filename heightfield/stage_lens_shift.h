@@ -31,7 +31,7 @@ struct LensShiftStageOptions {
   bool smooth_frequency = true;
   // With smooth_frequency (and no box filter): per-frame gains, and shifter position errors if
   // correct_positions, estimated jointly with the per-pixel fits before the fixed-frequency pass
-  // (heightfield/frame_corrections.h, issue 13).
+  // (heightfield/frame_corrections.h).
   FrameGainMethod frame_gain_method = FrameGainMethod::kJoint;
   bool correct_positions = true;
   // The fixed-frequency pass with the row kernel (FixedFrequencyRowFitter: pixels of a row in

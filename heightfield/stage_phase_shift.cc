@@ -36,7 +36,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   PhaseShiftPixels out;
   out.theta.assign(nper, std::vector<float>(np, kNaN));
   out.modulation.assign(nper, std::vector<float>(np, kNaN));
-  out.residual_rms.resize(nper);  // three samples fit exactly: no residual array (issue 12: RSS)
+  out.residual_rms.resize(nper);  // three samples fit exactly: no residual array (peak RSS)
   for (int p = 0; p < nper; ++p)
     if (periods[p].stack_frames.size() > 3) out.residual_rms[p].assign(np, kNaN);
   out.level.assign(np, kNaN);

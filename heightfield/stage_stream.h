@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stages 1-4 as one stream (issue 12): the lens-shift frames (most of a session)
+// Reconstruction stages 1-4 as one stream: the lens-shift frames (most of a session)
 // are decoded while the other frames (white, black, sine patterns) are classified, normalised
 // and phase-shift decoded on the same TBB pool; the sine, white and black frames are released
 // as soon as the phase shift is done, so that only the lens-shift frames stay for the stages

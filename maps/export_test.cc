@@ -106,7 +106,7 @@ TEST(Export, HeightExrIsMetresInChannelYWithTheGridAttributes) {
   EXPECT_EQ(info.float_attributes.at("mesoscan:midlevel"), 0.0);
   EXPECT_EQ(info.float_attributes.at("mesoscan:scale"), 1.0);
   const ImageF y = ReadExrChannels(dir / "s_height.exr", {"Y"});
-  // The disk-shaped hole is bounded by surface: filled harmonically (issue 15), so every filled
+  // The disk-shaped hole is bounded by surface: filled harmonically, so every filled
   // height lies within its border's range (no trench down to the lowest height).
   const HeightField& hf = scan.height;
   float lo = INFINITY, hi = -INFINITY;
@@ -173,7 +173,7 @@ TEST(Export, NormalMapConventionsDifferOnlyInGreen) {
   const ImageF gl = ReadImage(dir / "s_normal_gl.png"), dx = ReadImage(dir / "s_normal_dx.png");
   const double q = 1.0 / 65535;
   int checked = 0;
-  // Next to the filled hole the normals come from the filled surface (issue 15): skipped.
+  // Next to the filled hole the normals come from the filled surface: skipped.
   auto near_hole = [&](int i, int j) {
     for (int dj = -1; dj <= 1; ++dj)
       for (int di = -1; di <= 1; ++di) {

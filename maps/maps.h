@@ -1,5 +1,5 @@
 #pragma once
-// Artist-ready material map sets (issue 15): `mesoscan maps SCAN --out DIR` and the map options
+// Artist-ready material map sets: `mesoscan maps SCAN --out DIR` and the map options
 // of `export` / `reconstruct --export`. The pipeline, in order:
 //   1. crop     a rectangle of the scan's height grid (ExportOptions' --crop);
 //   2. fill     holes bounded by surface (maps/maps_fill.h); big holes and the outside

@@ -1,5 +1,5 @@
 #pragma once
-// Maps derived from a height field for material artists (issue 15): normals, ambient occlusion
+// Maps derived from a height field for material artists: normals, ambient occlusion
 // and curvature computed on the height field itself (so they stay consistent with the
 // displacement and, for a tile, periodic), and the projector's falloff for the albedo.
 

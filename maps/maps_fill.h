@@ -1,5 +1,5 @@
 #pragma once
-// Hole filling of a height field for displacement maps (issue 15): holes bounded by measured
+// Hole filling of a height field for displacement maps: holes bounded by measured
 // surface are filled smoothly from their border by solving Laplace's equation (harmonic) or the
 // thin-plate / biharmonic equation on the grid with a sparse Cholesky factorisation (Eigen);
 // large holes (inscribed radius above a limit: the outside of the sample, a missing region) stay

@@ -1,5 +1,5 @@
 #pragma once
-// Flattening a height field (issue 15): removes the sample's shape so the map holds its
+// Flattening a height field: removes the sample's shape so the map holds its
 // meso-structure. The removed part is returned as its own map (z = flattened + removed), so
 // nothing is lost.
 //   plane       a robust plane fit (iteratively reweighted least squares, Huber weights with the

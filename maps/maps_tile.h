@@ -1,5 +1,5 @@
 #pragma once
-// Tileable crops at a physical size (issue 15). A square of the (filled, flattened) height field
+// Tileable crops at a physical size. A square of the (filled, flattened) height field
 // is made periodic so that a renderer's Repeat extension shows no seam:
 //   blend   offset-and-blend with matched statistics: the square T and its copies shifted by s
 //           along x, y and both (whose own seams then lie inside the tile, at N - s) are blended

@@ -42,7 +42,7 @@ struct DenoiseOptions {
                        // gained 0.01 points of relRMSE for 13% of the denoiser's time)
   int window = 3;      // radius of the window the cross-validation error is averaged over, >= 0
                        // (demo, 9 spp allocated: 2 beat 3 and 5 with blend 2 and the 0.5
-                       // correction; 3 with blend 3 and 0.7 below, session 11)
+                       // correction; 3 with blend 3 and 0.7 below)
   double eps = 1e-2;   // regularisation of the affine fit (guide units squared), > 0; tuned on
                        // the demo at 16 spp: 5e-3 to 1e-2 best, 1e-3 and 3e-2 worse
   // Joint bilateral candidates with spatial sigma 2, 4, ... pixels (their cost grows with the

@@ -72,7 +72,7 @@ class EmbreeScene {
   // direction that reached the hit) came from: above the surface for a ray that arrived from
   // above (the usual case), below it for a ray that reached the underside of a height field
   // through a hole. The offset clears the triangulated surface of the cell (shadow_lift, either
-  // way) plus 1e-7 m. Offsetting always towards +z (ec0309f) restarted underside paths above
+  // way) plus 1e-7 m. Offsetting always towards +z restarted underside paths above
   // the sheet, where they picked up the sky (mount +1.9% under a slab with a hole).
   static Vec3d ShadowRayOrigin(const RayHit& hit, const Vec3d& incoming) {
     const double side = incoming.dot(hit.normal) > 0 ? -1.0 : 1.0;

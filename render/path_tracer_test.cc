@@ -147,7 +147,7 @@ TEST(PathTracer, MountThroughAHoleMatchesTheFormFactor) {
 
 // The underside of the slab over a black mount: everything below it is black, so its exact
 // radiance is 0. A path that reached the underside and restarted above the sheet (ShadowRayOrigin
-// offset along +z regardless of side, ec0309f) saw the sky instead: about 0.6 L here.
+// offset along +z regardless of side) saw the sky instead: about 0.6 L here.
 TEST(PathTracer, UndersideOverABlackMountIsBlack) {
   Progress::SetEnabled(false);
   const double zs = 3.75e-4;

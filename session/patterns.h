@@ -42,7 +42,7 @@ double ShiftPx(const Frame& frame, const Rig& rig);
 // same files with the same shifter positions.
 //
 // A scan plan (Ritz et al. 2012): phase shift for the absolute column, lens shift for sub-pixel
-// refinement, white and black. A calibration plan (issue 11, CalibrationPlan below): sines along
+// refinement, white and black. A calibration plan (CalibrationPlan below): sines along
 // both projector axes, white and black, no lens shift.
 struct FramePlanOptions {
   std::vector<double> periods_px{7, 11, 13};  // sine periods along `axis` (> 2), e.g. coprime
@@ -64,7 +64,7 @@ struct FramePlanOptions {
 // projector plus 1/16 of it (16 periods), along x and along y; white and black; no lens shift.
 FramePlanOptions CalibrationPlan(int projector_width, int projector_height);
 
-// "7" -> "07", "37.5" -> "37.5": the period in frame names (shared/spec/session-format.md's
+// "7" -> "07", "37.5" -> "37.5": the period in frame names (docs/formats.md's
 // example names frames/ps07_0.png).
 std::string PeriodName(double period_px);
 

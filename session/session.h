@@ -1,5 +1,5 @@
 #pragma once
-// The capture session of shared/spec/session-format.md: the rig, every frame, and which pattern
+// The capture session of docs/formats.md: the rig, every frame, and which pattern
 // each frame shows. `capture` and `simulate` write it through WriteSession; `reconstruct` reads
 // it through ReadSession, which validates everything the spec lists and refuses anything else
 // with one line naming the file, the key and what was expected.

@@ -35,8 +35,8 @@ struct GroundTruthErrors {
   // Mixed pixels, where gt_points.exr has the simulator's footprint channels (lit_fraction,
   // relief; sim/README.md): a lit pixel is mixed if part of its footprint is unlit or the
   // footprint's relief (distance from one plane) exceeds mixed_relief_m = gross_threshold_m / 10
-  // (the inliers' RMS): it sees more than one smooth surface, and item 9 of issue 3 asks for
-  // its rejection. Coverage of the single-surface lit pixels is then the fair figure. Without
+  // (the inliers' RMS): it sees more than one smooth surface, and is to be
+  // rejected. Coverage of the single-surface lit pixels is then the fair figure. Without
   // the channels every lit pixel counts as single-surface.
   bool footprint_known = false;
   double mixed_relief_m = 0.0;

@@ -1,7 +1,7 @@
 #pragma once
 // The virtual rig: ray-casts a procedural object (assets/objects.h) lying on the mount with
 // Embree (render/embree_scene.h), evaluates the projector's light for every frame of a lens-shift
-// scan, adds sensor noise and writes a session folder (shared/spec/session-format.md) with
+// scan, adds sensor noise and writes a session folder (docs/formats.md) with
 // ground truth. The model, its formulas and defaults are documented in sim/README.md; every
 // parameter below is also recorded under the top-level "simulation" key of session.json.
 

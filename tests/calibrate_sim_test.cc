@@ -351,7 +351,7 @@ std::array<double, 6> HalfOutOfViewPose(const Rig& rig) {
 }
 
 // ChArUco boards (OpenCV's aruco module), rendered by the virtual rig: 8 poses, one of them
-// half out of view (its visible corners are used), and the mount; intrinsics to the issue's
+// half out of view (its visible corners are used), and the mount; intrinsics to the
 // targets. A checkerboard at the half-out pose is skipped with a line saying why.
 // Not on the fixture: ctest runs every test in its own process, and this one needs none of the
 // fixture's checkerboard views.
@@ -658,7 +658,7 @@ void CommandLineEmptyMount(const Rig& truth, const std::vector<fs::path>& sessio
   fs::remove(shifted_file);
 }
 
-// Issue 11 items 4 and 5: the empty mount, simulated with the true rig but a lens shifter of
+// The empty mount, simulated with the true rig but a lens shifter of
 // 2150 steps per px (the rig file says 2048) and the simulator's optical variation of the shift
 // over the image, scanned with a rig calibrated without a mount (world: the first board, tilted
 // 30 degrees): the plane fitted to its points becomes the world (z = 0, +z up), and the

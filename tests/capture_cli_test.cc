@@ -189,7 +189,7 @@ TEST_F(CaptureCommand, RawCameraSessionPassesCheck) {
   EXPECT_EQ(check.code, 0) << check.output;
 }
 
-// Issue 11 item 7: `capture --plan calibration` shows sines along both projector axes, white and
+// `capture --plan calibration` shows sines along both projector axes, white and
 // black (no lens shift, so no shifter needed) on a rig that holds device sizes only; the session
 // is a calibration session, and `simulate --object board:...` of the same rig lists the same
 // frames (one generator, session/patterns.h).
@@ -293,7 +293,7 @@ TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
 namespace mesoscan {
 namespace {
 
-// Issue 10 item 9: `capture --rehearse` needs no hardware, no display and no shifter port: its
+// `capture --rehearse` needs no hardware, no display and no shifter port: its
 // own Xvfb, the screen camera and the simulated shifter on a pty; the session passes check.
 TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheck) {
   if (::access("/usr/bin/Xvfb", X_OK) != 0) GTEST_SKIP() << "Xvfb not installed";

@@ -1,4 +1,4 @@
-// The demo coin's exports, checked by their real consumers (issue 4, done-when 1): the coin is
+// The demo coin's exports, checked by their real consumers: the coin is
 // simulated exactly as scripts/demo does (the paper rig, the 400 x 400 camera window around the
 // coin: rim, bead ring, lettering and portrait), reconstructed, exported in every format, and
 //  - gltf-transform validate: zero errors on the lossless and on a decimated GLB;
@@ -141,7 +141,7 @@ void ExportCoin::ExpectExportPrintsWhereAndOneLoadLinePerMap() {
       EXPECT_NE(line.find(f.at("sidecar").get<std::string>()), std::string::npos) << line;
     }
   }
-  // Every map of the issue, the albedo from the session's white frame included.
+  // Every map, the albedo from the session's white frame included.
   for (const char* r :
        {"height", "height sidecar", "normal", "confidence", "albedo", "mesh", "points"})
     EXPECT_TRUE(roles.count(r)) << r;
@@ -192,7 +192,7 @@ void ExportCoin::ExpectDecimatedGlbMeetsItsBudgetWithAStatedError() {
             << " um\n";
 }
 
-// Issue 15: the displacement has no trench where the coin's wall shadowed the projector. Every
+// The displacement has no trench where the coin's wall shadowed the projector. Every
 // hole the export filled (a NaN of the scan, not holding hole_value_m in the EXR height) lies
 // within the range of the measured heights bordering it, and the shadowed rim is among them.
 void ExportCoin::ExpectFilledHolesWithinTheirBorderRange() {

@@ -1,5 +1,5 @@
 #pragma once
-// The real consumers of mesoscan's exports (issue 4), shared by the pipeline tests that run
+// The real consumers of mesoscan's exports, shared by the pipeline tests that run
 // them: tests/export_consumers_test.cc (a synthetic scan) and tests/export_coin_test.cc (the
 // demo coin, simulated and reconstructed). Consumers are installed by
 // `scripts/install-deps --consumers`; a test whose consumer is missing skips with kInstall.
@@ -215,7 +215,7 @@ inline LosslessMesh LosslessMeshOf(const HeightField& hf) {
 }
 
 // Blender's GLB import: one mesh object with the lossless mesh's vertex count and bounding box
-// within 1e-6 m (the issue's bound), the node extras naming the height map in metres, and a
+// within 1e-6 m (the required bound), the node extras naming the height map in metres, and a
 // Normal Map node fed by an image texture.
 inline void ExpectGlbImportMatches(const Json& g, const LosslessMesh& mesh,
                                    const std::string& height_map) {
@@ -259,7 +259,7 @@ inline double MaxBakedNormalError(const Json& bake, const HeightField& hf, const
   for (int j = 0; j < hf.height(); ++j) {
     for (int i = 0; i < hf.width(); ++i) {
       if (!std::isfinite(hf.z(i, j))) continue;
-      // Next to a filled hole the exported normal comes from the filled surface (issue 15).
+      // Next to a filled hole the exported normal comes from the filled surface.
       bool near_hole = false;
       for (int dj = -1; dj <= 1; ++dj)
         for (int di = -1; di <= 1; ++di) {

@@ -1,4 +1,4 @@
-// The exports checked by their real consumers (issue 4): `mesoscan export` on a synthetic
+// The exports checked by their real consumers: `mesoscan export` on a synthetic
 // scan, then
 //  - gltf-transform validate (the Khronos glTF validator): zero errors on every GLB;
 //  - Blender 3.4 in background mode (tests/consumers/blender_checks.py): the GLB imports with
@@ -146,7 +146,7 @@ TEST_F(ExportConsumers, BlenderImportsTheGlbDisplacesByTheMapsAndReadsTheNormalH
   // 1. GLB: the lossless mesh's vertices and bounding box, in metres, z up.
   ExpectGlbImportMatches(r.at("glb"), LosslessMeshOf(hf), "synthetic_height.exr");
 
-  // 2. Displacement: within 1 um of the scan's heights (the issue's bound; the EXR is exact in
+  // 2. Displacement: within 1 um of the scan's heights (the required bound; the EXR is exact in
   // float32, the PNG within half a quantisation step of (max - min) / 65535).
   const double step = side.at("scale").get<double>() / 65535.0;
   auto scan_z = [&](size_t k) { return hf.z(samples[k][0].get<int>(), samples[k][1].get<int>()); };

@@ -1,7 +1,7 @@
-// Issue 10: every hostile or careless case through the real `mesoscan` binary: the exit code,
+// Every hostile or careless case through the real `mesoscan` binary: the exit code,
 // one line on stderr naming what is wrong, inputs untouched, no partial output, and bounded
 // time (each run is wrapped in `timeout`, so a hang fails as exit 124) and memory (`ulimit -v`).
-// The session is the issue's: `simulate --object coin --crop 160x120+1000+700`, reconstructed.
+// The session: `simulate --object coin --crop 160x120+1000+700`, reconstructed.
 
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -49,7 +49,7 @@ fs::path Work() {
 }
 
 // The binary under test: MESOSCAN_TEST_EXE overrides the one built here (to run these cases
-// against an older build, e.g. ec0309f, and see them fail).
+// against an older build and see them fail).
 std::string Exe() {
   const char* e = std::getenv("MESOSCAN_TEST_EXE");
   return e && *e ? e : MESOSCAN_EXE;
@@ -315,7 +315,7 @@ TEST_F(Hostile, Item4_AllNanAndOversizedHeightFields) {
   WriteHeightExr(bad / "height.exr", h);
   ExpectRefused(Cli("export " + Q(bad) + " --out " + Q(Work() / "E_nan")), 3, "no valid");
   EXPECT_FALSE(fs::exists(Work() / "E_nan"));
-  // A 1200x1200 all-NaN height.exr against an 8 MB budget (the issue's 12000x12000 against the
+  // A 1200x1200 all-NaN height.exr against an 8 MB budget (12000x12000 against the
   // default budget, scaled down): refused from the header before it is decoded.
   HeightField big;
   big.z = ImageF(1200, 1200, 1, std::numeric_limits<float>::quiet_NaN());

@@ -1,4 +1,4 @@
-// `mesoscan maps` (issue 15) on a synthetic scan of the hammered-metal material sample
+// `mesoscan maps` on a synthetic scan of the hammered-metal material sample
 // (assets/objects.h MakeHammeredMetal: the truth is known), and its consumer, the Blender add-on:
 //  - the CLI writes a finished, tileable map set: every manifest file exists, the tile is the
 //    asked physical size, the seam gradient statistics are within 10% of the interior's, the

@@ -1,5 +1,5 @@
 #pragma once
-// The plain baseline of issue 13 (a test helper, header-only): a fixed-frequency linear
+// The plain baseline of the robustness tests (a test helper, header-only): a fixed-frequency linear
 // least-squares decoder of the lens-shift frames.
 //  - frames normalised by their means over the lit pixels (white - black >= 0.02);
 //  - per pixel, the 3-parameter linear fit d + A cos(pi x) + B sin(pi x) at the nominal frequency

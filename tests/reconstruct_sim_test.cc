@@ -89,7 +89,7 @@ TEST(ReconstructSim, LensShiftHalvesThePhaseShiftError) {
               el.rms_m / ep.rms_m);
   EXPECT_GE(el.coverage, 0.99);
   // Phase shifting alone (21 frames) rejects ~5% of this crop (unwrapping/confidence); its
-  // coverage is reported, not asserted (the issue asserts the RMS ratio).
+  // coverage is reported, not asserted (the RMS ratio is asserted).
   std::printf("coverage: LS %.4f, PS %.4f\n", el.coverage, ep.coverage);
   EXPECT_LE(el.rms_m, 0.5 * ep.rms_m);
   fs::remove_all(dl);
@@ -97,7 +97,7 @@ TEST(ReconstructSim, LensShiftHalvesThePhaseShiftError) {
 }
 
 // Objects with relief (assets/objects.h), reconstructed with the default options; the
-// accuracy figures the issue asks for, against the simulator's ground truth.
+// accuracy figures asked for, against the simulator's ground truth.
 struct ObjectFigures {
   GroundTruthErrors e;
   double crlb = 0.0;              // Cramer-Rao depth floor (RMS over the scored pixels), m
@@ -201,7 +201,7 @@ TEST(ReconstructSim, CoinWithoutGrossErrors) {
 }
 
 // The streaming front end makes the lens-shift frames' phase reference from phase shifting while
-// those frames still decode (issue 12), and keeps it only if no pixel is saturated in a
+// those frames still decode, and keeps it only if no pixel is saturated in a
 // lens-shift frame alone; either way it must equal the reference made after the last frame from
 // every frame's classification (MakePhaseReference on the classify stage's states over all
 // frames). Checked as simulated, then with a sampled pixel saturated in one lens-shift frame

@@ -1,6 +1,5 @@
-// Issue 13: reconstruction under the disturbances of real rigs, one test per row of the issue's
-// table, on the project's simulator (sim/virtual_rig.h) with ground truth. Figures are printed
-// (before/after numbers of the issue's closing note come from these lines).
+// Reconstruction under the disturbances of real rigs, one test per row of a table of them, on
+// the project's simulator (sim/virtual_rig.h) with ground truth. Figures are printed.
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -164,7 +163,7 @@ TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
   fs::remove_all(d1);
 }
 
-// Row 3 (and issue item 2): the low-contrast leaf. The default pipeline's error is at or below
+// Row 3: the low-contrast leaf. The default pipeline's error is at or below
 // the plain fixed-frequency linear least-squares decoder's (tests/plain_ls_decoder.h) on the same
 // frames and the same pixels.
 TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
@@ -176,7 +175,7 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   const fs::path dir = TempDir("leaf");
   const Session s = SimulateAndRead(so, dir);
   Figures f = RunCase(s, so);
-  {  // before issue 13: alternating least squares gains (on the same pixels as below)
+  {  // the older estimate: alternating least squares gains (on the same pixels as below)
     ReconstructOptions als;
     als.frame_gain_method = FrameGainMethod::kAlternating;
     Figures b = RunCase(s, so, als);
@@ -199,7 +198,7 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   fs::remove_all(dir);
 }
 
-// Row 4 (issue item 3): the tilted plane 1.6-3.3 mm above the focus plane (focus on the mount,
+// Row 4: the tilted plane 1.6-3.3 mm above the focus plane (focus on the mount,
 // as before the simulator focused at the object's mid height). Where the 2-px stripes are blurred
 // away, phase shifting decides (source 1), with its own predicted sigma and a lower confidence.
 TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
@@ -270,7 +269,7 @@ TEST(RobustReconstruct, SimulatorFocusesAtTheObjectsMidHeight) {
   fs::remove_all(dir);
 }
 
-// Issue item 4: per-frame lens-shifter position errors of 0.02 px RMS cost at most 5% of the
+// Per-frame lens-shifter position errors of 0.02 px RMS cost at most 5% of the
 // depth error of the error-free session once the positions are estimated jointly; the estimate
 // matches the simulator's errors up to an affine map.
 TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
@@ -406,7 +405,7 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
   }
 }
 
-// Stress (issue 13): 8-bit frames, weak stripes (strong ambient light, blur), saturation in 10% of
+// Stress: 8-bit frames, weak stripes (strong ambient light, blur), saturation in 10% of
 // the frames, gain jitter and shifter position errors: no NaN where confidence > 0, finite frame
 // corrections.
 TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
@@ -480,8 +479,8 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
   fs::remove_all(dir);
 }
 
-// Row 5 (issue item 5): another scanner's pattern set, 3 phases of 16 periods across the
-// projector plus 3 phases of a one-period cue as wide as the projector: reconstructs (issue 11's
+// Row 5: another scanner's pattern set, 3 phases of 16 periods across the
+// projector plus 3 phases of a one-period cue as wide as the projector: reconstructs (the
 // unwrapper marks the ambiguous edge columns instead of refusing the session).
 TEST(RobustReconstruct, CuePeriodEqualToTheProjectorWidth) {
   Progress::SetEnabled(false);
@@ -499,7 +498,7 @@ TEST(RobustReconstruct, CuePeriodEqualToTheProjectorWidth) {
   fs::remove_all(dir);
 }
 
-// ---- Issue 13, item 5 and the rest: horizontal fringes, k1-only distortion, no white/black ----
+// ---- Row 5 and the rest: horizontal fringes, k1-only distortion, no white/black ----
 
 // The tilted bar near the projector's focus (as tests/reconstruct_sim_test's CRLB test), with the
 // fringes along `axis` (axis 'y': the paper rig's projector in portrait, shifter along y).
@@ -835,7 +834,7 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
 // The in-band gains from the phase-shift reference on a view too small for them to be precise
 // (24x18 px of the tilted bar, ~430 reference pixels: standard error ~3e-3 per component, as
 // large as the in-band part of 2% jitter over 50 frames). Without jitter the pipeline stays
-// within 5% (the issue's jitter allowance) of the same session with the alternating gains, which
+// within 5% (the jitter allowance) of the same session with the alternating gains, which
 // leave the in-band gains at 1, i.e. right here: applied in full (before the shrinkage), the
 // reference's noise made it 1.236 um against 1.088 um here (seeds 1-3: 1.39-1.44 um against
 // 1.02-1.08 um), and 1.200 um with jitter (now 1.110). With 2% jitter: at or below the plain
