@@ -1,5 +1,5 @@
 #pragma once
-// Shared by the libFuzzer targets (fuzz/README.md): each writes the fuzzer's bytes to a file
+// Shared by the libFuzzer targets (docs/architecture.md): each writes the fuzzer's bytes to a file
 // under a per-process folder and calls the loader the CLI calls. A mesoscan::Error of a
 // bad-input or usage kind is the expected answer to a malformed file; anything else (an
 // internal error, another exception, a sanitizer report, a hang) is a finding.
