@@ -41,17 +41,17 @@ void Run(const ReconstructArgs& a) {
   const Stopwatch t0;
   const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;
-  if (!a.roi.empty()) opt.roi = ParsePixelRect(a.roi, "--roi");
-  opt.mask_path = a.mask;
+  if (!a.roi.empty()) opt.load.roi = ParsePixelRect(a.roi, "--roi");
+  opt.classify.mask_path = a.mask;
   try {
-    opt.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
+    opt.lens_shift.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
   } catch (const Error& e) {  // a bad option value is a usage error (exit 2)
     throw Error(e.what(), ErrorKind::kUsage);
   }
-  opt.use_lens_shift = !a.no_lens_shift;
+  opt.plan.use_lens_shift = !a.no_lens_shift;
   opt.num_threads = a.threads;
-  opt.lens_shift_box_filter = a.box_filter;
-  opt.normalize_luminance = !a.no_normalize;
+  opt.lens_shift.box_filter = a.box_filter;
+  opt.gains.normalize_luminance = !a.no_normalize;
   opt.resample.pixel_size = a.pixel_size_um * 1e-6;
   opt.Check();
   ExportOptions export_options;
@@ -128,7 +128,7 @@ void Run(const ReconstructArgs& a) {
           Stopwatch c;
           gt = EvaluateAgainstGroundTruth(
               gt_read.valid() ? gt_read.get() : ReadGroundTruthPoints(session), scan.points,
-              opt.roi);
+              opt.load.roi);
           gt_s = c.Restart();
           WriteErrorMapPng(tmp / "error_map.png", gt->error);
           error_map_s = c.Seconds();

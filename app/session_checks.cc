@@ -64,7 +64,7 @@ void CheckSessionLikeReconstruct(const Session& session) {
   // window at the image centre.
   ReconstructOptions o;
   const int w = session.rig.camera.width, h = session.rig.camera.height;
-  o.roi = {std::max(0, w / 2 - 16), std::max(0, h / 2 - 16), std::min(32, w), std::min(32, h)};
+  o.load.roi = {std::max(0, w / 2 - 16), std::max(0, h / 2 - 16), std::min(32, w), std::min(32, h)};
   o.num_threads = 0;
   Progress::SetEnabled(false);  // check prints its summary, not the window's progress bars
   const LogLevel level = GetLogLevel();

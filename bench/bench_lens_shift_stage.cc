@@ -77,11 +77,10 @@ int main(int argc, char** argv) {
   try {
     const Session session = ReadSession(dir);
     ReconstructOptions ro;
-    const ReconstructPlan plan = MakeReconstructPlan(session, ro.Plan());
+    const ReconstructPlan plan = MakeReconstructPlan(session, ro.plan);
     Stopwatch decode_watch;
     StreamedFrames front = DecodeAndPhaseShift(
-        session, plan,
-        {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(session.rig), ro.Combine()});
+        session, plan, {ro.load, ro.classify, ro.gains, ro.phase_shift, ro.combine});
     std::printf("bench_lens_shift_stage: %s, %dx%d, %zu lens-shift frames decoded in %.2f s\n",
                 dir.c_str(), front.stack.width(), front.stack.height(), plan.ls_stack.size(),
                 decode_watch.Seconds());
@@ -91,7 +90,8 @@ int main(int argc, char** argv) {
       for (int v = 0; v < (row_only ? 1 : 2); ++v) {
         FrameGains gains = front.gains;
         PixelStates state = front.classes.state;
-        LensShiftStageOptions lo = ro.LensShift();
+        LensShiftStageOptions lo = ro.lens_shift;
+        lo.keep_offset_frequency = false;  // as in the pipeline without diagnostics
         lo.row_kernel = v == 0;
         StageTimings steps;
         lo.step_timings = &steps;

@@ -135,7 +135,7 @@ std::vector<Row> Table1(const fs::path& work) {
                                                     : "ceres";
       r.frames = static_cast<int>(sessions[0].frames.size());
       ReconstructOptions ro;
-      ro.fitter = fitter;
+      ro.lens_shift.fitter = fitter;
       ro.keep_diagnostics = true;
       ReconstructSummary sum[2];
       Scan scans[2];
@@ -567,8 +567,8 @@ std::vector<DisturbedRow> Table1Disturbances(const fs::path& work) {
     }
     ReconstructOptions ro;
     ro.keep_diagnostics = true;
-    ro.frame_gain_method = c.gains;
-    ro.correct_positions = c.correct_positions;
+    ro.lens_shift.frame_gain_method = c.gains;
+    ro.lens_shift.correct_positions = c.correct_positions;
     ReconstructSummary sum[2];
     Scan scans[2];
     for (int k = 0; k < 2; ++k) scans[k] = Reconstruct(sessions[k], ro, &sum[k]);

@@ -13,7 +13,6 @@
 #include "heightfield/reconstruct.h"
 
 namespace mesoscan {
-namespace {}  // namespace
 
 bool HasBoardPatterns(const Session& session) {
   const FramePlan plan = MakeFramePlan(session.frames);
@@ -48,21 +47,20 @@ FlatTargetScan ScanFlatTarget(const Session& session_in, const Rig& rig) {
   session.rig.projector_response = session_in.rig.projector_response;
   session.rig.black_level = session_in.rig.black_level;
 
+  // The reconstruction's own pipeline, keeping every pixel's own lens-shift frequency (the
+  // shifter's variation over the image) instead of the smoothed map.
   ReconstructOptions ro;
-  ro.smooth_frequency = false;  // keep every pixel's own frequency (the shifter's variation)
-  const ReconstructPlan plan = MakeReconstructPlan(session, ro.Plan());
-  const FrameStack stack = LoadFrames(session, plan.frames, ro.Load());
+  ro.lens_shift.smooth_frequency = false;
+  ro.keep_diagnostics = true;  // the lens-shift fits (their frequencies) are read below
+  ReconstructSummary summary;
+  StageTimer stage_timer(&summary.timings_s, &summary.cpu_s);
+  ReconstructedPoints r = ReconstructPoints(session, ro, &stage_timer, &summary);
+  const ReconstructPlan& plan = r.plan;
+  const PixelStates& state = r.classes.state;
+  const LensShiftPixels& ls = r.ls;
+  TriangulatedPoints& tri = r.tri;
   FlatTargetScan out;
-  out.grid = RoiGrid::Of(stack);
-  PixelClasses classes = ClassifyPixels(stack, plan, session.rig.camera.width,
-                                        session.rig.camera.height, ro.Classify());
-  PixelStates& state = classes.state;
-  FrameGains gains = EstimateLuminanceGains(stack, plan, state, session.frames.size(), ro.Gains());
-  const PhaseShiftPixels ps =
-      DecodePhaseShift(stack, plan, gains, classes, ro.PhaseShift(session.rig), &state);
-  const LensShiftPixels ls = FitLensShift(stack, plan, &gains, ro.LensShift(), &state);
-  const CombinedPixels combined = CombinePhases(plan, ps, ls, ro.Combine(), &state);
-  TriangulatedPoints tri = TriangulatePoints(session.rig, out.grid, combined, {}, &state);
+  out.grid = r.grid;
   out.xyz = std::move(tri.points.xyz);
   out.sigma_z.assign(out.xyz.pixels(), std::numeric_limits<float>::quiet_NaN());
   for (int y = 0; y < out.grid.height; ++y)

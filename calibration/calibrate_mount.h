@@ -6,11 +6,11 @@
 // `mesoscan calibrate ... --mount SESSION`: a session of a board lying on the mount defines the
 // world by that board (calibration/calibrate.h); a session of the empty mount (no board: sines
 // and/or lens-shift frames on the bare mount) is decoded and triangulated with the calibrated
-// camera and projector by the reconstruction's own stages (heightfield/reconstruct.h, stages
-// 0-6), a plane is fitted robustly to the points, and the world becomes: z = 0 on that plane, +z
-// towards the rig (docs/formats.md "Conventions"); x along the camera's x axis
-// projected onto the plane, y = z cross x, the origin where the camera's optical axis meets the
-// plane (a camera looking straight down gives the paper rig's world).
+// camera and projector by the reconstruction's own pipeline (heightfield/reconstruct.h
+// ReconstructPoints, stages 0-8), a plane is fitted robustly to the points, and the world becomes:
+// z = 0 on that plane, +z towards the rig (docs/formats.md "Conventions"); x along
+// the camera's x axis projected onto the plane, y = z cross x, the origin where the camera's
+// optical axis meets the plane (a camera looking straight down gives the paper rig's world).
 
 #include <cstdint>
 #include <string>
@@ -39,8 +39,8 @@ struct FlatTargetScan {
   double seconds = 0;
 };
 
-// Runs the reconstruction stages (plan, decode, classify, gains, phase shift, lens shift,
-// combine, triangulate) on `session` with `rig` instead of the session's own rig (whose device
+// Runs the reconstruction pipeline (heightfield/reconstruct.h ReconstructPoints: plan to mixed
+// pixels) on `session` with `rig` instead of the session's own rig (whose device
 // sizes must match; its lens_shifter is used for the shift positions). With lens-shift frames,
 // the 4-parameter profile fit runs on every pixel (the per-pixel frequency is kept) instead of
 // the smoothed frequency map. Throws Error(kBadInput) naming the session if its sizes differ or

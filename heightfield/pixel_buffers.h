@@ -56,6 +56,9 @@ struct PixelClasses {
   std::vector<float> black_value;  // black frame, linear units; 0 without one
   int64_t pixels_roi = 0;          // inside ROI and mask
   int64_t pixels_saturated = 0;
+  // The lit threshold (ClassifyOptions::min_lit): the phase-shift stage applies it to its own
+  // white level when there is no white frame.
+  double min_lit = 0.02;
 };
 
 // A projector column per pixel in 16 bits, for fringe-order hints (UnwrapPhaseShift): they live
@@ -113,6 +116,9 @@ struct LensShiftPixels {
   std::vector<float> residual_rms;  // linear units
   std::vector<float> samples;       // samples used
   int64_t pixels_fitted = 0;        // profiles fitted (valid or not)
+  // Free parameters of the fits whose residuals estimate the noise: 4 with the per-pixel
+  // frequency kept (fit_frequency without smooth_frequency), else 3.
+  int fit_parameters = 3;
   // Per-frame gains and shifter positions estimated jointly with the fits
   // (heightfield/frame_corrections.h FrameCorrections::ToJson); null if not run.
   Json frame_corrections;

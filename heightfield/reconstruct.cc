@@ -53,42 +53,46 @@ void SummarizePixels(const Rig& rig, const PixelClasses& classes, const RoiGrid&
 
 }  // namespace
 
-Scan Reconstruct(const Session& session, const ReconstructOptions& options,
-                 ReconstructSummary* summary_out) {
+ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructOptions& options,
+                                      StageTimer* timer, ReconstructSummary* sum) {
   options.Check();
-  ReconstructSummary local_summary;
-  ReconstructSummary& sum = summary_out ? *summary_out : local_summary;
-  sum = ReconstructSummary();
-  const double cpu0 = ProcessCpuSeconds();
-  StageTimer timer(&sum.timings_s, &sum.cpu_s);
   ThreadLimit thread_limit(options.num_threads);
   const Rig& rig = session.rig;
   CheckCalibrated(session);
-  const ReconstructPlan plan = MakeReconstructPlan(session, options.Plan());
+  ReconstructedPoints out;
+  out.plan = MakeReconstructPlan(session, options.plan);
+  const ReconstructPlan& plan = out.plan;
+  // The stages' optional outputs that only the diagnostics read.
+  CombineOptions combine = options.combine;
+  combine.keep_coarse = options.keep_diagnostics;
+  LensShiftStageOptions lens_shift = options.lens_shift;
+  lens_shift.keep_offset_frequency = options.keep_diagnostics;
   // Decode, classify, gains and phase shift as one stream (stage_stream.h); each frame is
   // released after the last stage that reads it, the per-period arrays after combining.
-  StreamedFrames front = DecodeAndPhaseShift(session, plan,
-                                             {options.Load(), options.Classify(), options.Gains(),
-                                              options.PhaseShift(rig), options.Combine()});
+  StreamedFrames front = DecodeAndPhaseShift(
+      session, plan, {options.load, options.classify, options.gains, options.phase_shift, combine});
   FrameStack& stack = front.stack;
-  PixelClasses& classes = front.classes;
+  PixelClasses& classes = out.classes = std::move(front.classes);
   PixelStates& state = classes.state;
   FrameGains& gains = front.gains;  // refined by the lens-shift stage (frame corrections)
-  PhaseShiftPixels& ps = front.ps;
-  const RoiGrid grid = RoiGrid::Of(stack);
+  PhaseShiftPixels& ps = out.ps = std::move(front.ps);
+  const RoiGrid grid = out.grid = RoiGrid::Of(stack);
   classes.black_value = {};  // read by phase shifting only: 12.5 MB less at the peak (3 Mpx)
-  RecordFrontTimings(front, timer.Stage("decode"), &sum);
-  LensShiftPixels ls = FitLensShift(stack, plan, &gains, options.LensShift(), &state);
+  RecordFrontTimings(front, timer->Stage("decode"), sum);
+  out.last_frame_s = front.decode_s;
+  // Lens shift: the refinement, with the frame corrections.
+  LensShiftPixels& ls = out.ls = FitLensShift(stack, plan, &gains, lens_shift, &state);
   // The frames' pages go back to the kernel a frame per task (~300 MB at full resolution).
   ParallelFor(stack.num_frames(), [&](int64_t k) { stack.Release(static_cast<int>(k)); });
   stack = FrameStack();
   if (options.on_frames_released) options.on_frames_released();
-  timer.Stage("lens_shift");
-  CombinedPixels combined = CombinePhases(plan, ps, ls, options.Combine(), &state);
-  RejectIsolatedColumns(grid, options.Combine(), &combined, &state);
-  sum.pixels_lit = ps.pixels_lit;
-  sum.pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
-  SummarizeFrames(plan, gains, ls.frame_corrections, combined.ls_offset_px, &sum);
+  timer->Stage("lens_shift");
+  // Combine: the fringe orders, paper Eq. 2 and 4, isolated fringe orders.
+  CombinedPixels& combined = out.combined = CombinePhases(plan, ps, ls, combine, &state);
+  RejectIsolatedColumns(grid, combine, &combined, &state);
+  sum->pixels_lit = ps.pixels_lit;
+  sum->pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
+  SummarizeFrames(plan, gains, ls.frame_corrections, combined.ls_offset_px, sum);
   if (classes.white_level.empty())  // the stream moved it to ps.level (a white frame)
     classes.white_level = options.keep_diagnostics ? ps.level : std::move(ps.level);
   if (!options.keep_diagnostics) {  // what the later stages do not read
@@ -97,26 +101,40 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
     combined.u_coarse = {};
     combined.unwrap_residual = {};
   }
-  timer.Stage("unwrap_combine");
-  TriangulatedPoints tri =
+  timer->Stage("unwrap_combine");
+  // Triangulate, then mixed pixels.
+  TriangulatedPoints& tri = out.tri =
       TriangulatePoints(rig, grid, combined, {options.keep_diagnostics, plan.axis}, &state);
   if (options.reject_mixed_pixels)
     RejectMixedPixels(grid, classes.white_level, tri.sigma_z, options.mixed_pixels, &tri.points,
                       &state);
-  timer.Stage("triangulate");
+  timer->Stage("triangulate");
+  return out;
+}
+
+Scan Reconstruct(const Session& session, const ReconstructOptions& options,
+                 ReconstructSummary* summary_out) {
+  ReconstructSummary local_summary;
+  ReconstructSummary& sum = summary_out ? *summary_out : local_summary;
+  sum = ReconstructSummary();
+  const double cpu0 = ProcessCpuSeconds();
+  StageTimer timer(&sum.timings_s, &sum.cpu_s);
+  ThreadLimit thread_limit(options.num_threads);
+  ReconstructedPoints r = ReconstructPoints(session, options, &timer, &sum);
   Scan scan;
-  scan.points = std::move(tri.points);
+  scan.points = std::move(r.tri.points);
   HeightFieldResult hf = MakeHeightField(scan.points, options.resample);
   scan.height = std::move(hf.height);
   scan.normals = std::move(hf.normals);
   timer.Stage("height_field");
 
-  SummarizePixels(rig, classes, grid, tri.sigma_z, &sum);
+  SummarizePixels(session.rig, r.classes, r.grid, r.tri.sigma_z, &sum);
   if (options.keep_diagnostics)
-    sum.diagnostics = CollectDiagnostics(rig, grid, ps, ls, combined, std::move(tri.dz_du));
+    sum.diagnostics =
+        CollectDiagnostics(session.rig, r.grid, r.ps, r.ls, r.combined, std::move(r.tri.dz_du));
   sum.total_s = timer.Total();
   sum.cpu_total_s = ProcessCpuSeconds() - cpu0;
-  sum.last_frame_s = front.decode_s;
+  sum.last_frame_s = r.last_frame_s;
   scan.report["summary"] = sum.ToJson();
   scan.report["options"] = options.ToJson();
   return scan;

@@ -19,10 +19,13 @@
 //     the lens-shift noise as weights, at the fringe orders of step 4 where they hold),
 //     combination (paper Eq. 2), confidence (paper Eq. 4) times modulation and unwrapping
 //     consistency;
-//  7. triangulate (stage_triangulate.h) with camera and projector distortion, then mixed pixels
-//     (stage_mixed_pixels.h); NaN and confidence 0 wherever a point is rejected;
-//  8. height field (stage_height_field.h) on a regular world grid, normals; report.json figures
+//     6b. isolated fringe orders (stage_combine.h RejectIsolatedColumns);
+//  7. triangulate (stage_triangulate.h) with camera and projector distortion;
+//  8. mixed pixels (stage_mixed_pixels.h); NaN and confidence 0 wherever a point is rejected;
+//  9. height field (stage_height_field.h) on a regular world grid, normals; report.json figures
 //     (reconstruct_summary.cc).
+// ReconstructPoints assembles stages 0-8 (Reconstruct and calibration's flat-target scan both
+// run it); each stage's options struct is nested in ReconstructOptions.
 // Pixels that are masked, unlit, unmodulated or outside the ROI are never fitted. Ground-truth
 // evaluation is in sim/ground_truth.h, the error map in sim/error_map_png.h.
 
@@ -51,91 +54,44 @@
 
 namespace mesoscan {
 
+// The pipeline's options: one struct per stage (each field documented and checked where it is
+// declared), nested here; only what is the whole pipeline's lives at this level.
 struct ReconstructOptions {
-  // Camera pixels to reconstruct (x, y, w, h); w == 0 or h == 0: the whole image.
-  PixelRect roi;
-  // Optional mask on the camera grid (any image format OIIO reads; camera width x height):
-  // pixels whose (grey) value is 0 are not reconstructed. Empty: no mask.
-  std::string mask_path;
-  // Lens-shift profile fitter (heightfield/lens_shift_fit.h): fast, lm or ceres.
-  LensShiftFitter fitter = LensShiftFitter::kFast;
-  // false: ignore lens-shift frames and reconstruct from phase shifting alone.
-  bool use_lens_shift = true;
-  // Worker threads, >= 0; 0 = all cores.
-  int num_threads = 0;
-  // Per-frame luminance normalisation (paper Sec. 5.1).
-  bool normalize_luminance = true;
-  // Paper's optional 5-sample box filter along each lens-shift profile (it trades resolution
-  // along the shift for noise; the phase at the range centre is unbiased).
-  bool lens_shift_box_filter = false;
-  // Fit the per-pixel lens-shift frequency (4-parameter model, paper Eq. 1).
-  bool fit_frequency = true;
-  // With fit_frequency: replace the per-pixel frequencies by a robust quadratic over the image
-  // (the shifter's gain varies smoothly with the optics) and fit the phase again with f held
-  // there: the 3-parameter fit has lower variance where the 4-parameter one gains nothing.
-  bool smooth_frequency = true;
-  // With smooth_frequency: per-frame gains and shifter position errors of the lens-shift frames
-  // estimated jointly with the per-pixel fits (heightfield/frame_corrections.h) before the
-  // fixed-frequency pass.
-  // With lens shift: a pixel whose lens-shift fit failed or fell below min_confidence (defocus
-  // blurred the 2-px stripes away) takes the phase-shift estimate of u instead, with its own
-  // predicted sigma and its confidence scaled by phase_shift_fallback_confidence (in (0, 1]);
-  // points.exr `source` = 1 there.
-  bool phase_shift_fallback = true;
-  double phase_shift_fallback_confidence = 0.5;
-  // Isolated fringe orders (CombineOptions::isolated_max_region_px): regions of consistent u of
-  // at most this many pixels are rejected (kIsolated); 0 keeps them.
-  int isolated_max_region_px = 16;
-  FrameGainMethod frame_gain_method = FrameGainMethod::kJoint;
-  bool correct_positions = true;  // kJoint: estimate the positions too (gains only if false)
-
-  // Thresholds, all in normalised units: frame values divided by the pixel's white level
-  // (white - black frame, or twice the phase-shift mean when there are no white/black frames).
-  // A pixel is lit if white - black >= min_lit (linear frame units in [0, 1]), > 0.
-  double min_lit = 0.02;
-  // Phase-shift modulation B / white level >= min_modulation, in (0, 0.5]; a full-contrast sine
-  // gives 0.5.
-  double min_modulation = 0.05;
-  // Temporal unwrapping: the consistency residual (heightfield/phase_shift.h, RMS over periods
-  // of the weighted circular residual in sigma units, ~1 for consistent data) above which a
-  // pixel is rejected, > 0.
-  double max_unwrap_residual = 4.0;
-  // Phase error (radians per period) added in quadrature to each period's noise-predicted phase
-  // variance before unwrapping: model errors that noise does not explain (projector harmonics,
-  // defocus, residual brightness jitter), >= 0.
-  double systematic_phase_noise = 0.02;
-  // Combination (paper Eq. 2): |u_coarse - u| above this (px; the fine period is 2 px, so 1 is
-  // the ambiguity limit) rejects the pixel as a period jump, in (0, 1).
-  double max_combination_residual_px = 0.6;
-  // Paper Eq. 4: c = 1 - sqrt(E t), clamped to [0, 1], with E the mean squared residual of the
-  // profile in units of its fitted amplitude (E = (rms / a)^2: pure noise of the same size as the
-  // signal gives E = 1). t = 4 reaches c = 0 at rms = a / 2. > 0.
-  double confidence_t = 4.0;
-  // Points with confidence below this are rejected (NaN, confidence 0), in [0, 1).
-  double min_confidence = 0.05;
-  // Mixed pixels at depth steps and shadow edges (heightfield/mixed_pixels.h): rejected rather
-  // than placed between the surfaces. reject_mixed_pixels = false keeps them.
+  // Stage 0: which frames are decoded (lens shift or phase shifting alone).
+  PlanOptions plan;
+  // Stage 1: the camera pixels to reconstruct (roi: x, y, w, h; w == 0 or h == 0: the whole
+  // image) and the saturation level.
+  FrameLoadOptions load;
+  // Stage 2: the user's mask and the lit threshold.
+  ClassifyOptions classify;
+  // Stage 3: per-frame luminance normalisation (paper Sec. 5.1).
+  GainOptions gains;
+  // Stage 4: the phase-shift modulation threshold.
+  PhaseShiftStageOptions phase_shift;
+  // Stage 5: the lens-shift profile fit and the frame corrections.
+  LensShiftStageOptions lens_shift;
+  // Stage 6: unwrapping, combination (paper Eq. 2), confidence (Eq. 4), fallback, isolated
+  // fringe orders.
+  CombineOptions combine;
+  // Stage 8: mixed pixels at depth steps and shadow edges (heightfield/mixed_pixels.h): rejected
+  // rather than placed between the surfaces. reject_mixed_pixels = false keeps them.
   bool reject_mixed_pixels = true;
   MixedPixelOptions mixed_pixels;
-  // Height-field grid.
+  // Stage 9: the height-field grid.
   ResampleOptions resample;
-  // Keep per-pixel intermediate images in the summary (tests, benchmarks, CRLB).
+  // Worker threads, >= 0; 0 = all cores.
+  int num_threads = 0;
+  // Keep per-pixel intermediate images in the summary (tests, benchmarks, CRLB); also keeps the
+  // stages' optional outputs (CombineOptions::keep_coarse, LensShiftStageOptions::
+  // keep_offset_frequency, whatever those fields say).
   bool keep_diagnostics = false;
   // Called once, on the calling thread, when the frames have been released after the lens-shift
   // stage (the memory peak is behind): `mesoscan reconstruct` starts reading the session's ground
   // truth there, to overlap the remaining stages. Empty: nothing. Not part of ToJson().
   std::function<void()> on_frames_released;
 
-  void Check() const;
+  void Check() const;  // every stage's Check()
   Json ToJson() const;
-  // The options of each stage (reconstruct_options.cc).
-  PlanOptions Plan() const;
-  FrameLoadOptions Load() const;
-  ClassifyOptions Classify() const;
-  GainOptions Gains() const;
-  PhaseShiftStageOptions PhaseShift(const Rig& rig) const;
-  LensShiftStageOptions LensShift() const;
-  CombineOptions Combine() const;
 };
 
 // Per-pixel intermediate results on the camera grid (NaN where not computed).
@@ -194,6 +150,23 @@ struct ReconstructSummary {
   std::string BriefReport() const;
   Json ToJson() const;
 };
+
+// Stages 0-8 (plan to mixed pixels): the one assembly of the stages that Reconstruct and
+// calibration's flat-target scan (calibration/calibrate_mount.h) run. Times the stages on
+// `timer` and fills the summary's frame figures (not the pixel counts: CountFinalStates). Throws
+// as Reconstruct.
+struct ReconstructedPoints {
+  ReconstructPlan plan;
+  RoiGrid grid;
+  PixelClasses classes;       // the final states; white_level (mixed pixels) on the ROI grid
+  PhaseShiftPixels ps;        // empty unless options.keep_diagnostics
+  LensShiftPixels ls;         // empty unless options.keep_diagnostics
+  CombinedPixels combined;    // u_coarse, unwrap_residual empty unless options.keep_diagnostics
+  TriangulatedPoints tri;     // the points (camera grid) and their sigma_z (ROI grid)
+  double last_frame_s = 0.0;  // when the last frame was decoded, s after the call
+};
+ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructOptions& options,
+                                      StageTimer* timer, ReconstructSummary* summary);
 
 // Runs the pipeline on a session already read by ReadSession. Throws Error for bad input (a mask
 // of the wrong size, a session whose patterns cannot decode); never for data (a pixel that cannot

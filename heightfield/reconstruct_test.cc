@@ -325,7 +325,7 @@ TEST_F(ReconstructTest, MixedPixelsAtADepthStepAreRejectedLensShift) {
 
 TEST_F(ReconstructTest, OptionsCheckNamesTheField) {
   ReconstructOptions o;
-  o.min_modulation = 0.9;
+  o.phase_shift.min_modulation = 0.9;
   try {
     o.Check();
     FAIL() << "expected an error";
@@ -343,7 +343,7 @@ TEST_F(ReconstructTest, PerFrameBrightnessJitterIsNormalised) {
   o.jitter = 0.01;
   const Session s = WriteSynthetic(TestDir("jitter"), o);
   ReconstructOptions off;
-  off.normalize_luminance = false;
+  off.gains.normalize_luminance = false;
   const GroundTruthErrors raw = EvaluateAgainstGroundTruth(s, Reconstruct(s, off).points);
   ReconstructSummary sum;
   const GroundTruthErrors e = EvaluateAgainstGroundTruth(s, Reconstruct(s, {}, &sum).points);

@@ -1,11 +1,18 @@
 #include "heightfield/stage_classify.h"
 
+#include <algorithm>
+#include <atomic>
 #include <limits>
 
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/parallel.h"
 
 namespace mesoscan {
+
+void ClassifyOptions::Check() const {
+  if (!(min_lit > 0)) MESOSCAN_BAD_INPUT("min_lit: expected > 0, got " << min_lit);
+}
 
 PixelClasses ClassifyPixels(const FrameStack& stack, const ReconstructPlan& plan, int camera_width,
                             int camera_height, const ClassifyOptions& options) {
@@ -13,6 +20,7 @@ PixelClasses ClassifyPixels(const FrameStack& stack, const ReconstructPlan& plan
   const size_t np = grid.pixels();
   const int w = grid.width, h = grid.height;
   PixelClasses c;
+  c.min_lit = options.min_lit;
   c.state.assign(np, PixelState::kActive);
   c.white_level.assign(np, std::numeric_limits<float>::quiet_NaN());
   c.black_value.assign(np, 0.0f);
@@ -43,6 +51,32 @@ PixelClasses ClassifyPixels(const FrameStack& stack, const ReconstructPlan& plan
     }
   }
   return c;
+}
+
+int64_t ClassifyLateSaturation(const FrameStack& stack, PixelStates* classified_out,
+                               PixelClasses* classes) {
+  PixelStates& classified = *classified_out;
+  PixelStates& state = classes->state;
+  // Per block of pixels on the pool (right after the last frame; the count is a sum).
+  constexpr size_t kBlock = 1 << 16;
+  const size_t np = state.size();
+  std::atomic<size_t> saturated{0};
+  ParallelFor(static_cast<int64_t>((np + kBlock - 1) / kBlock), [&](int64_t b) {
+    size_t n_sat = 0;
+    const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+    for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i) {
+      if (stack.saturated()[i] && classified[i] != PixelState::kOutside &&
+          classified[i] != PixelState::kSaturated) {
+        classified[i] = state[i] = PixelState::kSaturated;  // saturation is checked first
+        ++n_sat;
+        classes->white_level[i] = std::numeric_limits<float>::quiet_NaN();
+        classes->black_value[i] = 0.0f;
+      }
+    }
+    saturated += n_sat;
+  });
+  classes->pixels_saturated += static_cast<int64_t>(saturated);
+  return static_cast<int64_t>(saturated);
 }
 
 }  // namespace mesoscan

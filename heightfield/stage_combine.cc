@@ -7,6 +7,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
+#include "core/error.h"
 #include "core/numbers.h"
 #include "core/parallel.h"
 #include "heightfield/phase_shift.h"
@@ -22,6 +23,24 @@ double Wrap2Pi(double a) {
 }
 
 }  // namespace
+
+void CombineOptions::Check() const {
+  if (!(max_unwrap_residual > 0))
+    MESOSCAN_BAD_INPUT("max_unwrap_residual: expected > 0, got " << max_unwrap_residual);
+  if (!(systematic_phase_noise >= 0))
+    MESOSCAN_BAD_INPUT("systematic_phase_noise: expected >= 0, got " << systematic_phase_noise);
+  if (!(max_combination_residual_px > 0 && max_combination_residual_px < 1))
+    MESOSCAN_BAD_INPUT("max_combination_residual_px: expected a value in (0, 1), got "
+                       << max_combination_residual_px);
+  if (!(confidence_t > 0)) MESOSCAN_BAD_INPUT("confidence_t: expected > 0, got " << confidence_t);
+  if (!(min_confidence >= 0 && min_confidence < 1))
+    MESOSCAN_BAD_INPUT("min_confidence: expected a value in [0, 1), got " << min_confidence);
+  if (!(phase_shift_fallback_confidence > 0 && phase_shift_fallback_confidence <= 1))
+    MESOSCAN_BAD_INPUT("phase_shift_fallback_confidence: expected a value in (0, 1], got "
+                       << phase_shift_fallback_confidence);
+  if (isolated_max_region_px < 0)
+    MESOSCAN_BAD_INPUT("isolated_max_region_px: expected >= 0, got " << isolated_max_region_px);
+}
 
 // std::lround for |v| < 2^31 without the libm call (3 M calls per full-resolution scan): v - its
 // truncation is exact there, so the half-way test is too.
@@ -202,8 +221,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
         const double sigma =
             use_ls && ls.samples[i] > 4
                 ? ls.residual_rms[i] *
-                      std::sqrt(ls.samples[i] /
-                                (ls.samples[i] - (options.four_parameter_fit ? 4 : 3)))
+                      std::sqrt(ls.samples[i] / (ls.samples[i] - ls.fit_parameters))
                 : PhaseShiftSigma(plan, ps, i);
         sigmas.push_back(std::max(sigma, 1e-4 * level[i]));
         active.push_back(i);

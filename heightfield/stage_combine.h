@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stage 5, combine: per kActive pixel the noise sigma (from the lens-shift or
+// Reconstruction stage 6, combine: per kActive pixel the noise sigma (from the lens-shift or
 // phase-shift residuals), temporal/hierarchical unwrapping of the periods' wrapped phases
 // (heightfield/phase_shift.h TemporalUnwrapper) to the coarse column u_c, the combination with the
 // lens-shift fine phase (paper Eq. 2: u = 2 (round(u_c / 2 - phi) + phi), phi in cycles), and the
@@ -14,22 +14,27 @@
 namespace mesoscan {
 
 struct CombineOptions {
-  // Unwrapping consistency residual (sigma units) above which a pixel is rejected, > 0.
+  // Temporal unwrapping: the consistency residual (heightfield/phase_shift.h, RMS over periods
+  // of the weighted circular residual in sigma units, ~1 for consistent data) above which a
+  // pixel is rejected, > 0.
   double max_unwrap_residual = 4.0;
-  // Phase error (radians per period) added in quadrature to the noise-predicted variance, >= 0.
+  // Phase error (radians per period) added in quadrature to each period's noise-predicted phase
+  // variance before unwrapping: model errors that noise does not explain (projector harmonics,
+  // defocus, residual brightness jitter), >= 0.
   double systematic_phase_noise = 0.02;
-  // |u_coarse - u| above this (px) is a period jump, in (0, 1).
+  // Combination (paper Eq. 2): |u_coarse - u| above this (px; the fine period is 2 px, so 1 is
+  // the ambiguity limit) rejects the pixel as a period jump, in (0, 1).
   double max_combination_residual_px = 0.6;
-  // Eq. 4: c = 1 - sqrt(E t), > 0; points below min_confidence are rejected, in [0, 1).
+  // Paper Eq. 4: c = 1 - sqrt(E t), clamped to [0, 1], with E the mean squared residual of the
+  // profile in units of its fitted amplitude (E = (rms / a)^2: pure noise of the same size as the
+  // signal gives E = 1). t = 4 reaches c = 0 at rms = a / 2. > 0.
   double confidence_t = 4.0;
+  // Points with confidence below this are rejected (NaN, confidence 0), in [0, 1).
   double min_confidence = 0.05;
-  // The lens-shift fit had 4 free parameters (frequency fitted and not smoothed): the noise
-  // sigma's degrees of freedom.
-  bool four_parameter_fit = false;
-  // Graceful defocus: with lens shift, a pixel whose lens-shift fit failed or fell
-  // below min_confidence (defocus blurred the 2-px stripes away) takes the phase-shift estimate
-  // of u instead, with its own predicted sigma (systematic_phase_noise included) and its
-  // confidence scaled by phase_shift_fallback_confidence, in (0, 1]; source 1 there.
+  // Graceful defocus: with lens shift, a pixel whose lens-shift fit failed or fell below
+  // min_confidence (defocus blurred the 2-px stripes away) takes the phase-shift estimate of u
+  // instead, with its own predicted sigma (systematic_phase_noise included) and its confidence
+  // scaled by phase_shift_fallback_confidence, in (0, 1]; points.exr `source` = 1 there.
   bool phase_shift_fallback = true;
   double phase_shift_fallback_confidence = 0.5;
   // Where the lens-shift stage estimated the shifter positions (frame_corrections
@@ -48,8 +53,9 @@ struct CombineOptions {
   double isolated_max_step_px = 3.0;
   // Keep CombinedPixels::u_coarse and unwrap_residual (the diagnostics); false: left empty
   // unless the positions' reference above needs u_coarse (2 arrays of 12.5 MB at 3 Mpx less to
-  // fill and write).
+  // fill and write). The pipeline sets it from ReconstructOptions::keep_diagnostics.
   bool keep_coarse = true;
+  void Check() const;
 };
 
 // Phase shifting's own absolute column: u of every kActive pixel, unwrapped with the
@@ -69,7 +75,7 @@ CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels
                              const LensShiftPixels& ls, const CombineOptions& options,
                              PixelStates* state);
 
-// Stage 5b: moves the kActive pixels of small regions of consistent u (CombineOptions::
+// Stage 6b: moves the kActive pixels of small regions of consistent u (CombineOptions::
 // isolated_max_region_px) to kIsolated, their u to NaN and their confidence to 0.
 void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
                            CombinedPixels* combined, PixelStates* state);

@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stage 2, luminance gains (Ritz et al. 2012, Sec. 5.1: the camera's brightness
+// Reconstruction stage 3, luminance gains (Ritz et al. 2012, Sec. 5.1: the camera's brightness
 // jitters from frame to frame): per-frame gains estimated on a subsample of ~20000 kActive pixels
 // (heightfield/frames.h EstimateFrameGains), sine frames and lens-shift frames as two groups.
 // The later stages multiply every sample of stack frame k by inv_gain[k]. This is the hook for

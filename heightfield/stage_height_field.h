@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stage 8, height field: the camera-grid points resampled onto a regular world
+// Reconstruction stage 9, height field: the camera-grid points resampled onto a regular world
 // grid (heightfield/resample.h) and its normals. A scan with no point gets a 1x1 unknown grid,
 // which keeps the scan folder's layout.
 

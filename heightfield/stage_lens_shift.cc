@@ -155,6 +155,7 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
                              PixelStates* state_out) {
   LensShiftPixels out;
   if (!plan.use_lens_shift()) return out;
+  out.fit_parameters = options.fit_frequency && !options.smooth_frequency ? 4 : 3;
   StepClock step(options.step_timings);
   constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
   PixelStates& state = *state_out;

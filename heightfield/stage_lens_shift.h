@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stage 4, lens shift: the profile of every kActive pixel over the lens-shift
+// Reconstruction stage 5, lens shift: the profile of every kActive pixel over the lens-shift
 // frames (heightfield/lens_shift_fit.h), positions referenced to the centre of the shift range.
 // With fit_frequency and smooth_frequency: the 4-parameter fit on a regular subsample (~100000
 // pixels), a robust quadratic frequency map over the image (SmoothFrequencyMap), then the
@@ -22,12 +22,16 @@
 namespace mesoscan {
 
 struct LensShiftStageOptions {
+  // Lens-shift profile fitter (heightfield/lens_shift_fit.h): fast, lm or ceres.
   LensShiftFitter fitter = LensShiftFitter::kFast;
-  // Paper's optional 5-sample box filter along each profile (needs >= 9 frames).
+  // Paper's optional 5-sample box filter along each lens-shift profile (it trades resolution
+  // along the shift for noise; the phase at the range centre is unbiased; needs >= 9 frames).
   bool box_filter = false;
-  // Fit the per-pixel frequency (4-parameter model, paper Eq. 1) ...
+  // Fit the per-pixel lens-shift frequency (4-parameter model, paper Eq. 1) ...
   bool fit_frequency = true;
-  // ... and replace it by the robust quadratic map, then fit the phase again with f held.
+  // ... and replace the per-pixel frequencies by a robust quadratic over the image (the
+  // shifter's gain varies smoothly with the optics), then fit the phase again with f held there:
+  // the 3-parameter fit has lower variance where the 4-parameter one gains nothing.
   bool smooth_frequency = true;
   // With smooth_frequency (and no box filter): per-frame gains, and shifter position errors if
   // correct_positions, estimated jointly with the per-pixel fits before the fixed-frequency pass

@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stage 7, mixed pixels (heightfield/mixed_pixels.h): kOk points at depth steps
+// Reconstruction stage 8, mixed pixels (heightfield/mixed_pixels.h): kOk points at depth steps
 // and shadow edges are removed from the scan's points (NaN, confidence 0) and moved to
 // kDiscontinuity.
 

@@ -4,11 +4,17 @@
 #include <cmath>
 #include <limits>
 
+#include "core/error.h"
 #include "core/log.h"
 #include "core/parallel.h"
 #include "heightfield/phase_shift.h"
 
 namespace mesoscan {
+
+void PhaseShiftStageOptions::Check() const {
+  if (!(min_modulation > 0 && min_modulation <= 0.5))
+    MESOSCAN_BAD_INPUT("min_modulation: expected a value in (0, 0.5], got " << min_modulation);
+}
 
 PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan& plan,
                                   const FrameGains& gains, const PixelClasses& classes,
@@ -21,7 +27,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   const auto& periods = plan.periods;
   const int nper = static_cast<int>(periods.size());
   const bool has_white = plan.has_white();
-  const double proj_gamma = options.projector_gamma;
+  const double proj_gamma = plan.projector_gamma;
   const bool linearize_gamma = std::abs(proj_gamma - 1.0) > 1e-9 && has_white;
   if (std::abs(proj_gamma - 1.0) > 1e-9 && !has_white)
     MESOSCAN_LOG(kWarning) << plan.label
@@ -86,7 +92,7 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
       const size_t i = i0 + j;
       if (state[i] != PixelState::kActive) continue;
       if (has_white) level[i] = white_level[i];
-      if (!(level[i] >= options.min_lit)) {
+      if (!(level[i] >= classes.min_lit)) {
         state[i] = PixelState::kUnlit;
         continue;
       }

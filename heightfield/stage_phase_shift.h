@@ -1,9 +1,9 @@
 #pragma once
-// Reconstruction stage 3, phase shifting: per period the least-squares wrapped phase, modulation
+// Reconstruction stage 4, phase shifting: per period the least-squares wrapped phase, modulation
 // and residual of every kActive pixel (heightfield/phase_shift.h WrappedPhaseSolver), with the
-// projector's gamma undone per sample when white/black frames give the scale. Moves pixels to
-// kUnlit (no white frame: 2 x offset < min_lit) or kUnmodulated (modulation < min_modulation x
-// white level of any period).
+// projector's gamma (ReconstructPlan::projector_gamma) undone per sample when white/black frames
+// give the scale. Moves pixels to kUnlit (no white frame: 2 x offset < the classify stage's
+// min_lit) or kUnmodulated (modulation < min_modulation x white level of any period).
 
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
@@ -13,9 +13,10 @@
 namespace mesoscan {
 
 struct PhaseShiftStageOptions {
-  double min_lit = 0.02;         // as ClassifyOptions::min_lit
-  double min_modulation = 0.05;  // B / white level, in (0, 0.5]
-  double projector_gamma = 1.0;  // the rig's projector response (1: linear)
+  // Phase-shift modulation B / white level >= min_modulation, in (0, 0.5]; a full-contrast sine
+  // gives 0.5.
+  double min_modulation = 0.05;
+  void Check() const;
 };
 
 PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan& plan,

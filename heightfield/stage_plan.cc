@@ -82,6 +82,8 @@ ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& o
                        << (plan.axis == 'x' ? "column" : "row"));
   const std::vector<double> period_list = plan.PeriodList();
   plan.projector_width = plan.axis == 'x' ? rig.projector.width : rig.projector.height;
+  plan.projector_gamma =
+      rig.projector_response.kind == Response::Kind::kGamma ? rig.projector_response.gamma : 1.0;
   const double longest = *std::max_element(period_list.begin(), period_list.end());
   plan.unwrapping = period_list.size() == 1           ? "single"
                     : longest >= plan.projector_width ? "hierarchical"

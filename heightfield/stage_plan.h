@@ -35,6 +35,9 @@ struct ReconstructPlan {
   double projector_width = 0;        // the unwrapping range, px
   std::string label;                 // the session (for messages)
   char axis = 'x';                   // decoded projector axis: 'x' (columns) or 'y' (rows)
+  // The rig's projector response as the sine decoders undo it: v^projector_gamma is the light of
+  // a displayed value v (1: linear).
+  double projector_gamma = 1.0;
 
   bool use_lens_shift() const { return !ls_stack.empty(); }
   bool has_white() const { return white >= 0; }

@@ -3,9 +3,7 @@
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
-#include <limits>
 #include <mutex>
 #include <utility>
 #include <vector>
@@ -53,6 +51,12 @@ class LateGatherer {
   bool ready_ = false;
   std::vector<int> pending_;
 };
+
+int64_t CountActive(const PixelStates& state) {
+  int64_t n = 0;
+  for (const PixelState s : state) n += s == PixelState::kActive;
+  return n;
+}
 
 }  // namespace
 
@@ -126,31 +130,10 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
   out.phase_shift_s = since();
   if (overlap) {
     out.stack.Merge(std::move(ls_frames));
-    PixelStates& state = out.classes.state;
-    PixelClasses& c = out.classes;
-    // Per block of pixels on the pool (right after the last frame; the counts are sums).
-    constexpr size_t kBlock = 1 << 16;
-    const size_t np = state.size();
-    std::atomic<size_t> saturated{0}, lit{0};
-    ParallelFor(static_cast<int64_t>((np + kBlock - 1) / kBlock), [&](int64_t b) {
-      size_t n_sat = 0, n_lit = 0;
-      const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
-      for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i) {
-        if (out.stack.saturated()[i] && classified[i] != PixelState::kOutside &&
-            classified[i] != PixelState::kSaturated) {
-          classified[i] = state[i] = PixelState::kSaturated;  // classify checks saturation first
-          ++n_sat;
-          c.white_level[i] = std::numeric_limits<float>::quiet_NaN();
-          c.black_value[i] = 0.0f;
-        }
-        n_lit += state[i] == PixelState::kActive;
-      }
-      saturated += n_sat;
-      lit += n_lit;
-    });
-    newly_saturated = saturated;
-    c.pixels_saturated += static_cast<int64_t>(saturated);
-    out.ps.pixels_lit = static_cast<int64_t>(lit);
+    // Classify's verdict on the lens-shift frames' saturation, then what is still lit.
+    newly_saturated =
+        static_cast<size_t>(ClassifyLateSaturation(out.stack, &classified, &out.classes));
+    if (newly_saturated > 0) out.ps.pixels_lit = CountActive(out.classes.state);
   }
   if (plan.has_white()) {  // the same values where read (kActive pixels): one array, not two
     out.ps.level = std::move(out.classes.white_level);

@@ -1,5 +1,5 @@
 #pragma once
-// Reconstruction stage 6, triangulate: the camera ray of every kActive pixel intersected with the
+// Reconstruction stage 7, triangulate: the camera ray of every kActive pixel intersected with the
 // projector plane of its column u (heightfield/triangulate.h, distortion on both devices), into
 // the scan's points on the camera grid (scan-outputs.md points.exr), and the predicted depth
 // sigma sigma_u |dZ/du| (dZ/du by a forward difference of half a projector pixel). Moves pixels

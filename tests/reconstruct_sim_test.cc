@@ -213,12 +213,12 @@ TEST(ReconstructSim, StreamedPhaseReferenceIsTheOneFromEveryFrame) {
   const ReconstructOptions ro;
   auto check = [&](const char* what) {
     const Session s = ReadSession(dir);
-    const ReconstructPlan plan = MakeReconstructPlan(s, ro.Plan());
-    const StreamedFrames f = DecodeAndPhaseShift(
-        s, plan, {ro.Load(), ro.Classify(), ro.Gains(), ro.PhaseShift(s.rig), ro.Combine()});
-    const FrameStack all = LoadFrames(s, plan.frames, ro.Load());
+    const ReconstructPlan plan = MakeReconstructPlan(s, ro.plan);
+    const StreamedFrames f =
+        DecodeAndPhaseShift(s, plan, {ro.load, ro.classify, ro.gains, ro.phase_shift, ro.combine});
+    const FrameStack all = LoadFrames(s, plan.frames, ro.load);
     const PixelClasses classes =
-        ClassifyPixels(all, plan, s.rig.camera.width, s.rig.camera.height, ro.Classify());
+        ClassifyPixels(all, plan, s.rig.camera.width, s.rig.camera.height, ro.classify);
     const PhaseReference want = MakePhaseReference(plan, f.ps, classes.state);
     const PhaseReference& got = f.gains.phase_reference;
     EXPECT_GT(want.pixels.size(), 1000u) << what;
@@ -231,7 +231,7 @@ TEST(ReconstructSim, StreamedPhaseReferenceIsTheOneFromEveryFrame) {
   const PhaseReference before = check("as simulated");
   // Saturate the first sampled pixel in one lens-shift frame.
   const Session s = ReadSession(dir);
-  const ReconstructPlan plan = MakeReconstructPlan(s, ro.Plan());
+  const ReconstructPlan plan = MakeReconstructPlan(s, ro.plan);
   ASSERT_FALSE(before.pixels.empty());
   ASSERT_FALSE(plan.ls_stack.empty());
   const uint32_t i = before.pixels.front();

@@ -79,9 +79,9 @@ TEST(RobustReconstruct, GainJitterCostsAtMostFivePercent) {
   const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
   const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
   ReconstructOptions als;
-  als.frame_gain_method = FrameGainMethod::kAlternating;
+  als.lens_shift.frame_gain_method = FrameGainMethod::kAlternating;
   ReconstructOptions means;
-  means.frame_gain_method = FrameGainMethod::kFrameMeans;
+  means.lens_shift.frame_gain_method = FrameGainMethod::kFrameMeans;
   const Figures jit_als = RunCase(b, s1, als), jit_means = RunCase(b, s1, means);
   Print("coin, no jitter", clean);
   Print("coin, jitter 0.02 (joint)", jit);
@@ -177,7 +177,7 @@ TEST(RobustReconstruct, NoWorseThanThePlainDecoderOnTheLowContrastLeaf) {
   Figures f = RunCase(s, so);
   {  // the older estimate: alternating least squares gains (on the same pixels as below)
     ReconstructOptions als;
-    als.frame_gain_method = FrameGainMethod::kAlternating;
+    als.lens_shift.frame_gain_method = FrameGainMethod::kAlternating;
     Figures b = RunCase(s, so, als);
     ScanPoints plain_b = testing::PlainLsDecode(s, b.scan.points.projector_u);
     testing::IntersectPoints(&b.scan.points, &plain_b);
@@ -210,7 +210,7 @@ TEST(RobustReconstruct, DefocusedPlaneFallsBackToPhaseShifting) {
   const fs::path dir = TempDir("plane_defocus");
   const Session s = SimulateAndRead(so, dir);
   ReconstructOptions off;
-  off.phase_shift_fallback = false;
+  off.combine.phase_shift_fallback = false;
   const Figures before = RunCase(s, so, off), f = RunCase(s, so);
   Print("defocused plane, no fallback", before);
   Print("defocused plane, fallback", f);
@@ -282,7 +282,7 @@ TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
   const fs::path d0 = TempDir("coin_p0"), d1 = TempDir("coin_p2");
   const Session a = SimulateAndRead(s0, d0), b = SimulateAndRead(s1, d1);
   ReconstructOptions nopos;
-  nopos.correct_positions = false;
+  nopos.lens_shift.correct_positions = false;
   const Figures clean = RunCase(a, s0), corrected = RunCase(b, s1),
                 uncorrected = RunCase(b, s1, nopos);
   Print("coin, exact positions", clean);
@@ -374,7 +374,7 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
     int64_t wrong[2] = {0, 0}, right[2] = {0, 0}, isolated = 0;
     for (int on = 0; on < 2; ++on) {
       ReconstructOptions ro;
-      if (!on) ro.isolated_max_region_px = 0;
+      if (!on) ro.combine.isolated_max_region_px = 0;
       ReconstructSummary sum;
       const Scan scan = Reconstruct(s, ro, &sum);
       if (on) isolated = sum.pixels_rejected_isolated;
@@ -764,7 +764,7 @@ TEST(RobustReconstruct, WeakStripesConfidenceIsHonest) {
     // Phase shifting alone on the same frames and pixels: the lens shift may decide only where it
     // helps, so the combination is not worse.
     ReconstructOptions ps_only;
-    ps_only.use_lens_shift = false;
+    ps_only.plan.use_lens_shift = false;
     Figures p = RunCase(s, so, ps_only), q = f;
     testing::IntersectPoints(&q.scan.points, &p.scan.points);
     const double rms_q = EvaluateAgainstGroundTruth(s, q.scan.points).rms_m;
@@ -808,7 +808,7 @@ TEST(RobustReconstruct, GainJitterOnASmallViewOfTheTiltedBar) {
   const Session &a = pair.a, &b = pair.b;
   const Figures clean = RunCase(a, s0), jit = RunCase(b, s1);
   ReconstructOptions means;
-  means.frame_gain_method = FrameGainMethod::kFrameMeans;
+  means.lens_shift.frame_gain_method = FrameGainMethod::kFrameMeans;
   const Figures jit_means = RunCase(b, s1, means);
   Print("bar 128x96, no jitter", clean);
   Print("bar 128x96, jitter 0.02", jit);
@@ -846,7 +846,7 @@ TEST(RobustReconstruct, InBandReferenceOnATinyViewOfTheTiltedBar) {
   const SimulateOptions &s0 = pair.s0, &s1 = pair.s1;
   const Session &a = pair.a, &b = pair.b;
   ReconstructOptions als;
-  als.frame_gain_method = FrameGainMethod::kAlternating;
+  als.lens_shift.frame_gain_method = FrameGainMethod::kAlternating;
   const Figures clean = RunCase(a, s0), clean_als = RunCase(a, s0, als);
   const Figures jit = RunCase(b, s1), jit_als = RunCase(b, s1, als);
   Print("bar 24x18, no jitter", clean);
