@@ -79,8 +79,8 @@ int main(int argc, char** argv) {
     ReconstructOptions ro;
     const ReconstructPlan plan = MakeReconstructPlan(session, ro.plan);
     Stopwatch decode_watch;
-    StreamedFrames front = DecodeAndPhaseShift(
-        session, plan, {ro.load, ro.classify, ro.gains, ro.phase_shift, ro.combine});
+    StreamedFrames front =
+        DecodeAndPhaseShift(session, plan, {ro.load, ro.classify, ro.gains, ro.phase_shift});
     std::printf("bench_lens_shift_stage: %s, %dx%d, %zu lens-shift frames decoded in %.2f s\n",
                 dir.c_str(), front.stack.width(), front.stack.height(), plan.ls_stack.size(),
                 decode_watch.Seconds());

@@ -26,7 +26,8 @@ enum class PixelState : uint8_t {
   kUnmodulated,     // phase shift: modulation of some period < min_modulation x white level
   kFitFailed,       // lens shift: the profile fit is invalid (with phase_shift_fallback the
                     // combine stage lets such a pixel back in, decided by phase shifting alone)
-  kUnwrapFailed,    // combine: temporal unwrapping inconsistent (residual > max_unwrap_residual)
+  kUnwrapFailed,    // combine: no absolute coordinate (phase shift: temporal unwrapping
+                    // inconsistent, residual > max_unwrap_residual)
   kCombination,     // combine: coarse and fine disagree (a period jump, paper Eq. 2)
   kLowConfidence,   // combine: paper Eq. 4 confidence below min_confidence
   kIsolated,        // combine (RejectIsolatedColumns): u continued by too few neighbours, an
@@ -98,8 +99,8 @@ struct PhaseShiftPixels {
   // mixed pixels); without one 2 x the offset of the first period (kActive pixels, else NaN).
   std::vector<float> level;
   int64_t pixels_lit = 0;  // kActive after this stage: lit, unsaturated, modulated
-  // The column unwrapped from these phases alone (stage_combine.h UnwrapPhaseShift); empty if
-  // not made (the combine stage then searches the fringe orders).
+  // The column unwrapped from these phases alone (stage_phase_shift.h UnwrapPhaseShift); empty
+  // if not made (the combine stage then searches the fringe orders).
   ColumnHints u_unwrapped;
 };
 
@@ -134,8 +135,8 @@ struct CombinedPixels {
   std::vector<float> unwrap_residual;
   std::vector<float> confidence;  // [0, 1]; 0 if rejected
   std::vector<float> sigma_u;     // predicted sigma of u, px
-  // Which cue fixed u (points.exr `source`): 0 lens shift (phase shifting for the period),
-  // 1 phase shifting alone.
+  // Which codec fixed u (points.exr `source`): 0 the periodic refinement, the lens shift (the
+  // absolute codec, phase shifting, for the period), 1 the absolute codec alone.
   std::vector<uint8_t> source;
   // Offset added to the lens-shift pixels' u against phase shifting (CombineOptions::
   // reference_positions_to_phase_shift), px; 0 where not applied.

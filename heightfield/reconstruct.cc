@@ -70,7 +70,7 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   // Decode, classify, gains and phase shift as one stream (stage_stream.h); each frame is
   // released after the last stage that reads it, the per-period arrays after combining.
   StreamedFrames front = DecodeAndPhaseShift(
-      session, plan, {options.load, options.classify, options.gains, options.phase_shift, combine});
+      session, plan, {options.load, options.classify, options.gains, options.phase_shift});
   FrameStack& stack = front.stack;
   PixelClasses& classes = out.classes = std::move(front.classes);
   PixelStates& state = classes.state;
@@ -88,7 +88,8 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   if (options.on_frames_released) options.on_frames_released();
   timer->Stage("lens_shift");
   // Combine: the fringe orders, paper Eq. 2 and 4, isolated fringe orders.
-  CombinedPixels& combined = out.combined = CombinePhases(plan, ps, ls, combine, &state);
+  CombinedPixels& combined = out.combined =
+      CombinePhases(plan, ps, ls, combine, &state, options.phase_shift);
   RejectIsolatedColumns(grid, combine, &combined, &state);
   sum->pixels_lit = ps.pixels_lit;
   sum->pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;

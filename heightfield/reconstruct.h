@@ -10,15 +10,16 @@
 //     saturation;
 //  2. classify (stage_classify.h): ROI, mask, saturation, lit from white/black frames;
 //  3. gains (stage_gains.h): per-frame luminance normalisation (Ritz et al. 2012, Sec. 5.1);
-//  4. phase shift (stage_phase_shift.h): wrapped phase and modulation per period, and (with
-//     lens shift, while its frames still decode) the column unwrapped from them alone
-//     (stage_combine.h UnwrapPhaseShift), whose fringe orders the combine stage takes;
-//  5. lens shift (stage_lens_shift.h): the profile fit per pixel, positions referenced to the
-//     centre of the shift range -> u modulo 2 px (optional 5-sample box filter);
-//  6. combine (stage_combine.h): temporal or hierarchical unwrapping -> coarse column u_c (with
-//     the lens-shift noise as weights, at the fringe orders of step 4 where they hold),
-//     combination (paper Eq. 2), confidence (paper Eq. 4) times modulation and unwrapping
-//     consistency;
+//  4. phase shift (stage_phase_shift.h), the absolute codec (heightfield/codec.h): wrapped
+//     phase and modulation per period, and (with lens shift, while its frames still decode) the
+//     column unwrapped from them alone (UnwrapPhaseShift), whose fringe orders it keeps;
+//  5. lens shift (stage_lens_shift.h), the periodic codec that refines it: the profile fit per
+//     pixel, positions referenced to the centre of the shift range -> u modulo 2 px (optional
+//     5-sample box filter);
+//  6. combine (stage_combine.h), through the codecs' per-pixel records: the absolute
+//     coordinate u_c (phase shifting's temporal or hierarchical unwrapping, with the lens-shift
+//     noise as weights, at the fringe orders of step 4 where they hold), combination (paper
+//     Eq. 2), confidence (paper Eq. 4) times modulation and unwrapping consistency;
 //     6b. isolated fringe orders (stage_combine.h RejectIsolatedColumns);
 //  7. triangulate (stage_triangulate.h) with camera and projector distortion;
 //  8. mixed pixels (stage_mixed_pixels.h); NaN and confidence 0 wherever a point is rejected;
@@ -66,12 +67,11 @@ struct ReconstructOptions {
   ClassifyOptions classify;
   // Stage 3: per-frame luminance normalisation (paper Sec. 5.1).
   GainOptions gains;
-  // Stage 4: the phase-shift modulation threshold.
+  // Stage 4: the phase-shift modulation threshold and the periods' unwrapping.
   PhaseShiftStageOptions phase_shift;
   // Stage 5: the lens-shift profile fit and the frame corrections.
   LensShiftStageOptions lens_shift;
-  // Stage 6: unwrapping, combination (paper Eq. 2), confidence (Eq. 4), fallback, isolated
-  // fringe orders.
+  // Stage 6: combination (paper Eq. 2), confidence (Eq. 4), fallback, isolated fringe orders.
   CombineOptions combine;
   // Stage 8: mixed pixels at depth steps and shadow edges (heightfield/mixed_pixels.h): rejected
   // rather than placed between the surfaces. reject_mixed_pixels = false keeps them.

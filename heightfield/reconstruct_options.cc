@@ -32,11 +32,11 @@ Json ReconstructOptions::ToJson() const {
   j["correct_positions"] = lens_shift.correct_positions;
   j["min_lit"] = classify.min_lit;
   j["min_modulation"] = phase_shift.min_modulation;
-  j["max_unwrap_residual"] = combine.max_unwrap_residual;
+  j["max_unwrap_residual"] = phase_shift.max_unwrap_residual;
   j["max_combination_residual_px"] = combine.max_combination_residual_px;
   j["confidence_t"] = combine.confidence_t;
   j["min_confidence"] = combine.min_confidence;
-  j["systematic_phase_noise"] = combine.systematic_phase_noise;
+  j["systematic_phase_noise"] = phase_shift.systematic_phase_noise;
   j["reject_mixed_pixels"] = reject_mixed_pixels;
   j["mixed_pixels"] = {{"max_sigmas", mixed_pixels.max_sigmas},
                        {"outlier_footprints", mixed_pixels.outlier_footprints},

@@ -495,6 +495,63 @@ TEST(StageCombine, UnwrapsAndRejectsInconsistentPhases) {
   EXPECT_GT(c.sigma_u[0], 0.0f);
 }
 
+// The combine stage reads the codecs through their records alone (heightfield/codec.h): an
+// absolute codec other than phase shifting (a given coordinate with its sigma, as a Gray code
+// gives one) refined by the lens shift follows paper Eq. 2, rejects a period jump, fails where
+// the absolute coordinate fails, and lets the absolute codec decide alone where the fit failed.
+class GivenCoordinateCodec final : public Codec {
+ public:
+  explicit GivenCoordinateCodec(std::vector<double> u) : u_(std::move(u)) {}
+  const char* Name() const override { return "given"; }
+  CodecKind Kind() const override { return CodecKind::kAbsolute; }
+  std::vector<int> Frames() const override { return {}; }
+  void SampleNoise(const size_t*, size_t n, double* sigma) const override {
+    for (size_t a = 0; a < n; ++a)
+      if (sigma[a] < 0) sigma[a] = 0.01;
+  }
+  void Decode(const size_t* pixels, size_t n, const double*, CodecRecord* out) const override {
+    out->Resize(n);
+    for (size_t a = 0; a < n; ++a) {
+      out->value[a] = u_[pixels[a]];
+      out->valid[a] = std::isfinite(u_[pixels[a]]);
+      out->residual[a] = 0.0;
+      out->consistency[a] = 1.0;
+    }
+  }
+  void Describe(const size_t*, const double*, const uint32_t* which, size_t m, bool,
+                CodecRecord* out) const override {
+    for (size_t k = 0; k < m; ++k) {
+      out->sigma_px[which[k]] = 0.29;
+      out->confidence[which[k]] = 0.9;
+    }
+  }
+
+ private:
+  std::vector<double> u_;
+};
+
+TEST(StageCombine, AnyAbsoluteCodecRefinedByTheLensShift) {
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  CombineInput in = MakeCombineInput({0, 0, 0, 0}, {100.3, 100.3, 400.25, 10.0});
+  in.ls.phase0[3] = static_cast<float>(kNaN);  // no fit: the absolute codec alone
+  const GivenCoordinateCodec coarse({100.6, 101.1, kNaN, 10.4});
+  const LensShiftCodec fine(in.plan, in.ls, 4.0);
+  PixelStates state(4, PixelState::kActive);
+  const CombinedPixels c = CombineCodecs(coarse, &fine, std::vector<float>(4, 0.8f), {}, &state);
+  EXPECT_EQ(state, (PixelStates{PixelState::kActive, PixelState::kCombination,
+                                PixelState::kUnwrapFailed, PixelState::kActive}));
+  EXPECT_NEAR(c.u[0], 100.3, 1e-4);
+  EXPECT_EQ(c.source[0], 0);
+  // Eq. 4 (E = (0.003 / 0.3)^2, t = 4) times the combination factor 1 - (0.3 / 0.6)^2.
+  EXPECT_NEAR(c.confidence[0], (1 - std::sqrt(4e-4)) * 0.75, 1e-5);  // (float inputs)
+  EXPECT_TRUE(std::isnan(c.u[1]));
+  EXPECT_TRUE(std::isnan(c.u[2]));
+  EXPECT_NEAR(c.u[3], 10.4, 1e-5);
+  EXPECT_EQ(c.source[3], 1);
+  EXPECT_NEAR(c.confidence[3], 0.9 * 0.5, 1e-6);  // times phase_shift_fallback_confidence
+  EXPECT_NEAR(c.sigma_u[3], 0.29, 1e-6);
+}
+
 TEST(StageCombine, LensShiftFinePhaseAndPeriodJumps) {
   // Pixel 0: coarse 0.2 px off the fine column (kept, fine wins); pixel 1: 0.8 px off (a period
   // jump of the 2-px fine period: rejected); pixel 2: low confidence (noisy profile).

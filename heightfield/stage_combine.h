@@ -1,27 +1,23 @@
 #pragma once
-// Reconstruction stage 6, combine: per kActive pixel the noise sigma (from the lens-shift or
-// phase-shift residuals), temporal/hierarchical unwrapping of the periods' wrapped phases
-// (heightfield/phase_shift.h TemporalUnwrapper) to the coarse column u_c, the combination with the
-// lens-shift fine phase (paper Eq. 2: u = 2 (round(u_c / 2 - phi) + phi), phi in cycles), and the
-// confidence (paper Eq. 4, times the combination and unwrapping consistency). Moves pixels to
-// kUnwrapFailed, kCombination or kLowConfidence.
+// Reconstruction stage 6, combine: the codecs' per-pixel records (heightfield/codec.h) into the
+// projector coordinate u of every kActive pixel: the absolute codec's coordinate (phase shifting:
+// its periods unwrapped with the per-sample noise of the refinement's fits where there are any),
+// refined by the periodic codec (the lens shift: paper Eq. 2, u = P (round(u_c / P - phi) + phi),
+// phi in cycles, P = 2 px), its sigma, and the confidence (the periodic codec's paper Eq. 4,
+// times the combination and the absolute codec's consistency; the absolute codec's own where it
+// decides alone). Moves pixels to kUnwrapFailed, kCombination or kLowConfidence.
 
 #include <vector>
 
+#include "heightfield/codec.h"
 #include "heightfield/pixel_buffers.h"
+#include "heightfield/stage_lens_shift.h"
+#include "heightfield/stage_phase_shift.h"
 #include "heightfield/stage_plan.h"
 
 namespace mesoscan {
 
 struct CombineOptions {
-  // Temporal unwrapping: the consistency residual (heightfield/phase_shift.h, RMS over periods
-  // of the weighted circular residual in sigma units, ~1 for consistent data) above which a
-  // pixel is rejected, > 0.
-  double max_unwrap_residual = 4.0;
-  // Phase error (radians per period) added in quadrature to each period's noise-predicted phase
-  // variance before unwrapping: model errors that noise does not explain (projector harmonics,
-  // defocus, residual brightness jitter), >= 0.
-  double systematic_phase_noise = 0.02;
   // Combination (paper Eq. 2): |u_coarse - u| above this (px; the fine period is 2 px, so 1 is
   // the ambiguity limit) rejects the pixel as a period jump, in (0, 1).
   double max_combination_residual_px = 0.6;
@@ -58,22 +54,18 @@ struct CombineOptions {
   void Check() const;
 };
 
-// Phase shifting's own absolute column: u of every kActive pixel, unwrapped with the
-// noise the phase-shift frames show (their residuals, else 1% of the white level), in 16 bits
-// (ColumnHints: a fraction of a period is all the fringe orders need), none where the unwrapping
-// fails or elsewhere; empty if the plan has no periods. The stream stage runs it while
-// the lens-shift frames still decode, and CombinePhases then takes each pixel's fringe orders
-// from it (PhaseShiftPixels::u_unwrapped) instead of searching them again: only the weighted
-// mean and its residual wait for the lens-shift noise. The same result wherever both noise
-// estimates pick the same orders; the full search where the orders fail with the final weights.
-ColumnHints UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
-                             const PixelStates& state, const CombineOptions& options);
+// The combination of an absolute codec's coordinate with a periodic codec's phase (refinement:
+// nullptr for the absolute codec alone), with `level` the pixels' white level (the noise floor:
+// 1e-4 of it).
+CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
+                             const std::vector<float>& level, const CombineOptions& options,
+                             PixelStates* state);
 
-// `ls` may be empty (phase shifting alone). With ps.u_unwrapped (UnwrapPhaseShift), the fringe
-// orders come from it.
+// The scan's codecs: phase shifting (absolute; with ps.u_unwrapped its fringe orders come from
+// it) refined by the lens shift (`ls` empty: phase shifting alone).
 CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
                              const LensShiftPixels& ls, const CombineOptions& options,
-                             PixelStates* state);
+                             PixelStates* state, const PhaseShiftStageOptions& phase_shift = {});
 
 // Stage 6b: moves the kActive pixels of small regions of consistent u (CombineOptions::
 // isolated_max_region_px) to kIsolated, their u to NaN and their confidence to 0.

@@ -448,4 +448,53 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
   return out;
 }
 
+namespace {
+
+double Wrap2Pi(double a) {
+  // fmod is exact: within one period either way it returns a itself (the libm call is skipped).
+  if (std::abs(a) < 2 * kPi) return a < 0 ? a + 2 * kPi : a;
+  a = std::fmod(a, 2 * kPi);
+  return a < 0 ? a + 2 * kPi : a;
+}
+
+}  // namespace
+
+LensShiftCodec::LensShiftCodec(const ReconstructPlan& plan, const LensShiftPixels& ls,
+                               double confidence_t)
+    : plan_(plan), ls_(ls), confidence_t_(confidence_t) {}
+
+void LensShiftCodec::SampleNoise(const size_t* pixels, size_t n, double* sigma) const {
+  for (size_t a = 0; a < n; ++a) {
+    const size_t i = pixels[a];
+    if (sigma[a] < 0 && ls_.samples[i] > 4)
+      sigma[a] =
+          ls_.residual_rms[i] * std::sqrt(ls_.samples[i] / (ls_.samples[i] - ls_.fit_parameters));
+  }
+}
+
+void LensShiftCodec::Decode(const size_t* pixels, size_t n, const double* noise,
+                            CodecRecord* out) const {
+  out->Resize(n);
+  for (size_t a = 0; a < n; ++a) {
+    const size_t i = pixels[a];
+    out->valid[a] = std::isfinite(ls_.phase0[i]);
+    if (!out->valid[a]) continue;
+    const double sigma = noise[a];
+    out->sigma_px[a] =
+        std::sqrt(2.0 * sigma * sigma / (ls_.samples[i] * ls_.amplitude[i] * ls_.amplitude[i])) /
+        kPi;
+    // Eq. 2's fine phase in cycles: u_fine = 1/2 - phase0 / pi (mod 2).
+    out->value[a] = Wrap2Pi(kPi / 2 - ls_.phase0[i]) / (2 * kPi);
+    const double e = std::pow(ls_.residual_rms[i] / ls_.amplitude[i], 2);  // Eq. 4's E
+    out->confidence[a] = 1.0 - std::sqrt(e * confidence_t_);
+  }
+}
+
+bool LensShiftCodec::OffsetUnknown() const {
+  const Json& fc = ls_.frame_corrections;
+  if (!fc.is_object() || !fc.contains("model") || !fc["model"].is_string()) return false;
+  if (fc.contains("valid") && fc["valid"].is_boolean() && !fc["valid"].get<bool>()) return false;
+  return fc["model"].get<std::string>().find("positions") != std::string::npos;
+}
+
 }  // namespace mesoscan

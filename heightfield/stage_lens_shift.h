@@ -5,13 +5,16 @@
 // pixels), a robust quadratic frequency map over the image (SmoothFrequencyMap), then the
 // 3-parameter fit of every pixel with f held at the map; between the two, the per-frame
 // corrections (gains, shifter positions) refine gains->inv_gain and the positions. Moves pixels
-// to kFitFailed. Returns empty arrays when the plan has no lens-shift frames.
+// to kFitFailed. Returns empty arrays when the plan has no lens-shift frames. LensShiftCodec reads
+// the fits as the periodic codec (period 2 px, heightfield/codec.h) that refines the absolute
+// coordinate (paper Eq. 2).
 
 #include <array>
 #include <cstddef>
 #include <vector>
 
 #include "core/stage_timer.h"
+#include "heightfield/codec.h"
 #include "heightfield/frame_corrections.h"
 #include "heightfield/frames.h"
 #include "heightfield/lens_shift_fit.h"
@@ -51,6 +54,32 @@ struct LensShiftStageOptions {
 LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
                              FrameGains* gains, const LensShiftStageOptions& options,
                              PixelStates* state);
+
+// The lens-shift fits as a periodic codec of period 2 px: the phase at shift 0 in cycles
+// (u_fine = 1/2 - phase0 / pi, mod 2: the stripes' convention), valid where the fit holds; its
+// sigma sqrt(2 sigma^2 / (N a^2)) / pi px and its confidence c = 1 - sqrt(E t) (paper Eq. 4, E =
+// (rms / a)^2) come with Decode(). Views plan and ls, which must outlive it.
+class LensShiftCodec final : public Codec {
+ public:
+  // confidence_t: paper Eq. 4's t (CombineOptions::confidence_t).
+  LensShiftCodec(const ReconstructPlan& plan, const LensShiftPixels& ls, double confidence_t);
+  const char* Name() const override { return "lens_shift"; }
+  CodecKind Kind() const override { return CodecKind::kPeriodic; }
+  double PeriodPx() const override { return 2.0; }
+  std::vector<int> Frames() const override { return plan_.ls_stack; }
+  // Pixels whose profile fit used more than 4 samples: the residual with its degrees of freedom.
+  void SampleNoise(const size_t* pixels, size_t n, double* sigma) const override;
+  void Decode(const size_t* pixels, size_t n, const double* noise, CodecRecord* out) const override;
+  void Describe(const size_t*, const double*, const uint32_t*, size_t, bool,
+                CodecRecord*) const override {}  // Decode() fills sigma_px and confidence
+  // The frame corrections estimated the shifter positions: known up to a common offset.
+  bool OffsetUnknown() const override;
+
+ private:
+  const ReconstructPlan& plan_;
+  const LensShiftPixels& ls_;
+  double confidence_t_;
+};
 
 // A robust quadratic surface f(x, y) through the finite values of `f` (w x h, row-major),
 // evaluated everywhere; empty if there are fewer than 50 values. Fitted to ~50000 of them; two

@@ -6,14 +6,18 @@
 
 #include "core/error.h"
 #include "core/log.h"
+#include "core/numbers.h"
 #include "core/parallel.h"
-#include "heightfield/phase_shift.h"
 
 namespace mesoscan {
 
 void PhaseShiftStageOptions::Check() const {
   if (!(min_modulation > 0 && min_modulation <= 0.5))
     MESOSCAN_BAD_INPUT("min_modulation: expected a value in (0, 0.5], got " << min_modulation);
+  if (!(max_unwrap_residual > 0))
+    MESOSCAN_BAD_INPUT("max_unwrap_residual: expected > 0, got " << max_unwrap_residual);
+  if (!(systematic_phase_noise >= 0))
+    MESOSCAN_BAD_INPUT("systematic_phase_noise: expected >= 0, got " << systematic_phase_noise);
 }
 
 PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan& plan,
@@ -103,6 +107,167 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   });
   for (size_t i = 0; i < np; ++i) out.pixels_lit += state[i] == PixelState::kActive;
   return out;
+}
+
+namespace {
+
+// Per-sample noise of pixel i from phase shifting alone: the phase-shift residuals (periods of
+// K > 3 frames), else a floor of 1% of the white level.
+double PhaseShiftSigma(const ReconstructPlan& plan, const PhaseShiftPixels& ps, size_t i) {
+  double sigma = 0.01 * ps.level[i];
+  double s2 = 0;
+  int cnt = 0;
+  for (size_t p = 0; p < plan.periods.size(); ++p) {
+    const int K = static_cast<int>(plan.periods[p].stack_frames.size());
+    if (K > 3) {
+      s2 += ps.residual_rms[p][i] * ps.residual_rms[p][i] * K / (K - 3.0);
+      ++cnt;
+    }
+  }
+  if (cnt) sigma = std::sqrt(s2 / cnt);
+  return sigma;
+}
+
+// The unwrapper's inputs of n pixels (pixel pixels[a] with per-sample noise sigmas[a]),
+// pixel-major (th[a * nper + p]): per period a loop over the pixels (the divisions in vector
+// lanes).
+void UnwrapInputs(const PhaseShiftPixels& ps, const std::vector<WrappedPhaseSolver>& solvers,
+                  double systematic_phase_noise, const size_t* pixels, size_t n,
+                  const double* sigmas, std::vector<double>* th, std::vector<double>* wt) {
+  const int nper = static_cast<int>(solvers.size());
+  th->resize(n * nper), wt->resize(n * nper);
+  const double sys2 = std::pow(systematic_phase_noise, 2);
+  for (int p = 0; p < nper; ++p) {
+    const WrappedPhaseSolver& solver = solvers[p];
+    const float* th_p = ps.theta[p].data();
+    const float* mod_p = ps.modulation[p].data();
+    double* th_out = th->data() + p;
+    double* wt_out = wt->data() + p;
+    for (size_t a = 0; a < n; ++a) {
+      const size_t i = pixels[a];
+      th_out[a * nper] = th_p[i];
+      const double var = solver.ThetaVariance(sigmas[a], mod_p[i]) + sys2;
+      wt_out[a * nper] = 1.0 / var;
+    }
+  }
+}
+
+std::vector<WrappedPhaseSolver> SolversOf(const ReconstructPlan& plan) {
+  std::vector<WrappedPhaseSolver> solvers;
+  for (const auto& p : plan.periods) solvers.emplace_back(p.deltas);
+  return solvers;
+}
+
+}  // namespace
+
+PhaseShiftCodec::PhaseShiftCodec(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                                 const PhaseShiftStageOptions& options, double confidence_t)
+    : plan_(plan),
+      ps_(ps),
+      options_(options),
+      confidence_t_(confidence_t),
+      unwrapper_(plan.PeriodList(), plan.projector_width, options.max_unwrap_residual),
+      solvers_(SolversOf(plan)) {}
+
+std::vector<int> PhaseShiftCodec::Frames() const {
+  std::vector<int> frames;
+  for (const PhasePeriod& p : plan_.periods)
+    frames.insert(frames.end(), p.stack_frames.begin(), p.stack_frames.end());
+  return frames;
+}
+
+void PhaseShiftCodec::SampleNoise(const size_t* pixels, size_t n, double* sigma) const {
+  for (size_t a = 0; a < n; ++a)
+    if (sigma[a] < 0) sigma[a] = PhaseShiftSigma(plan_, ps_, pixels[a]);
+}
+
+void PhaseShiftCodec::Decode(const size_t* pixels, size_t n, const double* noise,
+                             CodecRecord* out) const {
+  // The unwrapper's inputs, then every pixel unwrapped at once (four pixels at a time:
+  // UnwrapAtMany at the hinted orders, else UnwrapMany). Scratch reused by each thread.
+  thread_local std::vector<double> th, wt, hint;
+  thread_local std::vector<UnwrapResult> unwrapped;
+  const int nper = static_cast<int>(plan_.periods.size());
+  UnwrapInputs(ps_, solvers_, options_.systematic_phase_noise, pixels, n, noise, &th, &wt);
+  unwrapped.resize(n);
+  if (ps_.u_unwrapped.size() == ps_.level.size()) {
+    // The fringe orders phase shifting chose on its own (UnwrapPhaseShift), the mean and
+    // residual with these weights; the full search where that fails.
+    hint.resize(n);
+    for (size_t a = 0; a < n; ++a) hint[a] = ps_.u_unwrapped.At(pixels[a]);
+    unwrapper_.UnwrapAtMany(th.data(), wt.data(), hint.data(), static_cast<int>(n),
+                            unwrapped.data());
+    for (size_t a = 0; a < n; ++a)
+      if (!unwrapped[a].valid)
+        unwrapped[a] = unwrapper_.Unwrap(th.data() + a * nper, wt.data() + a * nper);
+  } else {
+    unwrapper_.UnwrapMany(th.data(), wt.data(), static_cast<int>(n), unwrapped.data());
+  }
+  out->Resize(n);
+  for (size_t a = 0; a < n; ++a) {
+    const UnwrapResult& ur = unwrapped[a];
+    out->value[a] = ur.u;
+    out->residual[a] = ur.residual;
+    out->valid[a] = ur.valid;
+    out->consistency[a] =
+        nper > 1 ? 1.0 - std::pow(ur.residual / options_.max_unwrap_residual, 2) : 1.0;
+  }
+}
+
+void PhaseShiftCodec::Describe(const size_t* pixels, const double* noise, const uint32_t* which,
+                               size_t m, bool refined, CodecRecord* out) const {
+  const auto& periods = plan_.periods;
+  const int nper = static_cast<int>(periods.size());
+  const auto& modulation = ps_.modulation;
+  const auto& ps_res = ps_.residual_rms;
+  // Refined pixels that fall back on this codec: the model errors (systematic_phase_noise)
+  // count as in the unwrapping's weights.
+  const double sys2 = refined ? std::pow(options_.systematic_phase_noise, 2) : 0.0;
+  for (size_t k = 0; k < m; ++k) {
+    const uint32_t a = which[k];
+    const size_t i = pixels[a];
+    const double sigma = noise[a];
+    double info = 0.0;  // Fisher information of u from the periods
+    for (int p = 0; p < nper; ++p)
+      info += std::pow(2 * kPi / periods[p].period, 2) /
+              (solvers_[p].ThetaVariance(sigma, modulation[p][i]) + sys2);
+    out->sigma_px[a] = 1.0 / std::sqrt(info);
+    double e = 0.0;
+    for (int p = 0; p < nper; ++p)  // (no array: 3 frames, residual 0)
+      if (!ps_res[p].empty()) e = std::max(e, std::pow(ps_res[p][i] / modulation[p][i], 2));
+    out->confidence[a] = 1.0 - std::sqrt(e * confidence_t_);
+  }
+}
+
+ColumnHints UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                             const PixelStates& state, const PhaseShiftStageOptions& options) {
+  const size_t np = state.size();
+  const int nper = static_cast<int>(plan.periods.size());
+  if (nper == 0 || static_cast<int>(ps.theta.size()) != nper || ps.level.size() != np) return {};
+  const PhaseShiftCodec codec(plan, ps, options);
+  ColumnHints u = ColumnHints::For(np, plan.projector_width);
+  if (u.size() != np) return {};
+  constexpr int kBlock = 4096;
+  const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
+  ParallelForRows(blocks, [&](int b0, int b1) {
+    std::vector<double> sigmas;
+    std::vector<size_t> active;
+    CodecRecord record;
+    for (int b = b0; b < b1; ++b) {
+      const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
+      active.clear();
+      for (size_t i = static_cast<size_t>(b) * kBlock; i < i_end; ++i)
+        if (state[i] == PixelState::kActive) active.push_back(i);
+      sigmas.assign(active.size(), -1.0);
+      codec.SampleNoise(active.data(), active.size(), sigmas.data());
+      for (size_t a = 0; a < active.size(); ++a)
+        sigmas[a] = std::max(sigmas[a], 1e-4 * ps.level[active[a]]);
+      codec.Decode(active.data(), active.size(), sigmas.data(), &record);
+      for (size_t a = 0; a < active.size(); ++a)
+        if (record.valid[a]) u.Set(active[a], record.value[a]);
+    }
+  });
+  return u;
 }
 
 }  // namespace mesoscan

@@ -111,7 +111,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     // The fringe orders too (the combine stage's search, ~0.25 CPU-s at full resolution, off
     // the time after the last frame); the lens-shift noise sets their weights there.
     if (overlap)
-      out.ps.u_unwrapped = UnwrapPhaseShift(plan, out.ps, out.classes.state, options.combine);
+      out.ps.u_unwrapped = UnwrapPhaseShift(plan, out.ps, out.classes.state, options.phase_shift);
     if (overlap)  // only the lens-shift frames are read from here on
       for (int k = 0; k < out.stack.num_frames(); ++k)
         if (!is_ls[k]) out.stack.Release(k);

@@ -6,18 +6,18 @@
 // lens-shift frames stay for the stages that need whole profiles (frequency map, frame corrections,
 // per-pixel fit). The lens-shift frames' gains follow once they are all in, from samples gathered
 // as each of them decoded (GatheredSamples: the sine branch picks the pixels). With lens shift, the
-// sine branch also unwraps the phase shift on its own (stage_combine.h UnwrapPhaseShift: the fringe
-// orders, ~0.25 CPU-s at full resolution, moved off the time after the last frame) and makes the
-// lens-shift frames' phase reference. Equivalent to running decode, classify, gains and phase shift
-// in turn, except that the sine gains' pixel sample cannot leave out pixels that are saturated in a
-// lens-shift frame only (they are marked kSaturated afterwards, as classify would have).
+// sine branch also unwraps the phase shift on its own (stage_phase_shift.h UnwrapPhaseShift: the
+// fringe orders, ~0.25 CPU-s at full resolution, moved off the time after the last frame) and makes
+// the lens-shift frames' phase reference. Equivalent to running decode, classify, gains and phase
+// shift in turn, except that the sine gains' pixel sample cannot leave out pixels that are
+// saturated in a lens-shift frame only (they are marked kSaturated afterwards, as classify would
+// have).
 
 #include <cstddef>
 
 #include "heightfield/frames.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_classify.h"
-#include "heightfield/stage_combine.h"
 #include "heightfield/stage_gains.h"
 #include "heightfield/stage_phase_shift.h"
 #include "heightfield/stage_plan.h"
@@ -30,7 +30,6 @@ struct StreamStageOptions {
   ClassifyOptions classify;
   GainOptions gains;
   PhaseShiftStageOptions phase_shift;
-  CombineOptions combine;  // the unwrapping of the phase shift alone (ps.u_unwrapped)
 };
 
 struct StreamedFrames {

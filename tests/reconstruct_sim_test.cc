@@ -215,7 +215,7 @@ TEST(ReconstructSim, StreamedPhaseReferenceIsTheOneFromEveryFrame) {
     const Session s = ReadSession(dir);
     const ReconstructPlan plan = MakeReconstructPlan(s, ro.plan);
     const StreamedFrames f =
-        DecodeAndPhaseShift(s, plan, {ro.load, ro.classify, ro.gains, ro.phase_shift, ro.combine});
+        DecodeAndPhaseShift(s, plan, {ro.load, ro.classify, ro.gains, ro.phase_shift});
     const FrameStack all = LoadFrames(s, plan.frames, ro.load);
     const PixelClasses classes =
         ClassifyPixels(all, plan, s.rig.camera.width, s.rig.camera.height, ro.classify);
