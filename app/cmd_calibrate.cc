@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/json.h"
 #include "core/log.h"
+#include "core/output_dir.h"
 #include "session/session.h"
 
 namespace fs = std::filesystem;
@@ -26,12 +27,53 @@ struct CalibrateArgs {
   std::vector<std::string> sessions;
   std::string board, out, mount, shifter, report, fix;
   int window = 20;
+  bool force = false;
 };
 
 Json RigJson(const Rig& rig) {
   Session s;
   s.rig = rig;
   return SessionToJson(s)["rig"];
+}
+
+// An earlier output of `mesoscan calibrate --out`: a JSON object whose only key is "rig".
+bool IsRigFile(const fs::path& path) {
+  try {
+    const Json j = ReadJsonFile(path);
+    return j.is_object() && j.size() == 1 && j.contains("rig") && j["rig"].is_object();
+  } catch (const Error&) {
+    return false;
+  }
+}
+
+// The report folder's files (an earlier report written before the output marker existed).
+const std::vector<std::string> kReportFiles = {"report.json", "residuals_camera.png",
+                                               "coverage_camera.png"};
+
+// --out and --report checked as every command's outputs (core/output_dir.h) before any work:
+// neither may be, contain or lie in an input session; an existing --out is replaced only if it
+// is an earlier rig file, an existing --report folder only if it is an earlier report (or
+// --force); and neither may lie inside the other.
+struct CalibrateOutputs {
+  OutputSpec rig, report;
+};
+
+CalibrateOutputs CheckCalibrateOutputs(const CalibrateArgs& a) {
+  std::vector<fs::path> inputs(a.sessions.begin(), a.sessions.end());
+  inputs.push_back(a.mount);
+  inputs.push_back(a.shifter);
+  CalibrateOutputs o;
+  o.rig = {"calibrate", "--out", a.out, inputs, a.force, {}};
+  o.report = {"calibrate", "--report", a.report, inputs, a.force, kReportFiles};
+  const fs::path rig = CheckOutputFile(o.rig, IsRigFile);
+  if (!a.report.empty()) {
+    const fs::path report = CheckOutputFolder(o.report);
+    if (PathIsWithin(rig, report))  // the report folder is replaced as a whole
+      MESOSCAN_THROW(ErrorKind::kUsage, "calibrate: --out " << a.out << ": lies inside --report "
+                                                            << a.report
+                                                            << "; choose a file outside it");
+  }
+  return o;
 }
 
 void Run(const CalibrateArgs& a) {
@@ -44,6 +86,7 @@ void Run(const CalibrateArgs& a) {
     MESOSCAN_THROW(ErrorKind::kUsage, "calibrate: " << a.sessions.size()
                                                     << " sessions given, expected at least 3 "
                                                        "board poses (8 or more recommended)");
+  const CalibrateOutputs outputs = CheckCalibrateOutputs(a);
   std::vector<CalibrationView> views;
   std::optional<Rig> size_rig;
   for (size_t i = 0; i < a.sessions.size(); ++i) {
@@ -109,6 +152,7 @@ void Run(const CalibrateArgs& a) {
     extra["mount"] = {{"kind", "board on the mount"}, {"session", a.mount}};
   }
   // The lens shifter: from --shifter, else from the mount session's lens-shift frames.
+  std::optional<ShifterCalibration> shifter_cal;
   std::string shifter_path = a.shifter;
   if (shifter_path.empty() && mount_session && mount_session->rig.lens_shifter &&
       !MakeFramePlan(mount_session->frames).lens_shift.empty())
@@ -122,16 +166,24 @@ void Run(const CalibrateArgs& a) {
     const ShifterCalibration cal = CalibrateShifter(s, scan, scan_rig, ShifterCalibrationOptions());
     result.rig.lens_shifter = cal.calibrated;
     extra["lens_shifter"] = cal.ToJson();
-    if (!a.report.empty()) {
-      fs::create_directories(a.report);
-      WriteShifterMapPng(cal, fs::path(a.report) / "lens_shifter_steps.png");
-    }
     lines.push_back(cal.BriefReport());
+    shifter_cal = cal;
   } else {
     extra["lens_shifter"] = "not calibrated (no --shifter, and no lens-shift frames in --mount)";
   }
-  WriteJsonFile(a.out, Json{{"rig", RigJson(result.rig)}});
-  if (!a.report.empty()) WriteCalibrationReport(result, a.report, extra);
+  // The report is staged in a temporary folder; the rig file is written (atomically) once the
+  // report is complete, then the report folder is swapped into place: a failed write leaves
+  // neither a new rig nor a partial report.
+  const Json rig_json{{"rig", RigJson(result.rig)}};
+  if (a.report.empty()) {
+    WriteJsonFile(a.out, rig_json);
+  } else {
+    WriteOutputFolder(outputs.report, [&](const fs::path& tmp) {
+      if (shifter_cal) WriteShifterMapPng(*shifter_cal, tmp / "lens_shifter_steps.png");
+      WriteCalibrationReport(result, tmp, extra);
+      WriteJsonFile(a.out, rig_json);
+    });
+  }
   std::cout << a.out << ": " << result.BriefReport() << "\n";
   for (const auto& l : lines) std::cout << "  " << l << "\n";
   std::cout << std::flush;
@@ -163,6 +215,9 @@ void AddCalibrateCommand(CLI::App* app) {
                   "steps_per_px (default: the --mount session if it has lens-shift frames)");
   cmd->add_option("--report", args->report, "Folder for report.json and residual / coverage PNGs");
   cmd->add_option("--fix", args->fix, "Distortion terms held at 0: k2,k3,tangential");
+  cmd->add_flag("--force", args->force,
+                "Replace an existing --out or --report that is not an earlier output of "
+                "`mesoscan calibrate`");
   cmd->add_option("--window", args->window,
                   "Local homography half window, camera px (Moreno & Taubin)")
       ->capture_default_str();

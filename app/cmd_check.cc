@@ -13,6 +13,7 @@
 #include "app/commands.h"
 #include "app/session_checks.h"
 #include "core/error.h"
+#include "core/output_dir.h"
 #include "core/scan_folder.h"
 #include "session/session.h"
 
@@ -173,6 +174,7 @@ void AddCheckCommand(CLI::App* app) {
                 "Headers only (no frame decoding, no reconstruction test on a small window)");
   cmd->callback([path, quick] {
     const fs::path p(*path);
+    RestoreInterruptedReplacement(p);  // core/output_dir.h: a replacement killed half-way
     std::error_code ec;
     if (fs::is_regular_file(p, ec) || fs::exists(p / "session.json", ec)) {
       CheckSession(p, *quick);

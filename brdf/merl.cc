@@ -163,16 +163,13 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Tabulate(
 }
 
 void MerlBrdf::Write(const fs::path& path) const {
-  WriteAtomically(path, [&](const fs::path& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
-    if (!out) MESOSCAN_BAD_INPUT(tmp.string() << ": cannot create file");
+  WriteFileChecked(path, [&](CheckedFile& out) {
     const int32_t dims[3] = {kThetaH, kThetaD, kPhiD};
-    out.write(reinterpret_cast<const char*>(dims), sizeof(dims));
+    out.Write(dims, sizeof(dims));
     std::vector<double> raw(rgb_.size());
     for (size_t i = 0; i < raw.size(); ++i)
       raw[i] = rgb_[3 * (i % kEntries) + i / kEntries] / kScale[i / kEntries];
-    out.write(reinterpret_cast<const char*>(raw.data()), raw.size() * sizeof(double));
-    if (!out) MESOSCAN_BAD_INPUT(tmp.string() << ": write failed");
+    out.Write(raw.data(), raw.size() * sizeof(double));
   });
 }
 

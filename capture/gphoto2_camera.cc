@@ -130,12 +130,13 @@ void Gphoto2Camera::CaptureToFile(const std::filesystem::path& path) {
                                            << on_card.name << " failed (" << GpError(rg) << ")");
   }
   try {
-    WriteAtomically(path, [&](const std::filesystem::path& tmp) {
-      const int rs = gp_file_save(file, tmp.c_str());
-      if (rs < GP_OK)
-        MESOSCAN_THROW(ErrorKind::kDevice,
-                       path.string() << ": cannot save the capture (" << GpError(rs) << ")");
-    });
+    const char* data = nullptr;
+    unsigned long size = 0;
+    const int rs = gp_file_get_data_and_size(file, &data, &size);
+    if (rs < GP_OK || data == nullptr)
+      MESOSCAN_THROW(ErrorKind::kDevice,
+                     path.string() << ": cannot save the capture (" << GpError(rs) << ")");
+    WriteBytesFile(path, data, size);
   } catch (...) {
     gp_file_free(file);
     throw;

@@ -4,9 +4,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <ctime>
 #include <fstream>
 #include <iomanip>
@@ -93,12 +95,19 @@ bool ReadJournal(const fs::path& path, Journal* journal) {
 // Appends one line and makes it durable before the next frame is taken.
 void AppendLine(const fs::path& path, const std::string& line) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644);
-  if (fd < 0) MESOSCAN_BAD_INPUT(path.string() << ": cannot append to the capture journal");
+  if (fd < 0)
+    MESOSCAN_BAD_INPUT(path.string() << ": cannot append to the capture journal ("
+                                     << std::strerror(errno) << ")");
   const std::string text = line + "\n";
-  const bool ok = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) &&
-                  ::fsync(fd) == 0;
+  const ssize_t w = ::write(fd, text.data(), text.size());
+  const int write_errno = w < 0 ? errno : ENOSPC;  // a short append: the disk is full
+  const bool written = w == static_cast<ssize_t>(text.size());
+  const bool synced = written && ::fsync(fd) == 0;
+  const int sync_errno = errno;
   ::close(fd);
-  if (!ok) MESOSCAN_BAD_INPUT(path.string() << ": cannot append to the capture journal");
+  if (!written || !synced)
+    MESOSCAN_BAD_INPUT(path.string() << ": cannot append to the capture journal ("
+                                     << std::strerror(written ? sync_errno : write_errno) << ")");
 }
 
 Json HeaderLine(const std::string& created, const Json& plan) {

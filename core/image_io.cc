@@ -4,6 +4,7 @@
 #include <OpenEXR/ImfFloatAttribute.h>
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfIO.h>
 #include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfTestFile.h>
@@ -71,12 +72,20 @@ std::vector<T> Interleave(const Image<T>& im) {
   return inter;
 }
 
+// OpenEXR's output stream over a CheckedFile (every write checked, errors named).
+class CheckedExrStream final : public Imf::OStream {
+ public:
+  explicit CheckedExrStream(CheckedFile* file) : Imf::OStream(file->label().c_str()), f_(file) {}
+  void write(const char c[], int n) override { f_->Write(c, static_cast<size_t>(n)); }
+  uint64_t tellp() override { return f_->Tell(); }
+  void seekp(uint64_t pos) override { f_->Seek(pos); }
+
+ private:
+  CheckedFile* f_;
+};
+
 void WriteWithOiio(const fs::path& path, ImageToWrite image) {
-  WriteAtomically(path, [&](const fs::path& tmp) {
-    std::string err;
-    if (!Oiio().Write(tmp.string(), "", {image}, &err))
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
-  });
+  WriteImagesChecked(path, "", {std::move(image)});
 }
 
 }  // namespace
@@ -84,6 +93,45 @@ void WriteWithOiio(const fs::path& path, ImageToWrite image) {
 const OiioModule& Oiio() {
   static const OiioModule* const module = static_cast<const OiioModule*>(MESOSCAN_MODULE(oiio));
   return *module;
+}
+
+void WriteImagesChecked(const fs::path& path, const std::string& format,
+                        const std::vector<ImageToWrite>& images) {
+  std::string fmt = format;
+  if (fmt.empty()) {
+    fmt = path.extension().string();
+    if (!fmt.empty() && fmt[0] == '.') fmt = fmt.substr(1);
+  }
+  std::vector<unsigned char> bytes;
+  std::string err;
+  bool no_memory_writer = false;
+  if (Oiio().Encode(fmt, images, &bytes, &err, &no_memory_writer)) {
+    WriteBytesFile(path, bytes.data(), bytes.size());
+    return;
+  }
+  if (!no_memory_writer)
+    MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+  // A writer that writes files only: the file is read back whole before it is renamed into
+  // place (a write it did not check shows as a file that does not decode).
+  WriteAtomicallyVerified(
+      path,
+      [&](const fs::path& tmp) {
+        if (!Oiio().Write(tmp.string(), fmt, images, &err))
+          MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+      },
+      1,
+      [&](const fs::path& tmp) {
+        std::string e2;
+        bool no_reader = false;
+        auto in = Oiio().Open(tmp.string(), fmt, {}, &e2, &no_reader);
+        if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << e2 << ")");
+        const ImageHeader& h = in->header();
+        std::vector<float> all(static_cast<size_t>(h.width) * h.height * h.channels);
+        if (!in->Read(PixelType::kFloat, all.data()))
+          MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (written file does not read "
+                                              "back: "
+                                           << in->error() << ")");
+      });
 }
 
 // Only regular files are opened (a FIFO or a device would block or never end), with the reader
@@ -407,7 +455,7 @@ void WriteExrPlanes(const fs::path& path, const std::vector<ExrPlane>& planes,
     MESOSCAN_CHECK(p.image != nullptr && p.image->width() == width && p.image->height() == height &&
                    (p.channel == -1 ? p.image->channels() == 1
                                     : p.channel >= 0 && p.channel < p.image->channels()));
-  WriteAtomically(path, [&](const fs::path& tmp) {
+  WriteFileChecked(path, [&](CheckedFile& out) {
     try {
       Imf::Header header(width, height);
       header.compression() = Imf::NO_COMPRESSION;
@@ -420,9 +468,14 @@ void WriteExrPlanes(const fs::path& path, const std::vector<ExrPlane>& planes,
         fb.insert(p.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(const_cast<float*>(data)),
                                      sizeof(float), sizeof(float) * static_cast<size_t>(width)));
       }
-      Imf::OutputFile file(tmp.c_str(), header, /*numThreads=*/1);
+      CheckedExrStream stream(&out);
+      Imf::OutputFile file(stream, header, /*numThreads=*/1);
       file.setFrameBuffer(fb);
       file.writePixels(height);
+      // The line offsets are written by the destructor, which swallows a failure: the
+      // CheckedFile remembers it and Close() throws.
+    } catch (const Error&) {
+      throw;
     } catch (const std::exception& e) {
       std::string err = e.what();
       std::replace(err.begin(), err.end(), '\n', ' ');

@@ -4,6 +4,7 @@
 
 #include "core/oiio_module.h"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
@@ -153,6 +154,21 @@ class Module final : public OiioModule {
 
   bool Write(const std::string& path, const std::string& format,
              const std::vector<ImageToWrite>& images, std::string* error) const override {
+    return WriteTo(path, format, images, nullptr, error, nullptr);
+  }
+
+  bool Encode(const std::string& format, const std::vector<ImageToWrite>& images,
+              std::vector<unsigned char>* bytes, std::string* error,
+              bool* no_memory_writer) const override {
+    bytes->clear();
+    return WriteTo("x." + format, format, images, bytes, error, no_memory_writer);
+  }
+
+  // Write() to `path`, or (bytes != nullptr) Encode() into *bytes.
+  static bool WriteTo(const std::string& path, const std::string& format,
+                      const std::vector<ImageToWrite>& images, std::vector<unsigned char>* bytes,
+                      std::string* error, bool* no_memory_writer) {
+    if (no_memory_writer) *no_memory_writer = false;
     if (images.empty()) {
       *error = "no image to write";
       return false;
@@ -167,6 +183,20 @@ class Module final : public OiioModule {
       *error = std::string("OpenImageIO cannot write several images to a .") + out->format_name() +
                " file";
       return false;
+    }
+    std::unique_ptr<oiio::Filesystem::IOVecOutput> proxy;
+    if (bytes) {
+      if (!out->supports("ioproxy")) {
+        *error = std::string("OpenImageIO cannot write a .") + out->format_name() + " to memory";
+        if (no_memory_writer) *no_memory_writer = true;
+        return false;
+      }
+      proxy = std::make_unique<oiio::Filesystem::IOVecOutput>(*bytes);
+      if (!out->set_ioproxy(proxy.get())) {
+        *error = OneLine(out->geterror());
+        if (no_memory_writer) *no_memory_writer = true;
+        return false;
+      }
     }
     std::vector<oiio::ImageSpec> specs;
     for (const ImageToWrite& im : images) {
@@ -185,6 +215,10 @@ class Module final : public OiioModule {
     }
     ok = ok && out->close();
     if (!ok) *error = OneLine(out->geterror());
+    if (ok && proxy && !proxy->error().empty()) {
+      *error = OneLine(proxy->error());
+      ok = false;
+    }
     return ok;
   }
 

@@ -6,6 +6,7 @@
 // 262-library tree. The wrappers with checks and one-line errors are in core/image_io.h and
 // core/image_input.h; use those.
 
+#include <filesystem>
 #include <map>
 #include <memory>
 #include <string>
@@ -93,6 +94,12 @@ class OiioModule {
   // names; more than one image: a multi-image file, e.g. an animated GIF). False with *error.
   virtual bool Write(const std::string& path, const std::string& format,
                      const std::vector<ImageToWrite>& images, std::string* error) const = 0;
+  // Encodes `images` in memory with the writer `format` names (an extension: "png", "exr"),
+  // for core/fs.h's checked writes. False with *error; *no_memory_writer set if that writer
+  // cannot write to memory (write a file with Write() and verify it instead).
+  virtual bool Encode(const std::string& format, const std::vector<ImageToWrite>& images,
+                      std::vector<unsigned char>* bytes, std::string* error,
+                      bool* no_memory_writer) const = 0;
   // A global string attribute of OIIO (e.g. "library_list"); its version string.
   virtual std::string GlobalAttribute(const std::string& name) const = 0;
   virtual std::string Version() const = 0;
@@ -100,5 +107,11 @@ class OiioModule {
 
 // The module, loaded on the first call. Throws Error(kInternal) if it cannot be loaded.
 const OiioModule& Oiio();
+
+// Writes `images` to `path` through the module (format "": the extension's writer), encoded in
+// memory and written by core/fs.h's checked writer (a writer without a memory mode: its file is
+// read back before it is renamed into place). Throws Error naming the file.
+void WriteImagesChecked(const std::filesystem::path& path, const std::string& format,
+                        const std::vector<ImageToWrite>& images);
 
 }  // namespace mesoscan

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/fs.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -94,29 +95,71 @@ bool PathIsWithin(const fs::path& inner, const fs::path& outer) {
   return true;
 }
 
+namespace {
+
+std::string StripLeadingDots(const std::string& s) {
+  const size_t k = s.find_first_not_of('.');
+  return k == std::string::npos ? std::string() : s.substr(k);
+}
+
+// A temporary or backup sibling of `final_path` left by a process that is gone: `.NAME` + tag +
+// PID..., and also the nested staging folders of a writer that staged into its caller's
+// temporary (`..NAME.mesoscan-tmp.P.0.mesoscan-tmp.P.1`). *backup: a `.mesoscan-old.` backup
+// of NAME itself (not nested).
+bool IsStaleSibling(const std::string& name, const std::string& final_name, bool* backup) {
+  if (name.empty() || name[0] != '.') return false;
+  const std::string base = StripLeadingDots(final_name);
+  const std::string bare = StripLeadingDots(name);
+  if (base.empty() || bare.rfind(base, 0) != 0) return false;
+  const std::string rest = bare.substr(base.size());
+  if (rest.rfind(kTmpTag, 0) == 0)
+    *backup = false;
+  else if (rest.rfind(kOldTag, 0) == 0)
+    *backup = name == "." + final_name + rest;
+  else
+    return false;
+  const std::string pid_text = rest.substr(std::string(kTmpTag).size());
+  char* end_ptr = nullptr;
+  const long pid = std::strtol(pid_text.c_str(), &end_ptr, 10);
+  return end_ptr != pid_text.c_str() && !ProcessAlive(pid);
+}
+
+// This process's own staging folder (`.NAME.mesoscan-tmp.<our pid>.N`), empty: a writer asked
+// to replace it atomically writes straight into it (its caller swaps it into place), rather
+// than staging a second, nested temporary next to it.
+bool IsOwnEmptyStagingFolder(const fs::path& p) {
+  const std::string name = p.filename().string();
+  const std::string tag = std::string(kTmpTag) + std::to_string(getpid()) + ".";
+  const size_t at = name.rfind(tag);
+  if (name.empty() || name[0] != '.' || at == std::string::npos) return false;
+  const std::string n = name.substr(at + tag.size());
+  if (n.empty() || n.find_first_not_of("0123456789") != std::string::npos) return false;
+  std::error_code ec;
+  return fs::is_directory(fs::symlink_status(p, ec)) && fs::is_empty(p, ec) && !ec;
+}
+
+// A message about a file in the staging folder names it where the user will look for it: the
+// temporary folder's path is replaced by the final one.
+std::string NameFinalPath(std::string msg, const fs::path& tmp, const fs::path& out) {
+  const std::string from = tmp.string(), to = out.string();
+  for (size_t at = msg.find(from); !from.empty() && at != std::string::npos;
+       at = msg.find(from, at + to.size()))
+    msg.replace(at, from.size(), to);
+  return msg;
+}
+
+}  // namespace
+
 void CleanStaleOutputs(const fs::path& final_path) {
   const fs::path dir = final_path.parent_path();
-  std::string base = ".";
-  base.append(final_path.filename().string());
+  const std::string final_name = final_path.filename().string();
   std::error_code ec;
   if (!fs::is_directory(dir, ec)) return;
   std::vector<std::pair<fs::path, bool>> stale;  // path, is backup
   for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-    const std::string name = it->path().filename().string();
-    if (name.rfind(base, 0) != 0) continue;
-    const std::string rest = name.substr(base.size());
-    bool backup;
-    if (rest.rfind(kTmpTag, 0) == 0)
-      backup = false;
-    else if (rest.rfind(kOldTag, 0) == 0)
-      backup = true;
-    else
-      continue;
-    const std::string pid_text = rest.substr(std::string(kTmpTag).size());
-    char* end_ptr = nullptr;
-    const long pid = std::strtol(pid_text.c_str(), &end_ptr, 10);
-    if (end_ptr == pid_text.c_str() || ProcessAlive(pid)) continue;
-    stale.emplace_back(it->path(), backup);
+    bool backup = false;
+    if (IsStaleSibling(it->path().filename().string(), final_name, &backup))
+      stale.emplace_back(it->path(), backup);
   }
   for (const auto& [p, backup] : stale) {
     std::error_code e2;
@@ -125,6 +168,23 @@ void CleanStaleOutputs(const fs::path& final_path) {
       if (!e2) continue;
     }
     fs::remove_all(p, e2);
+  }
+}
+
+void RestoreInterruptedReplacement(const fs::path& path) {
+  std::error_code ec;
+  if (fs::exists(fs::symlink_status(path, ec))) return;
+  const fs::path final_path = Resolve(path);
+  const fs::path dir = final_path.parent_path();
+  const std::string final_name = final_path.filename().string();
+  if (!fs::is_directory(dir, ec)) return;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    bool backup = false;
+    if (IsStaleSibling(it->path().filename().string(), final_name, &backup) && backup) {
+      std::error_code e2;
+      fs::rename(it->path(), final_path, e2);
+      if (!e2) return;
+    }
   }
 }
 
@@ -150,8 +210,13 @@ fs::path CheckOutputFolder(const OutputSpec& s) {
 void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marker_command,
                              const std::function<void(const fs::path&)>& fill) {
   fs::path out = Resolve(final_dir);
-  CleanStaleOutputs(out);
   std::error_code ec;
+  if (IsOwnEmptyStagingFolder(out)) {
+    fill(out);  // the caller's staging folder: the caller swaps it into place
+    if (!marker_command.empty()) WriteTextFile(out / kOutputMarker, MarkerText(marker_command));
+    return;
+  }
+  CleanStaleOutputs(out);
   fs::create_directories(out.parent_path(), ec);
   const fs::path tmp = Sibling(out, kTmpTag);
   fs::create_directory(tmp, ec);
@@ -160,9 +225,7 @@ void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marke
   try {
     fill(tmp);
     if (!marker_command.empty()) {
-      std::ofstream marker(tmp / kOutputMarker);
-      marker << MarkerText(marker_command);
-      if (!marker) MESOSCAN_BAD_INPUT(out.string() << ": cannot write " << kOutputMarker);
+      WriteTextFile(tmp / kOutputMarker, MarkerText(marker_command));
     }
     if (fs::exists(fs::symlink_status(out, ec))) {
       // One atomic step where the filesystem supports it; tmp then holds the old output.
@@ -188,6 +251,9 @@ void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marke
     }
     fs::rename(tmp, out, ec);
     if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot write folder (" << ec.message() << ")");
+  } catch (const Error& e) {
+    fs::remove_all(tmp, ec);
+    throw Error(NameFinalPath(e.what(), tmp, out), e.kind());
   } catch (...) {
     fs::remove_all(tmp, ec);
     throw;

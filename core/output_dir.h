@@ -11,7 +11,11 @@
 //    renameat2(RENAME_EXCHANGE) where the filesystem has it (one atomic step), otherwise
 //    old -> backup name, new -> final, remove backup. A kill at any point leaves either the
 //    old or the new output under the final name (or, between the two fallback renames, the old
-//    one under the backup name, which the next run renames back).
+//    one under the backup name, which the next run of any command reading or writing that
+//    path renames back: RestoreInterruptedReplacement).
+//  - A writer asked to replace a folder that is this process's own empty staging folder (a
+//    command staging a library writer that stages too) writes straight into it: no nested
+//    temporaries.
 //  - Every run first cleans stale temporaries and backups of earlier runs (processes no
 //    longer alive) next to --out, recovering a backup whose final name is missing.
 
@@ -54,14 +58,20 @@ void ReplaceFolderAtomically(const std::filesystem::path& final_dir,
 
 // The same rules for a single output file (brdf plot/tabulate): --out must not be an input,
 // nor an existing folder; an existing file is replaced only if accept_existing(path) says it
-// is a previous output (or force). The write itself goes through WriteAtomically.
+// is a previous output (or force). The write itself goes through core/fs.h's checked writer.
 std::filesystem::path CheckOutputFile(
     const OutputSpec& spec,
     const std::function<bool(const std::filesystem::path&)>& accept_existing);
 
 // Removes stale `.NAME.mesoscan-tmp.PID*` / `.NAME.mesoscan-old.PID*` siblings of `final_path`
-// whose process is gone; a stale backup whose final name is missing is renamed back.
+// whose process is gone (nested ones `..NAME.mesoscan-tmp.P.0.mesoscan-tmp.P.1` too); a stale
+// backup whose final name is missing is renamed back.
 void CleanStaleOutputs(const std::filesystem::path& final_path);
+
+// For readers: if `path` is missing because a replacement without RENAME_EXCHANGE was killed
+// between its two renames (the old output then lies under its backup name), the backup is
+// renamed back. Nothing else is touched.
+void RestoreInterruptedReplacement(const std::filesystem::path& path);
 
 // True if `inner` equals `outer` or lies below it (both absolute and canonical).
 bool PathIsWithin(const std::filesystem::path& inner, const std::filesystem::path& outer);

@@ -122,14 +122,11 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
   std::vector<uint8_t> ztail;
   PutBe32(&ztail, static_cast<uint32_t>(adler));
 
-  WriteAtomically(path, [&](const std::filesystem::path& tmp) {
-    std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(tmp.c_str(), "wb"), &std::fclose);
-    if (!f)
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << std::strerror(errno) << ")");
-    bool ok = std::fwrite(head.data(), 1, head.size(), f.get()) == head.size();
+  WriteFileChecked(path, [&](CheckedFile& f) {
+    f.Write(head.data(), head.size());
     // One IDAT per piece (the zlib header rides in the first, the Adler-32 in the last): each
     // chunk's CRC covers its own bytes, computed here (~1 ms per MB).
-    for (size_t k = 0; k < out.size() && ok; ++k) {
+    for (size_t k = 0; k < out.size(); ++k) {
       std::vector<uint8_t> chunk;
       const std::vector<uint8_t>& d = out[k].deflated;
       std::vector<uint8_t> data;
@@ -144,18 +141,15 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
       chunk.insert(chunk.end(), {'I', 'D', 'A', 'T'});
       uLong crc = ::crc32(0, chunk.data() + 4, 4);
       crc = ::crc32(crc, payload->data(), static_cast<uInt>(payload->size()));
-      ok = std::fwrite(chunk.data(), 1, chunk.size(), f.get()) == chunk.size() &&
-           std::fwrite(payload->data(), 1, payload->size(), f.get()) == payload->size();
+      f.Write(chunk.data(), chunk.size());
+      f.Write(payload->data(), payload->size());
       chunk.clear();
       PutBe32(&chunk, static_cast<uint32_t>(crc));
-      ok = ok && std::fwrite(chunk.data(), 1, 4, f.get()) == 4;
+      f.Write(chunk.data(), 4);
     }
     std::vector<uint8_t> tail;
     PutChunk(&tail, "IEND", nullptr, 0);
-    ok = ok && std::fwrite(tail.data(), 1, tail.size(), f.get()) == tail.size();
-    ok = std::fclose(f.release()) == 0 && ok;
-    if (!ok)
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << std::strerror(errno) << ")");
+    f.Write(tail.data(), tail.size());
   });
 }
 

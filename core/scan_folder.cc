@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/image_io.h"
+#include "core/output_dir.h"
 
 namespace mesoscan {
 namespace fs = std::filesystem;
@@ -103,6 +104,7 @@ void WriteScanFolder(const fs::path& dir, const Scan& scan) {
 }
 
 Scan ReadScanFolder(const fs::path& dir) {
+  RestoreInterruptedReplacement(dir);
   if (!fs::is_directory(dir))
     MESOSCAN_BAD_INPUT(dir.string() << ": not a scan folder (no such directory)");
   Scan s;

@@ -15,6 +15,7 @@
 #include "core/fs.h"
 #include "core/image_io.h"
 #include "core/log.h"
+#include "core/oiio_module.h"
 #include "core/parallel.h"
 #include "core/stage_timer.h"
 #include "maps/export_gltf.h"
@@ -150,26 +151,19 @@ ImageF FillHoles(const ImageF& z, float fill) {
   return out;
 }
 
-std::vector<uint8_t> ReadBytes(const fs::path& path) {
-  const std::string s = ReadTextFile(path);
-  return std::vector<uint8_t>(s.begin(), s.end());
-}
-
-// Encodes an 8-bit PNG in memory (through a temporary file next to `near`).
+// Encodes an 8-bit PNG in memory (`near`: the file it is for, named in errors).
 std::vector<uint8_t> EncodePng8(const ImageU8& im, const fs::path& near) {
-  const fs::path tmp = TempSiblingPath(near);
-  std::vector<uint8_t> bytes;
-  try {
-    WritePng8(tmp, im);
-    bytes = ReadBytes(tmp);
-  } catch (...) {
-    std::error_code ec;
-    fs::remove(tmp, ec);
-    throw;
-  }
-  std::error_code ec;
-  fs::remove(tmp, ec);
-  return bytes;
+  ImageToWrite w(im.width(), im.height(), im.channels(), PixelType::kUInt8);
+  std::vector<uint8_t> inter(im.pixels() * im.channels());
+  for (int c = 0; c < im.channels(); ++c)
+    for (size_t i = 0; i < im.pixels(); ++i) inter[i * im.channels() + c] = im.channel(c)[i];
+  w.data = inter.data();
+  std::vector<unsigned char> bytes;
+  std::string err;
+  bool no_memory_writer = false;
+  if (!Oiio().Encode("png", {w}, &bytes, &err, &no_memory_writer))
+    MESOSCAN_BAD_INPUT(near.string() << ": cannot encode PNG texture (" << err << ")");
+  return std::vector<uint8_t>(bytes.begin(), bytes.end());
 }
 
 void WritePly(const fs::path& path, const HeightField& hf, const ImageF& normals) {
@@ -198,14 +192,9 @@ void WritePly(const fs::path& path, const HeightField& hf, const ImageF& normals
          << "property float x\nproperty float y\nproperty float z\n"
          << "property float nx\nproperty float ny\nproperty float nz\n"
          << "property float confidence\nend_header\n";
-  WriteAtomically(path, [&](const fs::path& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
-    const std::string hs = header.str();
-    out.write(hs.data(), static_cast<std::streamsize>(hs.size()));
-    out.write(reinterpret_cast<const char*>(rec.data()),
-              static_cast<std::streamsize>(rec.size() * sizeof(float)));
-    out.close();
-    if (!out) MESOSCAN_BAD_INPUT(path.string() << ": cannot write PLY");
+  WriteFileChecked(path, [&](CheckedFile& out) {
+    out.Write(header.str());
+    out.Write(rec.data(), rec.size() * sizeof(float));
   });
 }
 

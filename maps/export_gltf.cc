@@ -182,13 +182,11 @@ void WriteGlb(const fs::path& path, const GlbContent& c) {
   model.defaultScene = 0;
 
   // 3. Serialise to a temporary sibling, then rename.
-  WriteAtomically(path, [&](const fs::path& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
+  WriteFileChecked(path, [&](CheckedFile& out) {
     tinygltf::TinyGLTF writer;
-    if (!out || !writer.WriteGltfSceneToStream(&model, out, false, true))
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write GLB");
-    out.close();
-    if (!out) MESOSCAN_BAD_INPUT(path.string() << ": cannot write GLB");
+    const bool ok = writer.WriteGltfSceneToStream(&model, out.stream(), false, true);
+    out.Close();  // a failed write names the file and the reason
+    if (!ok) MESOSCAN_BAD_INPUT(path.string() << ": cannot write GLB (tinygltf refused the model)");
   });
 }
 

@@ -28,11 +28,7 @@ void WriteAnimatedGif(const std::filesystem::path& path, const std::vector<Image
                      ImageAttribute::Int("oiio:Movie", 1), ImageAttribute::Int("gif:LoopCount", 0)};
     images.push_back(std::move(im));
   }
-  WriteAtomically(path, [&](const std::filesystem::path& tmp) {
-    std::string err;
-    if (!Oiio().Write(tmp.string(), "gif", images, &err))
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write animation (" << err << ")");
-  });
+  WriteImagesChecked(path, "gif", images);
 }
 
 }  // namespace mesoscan

@@ -153,50 +153,57 @@ ImageU16 ReadRawGrey(const std::filesystem::path& path, const std::string& label
 void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic, const RawLevels& levels,
                  std::array<uint8_t, 4> cfa) {
   MESOSCAN_CHECK(mosaic.channels() == 1 && mosaic.width() % 2 == 0 && mosaic.height() % 2 == 0);
-  WriteAtomically(path, [&](const std::filesystem::path& tmp) {
-    TIFFSetErrorHandler(SilentTiffHandler);
-    TIFFSetWarningHandler(SilentTiffHandler);
-    std::unique_ptr<TIFF, TiffCloser> tif(TIFFOpen(tmp.c_str(), "w"));
-    if (!tif) MESOSCAN_BAD_INPUT(path.string() << ": cannot create DNG");
-    TIFF* t = tif.get();
-    const uint32_t w = mosaic.width(), h = mosaic.height();
-    TIFFSetField(t, TIFFTAG_SUBFILETYPE, 0);
-    TIFFSetField(t, TIFFTAG_IMAGEWIDTH, w);
-    TIFFSetField(t, TIFFTAG_IMAGELENGTH, h);
-    TIFFSetField(t, TIFFTAG_BITSPERSAMPLE, 16);
-    TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, 1);
-    TIFFSetField(t, TIFFTAG_COMPRESSION, COMPRESSION_NONE);
-    TIFFSetField(t, TIFFTAG_PHOTOMETRIC, kPhotometricCfa);
-    TIFFSetField(t, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
-    TIFFSetField(t, TIFFTAG_ORIENTATION, ORIENTATION_TOPLEFT);
-    TIFFSetField(t, TIFFTAG_ROWSPERSTRIP, h);
-    TIFFSetField(t, TIFFTAG_MAKE, "mesoscan");
-    TIFFSetField(t, TIFFTAG_MODEL, "simulated camera");
-    TIFFSetField(t, TIFFTAG_SOFTWARE, "mesoscan");
-    const uint16_t repeat[2] = {2, 2};
-    TIFFSetField(t, TIFFTAG_CFAREPEATPATTERNDIM, repeat);
-    TIFFSetField(t, TIFFTAG_CFAPATTERN, 4, cfa.data());
-    const uint8_t dng_version[4] = {1, 4, 0, 0};
-    const uint8_t dng_backward[4] = {1, 1, 0, 0};
-    TIFFSetField(t, TIFFTAG_DNGVERSION, dng_version);
-    TIFFSetField(t, TIFFTAG_DNGBACKWARDVERSION, dng_backward);
-    TIFFSetField(t, TIFFTAG_UNIQUECAMERAMODEL, "mesoscan simulated camera");
-    TIFFSetField(t, TIFFTAG_BLACKLEVELREPEATDIM, repeat);
-    // BlackLevel is ordered row by row over the repeat pattern: (0,0) (1,0) (0,1) (1,1).
-    float black[4];
-    for (int i = 0; i < 4; ++i) black[i] = static_cast<float>(levels.black[i]);
-    TIFFSetField(t, TIFFTAG_BLACKLEVEL, 4, black);
-    const uint32_t white = static_cast<uint32_t>(levels.white);
-    TIFFSetField(t, TIFFTAG_WHITELEVEL, 1, &white);
-    const float color_matrix[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};  // XYZ -> camera, neutral
-    TIFFSetField(t, TIFFTAG_COLORMATRIX1, 9, color_matrix);
-    const float as_shot_neutral[3] = {1, 1, 1};
-    TIFFSetField(t, TIFFTAG_ASSHOTNEUTRAL, 3, as_shot_neutral);
-    for (uint32_t y = 0; y < h; ++y)
-      if (TIFFWriteScanline(t, const_cast<uint16_t*>(mosaic.row(static_cast<int>(y))), y, 0) < 0)
-        MESOSCAN_BAD_INPUT(path.string() << ": cannot write DNG row " << y);
-    if (!TIFFWriteDirectory(t)) MESOSCAN_BAD_INPUT(path.string() << ": cannot write DNG");
-  });
+  // libtiff writes the file itself (it checks its writes); the file is also checked to hold at
+  // least the mosaic's bytes before it is renamed into place.
+  const uintmax_t min_bytes = static_cast<uintmax_t>(mosaic.width()) * mosaic.height() * 2;
+  WriteAtomicallyVerified(
+      path,
+      [&](const std::filesystem::path& tmp) {
+        TIFFSetErrorHandler(SilentTiffHandler);
+        TIFFSetWarningHandler(SilentTiffHandler);
+        std::unique_ptr<TIFF, TiffCloser> tif(TIFFOpen(tmp.c_str(), "w"));
+        if (!tif) MESOSCAN_BAD_INPUT(path.string() << ": cannot create DNG");
+        TIFF* t = tif.get();
+        const uint32_t w = mosaic.width(), h = mosaic.height();
+        TIFFSetField(t, TIFFTAG_SUBFILETYPE, 0);
+        TIFFSetField(t, TIFFTAG_IMAGEWIDTH, w);
+        TIFFSetField(t, TIFFTAG_IMAGELENGTH, h);
+        TIFFSetField(t, TIFFTAG_BITSPERSAMPLE, 16);
+        TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, 1);
+        TIFFSetField(t, TIFFTAG_COMPRESSION, COMPRESSION_NONE);
+        TIFFSetField(t, TIFFTAG_PHOTOMETRIC, kPhotometricCfa);
+        TIFFSetField(t, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+        TIFFSetField(t, TIFFTAG_ORIENTATION, ORIENTATION_TOPLEFT);
+        TIFFSetField(t, TIFFTAG_ROWSPERSTRIP, h);
+        TIFFSetField(t, TIFFTAG_MAKE, "mesoscan");
+        TIFFSetField(t, TIFFTAG_MODEL, "simulated camera");
+        TIFFSetField(t, TIFFTAG_SOFTWARE, "mesoscan");
+        const uint16_t repeat[2] = {2, 2};
+        TIFFSetField(t, TIFFTAG_CFAREPEATPATTERNDIM, repeat);
+        TIFFSetField(t, TIFFTAG_CFAPATTERN, 4, cfa.data());
+        const uint8_t dng_version[4] = {1, 4, 0, 0};
+        const uint8_t dng_backward[4] = {1, 1, 0, 0};
+        TIFFSetField(t, TIFFTAG_DNGVERSION, dng_version);
+        TIFFSetField(t, TIFFTAG_DNGBACKWARDVERSION, dng_backward);
+        TIFFSetField(t, TIFFTAG_UNIQUECAMERAMODEL, "mesoscan simulated camera");
+        TIFFSetField(t, TIFFTAG_BLACKLEVELREPEATDIM, repeat);
+        // BlackLevel is ordered row by row over the repeat pattern: (0,0) (1,0) (0,1) (1,1).
+        float black[4];
+        for (int i = 0; i < 4; ++i) black[i] = static_cast<float>(levels.black[i]);
+        TIFFSetField(t, TIFFTAG_BLACKLEVEL, 4, black);
+        const uint32_t white = static_cast<uint32_t>(levels.white);
+        TIFFSetField(t, TIFFTAG_WHITELEVEL, 1, &white);
+        const float color_matrix[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};  // XYZ -> camera, neutral
+        TIFFSetField(t, TIFFTAG_COLORMATRIX1, 9, color_matrix);
+        const float as_shot_neutral[3] = {1, 1, 1};
+        TIFFSetField(t, TIFFTAG_ASSHOTNEUTRAL, 3, as_shot_neutral);
+        for (uint32_t y = 0; y < h; ++y)
+          if (TIFFWriteScanline(t, const_cast<uint16_t*>(mosaic.row(static_cast<int>(y))), y, 0) <
+              0)
+            MESOSCAN_BAD_INPUT(path.string() << ": cannot write DNG row " << y);
+        if (!TIFFWriteDirectory(t)) MESOSCAN_BAD_INPUT(path.string() << ": cannot write DNG");
+      },
+      min_bytes, nullptr);
 }
 
 std::string LibRawVersion() {

@@ -530,6 +530,31 @@ TwoScans ScanBoth(const std::string& object, const fs::path& rig_file, const Rig
 
 // The coin reconstructed with the calibrated rig: depth within 1 um RMS of the true-rig scan, no
 // gross errors; the empty mount at z = 0 within 2 um RMS.
+// A report that cannot be written (writes past 8 KB of a file fail, as on a full disk): exit 3
+// naming the file and the reason; neither the rig file nor a partial report folder is left (the
+// report is staged and the rig is written only once the report is complete).
+TEST_F(CalibrateSim, FailedReportWriteLeavesNoRigAndNoReport) {
+  const fs::path rig = Dir("full_rig.json"), report = Dir("full_report");
+  std::string args;
+  for (size_t i = 1; i < sessions_->size(); ++i) args += (*sessions_)[i].string() + " ";
+  const CliRun r = RunCli("calibrate " + args + "--board checker:10x7:6 --fix k3 --out " +
+                              rig.string() + " --report " + report.string(),
+                          rig.parent_path(), "ulimit -f 8; trap '' XFSZ;");
+  EXPECT_EQ(r.code, 3) << r.err;
+  EXPECT_EQ(r.ErrLines(), 1) << r.err;
+  EXPECT_NE(r.err.find("cannot write (File too large)"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(report.string()), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find(".mesoscan-tmp"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(rig));
+  EXPECT_FALSE(fs::exists(report));
+  for (const auto& e : fs::directory_iterator(rig.parent_path())) {
+    const std::string name = e.path().filename().string();
+    if (name.find(report.filename().string()) != std::string::npos ||
+        name.find(rig.stem().string()) != std::string::npos)
+      EXPECT_NE(name[0], '.') << "a temporary was left: " << name;
+  }
+}
+
 TEST_F(CalibrateSim, CoinAndMountWithTheCalibratedRig) {
   CalibrateOptions co;
   co.board = Board();
