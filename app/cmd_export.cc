@@ -10,6 +10,7 @@
 
 #include "app/commands.h"
 #include "app/map_options.h"
+#include "app/session_checks.h"
 #include "core/budget.h"
 #include "core/error.h"
 #include "core/image_io.h"
@@ -113,6 +114,7 @@ void RunExport(const ExportArgs& a) {
   CheckOutputFolder(out_spec);
   const Scan scan = ReadScanFolder(a.scan);
   ValidateExportSizes(scan, o, a.scan);
+  CheckScanUsable(scan, a.scan);  // as `check` does: a damaged sample is refused, not exported
   // Albedo: --albedo, else an albedo the reconstruction wrote into the scan folder, else
   // ExportScan looks for the session's white frame (report.json "session").
   fs::path albedo = a.albedo;

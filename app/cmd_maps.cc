@@ -2,12 +2,14 @@
 // filled, the sample's shape removed, tileable at a physical size, with AO and curvature.
 // The same options on `export` and `reconstruct --export` (AddMapOptions).
 
+#include <cmath>
 #include <filesystem>
 #include <iostream>
 #include <memory>
 
 #include "app/commands.h"
 #include "app/map_options.h"
+#include "app/session_checks.h"
 #include "core/error.h"
 #include "core/image_io.h"
 #include "core/output_dir.h"
@@ -40,6 +42,11 @@ bool MapArgs::any() const {
 MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop) const {
   MapsOptions o;
   o.name = name;
+  for (const auto& [opt, v] :
+       {std::pair{"--fill-max-radius-mm", fill_max_radius_mm}, std::pair{"--tile", tile_mm},
+        std::pair{"--ao-radius-mm", ao_radius_mm}})
+    if (!std::isfinite(v) || v < 0)
+      MESOSCAN_THROW(ErrorKind::kUsage, opt << " " << v << ": expected a finite size in mm >= 0");
   if (!fill.empty()) o.fill.method = ParseFillMethod(fill);
   if (fill_max_radius_mm > 0) o.fill.max_hole_radius_m = fill_max_radius_mm * 1e-3;
   if (!flatten.empty()) o.flatten = ParseFlatten(flatten);
@@ -100,6 +107,7 @@ void RunMaps(const MapsCmdArgs& a) {
   const OutputSpec out_spec{"maps", "--out", a.out, {a.scan, a.albedo}, a.force, {"manifest.json"}};
   CheckOutputFolder(out_spec);
   const Scan scan = ReadScanFolder(a.scan);
+  CheckScanUsable(scan, a.scan);  // as `check` does: a damaged sample is refused
   if (!a.albedo.empty()) {
     o.albedo = ReadImage(a.albedo);
     if (o.albedo.width() != scan.height.width() || o.albedo.height() != scan.height.height())

@@ -89,6 +89,13 @@ void Run(const ReconstructArgs& a) {
     };
   ReconstructSummary summary;
   Scan scan = ReconstructOrExplain(session, opt, &summary);  // names session.json; no empty scan
+  // A scan its own check, export, maps and render refuse is not written.
+  if (scan.height.width() < 2 || scan.height.height() < 2)  // (ReconstructOrExplain: no --roi)
+    MESOSCAN_THROW(ErrorKind::kUsage, "reconstruct: --roi "
+                                          << a.roi << ": the points span a " << scan.height.width()
+                                          << "x" << scan.height.height()
+                                          << " height grid, expected at least 2x2 samples: "
+                                             "choose a larger --roi");
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
   scan.report["object"] = session.object;
   // The scan's EXRs, and the ground-truth comparison with its error map when the session has
@@ -200,12 +207,12 @@ void AddReconstructCommand(CLI::App* app) {
   cmd->add_flag("--no-normalize", args->no_normalize, "No per-frame luminance normalisation");
   cmd->add_option("--pixel-size-um", args->pixel_size_um,
                   "Height-field grid pixel (um); 0 = camera footprint")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Range(0.0, 1e6));
   cmd->add_option("--export", args->export_formats,
                   "Also export for DCC tools, as `mesoscan export`: formats exr,png16,glb,ply");
   cmd->add_option("--export-dir", args->export_dir, "Folder for --export (default SCAN/export)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Range(0, 4096));
   AddMapOptions(cmd, &args->maps, /*standalone=*/false);
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out (or --export-dir) that is not an earlier output of "

@@ -145,7 +145,7 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
     if (alb.pixels() == 0 && fs::exists(fs::path(a.scan) / f))
       alb = ReadImage(fs::path(a.scan) / f);
   if (alb.pixels() == 0) {
-    const Json report = Json::parse(ReadTextFile(fs::path(a.scan) / "report.json"));
+    const Json report = ReadJsonFile(fs::path(a.scan) / "report.json");
     if (!report.contains("session") || !report["session"].is_string())
       MESOSCAN_BAD_INPUT(
           a.scan << "/report.json: --albedo scan: no albedo.exr/png and no \"session\" "
@@ -192,6 +192,9 @@ void ValidateRenderNumbers(const RenderArgs& a, const RenderOptions& o) {
   finite("--sun-elevation", a.sun_elevation_deg, 90);
   finite("--sun-azimuth", a.sun_azimuth_deg, 1e6);
   finite("--env-scale", a.env_scale, 1e12);
+  if (a.env_scale < 0)
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "render: --env-scale: expected a radiance multiplier >= 0, got " << a.env_scale);
   finite("--env-rotation", a.env_rotation_deg, 1e6);
   // Budget before allocation: radiance, sums and variance per pixel (~64 bytes).
   CheckMemoryBudget("render: --size " + std::to_string(o.width) + "x" + std::to_string(o.height),
@@ -344,6 +347,7 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
 // The scan's height field as the preview shows it: height.exr, validated, bounded holes filled
 // unless --fill none.
 HeightField PreviewHeightField(const RenderArgs& a, const fs::path& scan, const RenderOptions& o) {
+  RestoreInterruptedReplacement(scan);  // core/output_dir.h: a replacement killed half-way
   const fs::path height_file = scan / "height.exr";
   HeightField hf = ReadHeightExr(height_file);
   ValidateHeightField(hf, o, height_file.string());
@@ -532,7 +536,8 @@ void AddRenderCommand(CLI::App* app) {
                   "Candidate directions resampled towards the BRDF x the field's reflection at "
                   "vertices that aim at it (0 or 1: off)")
       ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)");
+  cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
+      ->check(CLI::Range(0, 4096));
   cmd->add_flag("--denoise", args->denoise,
                 "Also write preview_denoised.png / .exr: the render smoothed by an edge-aware "
                 "filter guided by normal and depth buffers (biased; the raw preview is still "

@@ -5,6 +5,7 @@
 #include <exception>
 
 #include "app/commands.h"
+#include "core/budget.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "core/progress.h"
@@ -39,6 +40,7 @@ int main(int argc, char** argv) {
   AddDoctorCommand(&app);
 
   try {
+    MemoryBudgetBytes();  // a malformed MESOSCAN_MEMORY_BUDGET_MB is a usage error, said first
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);

@@ -165,9 +165,13 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
     if (!(gw_d < 1 << 30 && gh_d < 1 << 30)) CheckMemoryBudget(what.str(), 1e300);
     CheckMemoryBudget(what.str(), gw_d * gh_d * 48.0);
   }
+  if (!(gw_d >= 1 && gh_d >= 1)) {  // the points lie between two grid lines (a 1-pixel ROI strip)
+    hf.z = ImageF(0, 0);
+    hf.confidence = ImageF(0, 0);
+    return hf;
+  }
   const int gw = static_cast<int>(gw_d);
   const int gh = static_cast<int>(gh_d);
-  MESOSCAN_CHECK(gw > 0 && gh > 0);
   ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
     if (a == 0)
       hf.z = ImageF(gw, gh, 1, kNaN);

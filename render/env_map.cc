@@ -74,7 +74,21 @@ EnvironmentMap EnvironmentMap::Load(const std::filesystem::path& path, double sc
   if (im.channels() < 3)
     MESOSCAN_BAD_INPUT(path.string()
                        << ": environment map: expected RGB channels, got " << im.channels());
-  return FromImage(im, scale);
+  // Radiance is finite and >= 0: a NaN or negative texel is a damaged or foreign file, named.
+  for (int c = 0; c < 3; ++c)
+    for (int y = 0; y < im.height(); ++y)
+      for (int x = 0; x < im.width(); ++x) {
+        const float v = im(x, y, c);
+        if (!(std::isfinite(v) && v >= 0))
+          MESOSCAN_BAD_INPUT(path.string()
+                             << ": environment map: texel (" << x << ", " << y << ") channel " << c
+                             << " is " << v << ", expected a finite radiance >= 0");
+      }
+  try {
+    return FromImage(im, scale);
+  } catch (const Error& e) {
+    throw Error(path.string() + ": " + e.what(), e.kind());
+  }
 }
 
 EnvironmentMap EnvironmentMap::Sky(double sun_elevation_deg, double sun_azimuth_deg, int width) {

@@ -1,5 +1,7 @@
 #include "session/session.h"
 
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -14,6 +16,7 @@
 
 #include "core/error.h"
 #include "core/fs.h"
+#include "core/json_depth.h"
 #include "core/log.h"
 #include "core/output_dir.h"
 #include "core/parallel.h"
@@ -340,9 +343,18 @@ ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const
     return ReadImageLayout(path);
   } catch (const Error& e) {
     std::string msg = e.what();
+    // Out of file descriptors is the process's limit, not the frame's fault.
+    if (msg.find(std::strerror(EMFILE)) != std::string::npos) {
+      rlimit rl{};
+      getrlimit(RLIMIT_NOFILE, &rl);
+      MESOSCAN_THROW(e.kind(), "too many open files: the process may open "
+                                   << rl.rlim_cur << " (ulimit -n); raise the limit (while reading "
+                                   << label << ")");
+    }
     const std::string prefix = path.string() + ": ";
     if (msg.compare(0, prefix.size(), prefix) == 0) msg = msg.substr(prefix.size());
-    MESOSCAN_BAD_INPUT(label << ": " << msg << " (" << key << ")");
+    MESOSCAN_THROW(e.kind() == ErrorKind::kInternal ? ErrorKind::kInternal : ErrorKind::kBadInput,
+                   label << ": " << msg << " (" << key << ")");
   }
 }
 
@@ -498,6 +510,60 @@ std::string FramePlan::Describe(const Rig& rig) const {
   return out.str();
 }
 
+namespace {
+
+// What the numbers of a calibrated rig can be at all (a typo or a damaged file, not a rig the
+// reconstruction could use): a pinhole skew beyond fx, distortion terms beyond 100 (k1 of real
+// lenses is well below 1), a response gamma outside [0.05, 20], a device at or below the mount
+// plane (world z = 0, +z towards the rig), camera and projector within 0.5 mm of each other (no
+// triangulation), a lens shifter whose range spans more than the projector's width.
+void CheckRigGeometry(const Parser& p, const Rig& rig) {
+  const auto device = [&](const PinholeCamera& d, const std::string& key) {
+    if (!(std::abs(d.K(0, 1)) <= d.K(0, 0)))
+      p.Fail(key + ".K",
+             "skew " + Num(d.K(0, 1)) + ", expected |skew| <= fx (" + Num(d.K(0, 0)) + ")");
+    for (int i = 0; i < 5; ++i)
+      if (!(std::abs(d.distortion[i]) <= 100))
+        p.Fail(key + ".distortion", "term " + std::to_string(i) + " is " + Num(d.distortion[i]) +
+                                        ", expected |value| <= 100");
+    if (rig.uncalibrated) return;
+    const double z = d.world_from_device.translation.z();
+    if (!(z > 0))
+      p.Fail(key + ".world_from_device",
+             "the device is at z = " + Num(z) +
+                 " m, expected above the mount plane (z > 0, +z towards the rig)");
+  };
+  device(rig.camera, "rig.camera");
+  device(rig.projector, "rig.projector");
+  for (const auto& [r, key] : {std::pair{&rig.camera_response, "rig.camera.response"},
+                               std::pair{&rig.projector_response, "rig.projector.response"}})
+    if (r->kind == Response::Kind::kGamma && !(r->gamma >= 0.05 && r->gamma <= 20))
+      p.Fail(key, "gamma " + Num(r->gamma) + ", expected a value in [0.05, 20]");
+  if (!rig.uncalibrated) {
+    const double baseline =
+        (rig.projector.world_from_device.translation - rig.camera.world_from_device.translation)
+            .norm();
+    if (!(baseline >= 0.5e-3))
+      p.Fail("rig.projector.world_from_device",
+             "the projector is " + Num(baseline * 1e3) +
+                 " mm from the camera, expected a baseline of at least 0.5 mm to triangulate");
+  }
+  if (rig.lens_shifter) {
+    const LensShifter& ls = *rig.lens_shifter;
+    const int extent = ls.axis == 'y' ? rig.projector.height : rig.projector.width;
+    const double span =
+        (static_cast<double>(ls.range_steps[1]) - ls.range_steps[0]) / ls.steps_per_px;
+    if (!(span <= extent))
+      p.Fail("rig.lens_shifter", "range_steps / steps_per_px spans " + Num(span) +
+                                     " projector px, expected at most the projector's " +
+                                     (ls.axis == 'y' ? "height (" : "width (") +
+                                     std::to_string(extent) +
+                                     " px): steps_per_px too small or range_steps too wide?");
+  }
+}
+
+}  // namespace
+
 Session ParseSession(const Json& j, const fs::path& root, const std::string& file_label) {
   const Parser p(file_label);
   if (!j.is_object()) MESOSCAN_BAD_INPUT(file_label << ": expected a JSON object at the top level");
@@ -548,6 +614,7 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
       p.Fail("rig.lens_shifter.range_steps", "expected " + range_expected);
     s.rig.lens_shifter = shifter;
   }
+  CheckRigGeometry(p, s.rig);
 
   // frames
   const std::string frames_expected = "a non-empty array of frames";
@@ -757,6 +824,7 @@ Rig LoadRigFile(const fs::path& path) {
 }
 
 Session ReadSession(const fs::path& dir, bool check_frames) {
+  RestoreInterruptedReplacement(dir);
   fs::path root = dir;
   std::error_code ec;
   if (fs::is_regular_file(dir, ec) && dir.extension() == ".json") root = dir.parent_path();
@@ -778,6 +846,7 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
     ss << in.rdbuf();
     text = ss.str();
   }
+  CheckJsonDepth(text, label);
   Json j;
   try {
     j = Json::parse(text);
