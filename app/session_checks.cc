@@ -1,6 +1,9 @@
 #include "app/session_checks.h"
 
 #include <cmath>
+#include <optional>
+#include <string>
+#include <vector>
 
 #include "core/error.h"
 #include "core/image_io.h"
@@ -21,11 +24,49 @@ bool NamesAFile(const std::string& msg, const Session& s) {
          msg.find(": --") != std::string::npos;
 }
 
+// Why no point came out: the stage that rejected most of the pixels, in the user's terms.
+std::string WhyNoPoint(const ReconstructSummary& s) {
+  if (s.pixels_roi == 0) return "the ROI and mask select no pixel";
+  if (s.pixels_saturated * 2 >= s.pixels_roi)
+    return std::to_string(s.pixels_saturated) +
+           " of them are saturated in some frame: lower the exposure";
+  if (s.pixels_lit == 0)
+    return "none is lit and modulated by the patterns: are the frames dark, identical, "
+           "low-contrast or NaN?";
+  if (s.consistency.ambiguous_stripes * 2 > s.consistency.decoded && s.consistency.decoded > 0)
+    return "the sine periods fix the projector column too coarsely for the 2-px lens-shift "
+           "stripes (their noise allows a wrong stripe period): add shorter periods";
+  const std::pair<int64_t, const char*> reasons[] = {
+      {s.pixels_rejected_unwrap,
+       "the sine periods' phases disagree at every pixel (unwrapping failed): are the periods "
+       "and phases in session.json those of the frames?"},
+      {s.pixels_rejected_combination,
+       "the lens-shift stripes disagree with the sines' column: are the shifts and periods in "
+       "session.json those of the frames?"},
+      {s.pixels_rejected_confidence,
+       "the lens-shift profiles are noise (low confidence): too dark, defocused or "
+       "low-contrast stripes?"},
+      {s.pixels_rejected_isolated,
+       "the decoded columns are noise (isolated fringe orders): too dark or low-contrast "
+       "frames?"},
+      {s.pixels_rejected_inconsistent, "the frames' phases contradict each other"},
+      {s.pixels_rejected_ambiguous,
+       "the frames are too noisy for the code (a wrong fringe order or a depth error over 100 um "
+       "would be likely): too dark or low-contrast frames?"},
+      {s.pixels_rejected_discontinuity, "every point lies on a depth step or shadow edge"}};
+  const auto* best = &reasons[0];
+  for (const auto& r : reasons)
+    if (r.first > best->first) best = &r;
+  return best->second;
+}
+
 }  // namespace
 
 Scan ReconstructOrExplain(const Session& session, const ReconstructOptions& options,
-                          ReconstructSummary* summary) {
+                          ReconstructSummary* summary_out) {
   const std::string manifest = (session.root / "session.json").string();
+  ReconstructSummary local;
+  ReconstructSummary* summary = summary_out ? summary_out : &local;
   Scan scan;
   try {
     scan = Reconstruct(session, options, summary);
@@ -37,10 +78,16 @@ Scan ReconstructOrExplain(const Session& session, const ReconstructOptions& opti
   const ImageF& xyz = scan.points.xyz;
   if (xyz.channels() == 3)
     for (size_t i = 0; i < xyz.pixels(); ++i) points += std::isfinite(xyz.channel(2)[i]);
-  if (points == 0)
-    MESOSCAN_BAD_INPUT(manifest << ": no pixel could be decoded (" << xyz.width() << "x"
-                                << xyz.height()
-                                << " pixels tried): are the frames identical, unlit or NaN?");
+  // No point, or too few to make a height grid of 2x2 samples (what check, export, maps and
+  // render need): refused, naming why most pixels were rejected.
+  const bool grid = scan.height.width() >= 2 && scan.height.height() >= 2;
+  if (points == 0 || (!grid && options.load.roi.w == 0))
+    MESOSCAN_BAD_INPUT(manifest << ": " << (points ? "too few points" : "no point")
+                                << " could be reconstructed from the " << summary->pixels_roi
+                                << " pixels tried (" << summary->pixels_lit << " lit and modulated"
+                                << (points ? ", " : "")
+                                << (points ? std::to_string(points) + " points" : std::string())
+                                << "): " << WhyNoPoint(*summary));
   return scan;
 }
 
@@ -60,24 +107,39 @@ void CheckSessionLikeReconstruct(const Session& session) {
   // A calibration session has no calibrated rig to reconstruct with: its frames are checked
   // above, its decoding is calibrate's.
   if (session.rig.uncalibrated) return;
-  // The reconstruction's own tests (periods, phases, unwrapping, projector size), on a 32x32
-  // window at the image centre.
-  ReconstructOptions o;
+  // The reconstruction's own tests (periods, phases, unwrapping, the frames' consistency,
+  // projector size) on a 32x32 window at the image centre; where it gives no point, on up to 8
+  // more windows over the image: a session none of them reconstructs is refused as reconstruct
+  // would refuse it (naming why).
   const int w = session.rig.camera.width, h = session.rig.camera.height;
-  o.load.roi = {std::max(0, w / 2 - 16), std::max(0, h / 2 - 16), std::min(32, w), std::min(32, h)};
-  o.num_threads = 0;
+  const int ww = std::min(32, w), wh = std::min(32, h);
+  std::vector<PixelRect> windows = {{std::max(0, w / 2 - 16), std::max(0, h / 2 - 16), ww, wh}};
+  for (int gy = 0; gy < 3; ++gy)
+    for (int gx = 0; gx < 3; ++gx)
+      if (gx != 1 || gy != 1)
+        windows.push_back({(w - ww) * (2 * gx + 1) / 6, (h - wh) * (2 * gy + 1) / 6, ww, wh});
   Progress::SetEnabled(false);  // check prints its summary, not the window's progress bars
   const LogLevel level = GetLogLevel();
   SetLogLevel(LogLevel::kError);  // the window's own statistics are not the user's business
   try {
-    ReconstructSummary summary;
-    Scan scan;
-    try {
-      scan = Reconstruct(session, o, &summary);
-    } catch (const Error& e) {
-      if (e.kind() != ErrorKind::kBadInput || NamesAFile(e.what(), session)) throw;
-      throw Error((session.root / "session.json").string() + ": " + e.what(), e.kind());
+    std::optional<Error> first;
+    for (const PixelRect& roi : windows) {
+      ReconstructOptions o;
+      o.load.roi = roi;
+      o.num_threads = 0;
+      try {
+        ReconstructSummary summary;
+        ReconstructOrExplain(session, o, &summary);
+        first.reset();
+        break;
+      } catch (const Error& e) {
+        // A refusal of the session itself (its periods, its frames' contradictions) is final;
+        // a window without points tries the next.
+        if (std::string(e.what()).find("could be reconstructed from") == std::string::npos) throw;
+        if (!first) first = e;
+      }
     }
+    if (first) throw *first;
   } catch (...) {
     SetLogLevel(level);
     throw;
@@ -91,9 +153,41 @@ void CheckScanUsable(const Scan& scan, const fs::path& dir) {
   if (hf.width() < 2 || hf.height() < 2)
     MESOSCAN_BAD_INPUT(file << ": a " << hf.width() << "x" << hf.height()
                             << " height grid, expected at least 2x2 samples");
-  for (const float z : hf.z.data())
-    if (std::isfinite(z)) return;
-  MESOSCAN_BAD_INPUT(file << ": no valid (finite) height sample");
+  if (!std::isfinite(hf.x0) || !std::isfinite(hf.y0) || !(hf.pixel_size > 0) ||
+      !std::isfinite(hf.pixel_size) || std::abs(hf.x0) > 1e6 || std::abs(hf.y0) > 1e6 ||
+      hf.pixel_size > 1e3)
+    MESOSCAN_BAD_INPUT(file << ": " << kAttrX0 << ", " << kAttrY0 << ", " << kAttrPixelSize
+                            << " must be finite (|x0|, |y0| <= 1e6 m, 0 < pixel size <= 1e3 m), "
+                               "got "
+                            << hf.x0 << ", " << hf.y0 << ", " << hf.pixel_size);
+  // A height beyond 100 times the field's extent is no surface the rig can see: a damaged
+  // sample that would flatten every quantised map and put a vertex kilometres away.
+  const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
+  const double limit = std::min(100 * extent, 1e3);
+  bool any = false, block = false;
+  const int w = hf.width(), h = hf.height();
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const float z = hf.z(x, y);
+      if (!std::isfinite(z)) continue;
+      any = true;
+      if (std::abs(z) > limit)
+        MESOSCAN_BAD_INPUT(file << ": sample (" << x << ", " << y << ") is " << z
+                                << " m, beyond 100 times the field's " << extent
+                                << " m extent (a damaged file?)");
+      if (!hf.confidence.empty()) {
+        const float c = hf.confidence(x, y);
+        if (!(c >= 0 && c <= 1))
+          MESOSCAN_BAD_INPUT(file << ": sample (" << x << ", " << y << "): confidence " << c
+                                  << ", expected a value in [0, 1]");
+      }
+      block = block || (x + 1 < w && y + 1 < h && std::isfinite(hf.z(x + 1, y)) &&
+                        std::isfinite(hf.z(x, y + 1)) && std::isfinite(hf.z(x + 1, y + 1)));
+    }
+  if (!any) MESOSCAN_BAD_INPUT(file << ": no valid (finite) height sample");
+  if (!block)
+    MESOSCAN_BAD_INPUT(file << ": no 2x2 block of known samples (isolated samples only): no "
+                               "surface to export");
 }
 
 }  // namespace mesoscan

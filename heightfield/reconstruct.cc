@@ -91,6 +91,11 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   CombinedPixels& combined = out.combined =
       CombinePhases(plan, ps, ls, combine, &state, options.phase_shift);
   RejectIsolatedColumns(grid, combine, &combined, &state);
+  // Consistency: the frames' own model at every pixel (ps and ls are still whole here).
+  ConsistencyOptions consistency = options.consistency;
+  consistency.systematic_phase_noise = options.phase_shift.systematic_phase_noise;
+  consistency.four_parameter_fit = ls.fit_parameters == 4;
+  sum->consistency = CheckPhaseConsistency(plan, session, ps, ls, consistency, &combined, &state);
   sum->pixels_lit = ps.pixels_lit;
   sum->pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
   SummarizeFrames(plan, gains, ls.frame_corrections, combined.ls_offset_px, sum);
@@ -109,6 +114,9 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   if (options.reject_mixed_pixels)
     RejectMixedPixels(grid, classes.white_level, tri.sigma_z, options.mixed_pixels, &tri.points,
                       &state);
+  if (options.consistency.enabled)
+    RejectUncertainPoints(grid, tri.sigma_z, options.consistency.max_depth_sigma_m, &tri.points,
+                          &state);
   timer->Stage("triangulate");
   return out;
 }

@@ -21,8 +21,13 @@
 //     noise as weights, at the fringe orders of step 4 where they hold), combination (paper
 //     Eq. 2), confidence (paper Eq. 4) times modulation and unwrapping consistency;
 //     6b. isolated fringe orders (stage_combine.h RejectIsolatedColumns);
+//     6c. consistency (stage_consistency.h): the frames' own model at every pixel (phases that
+//     contradict the column, fringe orders or stripe periods the noise cannot fix), and a
+//     capture contradicting itself refused;
 //  7. triangulate (stage_triangulate.h) with camera and projector distortion;
-//  8. mixed pixels (stage_mixed_pixels.h); NaN and confidence 0 wherever a point is rejected;
+//  8. mixed pixels (stage_mixed_pixels.h), then points whose predicted depth sigma is too large
+//     (stage_consistency.h RejectUncertainPoints); NaN and confidence 0 wherever a point is
+//     rejected;
 //  9. height field (stage_height_field.h) on a regular world grid, normals; report.json figures
 //     (reconstruct_summary.cc).
 // ReconstructPoints assembles stages 0-8 (Reconstruct and calibration's flat-target scan both
@@ -46,6 +51,7 @@
 #include "heightfield/resample.h"
 #include "heightfield/stage_classify.h"
 #include "heightfield/stage_combine.h"
+#include "heightfield/stage_consistency.h"
 #include "heightfield/stage_gains.h"
 #include "heightfield/stage_lens_shift.h"
 #include "heightfield/stage_phase_shift.h"
@@ -73,6 +79,8 @@ struct ReconstructOptions {
   LensShiftStageOptions lens_shift;
   // Stage 6: combination (paper Eq. 2), confidence (Eq. 4), fallback, isolated fringe orders.
   CombineOptions combine;
+  // Stage 6c: the frames' own model checked at every pixel; stage 8: the depth sigma limit.
+  ConsistencyOptions consistency;
   // Stage 8: mixed pixels at depth steps and shadow edges (heightfield/mixed_pixels.h): rejected
   // rather than placed between the surfaces. reject_mixed_pixels = false keeps them.
   bool reject_mixed_pixels = true;
@@ -129,6 +137,9 @@ struct ReconstructSummary {
   int64_t pixels_rejected_confidence = 0;
   int64_t pixels_rejected_discontinuity = 0;
   int64_t pixels_rejected_isolated = 0;  // combine: isolated fringe orders (RejectIsolatedColumns)
+  int64_t pixels_rejected_inconsistent = 0;  // consistency: phases contradict the column
+  int64_t pixels_rejected_ambiguous = 0;     // consistency: order or depth too uncertain
+  ConsistencyReport consistency;
   int lens_shift_frames = 0, phase_shift_frames = 0;
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated
   Json frame_corrections;  // lens-shift frames: FrameCorrections::ToJson() (null if not run)

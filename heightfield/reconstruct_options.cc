@@ -9,6 +9,7 @@ void ReconstructOptions::Check() const {
   classify.Check();
   phase_shift.Check();
   combine.Check();
+  consistency.Check();
   mixed_pixels.Check();
   resample.Check();
   if (num_threads < 0) MESOSCAN_BAD_INPUT("--threads: expected >= 0, got " << num_threads);
@@ -37,6 +38,8 @@ Json ReconstructOptions::ToJson() const {
   j["confidence_t"] = combine.confidence_t;
   j["min_confidence"] = combine.min_confidence;
   j["systematic_phase_noise"] = phase_shift.systematic_phase_noise;
+  j["check_consistency"] = consistency.enabled;
+  j["max_depth_sigma_m"] = consistency.max_depth_sigma_m;
   j["reject_mixed_pixels"] = reject_mixed_pixels;
   j["mixed_pixels"] = {{"max_sigmas", mixed_pixels.max_sigmas},
                        {"outlier_footprints", mixed_pixels.outlier_footprints},

@@ -44,6 +44,8 @@ Json ReconstructSummary::ToJson() const {
                  {"rejected_combination", pixels_rejected_combination},
                  {"rejected_confidence", pixels_rejected_confidence},
                  {"rejected_isolated", pixels_rejected_isolated},
+                 {"rejected_inconsistent", pixels_rejected_inconsistent},
+                 {"rejected_ambiguous", pixels_rejected_ambiguous},
                  {"rejected_discontinuity", pixels_rejected_discontinuity}};
   j["frames"] = {{"lens_shift", lens_shift_frames}, {"phase_shift", phase_shift_frames}};
   j["frame_gains"] = frame_gains;
@@ -52,6 +54,7 @@ Json ReconstructSummary::ToJson() const {
   j["axis"] = axis;
   j["used_lens_shift"] = used_lens_shift;
   j["predicted_depth_rms_m"] = predicted_depth_rms_m;
+  j["consistency"] = consistency.ToJson();
   return j;
 }
 
@@ -63,6 +66,8 @@ void CountFinalStates(const PixelStates& state, ReconstructSummary* s) {
     s->pixels_rejected_combination += st == PixelState::kCombination;
     s->pixels_rejected_confidence += st == PixelState::kLowConfidence;
     s->pixels_rejected_isolated += st == PixelState::kIsolated;
+    s->pixels_rejected_inconsistent += st == PixelState::kInconsistent;
+    s->pixels_rejected_ambiguous += st == PixelState::kAmbiguous;
   }
 }
 

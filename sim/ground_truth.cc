@@ -26,6 +26,7 @@ Json GroundTruthErrors::ToJson() const {
           {"gross", gross},
           {"gross_fraction", gross_fraction},
           {"gross_threshold_m", gross_threshold_m},
+          {"inlier_scale_m", inlier_scale_m},
           {"footprint_known", footprint_known},
           {"mixed_relief_m", mixed_relief_m},
           {"pixels_mixed", pixels_mixed},
@@ -149,7 +150,7 @@ GroundTruthErrors EvaluateAgainstGroundTruth(const GroundTruthPoints& gt_points,
   e.max_abs_m = *std::max_element(a.begin() + i_p99, a.end());
   std::nth_element(a.begin(), a.begin() + i_med, a.begin() + i_p99);
   e.median_abs_m = a[i_med];
-  if (gross_threshold_m <= 0) {
+  {
     double in2 = 0;
     size_t n = 0;
     for (double v : a)
@@ -157,14 +158,15 @@ GroundTruthErrors EvaluateAgainstGroundTruth(const GroundTruthPoints& gt_points,
         in2 += v * v;
         ++n;
       }
-    gross_threshold_m = 10 * std::sqrt(in2 / std::max<size_t>(1, n));
+    e.inlier_scale_m = 10 * std::sqrt(in2 / std::max<size_t>(1, n));
   }
+  if (gross_threshold_m <= 0) gross_threshold_m = kGrossErrorM;
   e.gross_threshold_m = gross_threshold_m;
   for (double v : a) e.gross += v > gross_threshold_m;
   e.gross_fraction = static_cast<double>(e.gross) / a.size();
 
   e.footprint_known = footprint;
-  e.mixed_relief_m = footprint ? gross_threshold_m / 10 : 0.0;
+  e.mixed_relief_m = footprint ? e.inlier_scale_m / 10 : 0.0;
   int64_t single = 0, single_both = 0;
   for (int y = std::max(0, roi.y); y < std::min(h, roi.y + roi.h); ++y)
     for (int x = std::max(0, roi.x); x < std::min(w, roi.x + roi.w); ++x) {

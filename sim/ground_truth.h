@@ -32,9 +32,12 @@ struct GroundTruthErrors {
   int64_t gross = 0;            // |error| > gross_threshold_m
   double gross_fraction = 0.0;  // gross / pixels_both
   double gross_threshold_m = 0.0;
+  // 10x the RMS of the inliers (|e| < 5 median |e|): the errors' own scale (the gross threshold
+  // before it was absolute; a scan whose errors are all wrong has a large one).
+  double inlier_scale_m = 0.0;
   // Mixed pixels, where gt_points.exr has the simulator's footprint channels (lit_fraction,
   // relief; sim/README.md): a lit pixel is mixed if part of its footprint is unlit or the
-  // footprint's relief (distance from one plane) exceeds mixed_relief_m = gross_threshold_m / 10
+  // footprint's relief (distance from one plane) exceeds mixed_relief_m = inlier_scale_m / 10
   // (the inliers' RMS): it sees more than one smooth surface, and is to be
   // rejected. Coverage of the single-surface lit pixels is then the fair figure. Without
   // the channels every lit pixel counts as single-surface.
@@ -47,7 +50,9 @@ struct GroundTruthErrors {
   ImageF error;                  // camera grid, Z error (m), NaN where not both
   Json ToJson() const;
 };
-// gross_threshold_m <= 0: 10x the RMS of the inliers (|e| < 5 median |e|) is used.
+// An error is gross if |error| > gross_threshold_m; <= 0: kGrossErrorM, an absolute threshold
+// (the promise of the reconstruction: no point kept more than 100 um from the surface).
+inline constexpr double kGrossErrorM = 100e-6;
 GroundTruthErrors EvaluateAgainstGroundTruth(const Session& session, const ScanPoints& points,
                                              const PixelRect& roi = {},
                                              double gross_threshold_m = 0.0);

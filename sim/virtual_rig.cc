@@ -608,7 +608,7 @@ void SimulateOptions::Check() const {
     SIM_USAGE("--projector-gamma: expected (0, 5], got " << projector_gamma);
   if (!(exposure > 0 && exposure <= 100))
     SIM_USAGE("--exposure: expected (0, 100], got " << exposure);
-  if (!(ambient >= 0 && ambient <= 10)) SIM_USAGE("--ambient: expected [0, 10], got " << ambient);
+  if (!(ambient >= 0 && ambient <= 100)) SIM_USAGE("--ambient: expected [0, 100], got " << ambient);
   if (!(noise >= 0 && noise <= 100)) SIM_USAGE("--noise: expected [0, 100], got " << noise);
   if (!(full_well_e > 0)) SIM_USAGE("--full-well: expected > 0 electrons, got " << full_well_e);
   if (!(read_noise_e >= 0))
