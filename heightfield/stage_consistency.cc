@@ -92,47 +92,57 @@ double CombineSigma(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
   return std::max(sigma, 1e-4 * ps.level[i]);
 }
 
-// The phase differences (radians, per period) between a column and the columns the code comes
-// closest to confusing it with (at least half the finest period away, within the projector):
-// the local minima of the code distance over the column offset, the closest kMaxRivals. A pixel
-// is decoded to a wrong fringe order only if its phase errors cover about half the distance to
-// one of them (in its own noise: sum over periods of difference^2 / variance). Empty for a
-// single period (no fringe order to choose: its depth sigma bounds it instead).
-std::vector<std::vector<double>> RivalColumns(const ReconstructPlan& plan) {
+// The phase differences (radians, per period) of two columns `offset` px apart.
+std::vector<double> CodeDifference(const std::vector<double>& periods, double offset) {
+  std::vector<double> out(periods.size());
+  for (size_t p = 0; p < periods.size(); ++p) {
+    const double c = offset / periods[p];
+    out[p] = 2 * kPi * (c - std::round(c));
+  }
+  return out;
+}
+
+// A column offset the code comes close to confusing with no offset, and the phase differences
+// there.
+struct Rival {
+  double offset = 0;
+  std::vector<double> diff;
+};
+
+// The offsets the code comes closest to confusing (at least half the finest period, less than
+// the projector's width): the interior local minima of the code distance over the offset, the
+// closest kMaxRivals. A pixel is decoded to a wrong fringe order only if its phase errors cover
+// about half the distance to one of them (in its own noise: sum over periods of difference^2 /
+// variance). The far end of the range is no minimum of its own: a pixel reaches offsets up to
+// its distance to the farther projector edge, checked per pixel (a cue period as wide as the
+// projector is ambiguous only at the projector's edges). Empty for a single period (no fringe
+// order to choose: its depth sigma bounds it instead).
+std::vector<Rival> RivalColumns(const ReconstructPlan& plan) {
   constexpr size_t kMaxRivals = 32;
   const std::vector<double> periods = plan.PeriodList();
   const size_t n = periods.size();
   if (n < 2 || !(plan.projector_width > 0)) return {};
   const double finest = *std::min_element(periods.begin(), periods.end());
   const double step = finest / 2000.0;
-  auto diff = [&](double d, std::vector<double>* out) {
+  auto norm2 = [&](double d) {
     double n2 = 0;
-    out->resize(n);
-    for (size_t p = 0; p < n; ++p) {
-      const double c = d / periods[p];
-      (*out)[p] = 2 * kPi * (c - std::round(c));
-      n2 += (*out)[p] * (*out)[p];
-    }
+    for (const double v : CodeDifference(periods, d)) n2 += v * v;
     return n2;
   };
   std::vector<std::pair<double, double>> minima;  // norm^2, offset
-  std::vector<double> tmp;
   double prev2 = std::numeric_limits<double>::infinity(), prev1 = prev2;
   const size_t steps = static_cast<size_t>((plan.projector_width - finest / 2) / step);
-  for (size_t k = 0; k <= steps + 1; ++k) {
+  for (size_t k = 0; k <= steps; ++k) {
     const double d = finest / 2 + k * step;
-    const double cur = k <= steps ? diff(d, &tmp) : std::numeric_limits<double>::infinity();
+    const double cur = norm2(d);
     if (k >= 2 && prev1 <= prev2 && prev1 <= cur) minima.emplace_back(prev1, d - step);
     prev2 = prev1;
     prev1 = cur;
   }
   std::sort(minima.begin(), minima.end());
   if (minima.size() > kMaxRivals) minima.resize(kMaxRivals);
-  std::vector<std::vector<double>> rivals;
-  for (const auto& m : minima) {
-    diff(m.second, &tmp);
-    rivals.push_back(tmp);
-  }
+  std::vector<Rival> rivals;
+  for (const auto& m : minima) rivals.push_back({m.second, CodeDifference(periods, m.second)});
   return rivals;
 }
 
@@ -248,12 +258,15 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
   report.noise_model = !noise.empty();
   std::vector<WrappedPhaseSolver> solvers;
   for (const auto& p : plan.periods) solvers.emplace_back(p.deltas);
-  const std::vector<std::vector<double>> rivals = RivalColumns(plan);
+  const std::vector<Rival> rivals = RivalColumns(plan);
+  const std::vector<double> period_list = plan.PeriodList();
+  const double finest_period =
+      period_list.empty() ? 0.0 : *std::min_element(period_list.begin(), period_list.end());
   const double min_rival_d2 = std::pow(2 * options.min_order_margin_sigma, 2);
   double rivals_min_norm2 = std::numeric_limits<double>::infinity();
-  for (const std::vector<double>& r : rivals) {
+  for (const Rival& r : rivals) {
     double n2 = 0;
-    for (const double v : r) n2 += v * v;
+    for (const double v : r.diff) n2 += v * v;
     rivals_min_norm2 = std::min(rivals_min_norm2, n2);
   }
   const double sys2 = std::pow(options.systematic_phase_noise, 2);
@@ -363,15 +376,29 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
       }
       // The nearest wrong fringe order, in the pixel's own phase noise: at least twice the
       // margin away (a wrong order needs an error of half that distance).
+      // Only offsets that stay within the projector count: up to the farther edge, where the
+      // code distance is checked too (the range's end, approached by the edge columns).
       bool order_unsure = false;
-      if (!rivals.empty() && !(rivals_min_norm2 / var_max >= min_rival_d2)) {
-        for (const std::vector<double>& r : rivals) {
+      if (!rivals.empty()) {
+        const double reach = std::max(u, plan.projector_width - u);
+        const auto too_close = [&](const std::vector<double>& r) {
           double d2 = 0;
           for (int p = 0; p < nper; ++p) d2 += r[p] * r[p] / var[p];
-          if (!(d2 >= min_rival_d2)) {
-            order_unsure = true;
-            break;
+          return !(d2 >= min_rival_d2);
+        };
+        if (!(rivals_min_norm2 / var_max >= min_rival_d2))
+          for (const Rival& r : rivals)
+            if (r.offset <= reach && too_close(r.diff)) {
+              order_unsure = true;
+              break;
+            }
+        if (!order_unsure && reach >= finest_period / 2 && reach < plan.projector_width) {
+          double d2 = 0;
+          for (int p = 0; p < nper; ++p) {
+            const double c = reach / period_list[p];
+            d2 += std::pow(2 * kPi * (c - std::round(c)), 2) / var[p];
           }
+          order_unsure = !(d2 >= min_rival_d2);
         }
       }
       const bool stripes_unsure = ls_pixel && !(coarse_sigma_px <= max_coarse_sigma_px);
