@@ -270,7 +270,10 @@ TEST_F(ReconstructTest, PhaseShiftOnlyHierarchicalEightBit) {
   const GroundTruthErrors e = EvaluateAgainstGroundTruth(s, scan.points);
   EXPECT_FALSE(sum.used_lens_shift);
   EXPECT_EQ(sum.unwrapping, "hierarchical");
-  EXPECT_GE(e.coverage, 0.99) << sum.BriefReport();
+  // Every pixel decodes; the few whose predicted depth sigma exceeds max_depth_sigma_m (20 um:
+  // the tail of the 8-bit noise, 3 of 1728 here) and the mixed pixels are rejected.
+  EXPECT_GE(e.coverage, 0.985) << sum.BriefReport();
+  EXPECT_LE(sum.pixels_rejected_ambiguous, 1728 / 200) << sum.BriefReport();
   // Noise 0.002 plus 8-bit quantisation (1/255/sqrt(12) = 0.0011): the depth error follows the
   // Cramer-Rao prediction from the residuals (6 phases, 3 residual degrees of freedom per
   // period, so the estimate itself scatters: 1.5x).
