@@ -528,8 +528,6 @@ TwoScans ScanBoth(const std::string& object, const fs::path& rig_file, const Rig
   return out;
 }
 
-// The coin reconstructed with the calibrated rig: depth within 1 um RMS of the true-rig scan, no
-// gross errors; the empty mount at z = 0 within 2 um RMS.
 // A report that cannot be written (writes past 8 KB of a file fail, as on a full disk): exit 3
 // naming the file and the reason; neither the rig file nor a partial report folder is left (the
 // report is staged and the rig is written only once the report is complete).
@@ -555,6 +553,8 @@ TEST_F(CalibrateSim, FailedReportWriteLeavesNoRigAndNoReport) {
   }
 }
 
+// The coin reconstructed with the calibrated rig: depth within 1 um RMS of the true-rig scan, no
+// gross errors; the empty mount at z = 0 within 2 um RMS.
 TEST_F(CalibrateSim, CoinAndMountWithTheCalibratedRig) {
   CalibrateOptions co;
   co.board = Board();
