@@ -5,9 +5,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <numbers>
 #include <sstream>
 
 #include "core/fs.h"
@@ -47,7 +49,11 @@ class CheckCliTest : public ::testing::Test {
   }
   void TearDown() override { fs::remove_all(work_); }
 
-  // A 16x12 session: periods 7, 11 x 3 phases, 8 lens-shift frames, white, black.
+  // A 16x12 session of the flat mount (z = 0): periods 7, 11 x 3 phases, 8 lens-shift frames,
+  // white, black. The projector, 80 mm beside the camera, is aimed at the camera's view; each
+  // pixel sees the ideal profiles of its projector column u (as heightfield/reconstruct_test.cc
+  // writes them): sines 0.5 + 0.5 cos(2 pi u / p + phase), stripes 0.5 + 0.4 cos(pi (s - u)) at
+  // shift s px, scaled by albedo 0.8 over ambient 0.05, so that the session reconstructs.
   fs::path WriteSession(const std::string& name) {
     const fs::path dir = work_ / name;
     fs::create_directories(dir / "frames");
@@ -62,14 +68,47 @@ class CheckCliTest : public ::testing::Test {
     s.rig.projector.width = 64;
     s.rig.projector.height = 48;
     s.rig.projector.K << 300, 0, 31.5, 0, 300, 23.5, 0, 0, 1;
-    s.rig.projector.world_from_device = s.rig.camera.world_from_device;
+    const double a = std::atan2(0.08, 0.25);
+    s.rig.projector.world_from_device.rotation << std::cos(a), 0, -std::sin(a), 0, -1, 0,
+        -std::sin(a), 0, -std::cos(a);
     s.rig.projector.world_from_device.translation = Vec3d(0.08, 0, 0.25);
     s.rig.lens_shifter = LensShifter{'x', 2048, {-2048, 2048}};
     FramePlanOptions plan;
     plan.periods_px = {7, 11};
     plan.lens_shift_frames = 8;
     s.frames = MakeStandardFrames(plan);
-    for (const Frame& f : s.frames) WritePng16(dir / f.file, ImageU16(16, 12, 1, 20000));
+    ImageF u(16, 12, 1);
+    for (int y = 0; y < 12; ++y)
+      for (int x = 0; x < 16; ++x) {
+        const Vec3d o = s.rig.camera.CentreInWorld();
+        const Vec3d d = s.rig.camera.RayDirectionInWorld({double(x), double(y)});
+        Vec2d uv;
+        EXPECT_TRUE(s.rig.projector.Project(o - o.z() / d.z() * d, &uv));
+        u(x, y) = static_cast<float>(uv.x());
+      }
+    for (const Frame& f : s.frames) {
+      ImageF im(16, 12, 1);
+      for (size_t i = 0; i < im.pixels(); ++i) {
+        const double c = u.data()[i];
+        double v = 0;
+        switch (f.pattern.type) {
+          case PatternType::kSine:
+            v = 0.5 +
+                0.5 * std::cos(2 * std::numbers::pi * c / f.pattern.period_px + f.pattern.phase);
+            break;
+          case PatternType::kStripes:
+            v = 0.5 + 0.4 * std::cos(std::numbers::pi * (f.shift_steps / 2048.0 - c));
+            break;
+          case PatternType::kWhite:
+            v = 1;
+            break;
+          default:
+            v = 0;
+        }
+        im.data()[i] = static_cast<float>(0.05 + 0.8 * v);
+      }
+      WritePng16(dir / f.file, QuantizeU16(im));
+    }
     WriteSessionJson(s);
     return dir;
   }
