@@ -36,7 +36,10 @@ Session RawSession(const fs::path& root) {
   return s;
 }
 
-TEST(CaptureCli, DngSessionPassesCheckAndDecodesToBinnedBlackSubtractedFrames) {
+// Its frames are random codes: `check --quick` accepts the session, and `check` decodes every
+// DNG whole and then refuses the session as reconstruct would (no pattern in the frames), not
+// for a frame.
+TEST(CaptureCli, DngSessionIsCheckedWholeAndDecodesToBinnedBlackSubtractedFrames) {
   const fs::path dir = CliTempDir("capture_cli", "dng");
   fs::remove_all(dir);
   fs::create_directories(dir / "frames");
@@ -55,8 +58,13 @@ TEST(CaptureCli, DngSessionPassesCheckAndDecodesToBinnedBlackSubtractedFrames) {
   }
   WriteSessionJson(s);
 
+  const CliResult quick = RunMesoscan("check --quick " + dir.string());
+  EXPECT_EQ(quick.code, 0) << quick.output;
   const CliResult check = RunMesoscan("check " + dir.string());
-  EXPECT_EQ(check.code, 0) << check.output;
+  EXPECT_EQ(check.code, 3) << check.output;
+  EXPECT_NE(check.output.find("could be reconstructed from the 132 pixels tried"),
+            std::string::npos)
+      << check.output;
 
   // The decoder of `reconstruct` sees 12 x 11 frames: (mean of each cell - 256) * 65535 / 3839,
   // then the session's black level (0) and linear response through a 65536-entry table.
@@ -109,7 +117,10 @@ int Lines(const std::string& text) {
 }
 
 // `mesoscan capture` with the real projector window (Xvfb), the real serial driver against the
-// simulated controller on a pty (in this process), and the screen camera.
+// simulated controller on a pty (in this process), and the screen camera. The screen camera
+// sees the projector's image itself, not a scene: its sessions pass `check --quick`, and `check`
+// (which reconstructs a window, as reconstruct would) refuses them after decoding every frame
+// (the white frame is the screen's full white: saturated).
 class CaptureCommand : public XvfbTest {
  protected:
   void SetUp() override {
@@ -141,12 +152,15 @@ class CaptureCommand : public XvfbTest {
   LensShifterSim sim_;
 };
 
-TEST_F(CaptureCommand, ResumedCaptureEqualsAnUninterruptedOneAndPassesCheck) {
+TEST_F(CaptureCommand, ResumedCaptureEqualsAnUninterruptedOneAndPassesCheckQuick) {
   const CliResult whole = Capture("whole", "");
   ASSERT_EQ(whole.code, 0) << whole.output;
   EXPECT_EQ(sim_.position(), 0);  // back at the neutral position
+  const CliResult quick = RunMesoscan("check --quick " + (dir_ / "whole").string());
+  EXPECT_EQ(quick.code, 0) << quick.output;
   const CliResult check = RunMesoscan("check " + (dir_ / "whole").string());
-  EXPECT_EQ(check.code, 0) << check.output;
+  EXPECT_EQ(check.code, 3) << check.output;
+  EXPECT_NE(check.output.find("saturated in some frame"), std::string::npos) << check.output;
 
   // Stopped after 5 frames, then resumed: the same session.
   const CliResult part = Capture("parts", "--max-frames 5");
@@ -159,7 +173,7 @@ TEST_F(CaptureCommand, ResumedCaptureEqualsAnUninterruptedOneAndPassesCheck) {
   ASSERT_EQ(rest.code, 0) << rest.output;
   EXPECT_NE(rest.output.find("12 of 12 frames (5 reused, 7 captured)"), std::string::npos)
       << rest.output;
-  EXPECT_EQ(RunMesoscan("check " + (dir_ / "parts").string()).code, 0);
+  EXPECT_EQ(RunMesoscan("check --quick " + (dir_ / "parts").string()).code, 0);
   const Session a = ReadSession(dir_ / "whole"), b = ReadSession(dir_ / "parts");
   Json ja = SessionToJson(a), jb = SessionToJson(b);
   ja.erase("created");
@@ -180,13 +194,18 @@ TEST_F(CaptureCommand, ResumedCaptureEqualsAnUninterruptedOneAndPassesCheck) {
   EXPECT_EQ(Capture("whole", "--force").code, 0);
 }
 
-TEST_F(CaptureCommand, RawCameraSessionPassesCheck) {
+TEST_F(CaptureCommand, RawCameraSessionIsCheckedWhole) {
   const CliResult r = Capture("dng", "--no-white", "screen-dng");
   ASSERT_EQ(r.code, 0) << r.output;
   const Session s = ReadSession(dir_ / "dng");
   EXPECT_EQ(s.frames.front().file, "frames/ps07_0.dng");
+  const CliResult quick = RunMesoscan("check --quick " + (dir_ / "dng").string());
+  EXPECT_EQ(quick.code, 0) << quick.output;
   const CliResult check = RunMesoscan("check " + (dir_ / "dng").string());
-  EXPECT_EQ(check.code, 0) << check.output;
+  EXPECT_EQ(check.code, 3) << check.output;
+  EXPECT_NE(check.output.find("could be reconstructed from the 768 pixels tried"),
+            std::string::npos)
+      << check.output;
 }
 
 // `capture --plan calibration` shows sines along both projector axes, white and
@@ -294,8 +313,9 @@ namespace mesoscan {
 namespace {
 
 // `capture --rehearse` needs no hardware, no display and no shifter port: its
-// own Xvfb, the screen camera and the simulated shifter on a pty; the session passes check.
-TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheck) {
+// own Xvfb, the screen camera and the simulated shifter on a pty; the session passes
+// `check --quick` (the screen camera sees no scene: `check` refuses it, as above).
+TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheckQuick) {
   if (::access("/usr/bin/Xvfb", X_OK) != 0) GTEST_SKIP() << "Xvfb not installed";
   const fs::path dir = CliTempDir("capture_cli", "rehearse");
   fs::remove_all(dir);
@@ -310,7 +330,7 @@ TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheck) {
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_TRUE(fs::exists(dir / "R" / "session.json"));
   EXPECT_FALSE(fs::exists(dir / "R" / kCaptureJournal));
-  const CliResult c = RunMesoscan("check " + (dir / "R").string());
+  const CliResult c = RunMesoscan("check --quick " + (dir / "R").string());
   EXPECT_EQ(c.code, 0) << c.output;
   fs::remove_all(dir);
 }
