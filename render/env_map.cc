@@ -75,11 +75,17 @@ EnvironmentMap EnvironmentMap::Load(const std::filesystem::path& path, double sc
     MESOSCAN_BAD_INPUT(path.string()
                        << ": environment map: expected RGB channels, got " << im.channels());
   // Radiance is finite and >= 0: a NaN or negative texel is a damaged or foreign file, named.
+  // Negatives within 1e-3 of the brightest texel are the ringing of a filtered or resampled map
+  // (Blender's studio.exr holds -3e-6 against a peak of 118) and are read as 0.
+  float peak = 0;
+  for (const float v : im.data())
+    if (std::isfinite(v)) peak = std::max(peak, v);
+  const float floor = -1e-3f * peak;
   for (int c = 0; c < 3; ++c)
     for (int y = 0; y < im.height(); ++y)
       for (int x = 0; x < im.width(); ++x) {
         const float v = im(x, y, c);
-        if (!(std::isfinite(v) && v >= 0))
+        if (!(std::isfinite(v) && v >= floor))
           MESOSCAN_BAD_INPUT(path.string()
                              << ": environment map: texel (" << x << ", " << y << ") channel " << c
                              << " is " << v << ", expected a finite radiance >= 0");
