@@ -66,8 +66,8 @@ struct ConsistencyReport {
   // Of the decoded pixels: unwrapping or combination failed, or phases contradicting u.
   double contradicted_fraction = 0.0;
   bool noise_model = false;  // a noise model was measured from the lens-shift residuals
-  // The predicted phase sigmas were scaled by this to match the phases themselves (1: the
-  // prediction held within a factor of 2).
+  // The predicted phase sigmas were scaled by this to match the phases themselves (<= 1; 1: the
+  // prediction was not too large).
   double noise_scale = 1.0;
   Json ToJson() const;
 };
