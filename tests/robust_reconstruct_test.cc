@@ -349,7 +349,9 @@ TEST(RobustReconstruct, ShifterPositionErrorsWithinFivePercent) {
 // keeps 5-25 wrong ones, and no right point is lost (more are kept: the mixed-pixel test no longer
 // rejects right points beside wrong ones). Not asserted, printed: with 2% jitter at ambient 3 and
 // 10 the wrong orders are the same over whole regions (the frames' common gain errors dominate
-// the phases), which no neighbourhood test can see.
+// the phases), which no neighbourhood test can see. The consistency stage now stands before this
+// check: a session it refuses (its phases contradict each other at most pixels) keeps no point,
+// and in every case here no point is kept more than 1 mm off.
 TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
   Progress::SetEnabled(false);
   struct Case {
@@ -376,7 +378,14 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
       ReconstructOptions ro;
       if (!on) ro.combine.isolated_max_region_px = 0;
       ReconstructSummary sum;
-      const Scan scan = Reconstruct(s, ro, &sum);
+      Scan scan;
+      try {
+        scan = Reconstruct(s, ro, &sum);
+      } catch (const Error& e) {
+        std::printf("low signal, ambient %.0f, jitter %.2f, isolated check %s: refused (%s)\n",
+                    k.ambient, k.jitter, on ? "on" : "off", e.what());
+        continue;
+      }
       if (on) isolated = sum.pixels_rejected_isolated;
       const GroundTruthErrors e = EvaluateAgainstGroundTruth(s, scan.points);
       for (int y = 0; y < e.error.height(); ++y)
@@ -397,6 +406,7 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
         k.ambient, k.jitter, static_cast<long long>(wrong[0]), static_cast<long long>(wrong[1]),
         static_cast<long long>(right[0]), static_cast<long long>(right[1]),
         static_cast<long long>(isolated), k.asserted ? "" : " (not asserted)");
+    EXPECT_EQ(wrong[1], 0) << "ambient " << k.ambient << ", jitter " << k.jitter;
     if (k.asserted) {
       EXPECT_LE(wrong[1], right[1] / 1000) << "ambient " << k.ambient << ", jitter " << k.jitter;
       EXPECT_GE(right[1], right[0]) << "ambient " << k.ambient << ", jitter " << k.jitter;
@@ -405,17 +415,18 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
   }
 }
 
-// Stress: 8-bit frames, weak stripes (strong ambient light, blur), saturation in 10% of
-// the frames, gain jitter and shifter position errors: no NaN where confidence > 0, finite frame
-// corrections.
+// Stress: 8-bit frames, weak stripes (ambient light as bright as the projector, blur), saturation
+// in 10% of the frames, gain jitter and shifter position errors: no NaN where confidence > 0,
+// finite frame corrections. (At exposure 0.08 and ambient 10, as this test had it, no point is
+// kept: the points such a session gave were centimetres off; tests/consistency_sweep_test.)
 TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "coin";
   so.crop = PixelRect{1100, 650, 160, 120};
   so.adc_bits = 8;
-  so.ambient = 10.0;
-  so.exposure = 0.08;
+  so.ambient = 1.0;
+  so.exposure = 0.4;
   so.blur_sigma_px = 1.0;
   so.gain_jitter = 0.02;
   so.shift_position_error_px = 0.02;
@@ -457,9 +468,8 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
       saturated_frames, med, rel.empty() ? 0.0 : rel[rel.size() / 10],
       static_cast<long long>(sum.pixels_valid), static_cast<long long>(sum.pixels_saturated),
       sum.frame_corrections.dump().c_str());
-  // Note: the amplitude of the pixels whose stripe fit is valid stays ~10% of white here (the
-  // weaker ones fail their fit and fall back); the 0.5% level is exercised by
-  // frame_corrections_test and lens_shift_fit_test, not by this session.
+  // Note: the stripes' amplitude is ~2% of white here (printed above); the 0.5% level is
+  // exercised by frame_corrections_test and lens_shift_fit_test, not by this session.
   EXPECT_GT(sum.pixels_saturated, 1000);
   int64_t bad = 0, valid = 0;
   for (int y = 0; y < scan.points.confidence.height(); ++y)
