@@ -25,9 +25,9 @@ namespace {
 
 struct CalibrateArgs {
   std::vector<std::string> sessions;
-  std::string board, out, mount, shifter, report, fix;
+  std::string board, out, mount, shifter, report, fix, model = "auto";
   int window = 20;
-  bool force = false;
+  bool force = false, fix_principal_point = false, strict = false;
 };
 
 Json RigJson(const Rig& rig) {
@@ -80,6 +80,8 @@ void Run(const CalibrateArgs& a) {
   CalibrateOptions opt;
   opt.board = CalibrationBoard::Parse(a.board, "--board");
   opt.ParseFix(a.fix);
+  opt.ParseModel(a.model);
+  opt.fix_principal_point = a.fix_principal_point;
   opt.homography_half_window_px = a.window;
   opt.Check();
   if (a.sessions.size() < 3)
@@ -148,6 +150,8 @@ void Run(const CalibrateArgs& a) {
       << plane.normal_sigma_rad * 180 / 3.14159265358979323846 << " deg, offset +- "
       << plane.offset_sigma_m * 1e6 << " um (" << mount_scan->seconds + plane.seconds << " s)";
     lines.push_back(o.str());
+    const std::string warning = MountFlatnessWarning(plane);
+    if (!warning.empty()) result.warnings.push_back(warning);
   } else if (mount) {
     extra["mount"] = {{"kind", "board on the mount"}, {"session", a.mount}};
   }
@@ -171,10 +175,14 @@ void Run(const CalibrateArgs& a) {
   } else {
     extra["lens_shifter"] = "not calibrated (no --shifter, and no lens-shift frames in --mount)";
   }
+  for (const auto& w : result.warnings) MESOSCAN_LOG(kWarning) << w;
+  if (a.strict && !result.warnings.empty())
+    MESOSCAN_BAD_INPUT("calibrate --strict: " << result.warnings.size()
+                                              << " warning(s) above; no rig written");
   // The report is staged in a temporary folder; the rig file is written (atomically) once the
   // report is complete, then the report folder is swapped into place: a failed write leaves
   // neither a new rig nor a partial report.
-  const Json rig_json{{"rig", RigJson(result.rig)}};
+  const Json rig_json{{"rig", RigJson(result.rig)}, {"calibration", result.RigFileJson()}};
   if (a.report.empty()) {
     WriteJsonFile(a.out, rig_json);
   } else {
@@ -185,6 +193,7 @@ void Run(const CalibrateArgs& a) {
     });
   }
   std::cout << a.out << ": " << result.BriefReport() << "\n";
+  for (const auto& l : result.ReportLines()) std::cout << "  " << l << "\n";
   for (const auto& l : lines) std::cout << "  " << l << "\n";
   std::cout << std::flush;
 }
@@ -214,7 +223,17 @@ void AddCalibrateCommand(CLI::App* app) {
                   "Session with lens-shift frames of a flat target for the lens shifter's "
                   "steps_per_px (default: the --mount session if it has lens-shift frames)");
   cmd->add_option("--report", args->report, "Folder for report.json and residual / coverage PNGs");
+  cmd->add_option("--model", args->model,
+                  "Distortion model of both devices: auto (each device's chosen by leave-one-view-"
+                  "out cross-validation from none, k1, k1 k2, + tangential, + k3, the principal "
+                  "point free or at the centre, fx = fy or not), none, k1, k1k2 or full")
+      ->capture_default_str();
   cmd->add_option("--fix", args->fix, "Distortion terms held at 0: k2,k3,tangential");
+  cmd->add_flag("--fix-principal-point", args->fix_principal_point,
+                "Hold both principal points at the image centre");
+  cmd->add_flag("--strict", args->strict,
+                "Any warning (poor coverage, a mount that does not come out flat, held-out views "
+                "off beyond their noise, an undetermined term) is an error: exit 3, no rig");
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out or --report that is not an earlier output of "
                 "`mesoscan calibrate`");

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <map>
 #include <numeric>
@@ -370,6 +371,10 @@ void CalibrateOptions::Check() const {
   if (!(outlier_view_factor > 1))
     MESOSCAN_THROW(ErrorKind::kUsage, "outlier view factor: expected > 1");
   if (min_views < 3) MESOSCAN_THROW(ErrorKind::kUsage, "min views: expected >= 3");
+  if (!(poor_coverage > 0 && poor_coverage <= 1))
+    MESOSCAN_THROW(ErrorKind::kUsage, "poor coverage: expected (0, 1]");
+  if (!(held_out_warning_ratio > 1) || !(scatter_warning_ratio > 1) || !(scale_warning_pct > 0))
+    MESOSCAN_THROW(ErrorKind::kUsage, "warning thresholds: expected ratios > 1, a scale > 0");
 }
 
 void CalibrateOptions::ParseFix(const std::string& list) {
@@ -387,6 +392,22 @@ void CalibrateOptions::ParseFix(const std::string& list) {
                                                    << "': expected a comma-separated list of k2, "
                                                       "k3, tangential");
   }
+}
+
+void CalibrateOptions::ParseModel(const std::string& text) {
+  if (text == "auto")
+    model = CalibrationModel::kAuto;
+  else if (text == "none")
+    model = CalibrationModel::kNone;
+  else if (text == "k1")
+    model = CalibrationModel::kK1;
+  else if (text == "k1k2")
+    model = CalibrationModel::kK1K2;
+  else if (text == "full")
+    model = CalibrationModel::kFull;
+  else
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "--model: '" << text << "': expected auto, none, k1, k1k2 or full");
 }
 
 ProjectorCoordinates DecodeProjectorCoordinates(const Session& session,
@@ -556,57 +577,6 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
 
 namespace {
 
-// Reprojection residual of one board corner in the camera (prj == false) or the projector.
-// Parameters: intrinsics {fx, fy, cx, cy}, distortion[5], cam_from_board (angle-axis, t),
-// and for the projector prj_from_cam (angle-axis, t).
-struct CornerResidual {
-  CornerResidual(const Vec3d& x, const Vec2d& obs) : x_(x), obs_(obs) {}
-  template <typename T>
-  bool Camera(const T* intr, const T* dist, const T* board_pose, T* res) const {
-    T p[3];
-    const T xb[3] = {T(x_.x()), T(x_.y()), T(x_.z())};
-    ceres::AngleAxisRotatePoint(board_pose, xb, p);
-    for (int i = 0; i < 3; ++i) p[i] += board_pose[3 + i];
-    return Finish(intr, dist, p, res);
-  }
-  template <typename T>
-  bool Projector(const T* intr, const T* dist, const T* board_pose, const T* prj_pose,
-                 T* res) const {
-    T p[3], q[3];
-    const T xb[3] = {T(x_.x()), T(x_.y()), T(x_.z())};
-    ceres::AngleAxisRotatePoint(board_pose, xb, p);
-    for (int i = 0; i < 3; ++i) p[i] += board_pose[3 + i];
-    ceres::AngleAxisRotatePoint(prj_pose, p, q);
-    for (int i = 0; i < 3; ++i) q[i] += prj_pose[3 + i];
-    return Finish(intr, dist, q, res);
-  }
-  template <typename T>
-  bool Finish(const T* intr, const T* dist, const T* p, T* res) const {
-    T uv[2];
-    if (!PinholeCamera::ProjectWithParams(intr, dist, p, uv)) return false;
-    res[0] = uv[0] - T(obs_.x());
-    res[1] = uv[1] - T(obs_.y());
-    return true;
-  }
-  Vec3d x_;
-  Vec2d obs_;
-};
-
-struct CameraCost : CornerResidual {
-  using CornerResidual::CornerResidual;
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* pose, T* res) const {
-    return Camera(intr, dist, pose, res);
-  }
-};
-struct ProjectorCost : CornerResidual {
-  using CornerResidual::CornerResidual;
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* pose, const T* prj, T* res) const {
-    return Projector(intr, dist, pose, prj, res);
-  }
-};
-
 Rigid3d PoseFromArray(const double* a) {
   Rigid3d t;
   double r[9];
@@ -615,25 +585,6 @@ Rigid3d PoseFromArray(const double* a) {
     for (int rr = 0; rr < 3; ++rr) t.rotation(rr, c) = r[c * 3 + rr];
   t.translation = Vec3d(a[3], a[4], a[5]);
   return t;
-}
-
-void PoseToArray(const cv::Mat& rvec, const cv::Mat& tvec, double* a) {
-  for (int i = 0; i < 3; ++i) {
-    a[i] = rvec.at<double>(i);
-    a[3 + i] = tvec.at<double>(i);
-  }
-}
-
-Json CameraJson(const cv::Mat& k, const cv::Mat& d) {
-  Json j;
-  j["fx"] = k.at<double>(0, 0);
-  j["fy"] = k.at<double>(1, 1);
-  j["cx"] = k.at<double>(0, 2);
-  j["cy"] = k.at<double>(1, 2);
-  std::vector<double> dist(5, 0.0);
-  for (int i = 0; i < std::min<int>(5, static_cast<int>(d.total())); ++i) dist[i] = d.at<double>(i);
-  j["distortion"] = dist;
-  return j;
 }
 
 double Rms(const std::vector<Vec2d>& r) {
@@ -645,6 +596,396 @@ double Rms(const std::vector<Vec2d>& r) {
       ++n;
     }
   return n ? std::sqrt(s / n) : 0.0;
+}
+
+Json DeviceParamsJson(const DeviceParams& d) {
+  return {{"fx", d.intr[0]},
+          {"fy", d.intr[1]},
+          {"cx", d.intr[2]},
+          {"cy", d.intr[3]},
+          {"distortion", std::vector<double>(d.dist.begin(), d.dist.end())}};
+}
+
+// OpenCV's own joint refinement (stereoCalibrate with every intrinsic free, from its per-device
+// calibrations), for the baseline figures.
+Json OpenCvJoint(const std::vector<const CalibrationView*>& views, const CalibrationBoard& board,
+                 const BundleParams& init, int cv_flags) {
+  std::vector<std::vector<cv::Point3f>> obj;
+  std::vector<std::vector<cv::Point2f>> img_cam, img_prj;
+  for (const auto* v : views) {
+    std::vector<cv::Point3f> o;
+    std::vector<cv::Point2f> c, p;
+    for (int k = 0; k < board.num_corners(); ++k) {
+      if (!v->camera_px[k].allFinite() || !v->projector_px[k].allFinite()) continue;
+      const Vec3d x = board.Corner(k);
+      o.emplace_back(static_cast<float>(x.x()), static_cast<float>(x.y()), 0.f);
+      c.emplace_back(static_cast<float>(v->camera_px[k].x()),
+                     static_cast<float>(v->camera_px[k].y()));
+      p.emplace_back(static_cast<float>(v->projector_px[k].x()),
+                     static_cast<float>(v->projector_px[k].y()));
+    }
+    obj.push_back(o);
+    img_cam.push_back(c);
+    img_prj.push_back(p);
+  }
+  auto mat = [](const DeviceParams& d, cv::Mat* k, cv::Mat* dist) {
+    *k = (cv::Mat_<double>(3, 3) << d.intr[0], 0, d.intr[2], 0, d.intr[1], d.intr[3], 0, 0, 1);
+    *dist = cv::Mat(1, 5, CV_64F);
+    for (int i = 0; i < 5; ++i) dist->at<double>(i) = d.dist[i];
+  };
+  cv::Mat kc, dc, kp, dp, r, t, e, f;
+  mat(init.cam, &kc, &dc);
+  mat(init.prj, &kp, &dp);
+  double rms = 0;
+  try {
+    rms = cv::stereoCalibrate(obj, img_cam, img_prj, kc, dc, kp, dp,
+                              cv::Size(init.cam.width, init.cam.height), r, t, e, f,
+                              cv::CALIB_USE_INTRINSIC_GUESS | cv_flags);
+  } catch (const cv::Exception& ex) {
+    return {{"error", ex.err}};
+  }
+  Mat3d rm;
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) rm(a, b) = r.at<double>(a, b);
+  const Vec3d tv(t.at<double>(0), t.at<double>(1), t.at<double>(2));
+  auto dev = [](const cv::Mat& k, const cv::Mat& d, int w, int h) {
+    DeviceParams p;
+    p.width = w;
+    p.height = h;
+    p.intr = {k.at<double>(0, 0), k.at<double>(1, 1), k.at<double>(0, 2), k.at<double>(1, 2)};
+    for (int i = 0; i < 5 && i < static_cast<int>(d.total()); ++i) p.dist[i] = d.at<double>(i);
+    return DeviceParamsJson(p);
+  };
+  return {{"rms_px", rms},
+          {"camera", dev(kc, dc, init.cam.width, init.cam.height)},
+          {"projector", dev(kp, dp, init.prj.width, init.prj.height)},
+          {"baseline_m", tv.norm()},
+          {"prj_from_cam_rotation_deg", Eigen::AngleAxisd(rm).angle() * 180.0 / std::numbers::pi},
+          {"prj_from_cam_translation_m", {tv.x(), tv.y(), tv.z()}}};
+}
+
+unsigned FixedTerms(const CalibrateOptions& o) {
+  unsigned t = 0;
+  if (o.fix_k2) t |= DeviceModel::kK2;
+  if (o.fix_k3) t |= DeviceModel::kK3;
+  if (o.fix_tangential) t |= DeviceModel::kTangential;
+  return t;
+}
+
+// The most flexible model the options allow (the noise estimate's, and the ladder's top).
+DeviceModel TopModel(const CalibrateOptions& o) {
+  DeviceModel m;
+  m.terms &= ~FixedTerms(o);
+  m.free_principal_point = !o.fix_principal_point;
+  return m;
+}
+
+// --model k1|k1k2|full|none (not auto): that distortion model less --fix, the principal point
+// free unless --fix-principal-point, fx and fy.
+DeviceModel ModelFromOptions(const CalibrateOptions& o) {
+  DeviceModel m = TopModel(o);
+  switch (o.model) {
+    case CalibrationModel::kNone:
+      m.terms = 0;
+      break;
+    case CalibrationModel::kK1:
+      m.terms = DeviceModel::kK1;
+      break;
+    case CalibrationModel::kK1K2:
+      m.terms = DeviceModel::kK1 | DeviceModel::kK2;
+      break;
+    case CalibrationModel::kAuto:
+    case CalibrationModel::kFull:
+      break;
+  }
+  m.terms &= ~FixedTerms(o);
+  return m;
+}
+
+// The distortion ladder: none, k1, k1 k2, + tangential, + k3, less the --fix terms.
+std::vector<unsigned> LadderTerms(const CalibrateOptions& o) {
+  using M = DeviceModel;
+  const unsigned fixed = FixedTerms(o);
+  std::vector<unsigned> out;
+  for (unsigned t : {0u, unsigned{M::kK1}, M::kK1 | M::kK2, M::kK1 | M::kK2 | M::kTangential,
+                     M::kK1 | M::kK2 | M::kTangential | M::kK3}) {
+    const unsigned u = t & ~fixed;
+    if (std::find(out.begin(), out.end(), u) == out.end()) out.push_back(u);
+  }
+  return out;
+}
+
+// Of candidates scored by leave-one-view-out, the simplest whose held-out chi^2 exceeds the
+// best's by no more than the standard error of the per-view differences (the one-standard-error
+// rule on paired folds). Every candidate's figures go to `log`.
+template <typename Eval>
+DeviceModel ChooseModel(const std::vector<DeviceModel>& cands, Eval&& eval,
+                        const std::string& device, const std::string& stage, Json* log) {
+  std::vector<const CrossValidation*> cv;
+  for (const auto& c : cands) cv.push_back(&eval(c));
+  size_t best = 0;
+  for (size_t i = 1; i < cv.size(); ++i)
+    if (cv[i]->chi2 < cv[best]->chi2) best = i;
+  const size_t n = cv[best]->held_out.size();
+  std::vector<double> excess(cv.size(), 0.0), se(cv.size(), 0.0);
+  size_t pick = best;
+  for (size_t i = 0; i < cv.size(); ++i) {
+    double s = 0, s2 = 0;
+    for (size_t j = 0; j < n; ++j) {
+      const double d = cv[i]->held_out[j].chi2 - cv[best]->held_out[j].chi2;
+      s += d;
+      s2 += d * d;
+    }
+    const double mean = s / n;
+    const double var = n > 1 ? std::max(0.0, (s2 - n * mean * mean) / (n - 1)) : 0.0;
+    excess[i] = mean;
+    se[i] = std::sqrt(var / n);
+    const bool ok = mean <= se[i];
+    const int fi = cands[i].FreeParameters(), fp = cands[pick].FreeParameters();
+    if (ok && (fi < fp || (fi == fp && cv[i]->chi2 < cv[pick]->chi2))) pick = i;
+  }
+  for (size_t i = 0; i < cv.size(); ++i) {
+    const HeldOutSummary s = SummariseHeldOut(cv[i]->held_out);
+    const DeviceModel& m = cands[i];
+    const std::string label = stage == "distortion" ? m.TermsString()
+                              : stage == "principal point"
+                                  ? (m.free_principal_point ? "free" : "centre")
+                                  : (m.equal_focal ? "fx = fy" : "fx, fy");
+    log->push_back({{"device", device},
+                    {"stage", stage},
+                    {"label", label},
+                    {"model", cands[i].ToString()},
+                    {"held_out_error_over_noise", std::sqrt(cv[i]->Chi2PerResidual())},
+                    {"free_parameters", cands[i].FreeParameters()},
+                    {"held_out_chi2_per_residual", cv[i]->Chi2PerResidual()},
+                    {"held_out_rms_camera_px", s.rms_camera_px},
+                    {"held_out_rms_projector_px", s.rms_projector_px},
+                    {"held_out_adjacent_distance_rms_um", s.adjacent_rms_um},
+                    {"held_out_max_abs_scale_error_pct", s.max_abs_scale_error_pct},
+                    {"excess_chi2_per_view_over_best", excess[i]},
+                    {"standard_error", se[i]},
+                    {"chosen", i == pick}});
+  }
+  return cands[pick];
+}
+
+// RMS reprojection residual of each device over the views (px).
+void ResidualRms(const std::vector<const CalibrationView*>& views, const CalibrationBoard& board,
+                 const BundleParams& p, double* cam_rms, double* prj_rms) {
+  const PinholeCamera cam = p.cam.Camera(), prj = p.prj.Camera();
+  const Rigid3d prj_from_cam = p.PrjFromCam();
+  double sc = 0, sp = 0;
+  int nc = 0, np = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const Rigid3d cam_from_board = PoseFromArray(p.cam_from_board[i].data());
+    for (int k = 0; k < board.num_corners(); ++k) {
+      const Vec3d pc = cam_from_board * board.Corner(k);
+      Vec2d uv;
+      if (views[i]->camera_px[k].allFinite() && cam.ProjectDevice(pc.data(), uv.data())) {
+        sc += (views[i]->camera_px[k] - uv).squaredNorm();
+        ++nc;
+      }
+      const Vec3d pp = prj_from_cam * pc;
+      if (views[i]->projector_px[k].allFinite() && prj.ProjectDevice(pp.data(), uv.data())) {
+        sp += (views[i]->projector_px[k] - uv).squaredNorm();
+        ++np;
+      }
+    }
+  }
+  *cam_rms = nc ? std::sqrt(sc / nc) : 0.0;
+  *prj_rms = np ? std::sqrt(sp / np) : 0.0;
+}
+
+// The fitted parameters by JSON pointer ("/camera/fx", "/camera/distortion/k1",
+// "/prj_from_cam/tx_m"), held ones left out.
+std::vector<std::pair<std::string, double>> NamedParameters(const BundleParams& p,
+                                                            const DeviceModel& cm,
+                                                            const DeviceModel& pm) {
+  std::vector<std::pair<std::string, double>> out;
+  const char* dn[5] = {"k1", "k2", "p1", "p2", "k3"};
+  const unsigned bit[5] = {DeviceModel::kK1, DeviceModel::kK2, DeviceModel::kTangential,
+                           DeviceModel::kTangential, DeviceModel::kK3};
+  for (int d = 0; d < 2; ++d) {
+    const DeviceParams& q = d ? p.prj : p.cam;
+    const DeviceModel& m = d ? pm : cm;
+    const std::string dev = d ? "/projector/" : "/camera/";
+    out.emplace_back(dev + "fx", q.intr[0]);
+    out.emplace_back(dev + "fy", q.intr[1]);
+    if (m.free_principal_point) {
+      out.emplace_back(dev + "cx", q.intr[2]);
+      out.emplace_back(dev + "cy", q.intr[3]);
+    }
+    for (int i = 0; i < 5; ++i)
+      if (m.terms & bit[i]) out.emplace_back(dev + "distortion/" + dn[i], q.dist[i]);
+  }
+  const char* pn[6] = {"rx_rad", "ry_rad", "rz_rad", "tx_m", "ty_m", "tz_m"};
+  for (int i = 0; i < 6; ++i)
+    out.emplace_back(std::string("/prj_from_cam/") + pn[i], p.prj_from_cam[i]);
+  return out;
+}
+
+// The reported 1-sigma: the larger of the least-squares sigma (covariance scaled by each
+// device's residual variance) and the jackknife over the leave-one-view-out fits,
+// sigma_J^2 = (n - 1) / n sum (theta_i - mean)^2 (Efron & Stein 1981), which sees what the
+// residuals do not: views that disagree beyond their noise, a model that fits each subset
+// differently. Both, and the folds' plain scatter, are kept.
+Json Uncertainties(const std::vector<const CalibrationView*>& views, const CalibrationBoard& board,
+                   const CrossValidation& cv) {
+  const Json cov = BundleCovariance(views, board, cv.cam, cv.prj, cv.all);
+  const auto named = NamedParameters(cv.all, cv.cam, cv.prj);
+  const size_t n = cv.folds.size();
+  Json jack, scatter, out;
+  for (size_t k = 0; k < named.size(); ++k) {
+    double mean = 0;
+    std::vector<double> v;
+    for (const auto& f : cv.folds) v.push_back(NamedParameters(f, cv.cam, cv.prj)[k].second);
+    for (double x : v) mean += x / n;
+    double ss = 0;
+    for (double x : v) ss += (x - mean) * (x - mean);
+    const Json::json_pointer ptr(named[k].first);
+    jack[ptr] = std::sqrt((n - 1.0) / n * ss);
+    scatter[ptr] = n > 1 ? std::sqrt(ss / (n - 1)) : 0.0;
+    const double ls = cov.contains(ptr) ? cov[ptr].get<double>() : 0.0;
+    out[ptr] = std::max(ls, jack[ptr].get<double>());
+  }
+  out["least_squares"] = cov;
+  out["jackknife"] = jack;
+  out["fold_scatter"] = scatter;
+  if (cov.contains("residual_sigma_px")) out["residual_sigma_px"] = cov["residual_sigma_px"];
+  if (cov.contains("error")) out["error"] = cov["error"];
+  out["note"] =
+      "1-sigma: the larger of the least-squares sigma (scaled by each device's residuals) and "
+      "the leave-one-view-out jackknife; fold_scatter: the standard deviation of the "
+      "leave-one-view-out fits";
+  return out;
+}
+
+// Each device's calibrated region (the views' corner hulls) and its coverage of the field both
+// devices share on the boards' mean plane.
+void MeasureCoverages(const std::vector<const CalibrationView*>& views, const BundleParams& fit,
+                      const CalibrateOptions& options, CalibrationResult* result) {
+  CalibratedRegion cr, pr;
+  cr.width = fit.cam.width;
+  cr.height = fit.cam.height;
+  pr.width = fit.prj.width;
+  pr.height = fit.prj.height;
+  Vec3d centre = Vec3d::Zero(), normal = Vec3d::Zero();
+  for (size_t i = 0; i < views.size(); ++i) {
+    auto h = ConvexHull(views[i]->camera_px);
+    if (!h.empty()) cr.hulls.push_back(std::move(h));
+    h = ConvexHull(views[i]->projector_px);
+    if (!h.empty()) pr.hulls.push_back(std::move(h));
+    const Rigid3d cam_from_board = PoseFromArray(fit.cam_from_board[i].data());
+    centre += cam_from_board.translation / views.size();
+    Vec3d nb = cam_from_board.rotation.col(2);
+    if (nb.z() > 0) nb = -nb;  // towards the camera
+    normal += nb;
+  }
+  normal.normalize();
+  const PinholeCamera cam = fit.cam.Camera(), prj = fit.prj.Camera();
+  const Rigid3d prj_from_cam = fit.PrjFromCam(), cam_from_prj = prj_from_cam.Inverse();
+  auto inside = [](const PinholeCamera& c, const Vec3d& p) {
+    Vec2d uv;
+    return c.ProjectDevice(p.data(), uv.data()) && uv.x() >= -0.5 && uv.y() >= -0.5 &&
+           uv.x() <= c.width - 0.5 && uv.y() <= c.height - 0.5;
+  };
+  // The point of the mean plane on the ray o + t d (camera frame), if in front.
+  auto on_plane = [&](const Vec3d& o, const Vec3d& d, Vec3d* x) {
+    const double den = normal.dot(d);
+    if (std::abs(den) < 1e-9) return false;
+    const double t = normal.dot(centre - o) / den;
+    if (!(t > 0)) return false;
+    *x = o + t * d;
+    return true;
+  };
+  const DeviceCoverage c = MeasureCoverage(
+      "camera", cr,
+      [&](const Vec2d& px) {
+        const Vec2d n = cam.UndistortNormalized(px);
+        Vec3d x;
+        return on_plane(Vec3d::Zero(), Vec3d(n.x(), n.y(), 1.0), &x) &&
+               inside(prj, prj_from_cam * x);
+      },
+      options.poor_coverage);
+  const DeviceCoverage p = MeasureCoverage(
+      "projector", pr,
+      [&](const Vec2d& px) {
+        const Vec2d n = prj.UndistortNormalized(px);
+        Vec3d x;
+        return on_plane(cam_from_prj.translation, cam_from_prj.rotation * Vec3d(n.x(), n.y(), 1.0),
+                        &x) &&
+               inside(cam, x);
+      },
+      options.poor_coverage);
+  result->camera_region = cr;
+  result->projector_region = pr;
+  result->coverage = {c, p};
+}
+
+// Warning lines (report.json "warnings"; `calibrate --strict` exits 3 on any).
+void AddWarnings(const CalibrateOptions& options, const CrossValidation& cv, double sigma_cam,
+                 double sigma_prj, CalibrationResult* result) {
+  std::vector<std::string>& w = result->warnings;
+  for (const auto& c : result->coverage)
+    if (c.poor) w.push_back(c.device + ": " + c.advice);
+  // A fitted term no better determined than its own size.
+  const Json& u = result->uncertainties;
+  for (const auto& [path, value] : NamedParameters(cv.all, cv.cam, cv.prj)) {
+    if (path.find("/distortion/") == std::string::npos) continue;
+    const Json::json_pointer ptr(path);
+    if (!u.contains(ptr)) continue;
+    const double sd = u[ptr].get<double>();
+    if (sd > std::abs(value)) {
+      const std::string dev = path.substr(1, path.find('/', 1) - 1);
+      const std::string term = path.substr(path.rfind('/') + 1);
+      std::ostringstream o;
+      o << std::setprecision(3) << dev << " " << term << " = " << value << " +- " << sd
+        << ": not determined by these views (the model extrapolates it); add views reaching the "
+           "image edges, or --fix "
+        << (term == "p1" || term == "p2" ? "tangential" : term);
+      w.push_back(o.str());
+    }
+  }
+  // Held-out views that the fit without them does not predict to within their noise.
+  for (const auto& h : cv.held_out) {
+    const int n = 2 * (h.camera_corners + h.projector_corners);
+    if (n == 0) continue;
+    const double ratio = std::sqrt(h.chi2 / n);
+    if (ratio > options.held_out_warning_ratio) {
+      std::ostringstream o;
+      o << std::setprecision(3) << h.name << ": held out, its corners reproject at " << ratio
+        << "x their noise (camera " << h.rms_camera_px << " px, projector " << h.rms_projector_px
+        << " px, noise " << sigma_cam * std::sqrt(2.0) << " / " << sigma_prj * std::sqrt(2.0)
+        << " px): the views disagree beyond their noise (a board that moved or bent during the "
+           "session, a wrong --board?)";
+      w.push_back(o.str());
+    }
+  }
+  for (const auto& h : cv.held_out)
+    if (h.triangulated >= 4 && std::abs(h.scale_error_pct) > options.scale_warning_pct) {
+      std::ostringstream o;
+      o << std::setprecision(3) << h.name << ": held out, its board triangulates "
+        << h.scale_error_pct << "% off in scale (adjacent corners " << h.adjacent_rms_um
+        << " um RMS): the rig without it does not predict it";
+      w.push_back(o.str());
+    }
+  // Intrinsics whose leave-one-view-out fits scatter far beyond their least-squares sigma.
+  if (u.contains("least_squares") && u.contains("jackknife"))
+    for (const char* dev : {"camera", "projector"})
+      for (const char* k : {"fx", "cx", "cy"}) {
+        const Json::json_pointer ptr(std::string("/") + dev + "/" + k);
+        if (!u["least_squares"].contains(ptr) || !u["jackknife"].contains(ptr)) continue;
+        const double ls = u["least_squares"][ptr].get<double>();
+        const double jk = u["jackknife"][ptr].get<double>();
+        if (ls > 0 && jk > options.scatter_warning_ratio * ls) {
+          std::ostringstream o;
+          o << std::setprecision(3) << dev << " " << k << ": the fits without one view scatter "
+            << jk / ls << "x its least-squares sigma (jackknife " << jk << " px against " << ls
+            << " px): the views disagree beyond their noise; the reported sigma is the "
+               "jackknife's";
+          w.push_back(o.str());
+        }
+      }
 }
 
 }  // namespace
@@ -703,162 +1044,112 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
                                               "and positions (degenerate)");
   }
 
-  // ---- OpenCV: calibrateCamera per device, stereoCalibrate (initial values and the baseline) --
-  const cv::Size cam_size(size_rig.camera.width, size_rig.camera.height);
-  const cv::Size prj_size(size_rig.projector.width, size_rig.projector.height);
-  std::vector<std::vector<cv::Point3f>> obj_cam, obj_both;
-  std::vector<std::vector<cv::Point2f>> img_cam, img_cam_both, img_prj;
-  for (const auto* v : used) {
-    std::vector<cv::Point3f> oc, ob;
-    std::vector<cv::Point2f> ic, icb, ip;
-    for (int k = 0; k < nc; ++k) {
-      if (!v->camera_px[k].allFinite()) continue;  // a ChArUco corner out of view
-      const Vec3d x = board.Corner(k);
-      const cv::Point3f xp(static_cast<float>(x.x()), static_cast<float>(x.y()), 0.f);
-      oc.push_back(xp);
-      ic.emplace_back(static_cast<float>(v->camera_px[k].x()),
-                      static_cast<float>(v->camera_px[k].y()));
-      if (v->projector_px[k].allFinite()) {
-        ob.push_back(xp);
-        icb.push_back(ic.back());
-        ip.emplace_back(static_cast<float>(v->projector_px[k].x()),
-                        static_cast<float>(v->projector_px[k].y()));
-      }
-    }
-    obj_cam.push_back(oc);
-    img_cam.push_back(ic);
-    obj_both.push_back(ob);
-    img_cam_both.push_back(icb);
-    img_prj.push_back(ip);
-  }
+  // ---- OpenCV: calibrateCamera per device, stereoCalibrate: the initial values and the plain
+  // baseline the report shows (its model as --fix says, else OpenCV's k1 k2 p1 p2 k3) ----
+  const std::vector<const CalibrationView*> cused(used.begin(), used.end());
+  const int cw = size_rig.camera.width, ch = size_rig.camera.height;
+  const int pw = size_rig.projector.width, ph = size_rig.projector.height;
   int cv_flags = 0;
   if (options.fix_k2) cv_flags |= cv::CALIB_FIX_K2;
   if (options.fix_k3) cv_flags |= cv::CALIB_FIX_K3;
   if (options.fix_tangential) cv_flags |= cv::CALIB_ZERO_TANGENT_DIST;
-  cv::Mat kc, dc, kp, dp, r_pc, t_pc, e, f;
-  std::vector<cv::Mat> rv_c, tv_c, rv_p, tv_p;
-  double cv_rms_cam = 0, cv_rms_prj = 0, cv_rms_stereo = 0, cv_rms_joint = 0;
-  Json cv_joint;
-  try {
-    cv_rms_cam = cv::calibrateCamera(obj_cam, img_cam, cam_size, kc, dc, rv_c, tv_c, cv_flags);
-    cv_rms_prj = cv::calibrateCamera(obj_both, img_prj, prj_size, kp, dp, rv_p, tv_p, cv_flags);
-    cv_rms_stereo = cv::stereoCalibrate(obj_both, img_cam_both, img_prj, kc, dc, kp, dp, cam_size,
-                                        r_pc, t_pc, e, f, cv::CALIB_FIX_INTRINSIC);
-    // OpenCV's own joint refinement (intrinsics and extrinsics together), for the baseline.
-    cv::Mat kc2 = kc.clone(), dc2 = dc.clone(), kp2 = kp.clone(), dp2 = dp.clone(), r2, t2;
-    cv_rms_joint =
-        cv::stereoCalibrate(obj_both, img_cam_both, img_prj, kc2, dc2, kp2, dp2, cam_size, r2, t2,
-                            e, f, cv::CALIB_USE_INTRINSIC_GUESS | cv_flags);
-    Mat3d r;
-    for (int a = 0; a < 3; ++a)
-      for (int b = 0; b < 3; ++b) r(a, b) = r2.at<double>(a, b);
-    const Vec3d t(t2.at<double>(0), t2.at<double>(1), t2.at<double>(2));
-    cv_joint = {
-        {"rms_px", cv_rms_joint},
-        {"camera", CameraJson(kc2, dc2)},
-        {"projector", CameraJson(kp2, dp2)},
-        {"baseline_m", t.norm()},
-        {"prj_from_cam_rotation_deg", Eigen::AngleAxisd(r).angle() * 180.0 / std::numbers::pi},
-        {"prj_from_cam_translation_m", {t.x(), t.y(), t.z()}}};
-  } catch (const cv::Exception& ex) {
-    MESOSCAN_BAD_INPUT("calibrate: OpenCV's initial calibration failed on these "
-                       << used.size() << " views (" << ex.err
-                       << "); are the views at different tilts?");
-  }
-  if (!std::isfinite(cv_rms_cam) || !std::isfinite(cv_rms_prj) || !std::isfinite(cv_rms_stereo))
-    MESOSCAN_BAD_INPUT("calibrate: the initial calibration did not converge (degenerate views?)");
+  double cv_rms_cam = 0, cv_rms_prj = 0, cv_rms_stereo = 0;
+  const BundleParams cv_init = OpenCvCalibration(cused, -1, board, cw, ch, pw, ph, cv_flags,
+                                                 &cv_rms_cam, &cv_rms_prj, &cv_rms_stereo);
   result.opencv = {{"note",
                     "cv::calibrateCamera per device, cv::stereoCalibrate with "
                     "CALIB_FIX_INTRINSIC; joint: stereoCalibrate refining everything"},
                    {"rms_camera_px", cv_rms_cam},
                    {"rms_projector_px", cv_rms_prj},
                    {"rms_stereo_px", cv_rms_stereo},
-                   {"camera", CameraJson(kc, dc)},
-                   {"projector", CameraJson(kp, dp)},
-                   {"joint", cv_joint}};
+                   {"camera", DeviceParamsJson(cv_init.cam)},
+                   {"projector", DeviceParamsJson(cv_init.prj)},
+                   {"joint", OpenCvJoint(cused, board, cv_init, cv_flags)}};
 
-  // ---- Ceres: one bundle adjustment of both devices and every board pose ----
-  double cam_intr[4] = {kc.at<double>(0, 0), kc.at<double>(1, 1), kc.at<double>(0, 2),
-                        kc.at<double>(1, 2)};
-  double prj_intr[4] = {kp.at<double>(0, 0), kp.at<double>(1, 1), kp.at<double>(0, 2),
-                        kp.at<double>(1, 2)};
-  double cam_dist[5] = {0}, prj_dist[5] = {0};
-  for (int i = 0; i < 5 && i < static_cast<int>(dc.total()); ++i) cam_dist[i] = dc.at<double>(i);
-  for (int i = 0; i < 5 && i < static_cast<int>(dp.total()); ++i) prj_dist[i] = dp.at<double>(i);
-  double prj_pose[6];
+  // ---- The corners' noise: the residuals of the most flexible model the options allow ----
+  const DeviceModel top = TopModel(options);
+  BundleParams full = cv_init;
   {
-    cv::Mat rvec;
-    cv::Rodrigues(r_pc, rvec);
-    PoseToArray(rvec, t_pc, prj_pose);
+    BundleSolveOptions so;
+    so.threads = 2;
+    const BundleSolveSummary s = SolveBundle(cused, -1, board, top, top, so, &full);
+    if (!s.usable) MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << s.brief);
   }
-  std::vector<std::array<double, 6>> board_pose(used.size());
-  for (size_t i = 0; i < used.size(); ++i) PoseToArray(rv_c[i], tv_c[i], board_pose[i].data());
+  // Per coordinate (a corner's residual has two).
+  double sigma_cam = 0, sigma_prj = 0;
+  ResidualRms(cused, board, full, &sigma_cam, &sigma_prj);
+  sigma_cam = std::max(sigma_cam / std::sqrt(2.0), 1e-4);
+  sigma_prj = std::max(sigma_prj / std::sqrt(2.0), 1e-4);
 
-  ceres::Problem problem;
-  int n_res = 0;
-  for (size_t i = 0; i < used.size(); ++i) {
-    const CalibrationView& v = *used[i];
-    for (int k = 0; k < nc; ++k) {
-      if (!v.camera_px[k].allFinite()) continue;
-      const Vec3d x = board.Corner(k);
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CameraCost, 2, 4, 5, 6>(
-                                   new CameraCost(x, v.camera_px[k])),
-                               nullptr, cam_intr, cam_dist, board_pose[i].data());
-      n_res += 2;
-      if (!v.projector_px[k].allFinite()) continue;
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ProjectorCost, 2, 4, 5, 6, 6>(
-                                   new ProjectorCost(x, v.projector_px[k])),
-                               nullptr, prj_intr, prj_dist, board_pose[i].data(), prj_pose);
-      n_res += 2;
+  // ---- Each device's model: chosen by leave-one-view-out cross-validation (or as given) ----
+  std::map<std::string, CrossValidation> cache;
+  auto run = [&](const DeviceModel& c, const DeviceModel& p) -> const CrossValidation& {
+    const std::string key = c.ToString() + "|" + p.ToString();
+    auto it = cache.find(key);
+    if (it == cache.end())
+      it = cache.emplace(key, CrossValidate(cused, board, c, p, full, sigma_cam, sigma_prj)).first;
+    return it->second;
+  };
+  DeviceModel cam_model = ModelFromOptions(options), prj_model = cam_model;
+  Json candidates = Json::array();
+  if (options.model == CalibrationModel::kAuto) {
+    cam_model = prj_model = top;
+    // One device at a time, the other at its current model (the camera first, the projector at
+    // the top model; then the projector with the camera's choice).
+    {
+      for (int d = 0; d < 2; ++d) {
+        DeviceModel& m = d ? prj_model : cam_model;
+        auto eval = [&](const DeviceModel& x) -> const CrossValidation& {
+          return d ? run(cam_model, x) : run(x, prj_model);
+        };
+        // Distortion terms (principal point free, fx and fy), then the principal point, then
+        // the aspect: each stage keeps the simplest model that is not worse on the held-out
+        // views than the best by more than its standard error.
+        std::vector<DeviceModel> stage;
+        for (unsigned t : LadderTerms(options)) {
+          DeviceModel x = m;
+          x.terms = t;
+          stage.push_back(x);
+        }
+        const std::string dev = d ? "projector" : "camera";
+        m = ChooseModel(stage, eval, dev, "distortion", &candidates);
+        if (!options.fix_principal_point) {
+          DeviceModel x = m;
+          x.free_principal_point = !m.free_principal_point;
+          m = ChooseModel({x, m}, eval, dev, "principal point", &candidates);
+        }
+        DeviceModel x = m;
+        x.equal_focal = !m.equal_focal;
+        m = ChooseModel({x, m}, eval, dev, "aspect", &candidates);
+      }
     }
   }
-  std::vector<int> fixed;
-  if (options.fix_k2) fixed.push_back(1);
-  if (options.fix_tangential) fixed.insert(fixed.end(), {2, 3});
-  if (options.fix_k3) fixed.push_back(4);
-  if (!fixed.empty()) {
-    for (double* d : {cam_dist, prj_dist}) {
-      for (int i : fixed) d[i] = 0.0;
-      problem.SetManifold(d, new ceres::SubsetManifold(5, fixed));
-    }
-  }
-  ceres::Solver::Options so;
-  so.linear_solver_type = ceres::DENSE_SCHUR;
-  so.max_num_iterations = 200;
-  so.function_tolerance = 1e-14;
-  so.gradient_tolerance = 1e-14;
-  so.parameter_tolerance = 1e-14;
-  so.num_threads = 2;
-  ceres::Solver::Summary summary;
-  ceres::Solve(so, &problem, &summary);
-  result.ceres_brief = summary.BriefReport();
-  if (!summary.IsSolutionUsable())
-    MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << summary.message);
+  const CrossValidation& chosen = run(cam_model, prj_model);
+  if (!chosen.all_summary.usable)
+    MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << chosen.all_summary.brief);
+  const BundleParams& fit = chosen.all;
+  result.camera_model = cam_model;
+  result.projector_model = prj_model;
+  result.ceres_brief = chosen.all_summary.brief;
+  result.held_out = chosen.held_out;
+  result.candidates = candidates;
 
   // ---- Residuals per view ----
-  PinholeCamera cam_model, prj_model;
-  auto fill_model = [](PinholeCamera* m, const double* intr, const double* dist, int w, int h) {
-    m->width = w;
-    m->height = h;
-    m->K << intr[0], 0, intr[2], 0, intr[1], intr[3], 0, 0, 1;
-    for (int i = 0; i < 5; ++i) m->distortion[i] = dist[i];
-  };
-  fill_model(&cam_model, cam_intr, cam_dist, size_rig.camera.width, size_rig.camera.height);
-  fill_model(&prj_model, prj_intr, prj_dist, size_rig.projector.width, size_rig.projector.height);
-  const Rigid3d prj_from_cam = PoseFromArray(prj_pose);
+  const PinholeCamera cam_model_px = fit.cam.Camera(), prj_model_px = fit.prj.Camera();
+  const Rigid3d prj_from_cam = fit.PrjFromCam();
   std::vector<Vec2d> all_cam, all_prj;
   for (size_t i = 0; i < used.size(); ++i) {
     CalibrationView& v = *used[i];
-    v.cam_from_board = PoseFromArray(board_pose[i].data());
+    v.cam_from_board = PoseFromArray(fit.cam_from_board[i].data());
     v.camera_residual_px.assign(nc, Vec2d(kNaN, kNaN));
     v.projector_residual_px.assign(nc, Vec2d(kNaN, kNaN));
     for (int k = 0; k < nc; ++k) {
       const Vec3d pc = v.cam_from_board * board.Corner(k);
       Vec2d uv;
-      if (cam_model.ProjectDevice(pc.data(), uv.data()))
+      if (v.camera_px[k].allFinite() && cam_model_px.ProjectDevice(pc.data(), uv.data()))
         v.camera_residual_px[k] = v.camera_px[k] - uv;
       const Vec3d pp = prj_from_cam * pc;
-      if (v.projector_px[k].allFinite() && prj_model.ProjectDevice(pp.data(), uv.data()))
+      if (v.projector_px[k].allFinite() && prj_model_px.ProjectDevice(pp.data(), uv.data()))
         v.projector_residual_px[k] = v.projector_px[k] - uv;
     }
     v.rms_camera_px = Rms(v.camera_residual_px);
@@ -888,45 +1179,52 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
       }
   }
 
-  // ---- Uncertainties: the covariance of the intrinsics and the relative pose, scaled by the
-  // residual variance (Ceres assumes unit-variance residuals) ----
+  // ---- Uncertainties: the least-squares covariance (scaled by each device's residuals) and
+  // the leave-one-view-out jackknife; the larger is reported ----
+  result.uncertainties = Uncertainties(cused, board, chosen);
+
+  // ---- Validation on what each fold did not see, and OpenCV's on the same corners ----
+  result.validation = {
+      {"method",
+       "leave one view out: the rig fitted without the view (same models), the "
+       "view's board pose fitted with that rig held and its corners reprojected; "
+       "its corners triangulated as a scan would (camera ray against the "
+       "projector column) against the board"},
+      {"noise_sigma_px_per_coordinate", {{"camera", sigma_cam}, {"projector", sigma_prj}}},
+      {"summary", SummariseHeldOut(chosen.held_out).ToJson()}};
   {
-    const int n_params = problem.NumParameters() -
-                         static_cast<int>(fixed.size()) * 2;  // fixed coefficients are no unknowns
-    const double dof = std::max(1, n_res - n_params);
-    const double s2 = 2.0 * summary.final_cost / dof;
-    ceres::Covariance::Options co;
-    co.algorithm_type = ceres::DENSE_SVD;
-    co.null_space_rank = -1;
-    ceres::Covariance cov(co);
-    std::vector<std::pair<const double*, const double*>> blocks = {{cam_intr, cam_intr},
-                                                                   {cam_dist, cam_dist},
-                                                                   {prj_intr, prj_intr},
-                                                                   {prj_dist, prj_dist},
-                                                                   {prj_pose, prj_pose}};
-    Json u;
-    if (cov.Compute(blocks, &problem)) {
-      auto sd = [&](const double* block, int n, const std::vector<std::string>& names) {
-        std::vector<double> c(n * n);
-        cov.GetCovarianceBlock(block, block, c.data());
-        Json j;
-        for (int i = 0; i < n; ++i) j[names[i]] = std::sqrt(std::max(0.0, c[i * n + i] * s2));
-        return j;
-      };
-      const std::vector<std::string> in = {"fx", "fy", "cx", "cy"};
-      const std::vector<std::string> dn = {"k1", "k2", "p1", "p2", "k3"};
-      u["camera"] = sd(cam_intr, 4, in);
-      u["camera"]["distortion"] = sd(cam_dist, 5, dn);
-      u["projector"] = sd(prj_intr, 4, in);
-      u["projector"]["distortion"] = sd(prj_dist, 5, dn);
-      Json p = sd(prj_pose, 6, {"rx_rad", "ry_rad", "rz_rad", "tx_m", "ty_m", "tz_m"});
-      u["prj_from_cam"] = p;
-      u["residual_sigma_px"] = std::sqrt(s2);
-    } else {
-      u["error"] = "the covariance could not be computed (rank-deficient problem)";
+    Json hv = Json::array();
+    for (size_t i = 0; i < chosen.held_out.size(); ++i) {
+      Json j = chosen.held_out[i].ToJson();
+      j["rig_without_it"] = {{"camera", DeviceParamsJson(chosen.folds[i].cam)},
+                             {"projector", DeviceParamsJson(chosen.folds[i].prj)}};
+      hv.push_back(j);
     }
-    result.uncertainties = u;
+    result.validation["held_out"] = hv;
   }
+  if (options.validate_opencv) {
+    const int flags = cv_flags | cv::CALIB_FIX_K3 | cv::CALIB_ZERO_TANGENT_DIST;
+    try {
+      result.opencv_held_out =
+          OpenCvCrossValidate(cused, board, cw, ch, pw, ph, flags, sigma_cam, sigma_prj);
+      Json hv = Json::array();
+      for (const auto& h : result.opencv_held_out) hv.push_back(h.ToJson());
+      result.validation["opencv"] = {
+          {"model",
+           "calibrateCamera per device with CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST (k1 "
+           "k2, principal point free), stereoCalibrate with CALIB_FIX_INTRINSIC"},
+          {"summary", SummariseHeldOut(result.opencv_held_out).ToJson()},
+          {"held_out", hv}};
+    } catch (const Error& e) {
+      result.validation["opencv"] = {{"error", e.what()}};
+    }
+  }
+
+  // ---- Coverage of each device's image ----
+  MeasureCoverages(cused, fit, options, &result);
+
+  // ---- Loud when wrong ----
+  AddWarnings(options, chosen, sigma_cam, sigma_prj, &result);
 
   // ---- The world: the mount board if given, else the first view's board ----
   const CalibrationView& world_view = mount ? *used.back() : *used.front();
@@ -934,9 +1232,9 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   const Rigid3d world_from_cam = world_view.cam_from_board.Inverse();
   result.rig = size_rig;
   result.rig.uncalibrated = false;
-  result.rig.camera = cam_model;
+  result.rig.camera = cam_model_px;
   result.rig.camera.world_from_device = world_from_cam;
-  result.rig.projector = prj_model;
+  result.rig.projector = prj_model_px;
   result.rig.projector.world_from_device = world_from_cam * prj_from_cam.Inverse();
   // The mount view is reported with the others.
   if (mount) views.push_back(*mount);
@@ -1038,7 +1336,16 @@ Json CalibrationResult::ToJson() const {
   j["baseline_m"] = prj_from_cam.translation.norm();
   j["prj_from_cam_rotation_deg"] =
       Eigen::AngleAxisd(prj_from_cam.rotation).angle() * 180.0 / std::numbers::pi;
+  j["model"] = {{"camera", camera_model.ToJson()},
+                {"projector", projector_model.ToJson()},
+                {"candidates", candidates}};
   j["uncertainties"] = uncertainties;
+  j["validation"] = validation;
+  j["coverage"] = Json::object();
+  for (const auto& c : coverage) j["coverage"][c.device] = c.ToJson();
+  j["calibrated_region"] = {{"camera", camera_region.ToJson()},
+                            {"projector", projector_region.ToJson()}};
+  j["warnings"] = warnings;
   j["ceres"] = ceres_brief;
   j["opencv_baseline"] = opencv;
   j["seconds"] = seconds;
@@ -1072,10 +1379,62 @@ std::string CalibrationResult::BriefReport() const {
     << opencv.value("rms_projector_px", 0.0) << " / " << opencv.value("rms_stereo_px", 0.0)
     << " px); fx camera " << rig.camera.K(0, 0) << ", projector " << rig.projector.K(0, 0)
     << " px; " << seconds << " s";
+  if (!warnings.empty()) o << "; " << warnings.size() << " warning(s)";
   int outliers = 0;
   for (const auto& v : views) outliers += v.outlier;
   if (outliers) o << "; " << outliers << " outlier view(s)";
   return o.str();
+}
+
+std::vector<std::string> CalibrationResult::ReportLines() const {
+  std::vector<std::string> lines;
+  // The models, with each stage's candidates: held-out error over the corners' noise.
+  for (const char* dev : {"camera", "projector"}) {
+    std::ostringstream o;
+    o << std::setprecision(4) << dev
+      << " model: " << (std::string(dev) == "camera" ? camera_model : projector_model).ToString();
+    if (candidates.is_array() && !candidates.empty()) {
+      o << "; held-out error / noise:";
+      std::string stage;
+      for (const auto& c : candidates) {
+        if (c["device"] != dev) continue;
+        const bool first = c["stage"] != stage;
+        stage = c["stage"].get<std::string>();
+        o << (first ? (stage == "distortion" ? " " : "; ") : ", ") << c["label"].get<std::string>()
+          << " " << c["held_out_error_over_noise"].get<double>()
+          << (c["chosen"].get<bool>() ? "*" : "");
+      }
+    }
+    lines.push_back(o.str());
+  }
+  auto summary = [](const std::vector<HeldOutView>& h) {
+    const HeldOutSummary s = SummariseHeldOut(h);
+    std::ostringstream o;
+    o << std::setprecision(3) << "RMS " << s.rms_camera_px << " / " << s.rms_projector_px
+      << " px, adjacent corners " << s.adjacent_rms_um << " um RMS, flatness " << s.flatness_rms_um
+      << " um, scale error up to " << s.max_abs_scale_error_pct << "%";
+    return o.str();
+  };
+  if (!held_out.empty()) {
+    lines.push_back("held-out views (" + std::to_string(held_out.size()) +
+                    ", each left out in turn): " + summary(held_out));
+    if (!opencv_held_out.empty())
+      lines.push_back("OpenCV (k1 k2) on the same held-out views: " + summary(opencv_held_out));
+  }
+  for (const auto& c : coverage) lines.push_back(c.device + " coverage: " + c.advice);
+  return lines;
+}
+
+Json CalibrationResult::RigFileJson() const {
+  return {{"models", {{"camera", camera_model.ToJson()}, {"projector", projector_model.ToJson()}}},
+          {"held_out", SummariseHeldOut(held_out).ToJson()},
+          {"uncertainties",
+           {{"camera", uncertainties.value("camera", Json())},
+            {"projector", uncertainties.value("projector", Json())},
+            {"prj_from_cam", uncertainties.value("prj_from_cam", Json())}}},
+          {"calibrated_region",
+           {{"camera", camera_region.ToJson()}, {"projector", projector_region.ToJson()}}},
+          {"warnings", warnings}};
 }
 
 void WriteCalibrationReport(const CalibrationResult& result, const fs::path& dir,

@@ -20,6 +20,8 @@
 #include <vector>
 
 #include "calibration/calibrate_board.h"
+#include "calibration/calibrate_bundle.h"
+#include "calibration/calibrate_coverage.h"
 #include "core/json.h"
 #include "core/transform.h"
 #include "session/session.h"
@@ -39,10 +41,30 @@ namespace mesoscan {
 // view's projector corners together a little; the pose error at 12 views is ~0.01-0.02 mm).
 enum class CalibrationGainMethod { kNone, kAlternating, kFrameMeans, kJoint };
 
+// The devices' models (`calibrate --model`): chosen per device by leave-one-view-out
+// cross-validation from the ladder none, k1, k1 k2, k1 k2 p1 p2, k1 k2 p1 p2 k3 with the
+// principal point free or at the centre and fx = fy or not (kAuto), or that distortion model for
+// both devices (principal point free, fx and fy).
+enum class CalibrationModel { kAuto, kNone, kK1, kK1K2, kFull };
+
 struct CalibrateOptions {
   CalibrationBoard board;
-  // Distortion coefficients held at 0: any of "k2", "k3", "tangential" (p1, p2).
+  CalibrationModel model = CalibrationModel::kAuto;
+  // Distortion coefficients held at 0: any of "k2", "k3", "tangential" (p1, p2); with kAuto the
+  // ladder leaves them out.
   bool fix_k2 = false, fix_k3 = false, fix_tangential = false;
+  // Both principal points held at the image centre ((W - 1) / 2, (H - 1) / 2).
+  bool fix_principal_point = false;
+  // OpenCV's calibration (k1 k2) validated on the same held-out views, for the report.
+  bool validate_opencv = true;
+  // Warnings: coverage of a device's field below this fraction (or an outer third of it
+  // uncovered), (0, 1]; a held-out view reprojected at more than this many times the corners'
+  // noise, > 1; a held-out board's scale error beyond this (percent), > 0; an intrinsic whose
+  // leave-one-view-out jackknife exceeds its least-squares sigma this many times, > 1.
+  double poor_coverage = 0.5;
+  double held_out_warning_ratio = 3.0;
+  double scale_warning_pct = 0.1;
+  double scatter_warning_ratio = 3.0;
   // Moreno & Taubin's local homography: camera pixels within +-this many px of a corner, >= 3.
   int homography_half_window_px = 20;
   // A corner's homography needs at least this fraction of its window decoded, (0, 1].
@@ -62,6 +84,8 @@ struct CalibrateOptions {
   void Check() const;
   // "k3,tangential" -> the fix flags; throws Error(kUsage) naming --fix.
   void ParseFix(const std::string& list);
+  // "auto", "none", "k1", "k1k2", "full"; throws Error(kUsage) naming --model.
+  void ParseModel(const std::string& text);
 };
 
 // One board pose as seen by the camera and the projector.
@@ -94,13 +118,28 @@ struct CalibrationResult {
   std::vector<CalibrationView> views;  // all views, including those skipped
   int views_used = 0;
   double rms_camera_px = 0, rms_projector_px = 0, rms_stereo_px = 0;  // over all used corners
-  std::string world;        // "mount board <session>" or "first board <session>"
-  std::string ceres_brief;  // Ceres' Summary::BriefReport()
-  Json uncertainties;       // 1-sigma of every parameter (Ceres covariance)
-  Json opencv;              // OpenCV's calibration on the same corners (baseline)
+  std::string world;                          // "mount board <session>" or "first board <session>"
+  std::string ceres_brief;                    // Ceres' Summary::BriefReport()
+  DeviceModel camera_model, projector_model;  // as chosen (or given)
+  Json candidates;                            // every model tried: held-out figures, whether chosen
+  // 1-sigma of every fitted parameter: the larger of the least-squares sigma and the
+  // leave-one-view-out jackknife (both kept, with the folds' scatter).
+  Json uncertainties;
+  std::vector<HeldOutView> held_out;         // each view left out of the chosen models' fit
+  std::vector<HeldOutView> opencv_held_out;  // the same with OpenCV's calibration (baseline)
+  Json validation;                           // held-out figures per view, summaries, OpenCV's
+  Json opencv;                               // OpenCV's calibration on the same corners
+  CalibratedRegion camera_region, projector_region;  // the corners' hulls
+  std::vector<DeviceCoverage> coverage;              // camera, projector
+  std::vector<std::string> warnings;                 // one line each (see CalibrateOptions)
   double seconds = 0;
   Json ToJson() const;
   std::string BriefReport() const;
+  // Lines for the terminal: the models and each candidate's held-out error, the held-out
+  // validation beside OpenCV's, coverage.
+  std::vector<std::string> ReportLines() const;
+  // What a rig file carries besides the rig ("calibration": models, regions, held-out summary).
+  Json RigFileJson() const;
 };
 
 // Calibrates from views (DetectView). `size_rig`: the device sizes (and lens_shifter, copied to

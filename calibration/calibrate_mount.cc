@@ -3,7 +3,9 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <iomanip>
 #include <limits>
+#include <sstream>
 
 #include "core/error.h"
 #include "core/log.h"
@@ -188,6 +190,16 @@ MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
   plane.session = "";
   plane.seconds = timer.Seconds();
   return plane;
+}
+
+std::string MountFlatnessWarning(const MountPlane& plane, double factor) {
+  if (!(plane.rms_over_predicted > factor)) return "";
+  std::ostringstream o;
+  o << std::setprecision(3) << "mount plane: the empty mount's points lie " << plane.rms_m * 1e6
+    << " um RMS from a plane, " << plane.rms_over_predicted << "x the noise predicted for them ("
+    << plane.predicted_rms_m * 1e6
+    << " um): the rig bends a flat surface; see the held-out views and the coverage";
+  return o.str();
 }
 
 Rigid3d MountWorldFromCamera(const MountPlane& plane, const Rig& rig) {

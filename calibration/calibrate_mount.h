@@ -78,6 +78,11 @@ struct MountPlane {
 MountPlane FitMountPlane(const FlatTargetScan& scan, const Rig& rig,
                          const MountPlaneOptions& options);
 
+// The warning line when the mount's points scatter about the plane by more than `factor` times
+// the noise the reconstruction predicts for them (RMS of distance / predicted sigma: the rig bends
+// a flat surface), else "".
+std::string MountFlatnessWarning(const MountPlane& plane, double factor = 3.0);
+
 // world_from_camera for the plane (z = 0 on it, +z towards the camera; x along the camera's x
 // projected onto the plane; origin on the camera's optical axis). `plane` is in the world of
 // `rig`; the result is in the same units, as a new world_from_device for the camera.
