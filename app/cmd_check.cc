@@ -7,11 +7,13 @@
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <string>
 
 #include "app/commands.h"
 #include "app/session_checks.h"
+#include "calibration/rig_file.h"
 #include "core/error.h"
 #include "core/output_dir.h"
 #include "core/scan_folder.h"
@@ -46,8 +48,13 @@ std::string SampleFormat(const ImageInfo& info) {
   return oss.str();
 }
 
-void CheckSession(const fs::path& path, bool quick) {
-  const Session s = ReadSession(path, /*check_frames=*/false);
+void CheckSession(const fs::path& path, bool quick, const std::string& rig_path) {
+  Session s = ReadSession(path, /*check_frames=*/false);
+  std::optional<RigFile> rig_file;
+  if (!rig_path.empty()) {
+    rig_file = ReadRigFile(rig_path);
+    UseRigFile(*rig_file, &s);
+  }
   const std::vector<ImageInfo> infos = CheckSessionFiles(s);
   if (!quick) CheckSessionLikeReconstruct(s);  // what reconstruct would refuse
   const Rig& rig = s.rig;
@@ -56,6 +63,14 @@ void CheckSession(const fs::path& path, bool quick) {
   out << "session: " << s.root.string() << "\n";
   if (!s.object.empty()) out << "object: " << s.object << "\n";
   if (!s.created.empty()) out << "created: " << s.created << "\n";
+  if (rig_file) {
+    out << "rig: " << rig_file->path.string() << " (sha256 " << rig_file->sha256.substr(0, 16)
+        << "...)";
+    if (rig_file->calibration.contains("warnings") && !rig_file->calibration["warnings"].empty())
+      out << ", made with " << rig_file->calibration["warnings"].size()
+          << " calibration warning(s)";
+    out << "\n";
+  }
   if (rig.uncalibrated)
     out << "calibration session: the rig holds device sizes only (input of `mesoscan calibrate`; "
            "reconstruct needs a calibrated rig)\n";
@@ -169,16 +184,22 @@ void AddCheckCommand(CLI::App* app) {
       "check", "Validate a session folder (session.json) or a scan folder (points.exr ...)");
   auto path = std::make_shared<std::string>();
   auto quick = std::make_shared<bool>(false);
+  auto rig = std::make_shared<std::string>();
   cmd->add_option("path", *path, "Session folder, its session.json, or a scan folder")->required();
+  cmd->add_option("--rig", *rig,
+                  "Rig file (`mesoscan calibrate --out`) to check the session with, as "
+                  "`reconstruct --rig` would use it");
   cmd->add_flag("--quick", *quick,
                 "Headers only (no frame decoding, no reconstruction test on a small window)");
-  cmd->callback([path, quick] {
+  cmd->callback([path, quick, rig] {
     const fs::path p(*path);
     RestoreInterruptedReplacement(p);  // core/output_dir.h: a replacement killed half-way
     std::error_code ec;
     if (fs::is_regular_file(p, ec) || fs::exists(p / "session.json", ec)) {
-      CheckSession(p, *quick);
+      CheckSession(p, *quick, *rig);
     } else if (fs::exists(p / "points.exr", ec) || fs::exists(p / "height.exr", ec)) {
+      if (!rig->empty())
+        MESOSCAN_THROW(ErrorKind::kUsage, "--rig applies to a session, not to a scan folder");
       CheckScan(p, *quick);
     } else if (!fs::exists(p, ec)) {
       MESOSCAN_BAD_INPUT(p.string() << ": not found, expected a session or scan folder");

@@ -3,13 +3,16 @@
 
 #include <tbb/parallel_invoke.h>
 
+#include <cmath>
 #include <filesystem>
 #include <future>
+#include <optional>
 #include <sstream>
 
 #include "app/commands.h"
 #include "app/map_options.h"
 #include "app/session_checks.h"
+#include "calibration/rig_file.h"
 #include "core/error.h"
 #include "core/fs.h"
 #include "core/json.h"
@@ -28,7 +31,7 @@ namespace mesoscan {
 namespace {
 
 struct ReconstructArgs {
-  std::string session, out, roi, mask, fitter = "fast";
+  std::string session, out, roi, mask, rig, fitter = "fast";
   std::string export_formats, export_dir;  // --export: formats for `mesoscan export`
   bool no_lens_shift = false, box_filter = false, no_normalize = false, force = false;
   int threads = 0;
@@ -70,14 +73,19 @@ void Run(const ReconstructArgs& a) {
 
   // --out (and --export-dir) must not be, contain or lie inside an input: checked before any work.
   OutputSpec out_spec{"reconstruct", "--out",
-                      a.out,         {a.session, a.mask, a.export_dir},
+                      a.out,         {a.session, a.mask, a.rig, a.export_dir},
                       a.force,       {"report.json", "height.exr"}};
   CheckOutputFolder(out_spec);
   OutputSpec export_spec{"export", "--export-dir",   a.export_dir, {a.session, a.mask, a.out},
                          a.force,  {"manifest.json"}};
   if (!a.export_formats.empty() && !a.export_dir.empty()) CheckOutputFolder(export_spec);
 
-  const Session session = ReadSession(a.session);
+  Session session = ReadSession(a.session);
+  std::optional<RigFile> rig_file;
+  if (!a.rig.empty()) {
+    rig_file = ReadRigFile(a.rig);
+    UseRigFile(*rig_file, &session);
+  }
   // The ground truth (simulations) is read while the last stages run: started once the frames
   // are released (the memory peak is behind), on its own thread.
   std::future<GroundTruthPoints> gt_read;
@@ -98,6 +106,24 @@ void Run(const ReconstructArgs& a) {
                                              "choose a larger --roi");
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
   scan.report["object"] = session.object;
+  if (rig_file) {
+    // Which rig made the points, and how many of them lie where the calibration saw no corner.
+    Json r = rig_file->ToJson();
+    const CalibratedRegionCheck region = CheckCalibratedRegion(*rig_file, scan.points);
+    r["calibrated_region"] = region.ToJson();
+    if (rig_file->calibration.contains("warnings") && !rig_file->calibration["warnings"].empty())
+      r["calibration_warnings"] = rig_file->calibration["warnings"];
+    scan.report["rig"] = r;
+    if (region.known && region.OutsideFraction() > 0.1 &&
+        (rig_file->camera_distorted || rig_file->projector_distorted))
+      MESOSCAN_LOG(kWarning) << a.rig << ": " << std::lround(region.OutsideFraction() * 100)
+                             << "% of the points lie outside the image region the calibration's "
+                                "board corners covered: the lens model is extrapolated there "
+                                "(report.json rig.calibrated_region)";
+    if (r.contains("calibration_warnings"))
+      MESOSCAN_LOG(kWarning) << a.rig << ": made with " << r["calibration_warnings"].size()
+                             << " calibration warning(s) (report.json rig.calibration_warnings)";
+  }
   // The scan's EXRs, and the ground-truth comparison with its error map when the session has
   // ground truth (simulations), in parallel; the report last (it holds their figures).
   std::optional<GroundTruthErrors> gt;
@@ -196,6 +222,9 @@ void AddReconstructCommand(CLI::App* app) {
       "reconstruct", "Reconstruct a capture session into a scan folder (points, height field)");
   cmd->add_option("session", args->session, "Session folder (session.json)")->required();
   cmd->add_option("--out", args->out, "Scan folder to write (replaced atomically)")->required();
+  cmd->add_option("--rig", args->rig,
+                  "Rig file (`mesoscan calibrate --out`) used instead of the session's rig; the "
+                  "scan's report.json records its path and SHA-256");
   cmd->add_option("--roi", args->roi, "Camera pixels to reconstruct: x,y,w,h");
   cmd->add_option("--mask", args->mask, "Mask image on the camera grid (0 = skip the pixel)");
   cmd->add_option("--fitter", args->fitter, "Lens-shift fitter: fast, lm or ceres")
