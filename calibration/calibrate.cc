@@ -825,10 +825,12 @@ std::vector<std::pair<std::string, double>> NamedParameters(const BundleParams& 
 }
 
 // The reported 1-sigma: the larger of the least-squares sigma (covariance scaled by each
-// device's residual variance) and the jackknife over the leave-one-view-out fits,
-// sigma_J^2 = (n - 1) / n sum (theta_i - mean)^2 (Efron & Stein 1981), which sees what the
+// device's residual variance) and the scatter of the leave-one-view-out fits (their standard
+// deviation: how far the rig moves when one view more or fewer is used), which sees what the
 // residuals do not: views that disagree beyond their noise, a model that fits each subset
-// differently. Both, and the folds' plain scatter, are kept.
+// differently. Also kept: the jackknife, sigma_J^2 = (n - 1) / n sum (theta_i - mean)^2 (Efron &
+// Stein 1981), the all-view estimate's sigma when the views' disagreement dominates, (n - 1) /
+// sqrt(n) times the scatter.
 Json Uncertainties(const std::vector<const CalibrationView*>& views, const CalibrationBoard& board,
                    const CrossValidation& cv) {
   const Json cov = BundleCovariance(views, board, cv.cam, cv.prj, cv.all);
@@ -846,7 +848,7 @@ Json Uncertainties(const std::vector<const CalibrationView*>& views, const Calib
     jack[ptr] = std::sqrt((n - 1.0) / n * ss);
     scatter[ptr] = n > 1 ? std::sqrt(ss / (n - 1)) : 0.0;
     const double ls = cov.contains(ptr) ? cov[ptr].get<double>() : 0.0;
-    out[ptr] = std::max(ls, jack[ptr].get<double>());
+    out[ptr] = std::max(ls, scatter[ptr].get<double>());
   }
   out["least_squares"] = cov;
   out["jackknife"] = jack;
@@ -855,8 +857,8 @@ Json Uncertainties(const std::vector<const CalibrationView*>& views, const Calib
   if (cov.contains("error")) out["error"] = cov["error"];
   out["note"] =
       "1-sigma: the larger of the least-squares sigma (scaled by each device's residuals) and "
-      "the leave-one-view-out jackknife; fold_scatter: the standard deviation of the "
-      "leave-one-view-out fits";
+      "fold_scatter, the standard deviation of the leave-one-view-out fits; jackknife: the "
+      "all-view estimate's sigma from the folds (Efron & Stein)";
   return out;
 }
 
@@ -981,8 +983,7 @@ void AddWarnings(const CalibrateOptions& options, const CrossValidation& cv, dou
           std::ostringstream o;
           o << std::setprecision(3) << dev << " " << k << ": the fits without one view scatter "
             << jk / ls << "x its least-squares sigma (jackknife " << jk << " px against " << ls
-            << " px): the views disagree beyond their noise; the reported sigma is the "
-               "jackknife's";
+            << " px): the views disagree beyond their noise";
           w.push_back(o.str());
         }
       }
@@ -1180,7 +1181,7 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   }
 
   // ---- Uncertainties: the least-squares covariance (scaled by each device's residuals) and
-  // the leave-one-view-out jackknife; the larger is reported ----
+  // the scatter of the leave-one-view-out fits; the larger is reported ----
   result.uncertainties = Uncertainties(cused, board, chosen);
 
   // ---- Validation on what each fold did not see, and OpenCV's on the same corners ----

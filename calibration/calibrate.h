@@ -122,8 +122,8 @@ struct CalibrationResult {
   std::string ceres_brief;                    // Ceres' Summary::BriefReport()
   DeviceModel camera_model, projector_model;  // as chosen (or given)
   Json candidates;                            // every model tried: held-out figures, whether chosen
-  // 1-sigma of every fitted parameter: the larger of the least-squares sigma and the
-  // leave-one-view-out jackknife (both kept, with the folds' scatter).
+  // 1-sigma of every fitted parameter: the larger of the least-squares sigma and the scatter of
+  // the leave-one-view-out fits (both kept, with the jackknife).
   Json uncertainties;
   std::vector<HeldOutView> held_out;         // each view left out of the chosen models' fit
   std::vector<HeldOutView> opencv_held_out;  // the same with OpenCV's calibration (baseline)
