@@ -991,15 +991,15 @@ void AddWarnings(const CalibrateOptions& options, const CrossValidation& cv, dou
 
 }  // namespace
 
-CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_rig,
-                            const std::optional<CalibrationView>& mount_view,
-                            const CalibrateOptions& options) {
-  const auto t0 = std::chrono::steady_clock::now();
-  options.Check();
-  CalibrationResult result;
-  const CalibrationBoard& board = options.board;
-  const int nc = board.num_corners();
-  // The views in the adjustment: every found view with enough projector corners, then the mount.
+namespace {
+
+// The views in the adjustment: every found view with enough projector corners, then the mount
+// board if given. Bad input: too few usable views, a mount without its board, every view at
+// one pose.
+std::vector<CalibrationView*> SelectViews(std::vector<CalibrationView>& views,
+                                          std::optional<CalibrationView>& mount,
+                                          const CalibrateOptions& options, size_t* n_regular) {
+  const int nc = options.board.num_corners();
   std::vector<CalibrationView*> used;
   for (auto& v : views) {
     if (!v.found) continue;
@@ -1013,11 +1013,11 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     }
     used.push_back(&v);
   }
-  const size_t n_regular = used.size();
-  if (static_cast<int>(n_regular) < options.min_views) {
+  *n_regular = used.size();
+  if (static_cast<int>(used.size()) < options.min_views) {
     std::ostringstream o;
-    o << "calibrate: " << n_regular << " of " << views.size() << " views usable, expected at least "
-      << options.min_views;
+    o << "calibrate: " << used.size() << " of " << views.size()
+      << " views usable, expected at least " << options.min_views;
     for (const auto& v : views)
       if (!v.problem.empty()) {
         o << "; " << v.name << ": " << v.problem;
@@ -1025,118 +1025,108 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
       }
     MESOSCAN_BAD_INPUT(o.str());
   }
-  std::optional<CalibrationView> mount = mount_view;
   if (mount) {
     if (!mount->found) MESOSCAN_BAD_INPUT("--mount " << mount->name << ": " << mount->problem);
     used.push_back(&*mount);
   }
   // Degenerate: every view at one pose (the camera's corners move less than a pixel).
-  {
-    double spread = 0;
-    for (const auto* v : used)
-      for (int k = 0; k < nc; ++k)
-        if ((v->camera_px[k] - used[0]->camera_px[k]).allFinite())
-          spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
-    if (spread < 1.0)
-      MESOSCAN_BAD_INPUT("calibrate: all " << used.size()
-                                           << " views show the board at one pose (corners move "
-                                           << spread
-                                           << " px), expected views at different tilts "
-                                              "and positions (degenerate)");
-  }
+  double spread = 0;
+  for (const auto* v : used)
+    for (int k = 0; k < nc; ++k)
+      if ((v->camera_px[k] - used[0]->camera_px[k]).allFinite())
+        spread = std::max(spread, (v->camera_px[k] - used[0]->camera_px[k]).norm());
+  if (spread < 1.0)
+    MESOSCAN_BAD_INPUT("calibrate: all " << used.size()
+                                         << " views show the board at one pose (corners move "
+                                         << spread
+                                         << " px), expected views at different tilts "
+                                            "and positions (degenerate)");
+  return used;
+}
 
-  // ---- OpenCV: calibrateCamera per device, stereoCalibrate: the initial values and the plain
-  // baseline the report shows (its model as --fix says, else OpenCV's k1 k2 p1 p2 k3) ----
-  const std::vector<const CalibrationView*> cused(used.begin(), used.end());
-  const int cw = size_rig.camera.width, ch = size_rig.camera.height;
-  const int pw = size_rig.projector.width, ph = size_rig.projector.height;
-  int cv_flags = 0;
-  if (options.fix_k2) cv_flags |= cv::CALIB_FIX_K2;
-  if (options.fix_k3) cv_flags |= cv::CALIB_FIX_K3;
-  if (options.fix_tangential) cv_flags |= cv::CALIB_ZERO_TANGENT_DIST;
-  double cv_rms_cam = 0, cv_rms_prj = 0, cv_rms_stereo = 0;
-  const BundleParams cv_init = OpenCvCalibration(cused, -1, board, cw, ch, pw, ph, cv_flags,
-                                                 &cv_rms_cam, &cv_rms_prj, &cv_rms_stereo);
-  result.opencv = {{"note",
-                    "cv::calibrateCamera per device, cv::stereoCalibrate with "
-                    "CALIB_FIX_INTRINSIC; joint: stereoCalibrate refining everything"},
-                   {"rms_camera_px", cv_rms_cam},
-                   {"rms_projector_px", cv_rms_prj},
-                   {"rms_stereo_px", cv_rms_stereo},
-                   {"camera", DeviceParamsJson(cv_init.cam)},
-                   {"projector", DeviceParamsJson(cv_init.prj)},
-                   {"joint", OpenCvJoint(cused, board, cv_init, cv_flags)}};
+// OpenCV's flags for the --fix terms.
+int OpenCvFlags(const CalibrateOptions& options) {
+  int flags = 0;
+  if (options.fix_k2) flags |= cv::CALIB_FIX_K2;
+  if (options.fix_k3) flags |= cv::CALIB_FIX_K3;
+  if (options.fix_tangential) flags |= cv::CALIB_ZERO_TANGENT_DIST;
+  return flags;
+}
 
-  // ---- The corners' noise: the residuals of the most flexible model the options allow ----
-  const DeviceModel top = TopModel(options);
-  BundleParams full = cv_init;
-  {
-    BundleSolveOptions so;
-    so.threads = 2;
-    const BundleSolveSummary s = SolveBundle(cused, -1, board, top, top, so, &full);
-    if (!s.usable) MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << s.brief);
-  }
+// OpenCV: calibrateCamera per device, stereoCalibrate: the initial values, and the plain
+// baseline the report shows (its model as --fix says, else OpenCV's k1 k2 p1 p2 k3).
+BundleParams OpenCvStart(const std::vector<const CalibrationView*>& views,
+                         const CalibrationBoard& board, const Rig& size_rig, int cv_flags,
+                         Json* report) {
+  double rms_cam = 0, rms_prj = 0, rms_stereo = 0;
+  const BundleParams init = OpenCvCalibration(
+      views, -1, board, size_rig.camera.width, size_rig.camera.height, size_rig.projector.width,
+      size_rig.projector.height, cv_flags, &rms_cam, &rms_prj, &rms_stereo);
+  *report = {{"note",
+              "cv::calibrateCamera per device, cv::stereoCalibrate with "
+              "CALIB_FIX_INTRINSIC; joint: stereoCalibrate refining everything"},
+             {"rms_camera_px", rms_cam},
+             {"rms_projector_px", rms_prj},
+             {"rms_stereo_px", rms_stereo},
+             {"camera", DeviceParamsJson(init.cam)},
+             {"projector", DeviceParamsJson(init.prj)},
+             {"joint", OpenCvJoint(views, board, init, cv_flags)}};
+  return init;
+}
+
+// The corners' noise per coordinate and device: the residuals of the most flexible model the
+// options allow, fitted from `start` (*fit).
+void CornerNoise(const std::vector<const CalibrationView*>& views, const CalibrationBoard& board,
+                 const DeviceModel& top, BundleParams* fit, double* sigma_cam, double* sigma_prj) {
+  BundleSolveOptions so;
+  so.threads = 2;
+  const BundleSolveSummary s = SolveBundle(views, -1, board, top, top, so, fit);
+  if (!s.usable) MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << s.brief);
+  ResidualRms(views, board, *fit, sigma_cam, sigma_prj);
   // Per coordinate (a corner's residual has two).
-  double sigma_cam = 0, sigma_prj = 0;
-  ResidualRms(cused, board, full, &sigma_cam, &sigma_prj);
-  sigma_cam = std::max(sigma_cam / std::sqrt(2.0), 1e-4);
-  sigma_prj = std::max(sigma_prj / std::sqrt(2.0), 1e-4);
+  *sigma_cam = std::max(*sigma_cam / std::sqrt(2.0), 1e-4);
+  *sigma_prj = std::max(*sigma_prj / std::sqrt(2.0), 1e-4);
+}
 
-  // ---- Each device's model: chosen by leave-one-view-out cross-validation (or as given) ----
-  std::map<std::string, CrossValidation> cache;
-  auto run = [&](const DeviceModel& c, const DeviceModel& p) -> const CrossValidation& {
-    const std::string key = c.ToString() + "|" + p.ToString();
-    auto it = cache.find(key);
-    if (it == cache.end())
-      it = cache.emplace(key, CrossValidate(cused, board, c, p, full, sigma_cam, sigma_prj)).first;
-    return it->second;
-  };
-  DeviceModel cam_model = ModelFromOptions(options), prj_model = cam_model;
-  Json candidates = Json::array();
-  if (options.model == CalibrationModel::kAuto) {
-    cam_model = prj_model = top;
-    // One device at a time, the other at its current model (the camera first, the projector at
-    // the top model; then the projector with the camera's choice).
-    {
-      for (int d = 0; d < 2; ++d) {
-        DeviceModel& m = d ? prj_model : cam_model;
-        auto eval = [&](const DeviceModel& x) -> const CrossValidation& {
-          return d ? run(cam_model, x) : run(x, prj_model);
-        };
-        // Distortion terms (principal point free, fx and fy), then the principal point, then
-        // the aspect: each stage keeps the simplest model that is not worse on the held-out
-        // views than the best by more than its standard error.
-        std::vector<DeviceModel> stage;
-        for (unsigned t : LadderTerms(options)) {
-          DeviceModel x = m;
-          x.terms = t;
-          stage.push_back(x);
-        }
-        const std::string dev = d ? "projector" : "camera";
-        m = ChooseModel(stage, eval, dev, "distortion", &candidates);
-        if (!options.fix_principal_point) {
-          DeviceModel x = m;
-          x.free_principal_point = !m.free_principal_point;
-          m = ChooseModel({x, m}, eval, dev, "principal point", &candidates);
-        }
-        DeviceModel x = m;
-        x.equal_focal = !m.equal_focal;
-        m = ChooseModel({x, m}, eval, dev, "aspect", &candidates);
-      }
+// Each device's model by leave-one-view-out cross-validation, one device at a time, the other
+// at its current model (the camera first, the projector at the top model; then the projector
+// with the camera's choice). Per device: the distortion terms (principal point free, fx and
+// fy), then the principal point, then the aspect; each stage keeps the simplest model that is
+// not worse on the held-out views than the best by more than its standard error.
+template <typename Run>
+void ChooseModels(const CalibrateOptions& options, Run&& run, DeviceModel* cam_model,
+                  DeviceModel* prj_model, Json* candidates) {
+  *cam_model = *prj_model = TopModel(options);
+  for (int d = 0; d < 2; ++d) {
+    DeviceModel& m = d ? *prj_model : *cam_model;
+    auto eval = [&](const DeviceModel& x) -> const CrossValidation& {
+      return d ? run(*cam_model, x) : run(x, *prj_model);
+    };
+    std::vector<DeviceModel> stage;
+    for (unsigned t : LadderTerms(options)) {
+      DeviceModel x = m;
+      x.terms = t;
+      stage.push_back(x);
     }
+    const std::string dev = d ? "projector" : "camera";
+    m = ChooseModel(stage, eval, dev, "distortion", candidates);
+    if (!options.fix_principal_point) {
+      DeviceModel x = m;
+      x.free_principal_point = !m.free_principal_point;
+      m = ChooseModel({x, m}, eval, dev, "principal point", candidates);
+    }
+    DeviceModel x = m;
+    x.equal_focal = !m.equal_focal;
+    m = ChooseModel({x, m}, eval, dev, "aspect", candidates);
   }
-  const CrossValidation& chosen = run(cam_model, prj_model);
-  if (!chosen.all_summary.usable)
-    MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << chosen.all_summary.brief);
-  const BundleParams& fit = chosen.all;
-  result.camera_model = cam_model;
-  result.projector_model = prj_model;
-  result.ceres_brief = chosen.all_summary.brief;
-  result.held_out = chosen.held_out;
-  result.candidates = candidates;
+}
 
-  // ---- Residuals per view ----
-  const PinholeCamera cam_model_px = fit.cam.Camera(), prj_model_px = fit.prj.Camera();
+// Every used view's pose and corner residuals under the fit; the RMS figures; views whose
+// combined RMS exceeds outlier_view_factor x the median view's are marked, with a warning.
+void ViewResiduals(const std::vector<CalibrationView*>& used, const CalibrationBoard& board,
+                   const BundleParams& fit, double outlier_view_factor, CalibrationResult* result) {
+  const int nc = board.num_corners();
+  const PinholeCamera cam = fit.cam.Camera(), prj = fit.prj.Camera();
   const Rigid3d prj_from_cam = fit.PrjFromCam();
   std::vector<Vec2d> all_cam, all_prj;
   for (size_t i = 0; i < used.size(); ++i) {
@@ -1147,10 +1137,10 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     for (int k = 0; k < nc; ++k) {
       const Vec3d pc = v.cam_from_board * board.Corner(k);
       Vec2d uv;
-      if (v.camera_px[k].allFinite() && cam_model_px.ProjectDevice(pc.data(), uv.data()))
+      if (v.camera_px[k].allFinite() && cam.ProjectDevice(pc.data(), uv.data()))
         v.camera_residual_px[k] = v.camera_px[k] - uv;
       const Vec3d pp = prj_from_cam * pc;
-      if (v.projector_px[k].allFinite() && prj_model_px.ProjectDevice(pp.data(), uv.data()))
+      if (v.projector_px[k].allFinite() && prj.ProjectDevice(pp.data(), uv.data()))
         v.projector_residual_px[k] = v.projector_px[k] - uv;
     }
     v.rms_camera_px = Rms(v.camera_residual_px);
@@ -1158,34 +1148,31 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
     for (const auto& r : v.camera_residual_px) all_cam.push_back(r);
     for (const auto& r : v.projector_residual_px) all_prj.push_back(r);
   }
-  result.rms_camera_px = Rms(all_cam);
-  result.rms_projector_px = Rms(all_prj);
-  {
-    std::vector<Vec2d> both = all_cam;
-    both.insert(both.end(), all_prj.begin(), all_prj.end());
-    result.rms_stereo_px = Rms(both);
-  }
-  // Outlier views: combined RMS above factor x the median view's.
-  {
-    std::vector<double> rms;
-    for (const auto* v : used) rms.push_back(std::hypot(v->rms_camera_px, v->rms_projector_px));
-    std::vector<double> sorted = rms;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    const double median = sorted[sorted.size() / 2];
-    for (size_t i = 0; i < used.size(); ++i)
-      if (rms[i] > options.outlier_view_factor * median) {
-        used[i]->outlier = true;
-        MESOSCAN_LOG(kWarning) << used[i]->name << ": reprojection RMS " << rms[i]
-                               << " px is an outlier (median view " << median << " px)";
-      }
-  }
+  result->rms_camera_px = Rms(all_cam);
+  result->rms_projector_px = Rms(all_prj);
+  std::vector<Vec2d> both = all_cam;
+  both.insert(both.end(), all_prj.begin(), all_prj.end());
+  result->rms_stereo_px = Rms(both);
+  std::vector<double> rms;
+  for (const auto* v : used) rms.push_back(std::hypot(v->rms_camera_px, v->rms_projector_px));
+  std::vector<double> sorted = rms;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  for (size_t i = 0; i < used.size(); ++i)
+    if (rms[i] > outlier_view_factor * median) {
+      used[i]->outlier = true;
+      MESOSCAN_LOG(kWarning) << used[i]->name << ": reprojection RMS " << rms[i]
+                             << " px is an outlier (median view " << median << " px)";
+    }
+}
 
-  // ---- Uncertainties: the least-squares covariance (scaled by each device's residuals) and
-  // the scatter of the leave-one-view-out fits; the larger is reported ----
-  result.uncertainties = Uncertainties(cused, board, chosen);
-
-  // ---- Validation on what each fold did not see, and OpenCV's on the same corners ----
-  result.validation = {
+// The chosen models' held-out views (and the rig fitted without each), and OpenCV's
+// calibration (k1 k2) held out on the same views and corners.
+void Validate(const std::vector<const CalibrationView*>& views, const CalibrationBoard& board,
+              const Rig& size_rig, const CrossValidation& chosen, int cv_flags, double sigma_cam,
+              double sigma_prj, bool with_opencv, CalibrationResult* result) {
+  result->held_out = chosen.held_out;
+  result->validation = {
       {"method",
        "leave one view out: the rig fitted without the view (same models), the "
        "view's board pose fitted with that rig held and its corners reprojected; "
@@ -1193,50 +1180,95 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
        "projector column) against the board"},
       {"noise_sigma_px_per_coordinate", {{"camera", sigma_cam}, {"projector", sigma_prj}}},
       {"summary", SummariseHeldOut(chosen.held_out).ToJson()}};
-  {
-    Json hv = Json::array();
-    for (size_t i = 0; i < chosen.held_out.size(); ++i) {
-      Json j = chosen.held_out[i].ToJson();
-      j["rig_without_it"] = {{"camera", DeviceParamsJson(chosen.folds[i].cam)},
-                             {"projector", DeviceParamsJson(chosen.folds[i].prj)}};
-      hv.push_back(j);
-    }
-    result.validation["held_out"] = hv;
+  Json hv = Json::array();
+  for (size_t i = 0; i < chosen.held_out.size(); ++i) {
+    Json j = chosen.held_out[i].ToJson();
+    j["rig_without_it"] = {{"camera", DeviceParamsJson(chosen.folds[i].cam)},
+                           {"projector", DeviceParamsJson(chosen.folds[i].prj)}};
+    hv.push_back(j);
   }
-  if (options.validate_opencv) {
-    const int flags = cv_flags | cv::CALIB_FIX_K3 | cv::CALIB_ZERO_TANGENT_DIST;
-    try {
-      result.opencv_held_out =
-          OpenCvCrossValidate(cused, board, cw, ch, pw, ph, flags, sigma_cam, sigma_prj);
-      Json hv = Json::array();
-      for (const auto& h : result.opencv_held_out) hv.push_back(h.ToJson());
-      result.validation["opencv"] = {
-          {"model",
-           "calibrateCamera per device with CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST (k1 "
-           "k2, principal point free), stereoCalibrate with CALIB_FIX_INTRINSIC"},
-          {"summary", SummariseHeldOut(result.opencv_held_out).ToJson()},
-          {"held_out", hv}};
-    } catch (const Error& e) {
-      result.validation["opencv"] = {{"error", e.what()}};
-    }
+  result->validation["held_out"] = hv;
+  if (!with_opencv) return;
+  const int flags = cv_flags | cv::CALIB_FIX_K3 | cv::CALIB_ZERO_TANGENT_DIST;
+  try {
+    result->opencv_held_out = OpenCvCrossValidate(
+        views, board, size_rig.camera.width, size_rig.camera.height, size_rig.projector.width,
+        size_rig.projector.height, flags, sigma_cam, sigma_prj);
+    Json ov = Json::array();
+    for (const auto& h : result->opencv_held_out) ov.push_back(h.ToJson());
+    result->validation["opencv"] = {
+        {"model",
+         "calibrateCamera per device with CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST (k1 "
+         "k2, principal point free), stereoCalibrate with CALIB_FIX_INTRINSIC"},
+        {"summary", SummariseHeldOut(result->opencv_held_out).ToJson()},
+        {"held_out", ov}};
+  } catch (const Error& e) {
+    result->validation["opencv"] = {{"error", e.what()}};
   }
+}
 
-  // ---- Coverage of each device's image ----
-  MeasureCoverages(cused, fit, options, &result);
+// The rig in the world of `world_view`'s board (the mount board if given, else the first).
+Rig RigInBoardWorld(const Rig& size_rig, const BundleParams& fit,
+                    const CalibrationView& world_view) {
+  const Rigid3d world_from_cam = world_view.cam_from_board.Inverse();
+  Rig rig = size_rig;
+  rig.uncalibrated = false;
+  rig.camera = fit.cam.Camera();
+  rig.camera.world_from_device = world_from_cam;
+  rig.projector = fit.prj.Camera();
+  rig.projector.world_from_device = world_from_cam * fit.PrjFromCam().Inverse();
+  return rig;
+}
 
-  // ---- Loud when wrong ----
+}  // namespace
+
+CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_rig,
+                            const std::optional<CalibrationView>& mount_view,
+                            const CalibrateOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  options.Check();
+  CalibrationResult result;
+  const CalibrationBoard& board = options.board;
+  std::optional<CalibrationView> mount = mount_view;
+  size_t n_regular = 0;
+  const std::vector<CalibrationView*> used = SelectViews(views, mount, options, &n_regular);
+  const std::vector<const CalibrationView*> cused(used.begin(), used.end());
+
+  const int cv_flags = OpenCvFlags(options);
+  BundleParams full = OpenCvStart(cused, board, size_rig, cv_flags, &result.opencv);
+  double sigma_cam = 0, sigma_prj = 0;
+  CornerNoise(cused, board, TopModel(options), &full, &sigma_cam, &sigma_prj);
+
+  // Each candidate pair of models cross-validated once.
+  std::map<std::string, CrossValidation> cache;
+  auto run = [&](const DeviceModel& c, const DeviceModel& p) -> const CrossValidation& {
+    const std::string key = c.ToString() + "|" + p.ToString();
+    auto it = cache.find(key);
+    if (it == cache.end())
+      it = cache.emplace(key, CrossValidate(cused, board, c, p, full, sigma_cam, sigma_prj)).first;
+    return it->second;
+  };
+  DeviceModel cam_model = ModelFromOptions(options), prj_model = cam_model;
+  result.candidates = Json::array();
+  if (options.model == CalibrationModel::kAuto)
+    ChooseModels(options, run, &cam_model, &prj_model, &result.candidates);
+  const CrossValidation& chosen = run(cam_model, prj_model);
+  if (!chosen.all_summary.usable)
+    MESOSCAN_BAD_INPUT("calibrate: the bundle adjustment failed: " << chosen.all_summary.brief);
+  result.camera_model = cam_model;
+  result.projector_model = prj_model;
+  result.ceres_brief = chosen.all_summary.brief;
+
+  ViewResiduals(used, board, chosen.all, options.outlier_view_factor, &result);
+  result.uncertainties = Uncertainties(cused, board, chosen);
+  Validate(cused, board, size_rig, chosen, cv_flags, sigma_cam, sigma_prj, options.validate_opencv,
+           &result);
+  MeasureCoverages(cused, chosen.all, options, &result);
   AddWarnings(options, chosen, sigma_cam, sigma_prj, &result);
 
-  // ---- The world: the mount board if given, else the first view's board ----
   const CalibrationView& world_view = mount ? *used.back() : *used.front();
   result.world = (mount ? "mount board " : "first board ") + world_view.name;
-  const Rigid3d world_from_cam = world_view.cam_from_board.Inverse();
-  result.rig = size_rig;
-  result.rig.uncalibrated = false;
-  result.rig.camera = cam_model_px;
-  result.rig.camera.world_from_device = world_from_cam;
-  result.rig.projector = prj_model_px;
-  result.rig.projector.world_from_device = world_from_cam * prj_from_cam.Inverse();
+  result.rig = RigInBoardWorld(size_rig, chosen.all, world_view);
   // The mount view is reported with the others.
   if (mount) views.push_back(*mount);
   result.views = std::move(views);
