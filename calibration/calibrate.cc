@@ -371,6 +371,8 @@ void CalibrateOptions::Check() const {
   if (!(outlier_view_factor > 1))
     MESOSCAN_THROW(ErrorKind::kUsage, "outlier view factor: expected > 1");
   if (min_views < 3) MESOSCAN_THROW(ErrorKind::kUsage, "min views: expected >= 3");
+  if (!(outlier_corner_sigmas > 3))
+    MESOSCAN_THROW(ErrorKind::kUsage, "outlier corner sigmas: expected > 3");
   if (!(poor_coverage > 0 && poor_coverage <= 1))
     MESOSCAN_THROW(ErrorKind::kUsage, "poor coverage: expected (0, 1]");
   if (!(held_out_warning_ratio > 1) || !(scatter_warning_ratio > 1) || !(scale_warning_pct > 0))
@@ -1088,6 +1090,56 @@ void CornerNoise(const std::vector<const CalibrationView*>& views, const Calibra
   *sigma_prj = std::max(*sigma_prj / std::sqrt(2.0), 1e-4);
 }
 
+// Corners the fit of the most flexible model does not explain: a residual beyond
+// `threshold` robust sigmas of its device (the median absolute residual per coordinate / 0.6745),
+// e.g. a projector corner whose fringe order was misread or a corner on a smudge. They are
+// removed from the views (NaN) and counted per device, and the fit and the noise redone.
+std::array<int, 2> RejectOutlierCorners(const std::vector<CalibrationView*>& used,
+                                        const CalibrationBoard& board, const BundleParams& fit,
+                                        double threshold) {
+  const PinholeCamera cam = fit.cam.Camera(), prj = fit.prj.Camera();
+  const Rigid3d prj_from_cam = fit.PrjFromCam();
+  struct Residual {
+    CalibrationView* view;
+    int corner;
+    bool projector;
+    double norm;
+  };
+  std::vector<Residual> res;
+  std::array<std::vector<double>, 2> coords;
+  for (size_t i = 0; i < used.size(); ++i) {
+    const Rigid3d cam_from_board = PoseFromArray(fit.cam_from_board[i].data());
+    for (int k = 0; k < board.num_corners(); ++k) {
+      const Vec3d pc = cam_from_board * board.Corner(k), pp = prj_from_cam * pc;
+      Vec2d uv;
+      for (int d = 0; d < 2; ++d) {
+        const Vec2d& obs = d ? used[i]->projector_px[k] : used[i]->camera_px[k];
+        if (!obs.allFinite() || !(d ? prj : cam).ProjectDevice((d ? pp : pc).data(), uv.data()))
+          continue;
+        const Vec2d r = obs - uv;
+        res.push_back({used[i], k, d == 1, r.norm()});
+        coords[d].push_back(std::abs(r.x()));
+        coords[d].push_back(std::abs(r.y()));
+      }
+    }
+  }
+  std::array<double, 2> sigma{};
+  for (int d = 0; d < 2; ++d) {
+    if (coords[d].empty()) continue;
+    auto mid = coords[d].begin() + coords[d].size() / 2;
+    std::nth_element(coords[d].begin(), mid, coords[d].end());
+    sigma[d] = *mid / 0.6745;
+  }
+  std::array<int, 2> rejected{};
+  for (const auto& r : res) {
+    const int d = r.projector ? 1 : 0;
+    if (!(r.norm > threshold * sigma[d])) continue;
+    (r.projector ? r.view->projector_px : r.view->camera_px)[r.corner] = Vec2d(kNaN, kNaN);
+    ++rejected[d];
+  }
+  return rejected;
+}
+
 // Each device's model by leave-one-view-out cross-validation, one device at a time, the other
 // at its current model (the camera first, the projector at the top model; then the projector
 // with the camera's choice). Per device: the distortion terms (principal point free, fx and
@@ -1238,6 +1290,14 @@ CalibrationResult Calibrate(std::vector<CalibrationView> views, const Rig& size_
   BundleParams full = OpenCvStart(cused, board, size_rig, cv_flags, &result.opencv);
   double sigma_cam = 0, sigma_prj = 0;
   CornerNoise(cused, board, TopModel(options), &full, &sigma_cam, &sigma_prj);
+  result.corners_rejected = RejectOutlierCorners(used, board, full, options.outlier_corner_sigmas);
+  if (result.corners_rejected[0] + result.corners_rejected[1] > 0) {
+    MESOSCAN_LOG(kWarning) << "calibrate: " << result.corners_rejected[0] << " camera and "
+                           << result.corners_rejected[1]
+                           << " projector corner(s) left out: their residuals exceed "
+                           << options.outlier_corner_sigmas << " robust sigmas of their device";
+    CornerNoise(cused, board, TopModel(options), &full, &sigma_cam, &sigma_prj);
+  }
 
   // Each candidate pair of models cross-validated once.
   std::map<std::string, CrossValidation> cache;
@@ -1361,6 +1421,7 @@ Json CalibrationResult::ToJson() const {
   j["rms_projector_px"] = rms_projector_px;
   j["rms_stereo_px"] = rms_stereo_px;
   j["views_used"] = views_used;
+  j["corners_rejected"] = {{"camera", corners_rejected[0]}, {"projector", corners_rejected[1]}};
   j["world"] = world;
   j["camera"] = DeviceJson(rig.camera);
   j["projector"] = DeviceJson(rig.projector);
@@ -1412,6 +1473,9 @@ std::string CalibrationResult::BriefReport() const {
     << opencv.value("rms_projector_px", 0.0) << " / " << opencv.value("rms_stereo_px", 0.0)
     << " px); fx camera " << rig.camera.K(0, 0) << ", projector " << rig.projector.K(0, 0)
     << " px; " << seconds << " s";
+  if (corners_rejected[0] + corners_rejected[1] > 0)
+    o << "; " << corners_rejected[0] << " camera and " << corners_rejected[1]
+      << " projector corner(s) left out";
   if (!warnings.empty()) o << "; " << warnings.size() << " warning(s)";
   int outliers = 0;
   for (const auto& v : views) outliers += v.outlier;

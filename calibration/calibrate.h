@@ -14,6 +14,7 @@
 // shows) and then refined together with every board pose in one Ceres bundle adjustment using
 // PinholeCamera::ProjectWithParams (core/camera.h), the model reconstruction uses.
 
+#include <array>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -77,6 +78,9 @@ struct CalibrateOptions {
   // A view whose reprojection RMS exceeds this many times the median view's is named as an
   // outlier in the report (and a warning); it is kept. > 1.
   double outlier_view_factor = 3.0;
+  // A corner whose residual under the most flexible model exceeds this many robust sigmas of its
+  // device is left out (a misread fringe order, a smudge), > 3.
+  double outlier_corner_sigmas = 6.0;
   // cornerSubPix after findChessboardCornersSB (the SB corners alone are less precise on noisy,
   // low-contrast boards).
   bool refine_corners = true;
@@ -117,6 +121,7 @@ struct CalibrationResult {
   Rig rig;                             // the calibrated rig (world as chosen, see Calibrate)
   std::vector<CalibrationView> views;  // all views, including those skipped
   int views_used = 0;
+  std::array<int, 2> corners_rejected{};  // camera, projector (CalibrateOptions)
   double rms_camera_px = 0, rms_projector_px = 0, rms_stereo_px = 0;  // over all used corners
   std::string world;                          // "mount board <session>" or "first board <session>"
   std::string ceres_brief;                    // Ceres' Summary::BriefReport()
