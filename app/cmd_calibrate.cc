@@ -78,7 +78,7 @@ CalibrateOutputs CheckCalibrateOutputs(const CalibrateArgs& a) {
 
 void Run(const CalibrateArgs& a) {
   CalibrateOptions opt;
-  opt.board = CalibrationBoard::Parse(a.board, "--board");
+  opt.board = CalibrationBoard::Parse(a.board, "CalibrateOptions.board");
   opt.ParseFix(a.fix);
   opt.ParseModel(a.model);
   opt.fix_principal_point = a.fix_principal_point;

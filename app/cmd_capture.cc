@@ -45,8 +45,10 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
       MESOSCAN_THROW(ErrorKind::kUsage,
                      "--ls-frames: a calibration plan has no lens-shift frames (omit --ls-frames)");
     plan = CalibrationPlan(rig.projector.width, rig.projector.height);
-    if (a.periods_given) plan.periods_px = ParsePeriodList(a.periods, "--periods");
-    if (a.periods_y_given) plan.cross_periods_px = ParsePeriodList(a.periods_y, "--periods-y");
+    if (a.periods_given)
+      plan.periods_px = ParsePeriodList(a.periods, "FramePlanOptions.periods_px");
+    if (a.periods_y_given)
+      plan.cross_periods_px = ParsePeriodList(a.periods_y, "FramePlanOptions.cross_periods_px");
     if (plan.periods_px.empty() || plan.cross_periods_px.empty())
       MESOSCAN_THROW(ErrorKind::kUsage,
                      "--plan calibration: expected sine periods along both "
@@ -54,7 +56,7 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
   } else if (a.plan == "scan") {
     if (a.periods_y_given)
       MESOSCAN_THROW(ErrorKind::kUsage, "--periods-y: only with --plan calibration");
-    plan.periods_px = ParsePeriodList(a.periods, "--periods");
+    plan.periods_px = ParsePeriodList(a.periods, "FramePlanOptions.periods_px");
     plan.lens_shift_frames = rig.lens_shifter ? a.ls_frames : 0;
     if (rig.lens_shifter) {
       plan.axis = rig.lens_shifter->axis;

@@ -91,7 +91,7 @@ void RunExport(const ExportArgs& a) {
   ParseExportFormats(a.formats, &o);
   o.normals = a.normals == "dx" ? NormalConvention::kDirectX : NormalConvention::kOpenGl;
   o.pixel_size_m = a.pixel_size_m;
-  if (!a.crop.empty()) o.crop = ParsePixelRect(a.crop, "--crop");
+  if (!a.crop.empty()) o.crop = ParsePixelRect(a.crop, "ExportOptions.crop");
   o.max_triangles = a.max_triangles;
   o.mesh_tolerance_m = a.mesh_tolerance_m;
   o.name = a.name.empty() ? DefaultName(a.scan) : a.name;

@@ -62,7 +62,7 @@ MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop)
   }
   if (!maps.empty()) ParseMapSelection(maps, &o);
   if (ao_radius_mm > 0) o.ao.radius_m = ao_radius_mm * 1e-3;
-  if (!crop.empty()) o.crop = ParsePixelRect(crop, "--crop");
+  if (!crop.empty()) o.crop = ParsePixelRect(crop, "MapsOptions.crop");
   o.Check();
   return o;
 }

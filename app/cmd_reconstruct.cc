@@ -44,13 +44,9 @@ void Run(const ReconstructArgs& a) {
   const Stopwatch t0;
   const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;
-  if (!a.roi.empty()) opt.load.roi = ParsePixelRect(a.roi, "--roi");
+  if (!a.roi.empty()) opt.load.roi = ParsePixelRect(a.roi, "FrameLoadOptions.roi");
   opt.classify.mask_path = a.mask;
-  try {
-    opt.lens_shift.fitter = ParseLensShiftFitter(a.fitter, "--fitter");
-  } catch (const Error& e) {  // a bad option value is a usage error (exit 2)
-    throw Error(e.what(), ErrorKind::kUsage);
-  }
+  opt.lens_shift.fitter = ParseLensShiftFitter(a.fitter, "LensShiftStageOptions.fitter");
   opt.plan.use_lens_shift = !a.no_lens_shift;
   opt.num_threads = a.threads;
   opt.lens_shift.box_filter = a.box_filter;

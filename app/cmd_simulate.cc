@@ -124,22 +124,23 @@ void AddSimulateCommand(CLI::App* app) {
     SimulateOptions opt = args->o;
     if (IsBoardObject(opt.object)) {
       BoardSimOptions bo;
-      bo.board = CalibrationBoard::Parse(opt.object.substr(6), "--object");
+      bo.board = CalibrationBoard::Parse(opt.object.substr(6), "BoardSimOptions.board");
       bo.pose = ParseBoardPose(args->pose);
       bo.frame_format = args->frame_format;
       if (args->low_contrast) bo.dark_albedo = 0.45, bo.light_albedo = 0.8;
       opt.crop.reset();
-      if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "--crop");
+      if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "SimulateOptions.crop");
       const Rig rig = ResolveRig(opt);
       // The calibration plan of `capture --plan calibration` (session/patterns.h), periods as
       // given.
       const FramePlanOptions plan = CalibrationPlan(rig.projector.width, rig.projector.height);
       opt.ps_periods_px = cmd->count("--ps-periods") == 0
                               ? plan.periods_px
-                              : ParsePeriodList(args->periods, "--ps-periods");
-      bo.ps_periods_y_px = cmd->count("--ps-periods-y") == 0
-                               ? plan.cross_periods_px
-                               : ParsePeriodList(args->periods_y, "--ps-periods-y");
+                              : ParsePeriodList(args->periods, "SimulateOptions.ps_periods_px");
+      bo.ps_periods_y_px =
+          cmd->count("--ps-periods-y") == 0
+              ? plan.cross_periods_px
+              : ParsePeriodList(args->periods_y, "BoardSimOptions.ps_periods_y_px");
       opt.white = !args->no_white;
       opt.black = !args->no_black;
       const OutputSpec board_spec{"simulate",  "--out",
@@ -152,8 +153,8 @@ void AddSimulateCommand(CLI::App* app) {
       MESOSCAN_LOG(kInfo) << args->out << ": " << summary.BriefReport();
       return;
     }
-    opt.ps_periods_px = ParsePeriodList(args->periods, "--ps-periods");
-    if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "--crop");
+    opt.ps_periods_px = ParsePeriodList(args->periods, "SimulateOptions.ps_periods_px");
+    if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "SimulateOptions.crop");
     opt.axis = args->axis.front();
     // Periods whose phases repeat within the projector make a session nothing can decode:
     // refused before simulating (the session reader would refuse the written session).

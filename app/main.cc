@@ -5,11 +5,27 @@
 #include <exception>
 
 #include "app/commands.h"
+#include "app/error_line.h"
 #include "core/budget.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "core/progress.h"
 #include "core/stderr_filter.h"
+
+namespace {
+
+// The subcommand that ran ("reconstruct", "brdf plot"): its flags name the options in errors.
+std::string CommandName(CLI::App* app) {
+  std::string name;
+  for (const CLI::App* sub = app; sub;) {
+    const auto subs = sub->get_subcommands();
+    sub = subs.empty() ? nullptr : subs.front();
+    if (sub) name += (name.empty() ? "" : " ") + sub->get_name();
+  }
+  return name;
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   using namespace mesoscan;
@@ -52,7 +68,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "mesoscan: %s (see 'mesoscan --help')\n", e.what());
     return static_cast<int>(ErrorKind::kUsage);
   } catch (const Error& e) {
-    std::fprintf(stderr, "mesoscan: %s\n", e.what());
+    std::fprintf(stderr, "mesoscan: %s\n", FormatErrorLine(e, CommandName(&app)).c_str());
     return e.exit_code();
   } catch (const std::bad_alloc&) {
     std::fprintf(stderr, "mesoscan: out of memory\n");

@@ -15,13 +15,19 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// True if the message already starts with a file or key the user can act on.
-bool NamesAFile(const std::string& msg, const Session& s) {
-  return msg.rfind(s.root.string(), 0) == 0 || msg.rfind("session.json", 0) == 0 ||
-         msg.rfind("frames", 0) == 0 || msg.find(".png") != std::string::npos ||
-         msg.find(".exr") != std::string::npos || msg.find(".json") != std::string::npos ||
-         msg.rfind("roi", 0) == 0 || msg.rfind("--", 0) == 0 ||
-         msg.find(": --") != std::string::npos;
+// Reconstruct(), its bad-input errors that carry no location located at the session's
+// session.json: the decoders' refusals (periods, phases, unwrapping) are about what it describes.
+Scan ReconstructLocated(const Session& session, const ReconstructOptions& options,
+                        ReconstructSummary* summary) {
+  try {
+    return Reconstruct(session, options, summary);
+  } catch (const Error& e) {
+    const ErrorSite& site = e.site();
+    const bool located =
+        !site.file.empty() || !site.key.empty() || site.frame >= 0 || !site.option.empty();
+    if (e.kind() != ErrorKind::kBadInput || located) throw;
+    throw e.At(ErrorSite::File(session.root / "session.json"));
+  }
 }
 
 // Why no point came out: the stage that rejected most of the pixels, in the user's terms.
@@ -60,34 +66,33 @@ std::string WhyNoPoint(const ReconstructSummary& s) {
   return best->second;
 }
 
-}  // namespace
-
-Scan ReconstructOrExplain(const Session& session, const ReconstructOptions& options,
-                          ReconstructSummary* summary_out) {
-  const std::string manifest = (session.root / "session.json").string();
-  ReconstructSummary local;
-  ReconstructSummary* summary = summary_out ? summary_out : &local;
-  Scan scan;
-  try {
-    scan = Reconstruct(session, options, summary);
-  } catch (const Error& e) {
-    if (e.kind() != ErrorKind::kBadInput || NamesAFile(e.what(), session)) throw;
-    throw Error(manifest + ": " + e.what(), e.kind());
-  }
+// The refusal of a scan with no point, or too few to make a height grid of 2x2 samples (what
+// check, export, maps and render need), naming why most pixels were rejected; none if the scan
+// is usable.
+std::optional<Error> NoPointError(const Session& session, const ReconstructOptions& options,
+                                  const ReconstructSummary& summary, const Scan& scan) {
   size_t points = 0;
   const ImageF& xyz = scan.points.xyz;
   if (xyz.channels() == 3)
     for (size_t i = 0; i < xyz.pixels(); ++i) points += std::isfinite(xyz.channel(2)[i]);
-  // No point, or too few to make a height grid of 2x2 samples (what check, export, maps and
-  // render need): refused, naming why most pixels were rejected.
   const bool grid = scan.height.width() >= 2 && scan.height.height() >= 2;
-  if (points == 0 || (!grid && options.load.roi.w == 0))
-    MESOSCAN_BAD_INPUT(manifest << ": " << (points ? "too few points" : "no point")
-                                << " could be reconstructed from the " << summary->pixels_roi
-                                << " pixels tried (" << summary->pixels_lit << " lit and modulated"
-                                << (points ? ", " : "")
-                                << (points ? std::to_string(points) + " points" : std::string())
-                                << "): " << WhyNoPoint(*summary));
+  if (points > 0 && (grid || options.load.roi.w != 0)) return std::nullopt;
+  ErrorMessage msg;
+  msg << (points ? "too few points" : "no point") << " could be reconstructed from the "
+      << summary.pixels_roi << " pixels tried (" << summary.pixels_lit << " lit and modulated"
+      << (points ? ", " + std::to_string(points) + " points" : std::string())
+      << "): " << WhyNoPoint(summary);
+  return Error(ErrorKind::kBadInput, ErrorSite::File(session.root / "session.json"), msg.Parts());
+}
+
+}  // namespace
+
+Scan ReconstructOrExplain(const Session& session, const ReconstructOptions& options,
+                          ReconstructSummary* summary_out) {
+  ReconstructSummary local;
+  ReconstructSummary* summary = summary_out ? summary_out : &local;
+  Scan scan = ReconstructLocated(session, options, summary);
+  if (std::optional<Error> e = NoPointError(session, options, *summary, scan)) throw *e;
   return scan;
 }
 
@@ -102,7 +107,8 @@ void CheckSessionLikeReconstruct(const Session& session) {
         break;
       }
     if (!finite)
-      MESOSCAN_BAD_INPUT(session.frames[i].file << ": no finite sample (frames[" << i << "])");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(session.frames[i].file),
+                            "no finite sample (frames[" << i << "])");
   }
   // A calibration session has no calibrated rig to reconstruct with: its frames are checked
   // above, its decoding is calibrate's.
@@ -127,17 +133,16 @@ void CheckSessionLikeReconstruct(const Session& session) {
       ReconstructOptions o;
       o.load.roi = roi;
       o.num_threads = 0;
-      try {
-        ReconstructSummary summary;
-        ReconstructOrExplain(session, o, &summary);
+      // A refusal of the session itself (its periods, its frames' contradictions) is final; a
+      // window without points tries the next.
+      ReconstructSummary summary;
+      const Scan scan = ReconstructLocated(session, o, &summary);
+      std::optional<Error> e = NoPointError(session, o, summary, scan);
+      if (!e) {
         first.reset();
         break;
-      } catch (const Error& e) {
-        // A refusal of the session itself (its periods, its frames' contradictions) is final;
-        // a window without points tries the next.
-        if (std::string(e.what()).find("could be reconstructed from") == std::string::npos) throw;
-        if (!first) first = e;
       }
+      if (!first) first = std::move(e);
     }
     if (first) throw *first;
   } catch (...) {
@@ -149,17 +154,18 @@ void CheckSessionLikeReconstruct(const Session& session) {
 
 void CheckScanUsable(const Scan& scan, const fs::path& dir) {
   const HeightField& hf = scan.height;
-  const std::string file = (dir / "height.exr").string();
+  const ErrorSite file = ErrorSite::File(dir / "height.exr");
   if (hf.width() < 2 || hf.height() < 2)
-    MESOSCAN_BAD_INPUT(file << ": a " << hf.width() << "x" << hf.height()
-                            << " height grid, expected at least 2x2 samples");
+    MESOSCAN_BAD_INPUT_AT(file, "a " << hf.width() << "x" << hf.height()
+                                     << " height grid, expected at least 2x2 samples");
   if (!std::isfinite(hf.x0) || !std::isfinite(hf.y0) || !(hf.pixel_size > 0) ||
       !std::isfinite(hf.pixel_size) || std::abs(hf.x0) > 1e6 || std::abs(hf.y0) > 1e6 ||
       hf.pixel_size > 1e3)
-    MESOSCAN_BAD_INPUT(file << ": " << kAttrX0 << ", " << kAttrY0 << ", " << kAttrPixelSize
-                            << " must be finite (|x0|, |y0| <= 1e6 m, 0 < pixel size <= 1e3 m), "
-                               "got "
-                            << hf.x0 << ", " << hf.y0 << ", " << hf.pixel_size);
+    MESOSCAN_BAD_INPUT_AT(
+        file, kAttrX0 << ", " << kAttrY0 << ", " << kAttrPixelSize
+                      << " must be finite (|x0|, |y0| <= 1e6 m, 0 < pixel size <= 1e3 m), "
+                         "got "
+                      << hf.x0 << ", " << hf.y0 << ", " << hf.pixel_size);
   // A height beyond 100 times the field's extent is no surface the rig can see: a damaged
   // sample that would flatten every quantised map and put a vertex kilometres away.
   const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
@@ -172,22 +178,23 @@ void CheckScanUsable(const Scan& scan, const fs::path& dir) {
       if (!std::isfinite(z)) continue;
       any = true;
       if (std::abs(z) > limit)
-        MESOSCAN_BAD_INPUT(file << ": sample (" << x << ", " << y << ") is " << z
-                                << " m, beyond 100 times the field's " << extent
-                                << " m extent (a damaged file?)");
+        MESOSCAN_BAD_INPUT_AT(file, "sample (" << x << ", " << y << ") is " << z
+                                               << " m, beyond 100 times the field's " << extent
+                                               << " m extent (a damaged file?)");
       if (!hf.confidence.empty()) {
         const float c = hf.confidence(x, y);
         if (!(c >= 0 && c <= 1))
-          MESOSCAN_BAD_INPUT(file << ": sample (" << x << ", " << y << "): confidence " << c
-                                  << ", expected a value in [0, 1]");
+          MESOSCAN_BAD_INPUT_AT(file, "sample (" << x << ", " << y << "): confidence " << c
+                                                 << ", expected a value in [0, 1]");
       }
       block = block || (x + 1 < w && y + 1 < h && std::isfinite(hf.z(x + 1, y)) &&
                         std::isfinite(hf.z(x, y + 1)) && std::isfinite(hf.z(x + 1, y + 1)));
     }
-  if (!any) MESOSCAN_BAD_INPUT(file << ": no valid (finite) height sample");
+  if (!any) MESOSCAN_BAD_INPUT_AT(file, "no valid (finite) height sample");
   if (!block)
-    MESOSCAN_BAD_INPUT(file << ": no 2x2 block of known samples (isolated samples only): no "
-                               "surface to export");
+    MESOSCAN_BAD_INPUT_AT(file,
+                          "no 2x2 block of known samples (isolated samples only): no "
+                          "surface to export");
 }
 
 }  // namespace mesoscan

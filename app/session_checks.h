@@ -1,6 +1,6 @@
 #pragma once
-// What `reconstruct` would refuse, for `check` too, and errors of the
-// pipeline that name no file given the session's session.json (item 8).
+// What `reconstruct` would refuse, for `check` too, and errors of the pipeline that carry no
+// location given the session's session.json.
 
 #include "core/scan_folder.h"
 #include "heightfield/reconstruct.h"
@@ -8,8 +8,8 @@
 
 namespace mesoscan {
 
-// Reconstruct(session, options), with a bad-input error that names no file or key prefixed
-// by "<session>/session.json: " (the refusals of the decoders are about its periods and phases),
+// Reconstruct(session, options), with a bad-input error that carries no location located at
+// "<session>/session.json" (the refusals of the decoders are about its periods and phases),
 // and an empty result (no pixel decoded: identical, unlit or all-NaN frames) refused naming
 // the session instead of written as an empty scan.
 Scan ReconstructOrExplain(const Session& session, const ReconstructOptions& options,

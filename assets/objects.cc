@@ -329,10 +329,11 @@ SceneObject LoadHeightExrObject(const std::filesystem::path& path) {
   obj.height = ReadHeightExr(path);
   const HeightField& hf = obj.height;
   if (hf.width() < 2 || hf.height() < 2)
-    MESOSCAN_BAD_INPUT(path.string() << ": Z: expected a height field of at least 2 x 2 pixels");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "Z: expected a height field of at least 2 x 2 pixels");
   bool any = false;
   for (float v : hf.z.data()) any = any || std::isfinite(v);
-  if (!any) MESOSCAN_BAD_INPUT(path.string() << ": Z: no finite height");
+  if (!any) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "Z: no finite height");
   obj.height.confidence = ImageF();
   obj.albedo = ImageF(hf.width(), hf.height(), 1);
   for (int j = 0; j < hf.height(); ++j)
@@ -344,7 +345,7 @@ SceneObject LoadHeightExrObject(const std::filesystem::path& path) {
   return obj;
 }
 
-SceneObject MakeObject(const std::string& spec, double h) {
+SceneObject MakeObject(const std::string& spec, double h, const std::string& option) {
   if (spec == "coin") return MakeCoin(h > 0 ? h : 10e-6);
   if (spec == "ramp") return MakePaperRamp(h > 0 ? h : 20e-6);
   if (spec == "plane") return MakeTiltedPlane(h > 0 ? h : 50e-6);
@@ -361,9 +362,10 @@ SceneObject MakeObject(const std::string& spec, double h) {
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char c) { return std::tolower(c); });
   if (ext == ".exr") return LoadHeightExrObject(p);
-  MESOSCAN_BAD_INPUT(
-      "--object: '"
-      << spec << "': expected coin, plane, ramp, leaf, fabric, metal, mount or a height .exr file");
+  MESOSCAN_BAD_INPUT_AT(ErrorSite::Option(option),
+                        "unknown object '" << spec
+                                           << "'; expected coin, plane, ramp, leaf, fabric, metal, "
+                                              "mount or a height .exr file");
 }
 
 }  // namespace mesoscan

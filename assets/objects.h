@@ -71,7 +71,8 @@ SceneObject LoadHeightExrObject(const std::filesystem::path& path);
 
 // "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | "mount" (the empty mount) | a path
 // ending in .exr. pixel_size_m <= 0: the object's default grid spacing. Throws Error(kBadInput)
-// naming `--object` for anything else.
-SceneObject MakeObject(const std::string& spec, double pixel_size_m = 0.0);
+// for anything else, at the options field `option` (the caller's, e.g. "SimulateOptions.object").
+SceneObject MakeObject(const std::string& spec, double pixel_size_m = 0.0,
+                       const std::string& option = "");
 
 }  // namespace mesoscan

@@ -25,16 +25,18 @@ Brdf LoadBrdf(const std::filesystem::path& path, const MerlOptions& merl_options
   std::error_code ec;
   const auto st = std::filesystem::status(path, ec);
   if (std::filesystem::exists(st) && !std::filesystem::is_regular_file(st))
-    MESOSCAN_BAD_INPUT(path.string()
-                       << ": expected a .bsdf or .binary file, got "
-                       << (std::filesystem::is_directory(st) ? "a folder" : "a special file"));
+    MESOSCAN_BAD_INPUT_AT(
+        ErrorSite::File(path),
+        "expected a .bsdf or .binary file, got "
+            << (std::filesystem::is_directory(st) ? "a folder" : "a special file"));
   std::ifstream in(path, std::ios::binary);
-  if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
+  if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot open file");
   char magic[12] = {};
   in.read(magic, sizeof(magic));
   if (in.gcount() < 12 && path.extension() == ".bsdf")
-    MESOSCAN_BAD_INPUT(path.string() << ": truncated RGL tensor file: " << in.gcount()
-                                     << " bytes, shorter than its 12-byte header");
+    MESOSCAN_BAD_INPUT_AT(
+        ErrorSite::File(path),
+        "truncated RGL tensor file: " << in.gcount() << " bytes, shorter than its 12-byte header");
   if (in.gcount() == 12 && std::memcmp(magic, "tensor_file", 12) == 0)
     return Brdf(RglBrdf::Load(path, merl_options.energy_clamp));
   return Brdf(MerlBrdf::Load(path, merl_options));

@@ -73,23 +73,25 @@ void HalfDiffAngles(const Vec3& wi, const Vec3& wo, double* theta_h, double* the
 std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlOptions& options) {
   options.Check();
   std::ifstream in(path, std::ios::binary | std::ios::ate);
-  if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
+  if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot open file");
   const auto size = static_cast<size_t>(in.tellg());
   in.seekg(0);
   if (size < 12)
-    MESOSCAN_BAD_INPUT(path.string()
-                       << ": truncated MERL file: " << size << " bytes, expected " << kFileBytes);
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "truncated MERL file: " << size << " bytes, expected " << kFileBytes);
   int32_t dims[3];
   in.read(reinterpret_cast<char*>(dims), sizeof(dims));
   if (dims[0] != kThetaH || dims[1] != kThetaD || dims[2] != kPhiD)
-    MESOSCAN_BAD_INPUT(path.string() << ": MERL dimensions " << dims[0] << " x " << dims[1] << " x "
-                                     << dims[2] << ", expected 90 x 90 x 180");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "MERL dimensions " << dims[0] << " x " << dims[1]
+                                                                    << " x " << dims[2]
+                                                                    << ", expected 90 x 90 x 180");
   if (size != kFileBytes)
-    MESOSCAN_BAD_INPUT(path.string() << ": MERL file has " << size << " bytes, expected "
-                                     << kFileBytes << (size < kFileBytes ? " (truncated)" : ""));
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "MERL file has "
+                                                     << size << " bytes, expected " << kFileBytes
+                                                     << (size < kFileBytes ? " (truncated)" : ""));
   std::vector<double> raw(3 * kEntries);
   in.read(reinterpret_cast<char*>(raw.data()), raw.size() * sizeof(double));
-  if (!in) MESOSCAN_BAD_INPUT(path.string() << ": read error");
+  if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "read error");
 
   auto brdf = std::shared_ptr<MerlBrdf>(new MerlBrdf());
   brdf->options_ = options;
@@ -98,9 +100,9 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlO
   for (size_t i = 0; i < raw.size(); ++i) {
     const double v = raw[i];
     if (!std::isfinite(v))
-      MESOSCAN_BAD_INPUT(path.string()
-                         << ": entry " << i % kEntries << " of channel " << i / kEntries << " is "
-                         << v << ", expected a finite value");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "entry " << i % kEntries << " of channel "
+                                                            << i / kEntries << " is " << v
+                                                            << ", expected a finite value");
     if (v < 0) {
       if (first_negative == SIZE_MAX) first_negative = i;
       ++brdf->invalid_entries_;
@@ -111,12 +113,13 @@ std::shared_ptr<const MerlBrdf> MerlBrdf::Load(const fs::path& path, const MerlO
   }
   if (brdf->invalid_entries_ > 0) {
     if (!options.accept_invalid_entries)
-      MESOSCAN_BAD_INPUT(path.string()
-                         << ": " << brdf->invalid_entries_
-                         << " negative (unmeasured) entries, first at entry "
-                         << first_negative % kEntries << " of channel " << first_negative / kEntries
-                         << "; expected values >= 0 (--accept-invalid reads "
-                            "them as 0)");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                            brdf->invalid_entries_
+                                << " negative (unmeasured) entries, first at entry "
+                                << first_negative % kEntries << " of channel "
+                                << first_negative / kEntries << "; expected values >= 0 ("
+                                << OptionRef{"MerlOptions.accept_invalid_entries"}
+                                << " reads them as 0)");
     MESOSCAN_LOG(kWarning) << path.string() << ": " << brdf->invalid_entries_
                            << " unmeasured entries read as 0";
   }

@@ -55,7 +55,7 @@ class Reader {
   template <typename T>
   T Get(const char* what) {
     if (pos_ + sizeof(T) > bytes_.size())
-      MESOSCAN_BAD_INPUT(path_.string() << ": truncated header while reading " << what);
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path_), "truncated header while reading " << what);
     T v;
     std::memcpy(&v, bytes_.data() + pos_, sizeof(T));
     pos_ += sizeof(T);
@@ -63,7 +63,7 @@ class Reader {
   }
   std::string GetString(size_t n, const char* what) {
     if (pos_ + n > bytes_.size())
-      MESOSCAN_BAD_INPUT(path_.string() << ": truncated header while reading " << what);
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path_), "truncated header while reading " << what);
     std::string s(reinterpret_cast<const char*>(bytes_.data() + pos_), n);
     pos_ += n;
     return s;
@@ -79,16 +79,17 @@ std::map<std::string, Field> ParseTensorFile(const std::vector<uint8_t>& bytes,
                                              const fs::path& path) {
   static const char kMagic[] = "tensor_file";  // followed by its NUL: 12 bytes
   if (bytes.size() < 12 || std::memcmp(bytes.data(), kMagic, 12) != 0)
-    MESOSCAN_BAD_INPUT(path.string() << ": not a tensor_file (.bsdf) file: bad magic");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "not a tensor_file (.bsdf) file: bad magic");
   Reader r(bytes, path);
   r.GetString(12, "magic");
   const uint8_t major = r.Get<uint8_t>("version");
   r.Get<uint8_t>("version");
   if (major != 1)
-    MESOSCAN_BAD_INPUT(path.string() << ": tensor_file version " << int(major) << ", expected 1");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "tensor_file version " << int(major) << ", expected 1");
   const uint32_t n_fields = r.Get<uint32_t>("field count");
   if (n_fields > 1000)
-    MESOSCAN_BAD_INPUT(path.string() << ": implausible field count " << n_fields);
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "implausible field count " << n_fields);
   std::map<std::string, Field> fields;
   for (uint32_t i = 0; i < n_fields; ++i) {
     const uint16_t name_len = r.Get<uint16_t>("field name length");
@@ -100,12 +101,13 @@ std::map<std::string, Field> ParseTensorFile(const std::vector<uint8_t>& bytes,
     for (uint16_t d = 0; d < ndim; ++d) f.shape.push_back(r.Get<uint64_t>("field shape"));
     const size_t elem = TypeSize(f.dtype);
     if (elem == 0)
-      MESOSCAN_BAD_INPUT(path.string()
-                         << ": field '" << name << "' has unknown dtype " << int(f.dtype));
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                            "field '" << name << "' has unknown dtype " << int(f.dtype));
     const size_t n = f.count();
     if (n > bytes.size() || offset > bytes.size() || offset + n * elem > bytes.size())
-      MESOSCAN_BAD_INPUT(path.string() << ": field '" << name << "' extends past the end of the "
-                                       << bytes.size() << "-byte file (truncated?)");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                            "field '" << name << "' extends past the end of the " << bytes.size()
+                                      << "-byte file (truncated?)");
     f.data = bytes.data() + offset;
     fields[name] = f;
   }
@@ -117,15 +119,16 @@ const Field& Require(const std::map<std::string, Field>& fields, const std::stri
   auto it = fields.find(name);
   if (it == fields.end()) {
     if (name == "rgb" && fields.count("spectra"))
-      MESOSCAN_BAD_INPUT(path.string() << ": spectral .bsdf files are not supported (field "
-                                          "'spectra'); use the RGB variant (*_rgb.bsdf)");
-    MESOSCAN_BAD_INPUT(path.string() << ": missing field '" << name << "'");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                            "spectral .bsdf files are not supported (field "
+                            "'spectra'); use the RGB variant (*_rgb.bsdf)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "missing field '" << name << "'");
   }
   if (it->second.dtype != dtype || it->second.shape.size() != ndim)
-    MESOSCAN_BAD_INPUT(path.string()
-                       << ": field '" << name << "' has dtype " << int(it->second.dtype) << " and "
-                       << it->second.shape.size() << " dimensions, expected dtype " << int(dtype)
-                       << " and " << ndim);
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "field '" << name << "' has dtype " << int(it->second.dtype) << " and "
+                                    << it->second.shape.size() << " dimensions, expected dtype "
+                                    << int(dtype) << " and " << ndim);
   return it->second;
 }
 
@@ -159,7 +162,7 @@ double HalfVectorJacobian(double u_theta, double sin_theta_m, double wo_dot_wm) 
 
 std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path, bool energy_clamp) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
+  if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot open file");
   std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
                              std::istreambuf_iterator<char>());
   const auto fields = ParseTensorFile(bytes, path);
@@ -174,7 +177,8 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path, bool energy_c
   const Field& jacobian = Require(fields, "jacobian", kTypeUInt8, 1, path);
   const size_t n_phi = phi_i.shape[0], n_theta = theta_i.shape[0];
   auto expect = [&](bool ok, const char* field, const char* what) {
-    if (!ok) MESOSCAN_BAD_INPUT(path.string() << ": field '" << field << "': expected " << what);
+    if (!ok)
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "field '" << field << "': expected " << what);
   };
   expect(n_phi >= 1 && n_theta >= 2, "theta_i", ">= 2 theta_i and >= 1 phi_i values");
   expect(vndf.shape[0] == n_phi && vndf.shape[1] == n_theta, "vndf",
@@ -239,7 +243,7 @@ std::shared_ptr<const RglBrdf> RglBrdf::Load(const fs::path& path, bool energy_c
       MESOSCAN_LOG(kDebug) << path.string() << ": clamped " << negatives
                            << " out-of-gamut negative rgb entries to 0";
   } catch (const Error& e) {
-    MESOSCAN_BAD_INPUT(path.string() << ": " << e.what());
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), e.what());
   }
 
   // Energy: albedo at every incident slice and at kPieces - 1 elevations between two slices (the

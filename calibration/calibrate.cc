@@ -350,7 +350,7 @@ bool DetectCharuco(const CalibrationBoard& board, const cv::Mat& grey8,
     std::ostringstream o;
     o << "no " << board.ToString() << " ChArUco board found (" << marker_ids.size() << " markers, "
       << ids->size() << " corners; expected >= " << kMinCorners
-      << " corners over more than one row; is --board right?)";
+      << " corners over more than one row; is the board description right?)";
     *why = o.str();
     return false;
   }
@@ -390,9 +390,9 @@ void CalibrateOptions::ParseFix(const std::string& list) {
     else if (item == "tangential")
       fix_tangential = true;
     else if (!item.empty())
-      MESOSCAN_THROW(ErrorKind::kUsage, "--fix: '" << item
-                                                   << "': expected a comma-separated list of k2, "
-                                                      "k3, tangential");
+      MESOSCAN_BAD_OPTION(
+          "CalibrateOptions.fix",
+          "'" << item << "': expected a comma-separated list of k2, k3, tangential");
   }
 }
 
@@ -489,8 +489,8 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
       // A checkerboard partly out of view cannot be labelled (no corner is identified): the
       // view is skipped; a ChArUco board works there.
       view.problem = "no " + std::to_string(board.cols) + "x" + std::to_string(board.rows) +
-                     " checkerboard found (inner corners; is --board right and the whole board in "
-                     "view? a ChArUco board may be partly out of view)";
+                     " checkerboard found (inner corners; is the board description right and the "
+                     "whole board in view? a ChArUco board may be partly out of view)";
       view.decode_seconds = Seconds(t0);
       return view;
     }
@@ -1028,7 +1028,8 @@ std::vector<CalibrationView*> SelectViews(std::vector<CalibrationView>& views,
     MESOSCAN_BAD_INPUT(o.str());
   }
   if (mount) {
-    if (!mount->found) MESOSCAN_BAD_INPUT("--mount " << mount->name << ": " << mount->problem);
+    if (!mount->found)
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(mount->name), "mount view: " << mount->problem);
     used.push_back(&*mount);
   }
   // Degenerate: every view at one pose (the camera's corners move less than a pixel).

@@ -86,7 +86,7 @@ struct CalibrateOptions {
   bool refine_corners = true;
   int min_views = 3;  // fewer usable views: bad input (exit 3)
   void Check() const;
-  // "k3,tangential" -> the fix flags; throws Error(kUsage) naming --fix.
+  // "k3,tangential" -> the fix flags; throws Error(kUsage) at "CalibrateOptions.fix".
   void ParseFix(const std::string& list);
   // "auto", "none", "k1", "k1k2", "full"; throws Error(kUsage) naming --model.
   void ParseModel(const std::string& text);

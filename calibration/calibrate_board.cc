@@ -51,20 +51,19 @@ CalibrationBoard CalibrationBoard::Parse(const std::string& text, const std::str
   CalibrationBoard b;
   if (text.rfind("charuco:", 0) == 0) {
     if (!std::regex_match(text, m, re_charuco))
-      MESOSCAN_THROW(ErrorKind::kUsage,
-                     key << ": '" << text
-                         << "': expected charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT (squares, "
-                            "e.g. charuco:8x6:12:9:DICT_5X5_100)");
+      MESOSCAN_BAD_OPTION(key,
+                          "'" << text
+                              << "': expected charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT (squares, "
+                                 "e.g. charuco:8x6:12:9:DICT_5X5_100)");
     const long sx = std::stol(m[1].str().substr(0, 6)), sy = std::stol(m[2].str().substr(0, 6));
     const double square_mm = std::stod(m[3].str()), marker_mm = std::stod(m[4].str());
     if (sx < 3 || sy < 3 || sx > 201 || sy > 201 || !(square_mm > 0) || square_mm > 1e4)
-      MESOSCAN_THROW(
-          ErrorKind::kUsage,
-          key << ": '" << text << "': expected 3..201 squares per side and a square side > 0 mm");
+      MESOSCAN_BAD_OPTION(
+          key, "'" << text << "': expected 3..201 squares per side and a square side > 0 mm");
     if (!(marker_mm > 0) || !(marker_mm < square_mm))
-      MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text
-                                            << "': expected a marker side > 0 and smaller than "
-                                               "the square side");
+      MESOSCAN_BAD_OPTION(key, "'" << text
+                                   << "': expected a marker side > 0 and smaller than "
+                                      "the square side");
     std::string dict = m[5].str();
     std::transform(dict.begin(), dict.end(), dict.begin(),
                    [](unsigned char c) { return static_cast<char>(std::toupper(c)); });
@@ -75,15 +74,14 @@ CalibrationBoard CalibrationBoard::Parse(const std::string& text, const std::str
     if (it == list.end()) {
       std::ostringstream names;
       for (size_t i = 0; i < list.size(); ++i) names << (i ? ", " : "") << list[i].first;
-      MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text << "': unknown ArUco dictionary '"
-                                            << m[5].str() << "', expected one of " << names.str());
+      MESOSCAN_BAD_OPTION(key, "'" << text << "': unknown ArUco dictionary '" << m[5].str()
+                                   << "', expected one of " << names.str());
     }
     const int markers = static_cast<int>((sx * sy) / 2);
     const int available = cv::aruco::getPredefinedDictionary(it->second)->bytesList.rows;
     if (markers > available)
-      MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text << "': a " << sx << "x" << sy
-                                            << " ChArUco board needs " << markers << " markers, "
-                                            << it->first << " has " << available);
+      MESOSCAN_BAD_OPTION(key, "'" << text << "': a " << sx << "x" << sy << " ChArUco board needs "
+                                   << markers << " markers, " << it->first << " has " << available);
     b.cols = static_cast<int>(sx - 1);
     b.rows = static_cast<int>(sy - 1);
     b.square_m = square_mm * 1e-3;
@@ -93,16 +91,15 @@ CalibrationBoard CalibrationBoard::Parse(const std::string& text, const std::str
     return b;
   }
   if (!std::regex_match(text, m, re))
-    MESOSCAN_THROW(ErrorKind::kUsage, key << ": '" << text
-                                          << "': expected checker:COLSxROWS:SQUARE_MM (inner "
-                                             "corners, square side in mm, e.g. checker:13x9:10) "
-                                             "or charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
+    MESOSCAN_BAD_OPTION(key, "'" << text
+                                 << "': expected checker:COLSxROWS:SQUARE_MM (inner "
+                                    "corners, square side in mm, e.g. checker:13x9:10) "
+                                    "or charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
   const long cols = std::stol(m[1].str().substr(0, 6)), rows = std::stol(m[2].str().substr(0, 6));
   const double square_mm = std::stod(m[3].str());
   if (cols < 2 || rows < 2 || cols > 200 || rows > 200 || !(square_mm > 0) || square_mm > 1e4)
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   key << ": '" << text
-                       << "': expected 2..200 inner corners per side and a square side > 0 mm");
+    MESOSCAN_BAD_OPTION(
+        key, "'" << text << "': expected 2..200 inner corners per side and a square side > 0 mm");
   b.cols = static_cast<int>(cols);
   b.rows = static_cast<int>(rows);
   b.square_m = square_mm * 1e-3;

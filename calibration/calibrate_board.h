@@ -25,7 +25,8 @@ struct CalibrationBoard {
   // the board), or "charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT", e.g.
   // "charuco:8x6:12:9:DICT_5X5_100" (squares, as OpenCV's CharucoBoard and board generators count
   // them: (COLS-1) x (ROWS-1) inner corners; DICT with or without the "DICT_" prefix, any case).
-  // Throws Error(kUsage) naming `key` (e.g. "--board") on anything else.
+  // Throws Error(kUsage) at the options field `key` (e.g. "CalibrateOptions.board") on anything
+  // else.
   static CalibrationBoard Parse(const std::string& text, const std::string& key);
   std::string ToString() const;  // "checker:13x9:10", "charuco:8x6:12:9:DICT_5X5_100"
 

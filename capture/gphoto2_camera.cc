@@ -92,7 +92,8 @@ Gphoto2Camera::Gphoto2Camera(const std::string& port) : impl_(std::make_unique<I
   if (ra >= GP_OK) gp_camera_set_abilities(m.camera, a);
   gp_abilities_list_free(abilities);
   if (ra < GP_OK)
-    MESOSCAN_THROW(ErrorKind::kDevice, who << ": unknown model (" << GpError(ra) << ")");
+    MESOSCAN_THROW_AT(ErrorKind::kDevice, ErrorSite::File(who),
+                      "unknown model (" << GpError(ra) << ")");
 
   GPPortInfoList* ports = nullptr;
   gp_port_info_list_new(&ports);
@@ -103,12 +104,13 @@ Gphoto2Camera::Gphoto2Camera(const std::string& port) : impl_(std::make_unique<I
   if (rp >= GP_OK) gp_camera_set_port_info(m.camera, port_info);
   gp_port_info_list_free(ports);
   if (rp < GP_OK)
-    MESOSCAN_THROW(ErrorKind::kDevice, who << ": unknown port (" << GpError(rp) << ")");
+    MESOSCAN_THROW_AT(ErrorKind::kDevice, ErrorSite::File(who),
+                      "unknown port (" << GpError(rp) << ")");
 
   const int ri = gp_camera_init(m.camera, m.context);
   if (ri < GP_OK)
-    MESOSCAN_THROW(ErrorKind::kDevice,
-                   who << ": cannot open (" << GpError(ri) << "; is another program using it?)");
+    MESOSCAN_THROW_AT(ErrorKind::kDevice, ErrorSite::File(who),
+                      "cannot open (" << GpError(ri) << "; is another program using it?)");
 }
 
 Gphoto2Camera::~Gphoto2Camera() = default;
@@ -119,23 +121,25 @@ void Gphoto2Camera::CaptureToFile(const std::filesystem::path& path) {
   CameraFilePath on_card;
   const int rc = gp_camera_capture(m.camera, GP_CAPTURE_IMAGE, &on_card, m.context);
   if (rc < GP_OK)
-    MESOSCAN_THROW(ErrorKind::kDevice, who << ": capture failed (" << GpError(rc) << ")");
+    MESOSCAN_THROW_AT(ErrorKind::kDevice, ErrorSite::File(who),
+                      "capture failed (" << GpError(rc) << ")");
   CameraFile* file = nullptr;
   gp_file_new(&file);
   const int rg = gp_camera_file_get(m.camera, on_card.folder, on_card.name, GP_FILE_TYPE_NORMAL,
                                     file, m.context);
   if (rg < GP_OK) {
     gp_file_free(file);
-    MESOSCAN_THROW(ErrorKind::kDevice, who << ": download of " << on_card.folder << "/"
-                                           << on_card.name << " failed (" << GpError(rg) << ")");
+    MESOSCAN_THROW_AT(ErrorKind::kDevice, ErrorSite::File(who),
+                      "download of " << on_card.folder << "/" << on_card.name << " failed ("
+                                     << GpError(rg) << ")");
   }
   try {
     const char* data = nullptr;
     unsigned long size = 0;
     const int rs = gp_file_get_data_and_size(file, &data, &size);
     if (rs < GP_OK || data == nullptr)
-      MESOSCAN_THROW(ErrorKind::kDevice,
-                     path.string() << ": cannot save the capture (" << GpError(rs) << ")");
+      MESOSCAN_THROW_AT(ErrorKind::kDevice, ErrorSite::File(path),
+                        "cannot save the capture (" << GpError(rs) << ")");
     WriteBytesFile(path, data, size);
   } catch (...) {
     gp_file_free(file);

@@ -96,8 +96,8 @@ bool ReadJournal(const fs::path& path, Journal* journal) {
 void AppendLine(const fs::path& path, const std::string& line) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644);
   if (fd < 0)
-    MESOSCAN_BAD_INPUT(path.string() << ": cannot append to the capture journal ("
-                                     << std::strerror(errno) << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "cannot append to the capture journal (" << std::strerror(errno) << ")");
   const std::string text = line + "\n";
   const ssize_t w = ::write(fd, text.data(), text.size());
   const int write_errno = w < 0 ? errno : ENOSPC;  // a short append: the disk is full
@@ -106,8 +106,9 @@ void AppendLine(const fs::path& path, const std::string& line) {
   const int sync_errno = errno;
   ::close(fd);
   if (!written || !synced)
-    MESOSCAN_BAD_INPUT(path.string() << ": cannot append to the capture journal ("
-                                     << std::strerror(written ? sync_errno : write_errno) << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "cannot append to the capture journal ("
+                              << std::strerror(written ? sync_errno : write_errno) << ")");
 }
 
 Json HeaderLine(const std::string& created, const Json& plan) {
@@ -126,10 +127,10 @@ ImageU8 ProjectorDevice::Screenshot() const {
 
 void SequencerOptions::Check() const {
   if (!(settle_s >= 0.0 && std::isfinite(settle_s)))
-    MESOSCAN_THROW(ErrorKind::kUsage, "--settle: expected seconds >= 0, got " << settle_s);
+    MESOSCAN_BAD_OPTION("SequencerOptions.settle_s", "expected seconds >= 0, got " << settle_s);
   if (max_new_frames < -1)
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--max-frames: expected -1 (no limit) or >= 0, got " << max_new_frames);
+    MESOSCAN_BAD_OPTION("SequencerOptions.max_new_frames",
+                        "expected -1 (no limit) or >= 0, got " << max_new_frames);
 }
 
 std::string SequencerSummary::BriefReport() const {
@@ -143,7 +144,7 @@ std::string SequencerSummary::BriefReport() const {
 
 uint64_t HashFile(const fs::path& path, uint64_t* size) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot read");
+  if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot read");
   uint64_t h = 1469598103934665603ull, n = 0;
   char buf[1 << 16];
   while (in) {
@@ -230,9 +231,9 @@ SequencerSummary RunAcquisition(const Session& plan_in, CameraDevice& camera,
   }
   if (fs::exists(manifest)) {
     if (!options.force)
-      MESOSCAN_THROW(ErrorKind::kUsage, manifest.string()
-                                            << ": a completed session is there; pass --force to "
-                                               "capture it again");
+      MESOSCAN_THROW_AT(ErrorKind::kUsage, ErrorSite::File(manifest),
+                        "a completed session is there; pass " << OptionRef{"SequencerOptions.force"}
+                                                              << " to capture it again");
     fs::remove(manifest);
     fs::remove(journal_path);
   }
@@ -245,9 +246,9 @@ SequencerSummary RunAcquisition(const Session& plan_in, CameraDevice& camera,
   const bool have_journal = fs::exists(journal_path) && ReadJournal(journal_path, &journal);
   if (fs::exists(journal_path) && (!have_journal || journal.plan != plan_json)) {
     if (!options.force)
-      MESOSCAN_BAD_INPUT(journal_path.string()
-                         << ": written for another plan, rig or camera (or unreadable); pass "
-                            "--force to start over");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(journal_path),
+                            "written for another plan, rig or camera (or unreadable); pass "
+                                << OptionRef{"SequencerOptions.force"} << " to start over");
     journal = Journal();
   } else if (!have_journal) {
     journal = Journal();

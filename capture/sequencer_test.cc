@@ -224,7 +224,9 @@ TEST_F(SequencerTest, CompletedSessionNeedsForceAndAnotherPlansJournalIsRefused)
     FAIL() << "no error";
   } catch (const Error& e) {
     EXPECT_EQ(e.kind(), ErrorKind::kUsage);
-    EXPECT_NE(std::string(e.what()).find("pass --force"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("pass SequencerOptions.force"), std::string::npos)
+        << e.what();
+    EXPECT_EQ(e.file(), (dir_ / "s" / "session.json").string());
   }
   EXPECT_EQ(ReadFile(dir_ / "s" / "session.json"), before);
   SequencerOptions force = options_;

@@ -31,12 +31,14 @@ uint64_t MemoryBudgetBytes() {
   return budget;
 }
 
-void CheckMemoryBudget(const std::string& what, double bytes, ErrorKind kind) {
+void CheckMemoryBudget(const std::string& what, double bytes, ErrorKind kind,
+                       const ErrorSite& site) {
   const double budget = static_cast<double>(MemoryBudgetBytes());
   if (bytes <= budget) return;  // NaN fails here too
-  MESOSCAN_THROW(kind, what << ": needs " << std::llround(std::min(bytes, 1e18) / 1048576.0)
-                            << " MB, over the memory budget of " << std::llround(budget / 1048576.0)
-                            << " MB (set MESOSCAN_MEMORY_BUDGET_MB to change it)");
+  MESOSCAN_THROW_AT(kind, site,
+                    what << ": needs " << std::llround(std::min(bytes, 1e18) / 1048576.0)
+                         << " MB, over the memory budget of " << std::llround(budget / 1048576.0)
+                         << " MB (set MESOSCAN_MEMORY_BUDGET_MB to change it)");
 }
 
 }  // namespace mesoscan

@@ -15,9 +15,10 @@ namespace mesoscan {
 // The budget in bytes (read once per process).
 uint64_t MemoryBudgetBytes();
 
-// Throws Error(kind) "<what>: needs N MB, over the memory budget of M MB (...)" if `bytes`
-// (a double, so products of hostile sizes cannot overflow; NaN and inf fail) exceeds the budget.
-void CheckMemoryBudget(const std::string& what, double bytes,
-                       ErrorKind kind = ErrorKind::kBadInput);
+// Throws Error(kind) at `site`, "<what>: needs N MB, over the memory budget of M MB (...)", if
+// `bytes` (a double, so products of hostile sizes cannot overflow; NaN and inf fail) exceeds the
+// budget.
+void CheckMemoryBudget(const std::string& what, double bytes, ErrorKind kind = ErrorKind::kBadInput,
+                       const ErrorSite& site = {});
 
 }  // namespace mesoscan

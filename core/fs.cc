@@ -81,12 +81,14 @@ CheckedFile::~CheckedFile() {
 }
 
 void CheckedFile::Fail(const std::string& reason) {
-  if (error_.empty()) error_ = label_.string() + ": cannot write (" + reason + ")";
-  MESOSCAN_BAD_INPUT(error_);
+  if (error_.empty()) error_ = "cannot write (" + reason + ")";
+  ThrowError();
 }
 
+void CheckedFile::ThrowError() const { MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label_), error_); }
+
 void CheckedFile::Write(const void* data, size_t n) {
-  if (!error_.empty()) MESOSCAN_BAD_INPUT(error_);
+  if (!error_.empty()) ThrowError();
   const char* p = static_cast<const char*>(data);
   while (n > 0) {
     const ssize_t w = ::write(fd_, p, std::min<size_t>(n, size_t{1} << 30));
@@ -102,8 +104,8 @@ void CheckedFile::Write(const void* data, size_t n) {
 }
 
 void CheckedFile::Seek(uint64_t offset) {
-  if (buf_ && !buf_->Flush()) MESOSCAN_BAD_INPUT(error_);
-  if (!error_.empty()) MESOSCAN_BAD_INPUT(error_);
+  if (buf_ && !buf_->Flush()) ThrowError();
+  if (!error_.empty()) ThrowError();
   if (::lseek(fd_, static_cast<off_t>(offset), SEEK_SET) < 0) Fail(std::strerror(errno));
   pos_ = offset;
 }
@@ -118,12 +120,12 @@ std::ostream& CheckedFile::stream() {
 
 void CheckedFile::Close() {
   if (buf_) buf_->Flush();
-  if (stream_ && !stream_->good() && error_.empty()) error_ = label_.string() + ": cannot write";
+  if (stream_ && !stream_->good() && error_.empty()) error_ = "cannot write";
   const int fd = fd_;
   fd_ = -1;
   if (fd >= 0 && ::close(fd) != 0 && error_.empty())
-    error_ = label_.string() + ": cannot write (" + std::strerror(errno) + ")";
-  if (!error_.empty()) MESOSCAN_BAD_INPUT(error_);
+    error_ = std::string("cannot write (") + std::strerror(errno) + ")";
+  if (!error_.empty()) ThrowError();
 }
 
 void WriteFileChecked(const fs::path& path, const std::function<void(CheckedFile&)>& write) {
@@ -136,7 +138,7 @@ void WriteFileChecked(const fs::path& path, const std::function<void(CheckedFile
     }
     std::error_code ec;
     fs::rename(tmp, path, ec);
-    if (ec) MESOSCAN_BAD_INPUT(path.string() << ": cannot write (" << ec.message() << ")");
+    if (ec) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write (" << ec.message() << ")");
   } catch (...) {
     std::error_code ec;
     fs::remove(tmp, ec);
@@ -156,17 +158,18 @@ void WriteAtomicallyVerified(const fs::path& final_path,
                              const std::function<void(const fs::path&)>& write, uintmax_t min_bytes,
                              const std::function<void(const fs::path&)>& verify) {
   const fs::path tmp = TempSiblingPath(final_path);
+  const ErrorSite site = ErrorSite::File(final_path);
   try {
     write(tmp);
     std::error_code ec;
     const uintmax_t size = fs::file_size(tmp, ec);
-    if (ec) MESOSCAN_BAD_INPUT(final_path.string() << ": cannot write (" << ec.message() << ")");
+    if (ec) MESOSCAN_BAD_INPUT_AT(site, "cannot write (" << ec.message() << ")");
     if (size < min_bytes)
-      MESOSCAN_BAD_INPUT(final_path.string() << ": cannot write (" << size << " bytes written, "
-                                             << "expected at least " << min_bytes << ")");
+      MESOSCAN_BAD_INPUT_AT(site, "cannot write (" << size << " bytes written, expected at least "
+                                                   << min_bytes << ")");
     if (verify) verify(tmp);
     fs::rename(tmp, final_path, ec);
-    if (ec) MESOSCAN_BAD_INPUT(final_path.string() << ": cannot write (" << ec.message() << ")");
+    if (ec) MESOSCAN_BAD_INPUT_AT(site, "cannot write (" << ec.message() << ")");
   } catch (...) {
     std::error_code ec;
     fs::remove(tmp, ec);
@@ -179,10 +182,11 @@ std::string ReadTextFile(const fs::path& path) {
   std::error_code ec;
   const fs::file_status st = fs::status(path, ec);
   if (fs::exists(st) && !fs::is_regular_file(st))
-    MESOSCAN_BAD_INPUT(path.string() << ": expected a regular file, got "
-                                     << (fs::is_directory(st) ? "a folder" : "a special file"));
+    MESOSCAN_BAD_INPUT_AT(
+        ErrorSite::File(path),
+        "expected a regular file, got " << (fs::is_directory(st) ? "a folder" : "a special file"));
   std::ifstream in(path, std::ios::binary);
-  if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot open file");
+  if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot open file");
   std::ostringstream ss;
   ss << in.rdbuf();
   return ss.str();

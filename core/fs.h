@@ -47,10 +47,11 @@ class CheckedFile {
  private:
   class Buf;
   [[noreturn]] void Fail(const std::string& reason);
+  [[noreturn]] void ThrowError() const;  // Error at label_: error_
   int fd_ = -1;
   uint64_t pos_ = 0;
   std::filesystem::path label_;
-  std::string error_;
+  std::string error_;  // the first failure, without the file ("cannot write (No space left...)")
   std::unique_ptr<Buf> buf_;
   std::unique_ptr<std::ostream> stream_;
 };

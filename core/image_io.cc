@@ -110,27 +110,27 @@ void WriteImagesChecked(const fs::path& path, const std::string& format,
     return;
   }
   if (!no_memory_writer)
-    MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write image (" << err << ")");
   // A writer that writes files only: the file is read back whole before it is renamed into
   // place (a write it did not check shows as a file that does not decode).
   WriteAtomicallyVerified(
       path,
       [&](const fs::path& tmp) {
         if (!Oiio().Write(tmp.string(), fmt, images, &err))
-          MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+          MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write image (" << err << ")");
       },
       1,
       [&](const fs::path& tmp) {
         std::string e2;
         bool no_reader = false;
         auto in = Oiio().Open(tmp.string(), fmt, {}, &e2, &no_reader);
-        if (!in) MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << e2 << ")");
+        if (!in) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write image (" << e2 << ")");
         const ImageHeader& h = in->header();
         std::vector<float> all(static_cast<size_t>(h.width) * h.height * h.channels);
         if (!in->Read(PixelType::kFloat, all.data()))
-          MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (written file does not read "
-                                              "back: "
-                                           << in->error() << ")");
+          MESOSCAN_BAD_INPUT_AT(
+              ErrorSite::File(path),
+              "cannot write image (written file does not read back: " << in->error() << ")");
       });
 }
 
@@ -143,15 +143,16 @@ void CheckRegularFile(const fs::path& path, const std::string& label_in) {
   std::error_code ec;
   const fs::file_status st = fs::status(path, ec);
   if (ec && ec != std::errc::no_such_file_or_directory)
-    MESOSCAN_BAD_INPUT(label << ": cannot open (" << ec.message() << ")");
-  if (!fs::exists(st)) MESOSCAN_BAD_INPUT(label << ": file not found");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "cannot open (" << ec.message() << ")");
+  if (!fs::exists(st)) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "file not found");
   if (!fs::is_regular_file(st))
-    MESOSCAN_BAD_INPUT(label << ": expected a regular image file, got "
-                             << (fs::is_directory(st) ? "a folder"
-                                 : fs::is_fifo(st)    ? "a FIFO"
-                                 : fs::is_character_file(st) || fs::is_block_file(st)
-                                     ? "a device"
-                                     : "a special file"));
+    MESOSCAN_BAD_INPUT_AT(
+        ErrorSite::File(label),
+        "expected a regular image file, got "
+            << (fs::is_directory(st)                                 ? "a folder"
+                : fs::is_fifo(st)                                    ? "a FIFO"
+                : fs::is_character_file(st) || fs::is_block_file(st) ? "a device"
+                                                                     : "a special file"));
 }
 
 // OpenEXR's C++ reader (behind OpenImageIO) trusts the sizes in a header: a 651-byte file whose
@@ -191,20 +192,24 @@ void CheckExrHeader(const fs::path& path, const std::string& label) {
     const std::string prefix = path.string() + ": ";
     if (why.rfind(prefix, 0) == 0) why = why.substr(prefix.size());
     std::replace(why.begin(), why.end(), '\n', ' ');
-    MESOSCAN_BAD_INPUT(label << ": cannot read image (not a valid EXR header: " << why << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                          "cannot read image (not a valid EXR header: " << why << ")");
   }
   std::error_code ec;
   const auto size = fs::file_size(path, ec);
   if (!ec && chunks * 8.0 > static_cast<double>(size))
-    MESOSCAN_BAD_INPUT(label << ": cannot read image (its header declares " << chunks
-                             << " chunks, whose offset table alone needs more than the file's "
-                             << size << " bytes)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                          "cannot read image (its header declares "
+                              << chunks
+                              << " chunks, whose offset table alone needs more than the file's "
+                              << size << " bytes)");
 }
 
 void CheckImageBudget(const std::string& label, int width, int height, int channels) {
-  CheckMemoryBudget(label + ": a " + std::to_string(width) + "x" + std::to_string(height) + "x" +
+  CheckMemoryBudget("a " + std::to_string(width) + "x" + std::to_string(height) + "x" +
                         std::to_string(channels) + " image",
-                    static_cast<double>(width) * height * channels * 8.0);
+                    static_cast<double>(width) * height * channels * 8.0, ErrorKind::kBadInput,
+                    ErrorSite::File(label));
 }
 
 std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::string& label_in) {
@@ -220,16 +225,17 @@ std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::str
   bool no_reader = false;
   auto in = Oiio().Open(path.string(), ext, {}, &err, &no_reader);
   if (no_reader)
-    MESOSCAN_BAD_INPUT(label << ": cannot read image (no reader for the extension '." << ext
-                             << "')");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                          "cannot read image (no reader for the extension '." << ext << "')");
   if (!in) {
     if (err.empty()) err = "not a valid ." + ext + " file";
-    MESOSCAN_BAD_INPUT(label << ": cannot read image (" << err << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "cannot read image (" << err << ")");
   }
   const ImageHeader& h = in->header();
   if (h.width <= 0 || h.height <= 0 || h.channels <= 0)
-    MESOSCAN_BAD_INPUT(label << ": header declares " << h.width << "x" << h.height << "x"
-                             << h.channels << " pixels");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "header declares " << h.width << "x" << h.height
+                                                                     << "x" << h.channels
+                                                                     << " pixels");
   const double values = static_cast<double>(h.width) * h.height * h.channels;
   CheckImageBudget(label, h.width, h.height, h.channels);
   // No format we read stores more than ~2x its raw pixel size plus headers (EXR offset tables,
@@ -237,8 +243,9 @@ std::unique_ptr<ImageReader> OpenImageInput(const fs::path& path, const std::str
   const double raw = values * static_cast<double>(h.format_bytes);
   const auto size = fs::file_size(path, ec);
   if (!ec && static_cast<double>(size) > 2.0 * raw + (1 << 20))
-    MESOSCAN_BAD_INPUT(label << ": file is " << size << " bytes, more than its " << h.width << "x"
-                             << h.height << "x" << h.channels << " header allows");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "file is " << size << " bytes, more than its "
+                                                             << h.width << "x" << h.height << "x"
+                                                             << h.channels << " header allows");
   return in;
 }
 
@@ -338,7 +345,7 @@ ImageF ReadImage(const fs::path& path, ImageInfo* info) {
   ImageF out(h.width, h.height, h.channels);
   std::vector<float> inter(out.pixels() * h.channels);
   if (!in->Read(PixelType::kFloat, inter.data())) {
-    MESOSCAN_BAD_INPUT(path.string() << ": cannot decode image (" << in->error() << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot decode image (" << in->error() << ")");
   }
   Deinterleave(inter, &out);
   return out;
@@ -371,7 +378,7 @@ bool ReadExrPlanes(const fs::path& path, const std::vector<std::string>& names,
     const Imf::ChannelList& channels = in.header().channels();
     for (const std::string& c : required)
       if (channels.findChannel(c) == nullptr)
-        MESOSCAN_BAD_INPUT(file << ": missing channel '" << c << "'");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(file), "missing channel '" << c << "'");
     std::vector<std::string> present;
     for (const std::string& c : names)
       if (channels.findChannel(c) != nullptr) present.push_back(c);
@@ -379,9 +386,11 @@ bool ReadExrPlanes(const fs::path& path, const std::vector<std::string>& names,
     const int64_t w = static_cast<int64_t>(dw.max.x) - dw.min.x + 1,
                   h = static_cast<int64_t>(dw.max.y) - dw.min.y + 1;
     if (w <= 0 || h <= 0 || w > (1 << 20) || h > (1 << 20))
-      MESOSCAN_BAD_INPUT(file << ": data window " << w << "x" << h << " is not an image size");
-    CheckMemoryBudget(file + ": channels " + std::to_string(present.size()),
-                      static_cast<double>(w) * h * present.size() * sizeof(float));
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(file),
+                            "data window " << w << "x" << h << " is not an image size");
+    CheckMemoryBudget("channels " + std::to_string(present.size()),
+                      static_cast<double>(w) * h * present.size() * sizeof(float),
+                      ErrorKind::kBadInput, ErrorSite::File(file));
     *image = ImageF(static_cast<int>(w), static_cast<int>(h), static_cast<int>(present.size()),
                     std::numeric_limits<float>::quiet_NaN());
     Imf::FrameBuffer fb;
@@ -405,7 +414,7 @@ bool ReadExrPlanes(const fs::path& path, const std::vector<std::string>& names,
   } catch (const Error&) {
     throw;
   } catch (const std::exception& e) {
-    MESOSCAN_BAD_INPUT(file << ": cannot read the OpenEXR file: " << e.what());
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(file), "cannot read the OpenEXR file: " << e.what());
   }
   return true;
 }
@@ -422,7 +431,7 @@ ImageF ReadExrChannels(const fs::path& path, const std::vector<std::string>& nam
   for (size_t k = 0; k < names.size(); ++k) {
     auto it = std::find(info.channel_names.begin(), info.channel_names.end(), names[k]);
     if (it == info.channel_names.end())
-      MESOSCAN_BAD_INPUT(path.string() << ": missing channel '" << names[k] << "'");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "missing channel '" << names[k] << "'");
     const int c = static_cast<int>(it - info.channel_names.begin());
     std::copy(all.channel(c), all.channel(c) + all.pixels(), out.channel(static_cast<int>(k)));
   }
@@ -479,7 +488,7 @@ void WriteExrPlanes(const fs::path& path, const std::vector<ExrPlane>& planes,
     } catch (const std::exception& e) {
       std::string err = e.what();
       std::replace(err.begin(), err.end(), '\n', ' ');
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << err << ")");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write image (" << err << ")");
     }
   });
 }

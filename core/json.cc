@@ -26,8 +26,9 @@ void CheckJsonDepth(const std::string& text, const std::string& label) {
       in_string = true;
     } else if (c == '{' || c == '[') {
       if (++depth > kMaxJsonDepth)
-        MESOSCAN_BAD_INPUT(label << ": JSON nested deeper than " << kMaxJsonDepth
-                                 << " levels (byte " << i + 1 << ")");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "JSON nested deeper than " << kMaxJsonDepth
+                                                                                 << " levels (byte "
+                                                                                 << i + 1 << ")");
     } else if (c == '}' || c == ']') {
       --depth;
     }
@@ -39,12 +40,12 @@ Json ParseJsonText(const std::string& text, const std::string& label) {
   try {
     return Json::parse(text);
   } catch (const Json::parse_error& e) {
-    MESOSCAN_BAD_INPUT(label << ": not valid JSON (byte " << e.byte << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "not valid JSON (byte " << e.byte << ")");
   } catch (const Json::exception& e) {  // e.g. a number beyond double range (1e999)
     std::string what = e.what();
     const size_t close = what.find("] ");
     if (close != std::string::npos) what = what.substr(close + 2);
-    MESOSCAN_BAD_INPUT(label << ": not valid JSON (" << what << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "not valid JSON (" << what << ")");
   }
 }
 

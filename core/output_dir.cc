@@ -59,9 +59,23 @@ bool HasMarker(const fs::path& dir, const std::string& command) {
   return line + "\n" == MarkerText(command);
 }
 
+// The option naming the output and its path, as data (app/ formats the line).
+ErrorSite OutputSite(const OutputSpec& s) {
+  ErrorSite site = ErrorSite::File(s.out);
+  site.option = s.option;
+  return site;
+}
+
 [[noreturn]] void Refuse(const OutputSpec& s, const std::string& what) {
-  MESOSCAN_THROW(ErrorKind::kUsage,
-                 s.command << ": " << s.option << " " << s.out.string() << ": " << what);
+  MESOSCAN_THROW_AT(ErrorKind::kUsage, OutputSite(s), what);
+}
+
+// An existing output of something else: `noun` is "folder" or "name".
+[[noreturn]] void RefuseExisting(const OutputSpec& s, const char* noun) {
+  MESOSCAN_THROW_AT(ErrorKind::kUsage, OutputSite(s),
+                    "exists and is not an earlier output of 'mesoscan "
+                        << s.command << "'; choose a new " << noun << " or add "
+                        << OptionRef{"OutputSpec.force"} << " to replace it");
 }
 
 // The checks shared by folders and files: not empty, not an input, not around an input.
@@ -138,16 +152,6 @@ bool IsOwnEmptyStagingFolder(const fs::path& p) {
   return fs::is_directory(fs::symlink_status(p, ec)) && fs::is_empty(p, ec) && !ec;
 }
 
-// A message about a file in the staging folder names it where the user will look for it: the
-// temporary folder's path is replaced by the final one.
-std::string NameFinalPath(std::string msg, const fs::path& tmp, const fs::path& out) {
-  const std::string from = tmp.string(), to = out.string();
-  for (size_t at = msg.find(from); !from.empty() && at != std::string::npos;
-       at = msg.find(from, at + to.size()))
-    msg.replace(at, from.size(), to);
-  return msg;
-}
-
 }  // namespace
 
 void CleanStaleOutputs(const fs::path& final_path) {
@@ -200,9 +204,7 @@ fs::path CheckOutputFolder(const OutputSpec& s) {
       ok = true;
       for (const std::string& f : s.legacy_signature) ok = ok && fs::exists(out / f, ec);
     }
-    if (!ok)
-      Refuse(s, "exists and is not an earlier output of 'mesoscan " + s.command +
-                    "'; choose a new folder or add --force to replace it");
+    if (!ok) RefuseExisting(s, "folder");
   }
   return out;
 }
@@ -221,7 +223,8 @@ void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marke
   const fs::path tmp = Sibling(out, kTmpTag);
   fs::create_directory(tmp, ec);
   if (ec)
-    MESOSCAN_BAD_INPUT(out.string() << ": cannot create output folder (" << ec.message() << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(out),
+                          "cannot create output folder (" << ec.message() << ")");
   try {
     fill(tmp);
     if (!marker_command.empty()) {
@@ -238,22 +241,24 @@ void ReplaceFolderAtomically(const fs::path& final_dir, const std::string& marke
       const fs::path old = Sibling(out, kOldTag);
       fs::rename(out, old, ec);
       if (ec)
-        MESOSCAN_BAD_INPUT(out.string()
-                           << ": cannot replace the existing folder (" << ec.message() << ")");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(out),
+                              "cannot replace the existing folder (" << ec.message() << ")");
       fs::rename(tmp, out, ec);
       if (ec) {
         std::error_code e2;
         fs::rename(old, out, e2);
-        MESOSCAN_BAD_INPUT(out.string() << ": cannot write folder (" << ec.message() << ")");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(out), "cannot write folder (" << ec.message() << ")");
       }
       fs::remove_all(old, ec);
       return;
     }
     fs::rename(tmp, out, ec);
-    if (ec) MESOSCAN_BAD_INPUT(out.string() << ": cannot write folder (" << ec.message() << ")");
+    if (ec)
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(out), "cannot write folder (" << ec.message() << ")");
   } catch (const Error& e) {
+    // A message about a file in the staging folder names it where the user will look for it.
     fs::remove_all(tmp, ec);
-    throw Error(NameFinalPath(e.what(), tmp, out), e.kind());
+    throw e.WithPathRenamed(tmp.string(), out.string());
   } catch (...) {
     fs::remove_all(tmp, ec);
     throw;
@@ -272,9 +277,7 @@ fs::path CheckOutputFile(const OutputSpec& s,
   if (fs::exists(st)) {
     if (fs::is_directory(st)) Refuse(s, "is a folder; expected a file name");
     if (!fs::is_regular_file(st)) Refuse(s, "exists and is not a regular file");
-    if (!s.force && !(accept_existing && accept_existing(out)))
-      Refuse(s, "exists and is not an earlier output of 'mesoscan " + s.command +
-                    "'; choose a new name or add --force to replace it");
+    if (!s.force && !(accept_existing && accept_existing(out))) RefuseExisting(s, "name");
   }
   return out;
 }

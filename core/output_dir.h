@@ -30,7 +30,7 @@ inline constexpr const char* kOutputMarker = ".mesoscan-output";
 
 struct OutputSpec {
   std::string command;                        // "reconstruct", "export", ...
-  std::string option = "--out";               // the option named in messages
+  std::string option = "out";                 // the caller's name for the output (messages)
   std::filesystem::path out;                  // as the user gave it
   std::vector<std::filesystem::path> inputs;  // files or folders read (empty entries ignored)
   bool force = false;                         // replace any existing folder (not an input)

@@ -101,7 +101,7 @@ void WritePng8Unfiltered(const std::filesystem::path& path, const ImageU8& image
   });
   for (const Piece& p : out)
     if (!p.error.empty())
-      MESOSCAN_BAD_INPUT(path.string() << ": cannot write image (" << p.error << ")");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write image (" << p.error << ")");
 
   // The file: signature, IHDR, the zlib stream (header, pieces, Adler-32) as IDAT chunks, IEND.
   std::vector<uint8_t> head = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};

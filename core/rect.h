@@ -15,9 +15,10 @@ struct PixelRect {
   bool operator==(const PixelRect&) const = default;
 };
 
-// "X,Y,W,H" (the syntax of every --roi and --crop), or "WxH+X+Y" (X11 geometry: the spelling
-// `simulate --crop` has always documented, kept for its scripts). X, Y >= 0, W, H >= 1.
-// Throws Error(kUsage) "<option>: '<text>': expected X,Y,W,H ..." naming `option`.
+// "X,Y,W,H" (the syntax of every region option), or "WxH+X+Y" (X11 geometry: the spelling the
+// simulator's crop has always documented, kept for its scripts). X, Y >= 0, W, H >= 1.
+// Throws Error(kUsage) "'<text>': expected X,Y,W,H ..." at the options field `option`
+// ("FrameLoadOptions.roi").
 PixelRect ParsePixelRect(const std::string& text, const std::string& option);
 
 // "X,Y,W,H", as the option takes it.

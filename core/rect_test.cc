@@ -7,27 +7,29 @@
 namespace mesoscan {
 namespace {
 
-// Error(kUsage) whose message names the option and the text.
+// Error(kUsage) at the options field, whose message names the text.
 void ExpectUsage(const std::string& text) {
   try {
-    ParsePixelRect(text, "--crop");
+    ParsePixelRect(text, "ExportOptions.crop");
     FAIL() << "'" << text << "' must be refused";
   } catch (const Error& e) {
     EXPECT_EQ(e.kind(), ErrorKind::kUsage) << text;
-    EXPECT_NE(std::string(e.what()).find("--crop: '" + text + "'"), std::string::npos) << e.what();
+    EXPECT_EQ(e.option(), "ExportOptions.crop");
+    EXPECT_NE(std::string(e.what()).find("ExportOptions.crop: '" + text + "'"), std::string::npos)
+        << e.what();
   }
 }
 
 TEST(PixelRect, CommasAndGeometrySpellTheSameRectangle) {
-  const PixelRect r = ParsePixelRect("960,620,256,192", "--roi");
+  const PixelRect r = ParsePixelRect("960,620,256,192", "ReconstructOptions.roi");
   EXPECT_EQ(r, (PixelRect{960, 620, 256, 192}));
-  EXPECT_EQ(ParsePixelRect("256x192+960+620", "--crop"), r);
-  EXPECT_EQ(ParsePixelRect(" 1, 2 ,3,4", "--crop"), (PixelRect{1, 2, 3, 4}));
+  EXPECT_EQ(ParsePixelRect("256x192+960+620", "ExportOptions.crop"), r);
+  EXPECT_EQ(ParsePixelRect(" 1, 2 ,3,4", "ExportOptions.crop"), (PixelRect{1, 2, 3, 4}));
   EXPECT_EQ(ToString(r), "960,620,256,192");
   EXPECT_FALSE(r.whole());
   EXPECT_TRUE(PixelRect{}.whole());
   // The largest int is a value (the caller checks it against its image), one more is refused.
-  EXPECT_EQ(ParsePixelRect("2147483647,0,1,1", "--crop").x, 2147483647);
+  EXPECT_EQ(ParsePixelRect("2147483647,0,1,1", "ExportOptions.crop").x, 2147483647);
 }
 
 TEST(PixelRect, MalformedRectanglesAreUsageErrorsNamingTheOption) {

@@ -24,14 +24,15 @@ void ReadGridAttributes(const fs::path& path, const std::map<std::string, double
                         HeightField* hf) {
   for (const char* key : {kAttrX0, kAttrY0, kAttrPixelSize}) {
     if (!attrs.count(key))
-      MESOSCAN_BAD_INPUT(path.string() << ": missing header attribute '" << key << "'");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "missing header attribute '" << key << "'");
   }
   hf->x0 = attrs.at(kAttrX0);
   hf->y0 = attrs.at(kAttrY0);
   hf->pixel_size = attrs.at(kAttrPixelSize);
   if (!(hf->pixel_size > 0) || !std::isfinite(hf->pixel_size))
-    MESOSCAN_BAD_INPUT(path.string() << ": header attribute '" << kAttrPixelSize
-                                     << "': expected a positive number");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "header attribute '"
+                                                     << kAttrPixelSize
+                                                     << "': expected a positive number");
 }
 
 ImageF Plane(const ImageF& all, int c0, int n) {
@@ -106,7 +107,7 @@ void WriteScanFolder(const fs::path& dir, const Scan& scan) {
 Scan ReadScanFolder(const fs::path& dir) {
   RestoreInterruptedReplacement(dir);
   if (!fs::is_directory(dir))
-    MESOSCAN_BAD_INPUT(dir.string() << ": not a scan folder (no such directory)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(dir), "not a scan folder (no such directory)");
   Scan s;
   s.points = ReadPointsExr(dir / "points.exr");
   s.height = ReadHeightExr(dir / "height.exr");

@@ -94,7 +94,8 @@ DecodedFrame Decode(const std::filesystem::path& path, const std::string& label,
     dst.resize(n);
     ok = in->Read(PixelType::kUInt16, dst.data());
   }
-  if (!ok) MESOSCAN_BAD_INPUT(label << ": cannot decode image (" << in->error() << ")");
+  if (!ok)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "cannot decode image (" << in->error() << ")");
   return d;
 }
 
@@ -134,7 +135,8 @@ void FrameLoadOptions::Check() const {
   if (!(saturation_level > 0.0 && saturation_level <= 1.0))
     MESOSCAN_BAD_INPUT("saturation_level: expected a value in (0, 1], got " << saturation_level);
   if (roi.w < 0 || roi.h < 0 || roi.x < 0 || roi.y < 0)
-    MESOSCAN_BAD_INPUT("roi: expected non-negative x, y, w, h");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("FrameLoadOptions.roi"),
+                          "expected non-negative x, y, w, h");
 }
 
 void FrameStack::Gather(int k, size_t i0, size_t n, float* out) const {
@@ -196,9 +198,10 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
   FrameStack s;
   s.roi_ = ClipRoi(options.roi, cam.width, cam.height);
   if (s.roi_.w <= 0 || s.roi_.h <= 0)
-    MESOSCAN_BAD_INPUT("roi: " << options.roi.x << "," << options.roi.y << "," << options.roi.w
-                               << "," << options.roi.h << " does not overlap the " << cam.width
-                               << "x" << cam.height << " camera image");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("FrameLoadOptions.roi"),
+                          options.roi.x << "," << options.roi.y << "," << options.roi.w << ","
+                                        << options.roi.h << " does not overlap the " << cam.width
+                                        << "x" << cam.height << " camera image");
   s.width_ = s.roi_.w;
   s.height_ = s.roi_.h;
   s.session_frames_ = frame_indices;
@@ -249,11 +252,13 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
                                  : nullptr;
       DecodedFrame d = Decode(path, label, direct);
       if (d.width != cam.width || d.height != cam.height)
-        MESOSCAN_BAD_INPUT(label << ": size " << d.width << "x" << d.height
-                                 << ", expected camera.width x camera.height = " << cam.width << "x"
-                                 << cam.height);
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                              "size " << d.width << "x" << d.height
+                                      << ", expected camera.width x camera.height = " << cam.width
+                                      << "x" << cam.height);
       if (d.is_float && !any_float)  // not a PNG after all
-        MESOSCAN_BAD_INPUT(label << ": a floating-point image in a file named .png");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                              "a floating-point image in a file named .png");
       if (d.eight_bit) eight_bit.fetch_add(1);
       if (d.direct) {
         MarkAtLeast(s.raw_[k].data(), np, sat_code, mark_saturated);

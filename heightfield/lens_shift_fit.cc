@@ -1338,11 +1338,11 @@ const char* LensShiftFitterName(LensShiftFitter fitter) {
   return "?";
 }
 
-LensShiftFitter ParseLensShiftFitter(const std::string& name, const std::string& what) {
+LensShiftFitter ParseLensShiftFitter(const std::string& name, const std::string& option) {
   if (name == "fast") return LensShiftFitter::kFast;
   if (name == "lm") return LensShiftFitter::kLm;
   if (name == "ceres") return LensShiftFitter::kCeres;
-  MESOSCAN_BAD_INPUT(what << ": unknown fitter '" << name << "' (expected fast, lm or ceres)");
+  MESOSCAN_BAD_OPTION(option, "unknown fitter '" << name << "' (expected fast, lm or ceres)");
 }
 
 void LensShiftFitOptions::Check() const {

@@ -35,8 +35,9 @@ enum class LensShiftFitter { kFast, kLm, kCeres };
 
 // "fast", "lm", "ceres".
 const char* LensShiftFitterName(LensShiftFitter fitter);
-// Inverse of LensShiftFitterName; throws mesoscan::Error (bad input) naming `what` otherwise.
-LensShiftFitter ParseLensShiftFitter(const std::string& name, const std::string& what = "--fitter");
+// Inverse of LensShiftFitterName; throws Error(kUsage) at the options field `option` otherwise.
+LensShiftFitter ParseLensShiftFitter(const std::string& name,
+                                     const std::string& option = "LensShiftStageOptions.fitter");
 
 struct LensShiftFitOptions {
   // Which solver; all three minimise the same least-squares objective.

@@ -13,9 +13,9 @@ namespace {
 
 void CheckCalibrated(const Session& session) {
   if (session.rig.uncalibrated)
-    MESOSCAN_BAD_INPUT(session.root.string()
-                       << "/session.json: rig: a calibration session (no calibrated K, distortion "
-                          "and world_from_device), expected a calibrated rig (mesoscan calibrate)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Key(session.root / "session.json", "rig"),
+                          "a calibration session (no calibrated K, distortion and "
+                          "world_from_device), expected a calibrated rig (mesoscan calibrate)");
 }
 
 // The front's wall times: decode (until the last frame), what of the overlapped sine-frame

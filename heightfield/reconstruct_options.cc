@@ -12,7 +12,9 @@ void ReconstructOptions::Check() const {
   consistency.Check();
   mixed_pixels.Check();
   resample.Check();
-  if (num_threads < 0) MESOSCAN_BAD_INPUT("--threads: expected >= 0, got " << num_threads);
+  if (num_threads < 0)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("ReconstructOptions.num_threads"),
+                          "expected >= 0, got " << num_threads);
 }
 
 Json ReconstructOptions::ToJson() const {

@@ -28,9 +28,10 @@ PixelClasses ClassifyPixels(const FrameStack& stack, const ReconstructPlan& plan
     ImageInfo info;
     const ImageF mask = ReadImageGrey(options.mask_path, &info);
     if (mask.width() != camera_width || mask.height() != camera_height)
-      MESOSCAN_BAD_INPUT(options.mask_path << ": size " << mask.width() << "x" << mask.height()
-                                           << ", expected the camera's " << camera_width << "x"
-                                           << camera_height);
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(options.mask_path),
+                            "size " << mask.width() << "x" << mask.height()
+                                    << ", expected the camera's " << camera_width << "x"
+                                    << camera_height);
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x)
         if (!(mask(x + grid.roi.x, y + grid.roi.y) > 0))

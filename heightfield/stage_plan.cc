@@ -75,11 +75,12 @@ ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& o
     if (p.stack_frames.size() >= 3) plan.periods.push_back(std::move(p));
   }
   if (plan.periods.empty())
-    MESOSCAN_BAD_INPUT(session.root.string()
-                       << "/session.json: frames: no sine pattern along " << plan.axis
-                       << " with >= 3 phases at shift_steps 0; nothing gives the absolute "
-                          "projector "
-                       << (plan.axis == 'x' ? "column" : "row"));
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Key(session.root / "session.json", "frames"),
+                          "no sine pattern along "
+                              << plan.axis
+                              << " with >= 3 phases at shift_steps 0; nothing gives the absolute "
+                                 "projector "
+                              << (plan.axis == 'x' ? "column" : "row"));
   const std::vector<double> period_list = plan.PeriodList();
   plan.projector_width = plan.axis == 'x' ? rig.projector.width : rig.projector.height;
   plan.projector_gamma =

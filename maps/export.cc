@@ -47,10 +47,9 @@ ImageF CropImage(const ImageF& im, const PixelRect& c) {
 void CheckCrop(const PixelRect& c, int w, int h) {
   if (c.whole()) return;
   if (c.x < 0 || c.y < 0 || c.w <= 0 || c.h <= 0 || c.x + c.w > w || c.y + c.h > h)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --crop "
-                                          << c.x << "," << c.y << "," << c.w << "," << c.h
-                                          << ": expected a rectangle inside the " << w << "x" << h
-                                          << " height grid");
+    MESOSCAN_BAD_OPTION("ExportOptions.crop", c.x << "," << c.y << "," << c.w << "," << c.h
+                                                  << ": expected a rectangle inside the " << w
+                                                  << "x" << h << " height grid");
 }
 
 // Resamples a planar image from pixel size `src_p` to `dst_p` (same origin). Validity is
@@ -246,17 +245,16 @@ std::string SessionPathFromReport(const Json& report) {
 
 void ExportOptions::Check() const {
   if (!exr && !png16 && !glb && !ply)
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "export: --format: expected at least one of exr,png16,glb,ply");
+    MESOSCAN_BAD_OPTION("ExportOptions.formats", "expected at least one of exr,png16,glb,ply");
   if (!(pixel_size_m >= 0) || !std::isfinite(pixel_size_m))
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --pixel-size: expected a positive number of metres");
+    MESOSCAN_BAD_OPTION("ExportOptions.pixel_size_m", "expected a positive number of metres");
   if (max_triangles <= 0)
-    MESOSCAN_THROW(ErrorKind::kUsage, "export: --max-triangles: expected a positive number");
+    MESOSCAN_BAD_OPTION("ExportOptions.max_triangles", "expected a positive number");
   if (!(mesh_tolerance_m >= 0) || !std::isfinite(mesh_tolerance_m))
     MESOSCAN_THROW(ErrorKind::kUsage, "export: mesh tolerance: expected a number >= 0 (metres)");
   if (name.empty() || name.find('/') != std::string::npos || name.find('\\') != std::string::npos)
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "export: --name '" << name << "': expected a plain file name prefix");
+    MESOSCAN_BAD_OPTION("ExportOptions.name",
+                        "'" << name << "': expected a plain file name prefix");
   if (!albedo.empty() && albedo.channels() != 1 && albedo.channels() != 3)
     MESOSCAN_THROW(ErrorKind::kUsage,
                    "export: albedo: expected 1 or 3 channels, got " << albedo.channels());
@@ -285,8 +283,8 @@ void ParseExportFormats(const std::string& list, ExportOptions* o) {
     else if (item == "ply")
       o->ply = true;
     else
-      MESOSCAN_THROW(ErrorKind::kUsage, "export: --format: unknown format '"
-                                            << item << "' (expected exr, png16, glb, ply)");
+      MESOSCAN_BAD_OPTION("ExportOptions.formats",
+                          "unknown format '" << item << "' (expected exr, png16, glb, ply)");
   }
 }
 
@@ -389,7 +387,8 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std
       const ImageF im = linear(static_cast<int>(f));
       if (wf.empty()) wf = ImageF(im.width(), im.height(), im.channels(), 0.0f);
       if (im.width() != wf.width() || im.height() != wf.height() || im.channels() != wf.channels())
-        MESOSCAN_BAD_INPUT(s.FramePath(f).string() << ": size differs from the other sine frames");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(s.FramePath(f)),
+                              "size differs from the other sine frames");
       for (size_t i = 0; i < im.data().size(); ++i) wf.data()[i] += im.data()[i];
       ++n;
     }
@@ -403,7 +402,7 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std
   }
   const ImageF bf = black >= 0 ? linear(black) : ImageF();
   if (!bf.empty() && (bf.width() != wf.width() || bf.height() != wf.height()))
-    MESOSCAN_BAD_INPUT(s.FramePath(black).string() << ": size differs from the white frame");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(s.FramePath(black)), "size differs from the white frame");
   const int nc = wf.channels() >= 3 ? 3 : 1;
   ImageF out(hf.width(), hf.height(), nc, kNan);
   ParallelForRows(hf.height(), [&](int r0, int r1) {
@@ -913,7 +912,7 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& o, const fs::pat
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (!fs::is_directory(dir))
-    MESOSCAN_BAD_INPUT(dir.string() << ": cannot create the export folder");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(dir), "cannot create the export folder");
   // 2. Holes filled for the DCC maps; the normal map encoded.
   const ExportHeights heights = FillExportHeights(o.fill, &grid);
   const bool gl = o.normals == NormalConvention::kOpenGl;

@@ -86,7 +86,7 @@ ExportSummary ExportScan(const Scan& scan, const ExportOptions& options,
                          const std::filesystem::path& dir);
 
 // "exr,png16,glb,ply" (any subset, any order) into the format flags of `options`.
-// Throws Error(kUsage) naming --format and the unknown entry.
+// Throws Error(kUsage) at ExportOptions.formats naming the unknown entry.
 void ParseExportFormats(const std::string& list, ExportOptions* options);
 
 // The export grid: `crop` of `hf`, then resampled to `pixel_size_m` (0: unchanged). Also

@@ -186,7 +186,8 @@ void WriteGlb(const fs::path& path, const GlbContent& c) {
     tinygltf::TinyGLTF writer;
     const bool ok = writer.WriteGltfSceneToStream(&model, out.stream(), false, true);
     out.Close();  // a failed write names the file and the reason
-    if (!ok) MESOSCAN_BAD_INPUT(path.string() << ": cannot write GLB (tinygltf refused the model)");
+    if (!ok)
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write GLB (tinygltf refused the model)");
   });
 }
 

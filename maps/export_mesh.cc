@@ -17,8 +17,8 @@ namespace mesoscan {
 
 void GridMeshOptions::Check() const {
   if (max_triangles <= 0)
-    MESOSCAN_BAD_INPUT("export: --max-triangles: expected a positive number, got "
-                       << max_triangles);
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("GridMeshOptions.max_triangles"),
+                          "expected a positive number, got " << max_triangles);
   if (!(tolerance_m >= 0.0) || !std::isfinite(tolerance_m))
     MESOSCAN_BAD_INPUT("export: mesh tolerance: expected a finite number >= 0 (metres)");
 }
@@ -383,7 +383,7 @@ GridMesh TriangulateHeightField(const HeightField& hf, const GridMeshOptions& op
     mesh.uncovered_samples += !covered[i] && std::isfinite(hf.z.data()[i]);
   if (!mesh.budget_met)
     MESOSCAN_LOG(kWarning) << "export: the holes alone need " << rtin.base()
-                           << " triangles, more than --max-triangles " << options.max_triangles;
+                           << " triangles, more than the budget of " << options.max_triangles;
   return mesh;
 }
 

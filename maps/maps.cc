@@ -156,10 +156,10 @@ void MapsOptions::Check() const {
     MESOSCAN_THROW(ErrorKind::kUsage,
                    "maps: curvature sigma " << curvature_sigma_px << ": expected >= 0");
   if (name.empty() || name.find_first_of("/\\") != std::string::npos)
-    MESOSCAN_THROW(ErrorKind::kUsage, "--name '" << name << "': expected a file name prefix");
+    MESOSCAN_BAD_OPTION("MapsOptions.name", "'" << name << "': expected a file name prefix");
   if (!maps.height && !maps.normal && !maps.albedo && !maps.confidence && !maps.ao &&
       !maps.curvature)
-    MESOSCAN_THROW(ErrorKind::kUsage, "--maps: expected at least one map");
+    MESOSCAN_BAD_OPTION("MapsOptions.maps", "expected at least one map");
 }
 
 void ParseMapSelection(const std::string& list, MapsOptions* o) {
@@ -180,9 +180,9 @@ void ParseMapSelection(const std::string& list, MapsOptions* o) {
     else if (item == "curvature")
       o->maps.curvature = true;
     else
-      MESOSCAN_THROW(
-          ErrorKind::kUsage,
-          "--maps: '" << item << "': expected height, normal, albedo, confidence, ao or curvature");
+      MESOSCAN_BAD_OPTION("MapsOptions.maps", "'" << item
+                                                  << "': expected height, normal, albedo, "
+                                                     "confidence, ao or curvature");
   }
 }
 

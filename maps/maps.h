@@ -85,7 +85,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& options,
                         const std::filesystem::path& dir);
 
 // "height,normal,albedo,confidence,ao,curvature" (any subset) into options->maps;
-// Error(kUsage) naming --maps for an unknown entry.
+// Error(kUsage) at MapsOptions.maps for an unknown entry.
 void ParseMapSelection(const std::string& list, MapsOptions* options);
 
 }  // namespace mesoscan

@@ -192,7 +192,7 @@ FillMethod ParseFillMethod(const std::string& t) {
   if (t == "harmonic") return FillMethod::kHarmonic;
   if (t == "biharmonic") return FillMethod::kBiharmonic;
   if (t == "none") return FillMethod::kNone;
-  MESOSCAN_THROW(ErrorKind::kUsage, "--fill '" << t << "': expected harmonic, biharmonic or none");
+  MESOSCAN_BAD_OPTION("FillOptions.method", "'" << t << "': expected harmonic, biharmonic or none");
 }
 
 const char* FillMethodName(FillMethod m) {

@@ -49,7 +49,7 @@ struct FillResult {
 // Fills the holes (NaN) of `hf`. Never throws for any input grid; NaN-free output where filled.
 FillResult FillHoles(const HeightField& hf, const FillOptions& options);
 
-// "harmonic" | "biharmonic" | "none"; throws Error(kUsage) naming --fill otherwise.
+// "harmonic" | "biharmonic" | "none"; throws Error(kUsage) at FillOptions.method otherwise.
 FillMethod ParseFillMethod(const std::string& text);
 const char* FillMethodName(FillMethod method);
 

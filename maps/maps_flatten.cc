@@ -60,8 +60,9 @@ PolyFit FitPolynomial(const ImageF& z, const ImageU8& mask, int degree, const Fl
     }
   const int m = static_cast<int>(values.size());
   if (m < 2 * nt)
-    MESOSCAN_BAD_INPUT("height.exr: Z: " << m << " valid samples, too few to fit a degree-"
-                                         << degree << " polynomial for --flatten");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Key("height.exr", "Z"),
+                          m << " valid samples, too few to fit a degree-" << degree
+                            << " polynomial for " << OptionRef{"FlattenOptions.method"});
   const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> A(
       rows.data(), m, nt);
   const Eigen::Map<const Eigen::VectorXd> b(values.data(), m);
@@ -85,11 +86,12 @@ PolyFit FitPolynomial(const ImageF& z, const ImageU8& mask, int degree, const Fl
 
 void FlattenOptions::Check() const {
   if (poly_degree < 1 || poly_degree > 6)
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--flatten poly:" << poly_degree << ": expected a degree 1..6");
+    MESOSCAN_BAD_OPTION("FlattenOptions.poly_degree",
+                        "poly:" << poly_degree << ": expected a degree 1..6");
   if (!(highpass_wavelength_m > 0) || !std::isfinite(highpass_wavelength_m))
-    MESOSCAN_THROW(ErrorKind::kUsage, "--flatten highpass: wavelength "
-                                          << highpass_wavelength_m * 1e3 << " mm: expected > 0");
+    MESOSCAN_BAD_OPTION("FlattenOptions.highpass_wavelength_m", "highpass: wavelength "
+                                                                    << highpass_wavelength_m * 1e3
+                                                                    << " mm: expected > 0");
   if (irls_iterations < 1 || !(huber_k > 0))
     MESOSCAN_THROW(ErrorKind::kUsage, "flatten: irls_iterations >= 1 and huber_k > 0 expected");
 }
@@ -103,8 +105,8 @@ FlattenOptions ParseFlatten(const std::string& t) {
       if (used == s.size()) return v;
     } catch (...) {
     }
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--flatten '" << t << "': expected none, plane, poly:N or highpass:MM");
+    MESOSCAN_BAD_OPTION("FlattenOptions.method",
+                        "'" << t << "': expected none, plane, poly:N or highpass:MM");
   };
   if (t == "none")
     o.method = FlattenMethod::kNone;

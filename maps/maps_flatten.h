@@ -40,7 +40,7 @@ struct FlattenResult {
 FlattenResult Flatten(const HeightField& hf, const ImageU8& weight_mask,
                       const FlattenOptions& options);
 
-// "none" | "plane" | "poly:N" | "highpass:MM"; throws Error(kUsage) naming --flatten.
+// "none" | "plane" | "poly:N" | "highpass:MM"; throws Error(kUsage) at FlattenOptions.method.
 FlattenOptions ParseFlatten(const std::string& text);
 std::string FlattenName(const FlattenOptions& options);
 

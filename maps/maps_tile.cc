@@ -132,13 +132,13 @@ ImageF CropSquare(const ImageF& im, int x0, int y0, int n) {
 
 void TileOptions::Check() const {
   if (!(size_m > 0) || !std::isfinite(size_m))
-    MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << size_m * 1e3 << " mm: expected a size > 0");
+    MESOSCAN_BAD_OPTION("TileOptions.size_m", size_m * 1e3 << " mm: expected a size > 0");
 }
 
 TileMethod ParseTileMethod(const std::string& t) {
   if (t == "blend") return TileMethod::kBlend;
   if (t == "mirror") return TileMethod::kMirror;
-  MESOSCAN_THROW(ErrorKind::kUsage, "--tile-method '" << t << "': expected blend or mirror");
+  MESOSCAN_BAD_OPTION("TileOptions.method", "'" << t << "': expected blend or mirror");
 }
 const char* TileMethodName(TileMethod m) { return m == TileMethod::kBlend ? "blend" : "mirror"; }
 
@@ -212,13 +212,14 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
   const int n_target = static_cast<int>(std::lround(o.size_m / hf.pixel_size));
   const int src = o.method == TileMethod::kBlend ? n_target : (n_target + 1) / 2;
   if (n_target < 8)
-    MESOSCAN_THROW(ErrorKind::kUsage, "--tile " << o.size_m * 1e3 << " mm: under 8 grid pixels of "
-                                                << hf.pixel_size * 1e6 << " um");
+    MESOSCAN_BAD_OPTION("TileOptions.size_m", o.size_m * 1e3 << " mm: under 8 grid pixels of "
+                                                             << hf.pixel_size * 1e6 << " um");
   if (src > w || src > h)
-    MESOSCAN_BAD_INPUT("height.exr: the " << w << "x" << h << " grid (" << w * hf.pixel_size * 1e3
-                                          << " x " << h * hf.pixel_size * 1e3
-                                          << " mm) is smaller than the --tile square of "
-                                          << src * hf.pixel_size * 1e3 << " mm");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File("height.exr"),
+                          "the " << w << "x" << h << " grid (" << w * hf.pixel_size * 1e3 << " x "
+                                 << h * hf.pixel_size * 1e3 << " mm) is smaller than the "
+                                 << OptionRef{"TileOptions.size_m"} << " square of "
+                                 << src * hf.pixel_size * 1e3 << " mm");
   // 1. The hole-free square with the fewest filled pixels, nearest to the centre.
   const auto holes = Integral(w, h, [&](int x, int y) { return !std::isfinite(hf.z(x, y)); });
   const auto fills =
@@ -236,9 +237,12 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
         best_fill = f, best_d = d, bx = x, by = y;
     }
   if (bx < 0)
-    MESOSCAN_BAD_INPUT("height.exr: no hole-free square of " << src * hf.pixel_size * 1e3
-                                                             << " mm in the filled height field; "
-                                                                "use a smaller --tile or --crop");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File("height.exr"),
+                          "no hole-free square of "
+                              << src * hf.pixel_size * 1e3
+                              << " mm in the filled height field; use a smaller "
+                              << OptionRef{"TileOptions.size_m"} << " or "
+                              << OptionRef{"MapsOptions.crop"});
   TileResult r;
   r.src_x = bx, r.src_y = by, r.src_size = src;
   const ImageF zsq = CropSquare(hf.z, bx, by, src);

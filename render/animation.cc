@@ -11,7 +11,7 @@ namespace mesoscan {
 void WriteAnimatedGif(const std::filesystem::path& path, const std::vector<ImageU8>& frames,
                       int frames_per_second) {
   if (frames.empty())
-    MESOSCAN_BAD_INPUT(path.string() << ": an animation needs at least one frame");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "an animation needs at least one frame");
   const int w = frames[0].width(), h = frames[0].height(), nc = frames[0].channels();
   for (const auto& f : frames)
     MESOSCAN_CHECK(f.width() == w && f.height() == h && f.channels() == nc);

@@ -72,8 +72,8 @@ EnvironmentMap EnvironmentMap::FromImage(const ImageF& rgb, double scale) {
 EnvironmentMap EnvironmentMap::Load(const std::filesystem::path& path, double scale) {
   const ImageF im = ReadImage(path);
   if (im.channels() < 3)
-    MESOSCAN_BAD_INPUT(path.string()
-                       << ": environment map: expected RGB channels, got " << im.channels());
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "environment map: expected RGB channels, got " << im.channels());
   // Radiance is finite and >= 0: a NaN or negative texel is a damaged or foreign file, named.
   // Negatives within 1e-3 of the brightest texel are the ringing of a filtered or resampled map
   // (Blender's studio.exr holds -3e-6 against a peak of 118) and are read as 0.
@@ -86,14 +86,17 @@ EnvironmentMap EnvironmentMap::Load(const std::filesystem::path& path, double sc
       for (int x = 0; x < im.width(); ++x) {
         const float v = im(x, y, c);
         if (!(std::isfinite(v) && v >= floor))
-          MESOSCAN_BAD_INPUT(path.string()
-                             << ": environment map: texel (" << x << ", " << y << ") channel " << c
-                             << " is " << v << ", expected a finite radiance >= 0");
+          MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "environment map: texel ("
+                                                           << x << ", " << y << ") channel " << c
+                                                           << " is " << v
+                                                           << ", expected a finite radiance >= 0");
       }
   try {
     return FromImage(im, scale);
   } catch (const Error& e) {
-    throw Error(path.string() + ": " + e.what(), e.kind());
+    // FromImage's refusals are about this file's pixels.
+    if (e.kind() != ErrorKind::kBadInput || !e.file().empty()) throw;
+    throw e.At(ErrorSite::File(path));
   }
 }
 

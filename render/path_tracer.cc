@@ -17,14 +17,17 @@
 namespace mesoscan {
 
 void RenderOptions::Check() const {
-  if (width < 1 || height < 1) MESOSCAN_BAD_INPUT("render: --size must be at least 1x1");
+  if (width < 1 || height < 1)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("RenderOptions.size"), "must be at least 1x1");
   if (min_spp < 1 || max_spp < min_spp)
     MESOSCAN_BAD_INPUT("render: expected 1 <= min_spp <= max_spp, got " << min_spp << ", "
                                                                         << max_spp);
-  if (max_spp > (1 << 24)) MESOSCAN_BAD_INPUT("render: --spp must be at most 16777216");
-  if (!(noise >= 0) || !std::isfinite(noise)) MESOSCAN_BAD_INPUT("render: --noise must be >= 0");
+  if (max_spp > (1 << 24))
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("RenderOptions.max_spp"), "must be at most 16777216");
+  if (!(noise >= 0) || !std::isfinite(noise))
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("RenderOptions.noise"), "must be >= 0");
   if (!(time_limit_s >= 0) || !std::isfinite(time_limit_s))
-    MESOSCAN_BAD_INPUT("render: --time must be >= 0 seconds");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("RenderOptions.time_limit_s"), "must be >= 0 seconds");
   if (max_depth < 1) MESOSCAN_BAD_INPUT("render: max_depth must be >= 1");
   if (!(allocate_spp >= 0) || !std::isfinite(allocate_spp) || allocate_spp > (1 << 24))
     MESOSCAN_BAD_INPUT("render: allocate_spp must be in [0, 16777216]");
@@ -49,7 +52,8 @@ void RenderOptions::Check() const {
   if (camera) {
     if (!camera->eye.allFinite() || !camera->target.allFinite() ||
         !((camera->target - camera->eye).norm() > 0))
-      MESOSCAN_BAD_INPUT("render: --camera: eye and target must be finite and distinct");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("RenderOptions.camera"),
+                            "eye and target must be finite and distinct");
   }
 }
 

@@ -89,14 +89,13 @@ std::vector<double> ParsePeriodList(const std::string& text, const std::string& 
       used = 0;
     }
     if (used == 0 || used != item.size() || !(p > 2) || !std::isfinite(p))
-      MESOSCAN_THROW(ErrorKind::kUsage, option << ": '" << text
-                                               << "': expected comma-separated periods > 2 px, "
-                                                  "e.g. 7,11,13, or 'none'");
+      MESOSCAN_BAD_OPTION(option, "'" << text
+                                      << "': expected comma-separated periods > 2 px, "
+                                         "e.g. 7,11,13, or 'none'");
     periods.push_back(p);
   }
   if (!text.empty() && text.back() == ',')
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   option << ": '" << text << "': a period is missing after ','");
+    MESOSCAN_BAD_OPTION(option, "'" << text << "': a period is missing after ','");
   return periods;
 }
 

@@ -69,7 +69,8 @@ FramePlanOptions CalibrationPlan(int projector_width, int projector_height);
 std::string PeriodName(double period_px);
 
 // "7,11,13" -> {7, 11, 13}; "" or "none" -> {} (a plan without sines). Every period a finite
-// number > 2 (projector px). Throws Error(kUsage) naming `option` (e.g. "--periods").
+// number > 2 (projector px). Throws Error(kUsage) at the options field `option`
+// (e.g. "FramePlanOptions.periods_px").
 std::vector<double> ParsePeriodList(const std::string& text, const std::string& option);
 
 // Frames of the plan, in this order: sines along `axis` (ps<period>_<k>, e.g. ps07_0.png; axis y:

@@ -112,18 +112,22 @@ TEST(PatternsTest, CalibrationPlanHasSinesAlongBothAxesWhiteAndBlack) {
 }
 
 TEST(PatternsTest, PeriodListsParseOrNameTheOption) {
-  EXPECT_EQ(ParsePeriodList("7,11,13", "--periods"), (std::vector<double>{7, 11, 13}));
-  EXPECT_EQ(ParsePeriodList("800,50", "--periods"), (std::vector<double>{800, 50}));
-  EXPECT_EQ(ParsePeriodList("37.5", "--periods-y"), (std::vector<double>{37.5}));
-  EXPECT_TRUE(ParsePeriodList("none", "--periods").empty());
-  EXPECT_TRUE(ParsePeriodList("", "--periods").empty());
+  EXPECT_EQ(ParsePeriodList("7,11,13", "FramePlanOptions.periods_px"),
+            (std::vector<double>{7, 11, 13}));
+  EXPECT_EQ(ParsePeriodList("800,50", "FramePlanOptions.periods_px"),
+            (std::vector<double>{800, 50}));
+  EXPECT_EQ(ParsePeriodList("37.5", "FramePlanOptions.cross_periods_px"),
+            (std::vector<double>{37.5}));
+  EXPECT_TRUE(ParsePeriodList("none", "FramePlanOptions.periods_px").empty());
+  EXPECT_TRUE(ParsePeriodList("", "FramePlanOptions.periods_px").empty());
   for (const char* bad : {"7,x", "7,,11", "7,11,", "2", "1e999", "nan", "7 ", "-7"}) {
     try {
-      ParsePeriodList(bad, "--ps-periods");
+      ParsePeriodList(bad, "SimulateOptions.ps_periods_px");
       ADD_FAILURE() << "'" << bad << "' must be refused";
     } catch (const Error& e) {
       EXPECT_EQ(e.kind(), ErrorKind::kUsage) << bad;
-      EXPECT_EQ(std::string(e.what()).rfind("--ps-periods: '", 0), 0u) << e.what();
+      EXPECT_EQ(e.option(), "SimulateOptions.ps_periods_px");
+      EXPECT_EQ(std::string(e.what()).rfind("SimulateOptions.ps_periods_px: '", 0), 0u) << e.what();
     }
   }
 }

@@ -109,16 +109,21 @@ ImageU16 ReadRawMosaic(const std::filesystem::path& path, const std::string& lab
   auto in = Oiio().Open(path.string(), "raw", {ImageAttribute::String("raw:Demosaic", "none")},
                         &err, &no_reader);
   if (no_reader)
-    MESOSCAN_BAD_INPUT(
-        who << ": cannot read camera raw (OpenImageIO has no raw plugin: " << OneLine(err) << ")");
-  if (!in) MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(err) << ")");
+    MESOSCAN_BAD_INPUT_AT(
+        ErrorSite::File(who),
+        "cannot read camera raw (OpenImageIO has no raw plugin: " << OneLine(err) << ")");
+  if (!in)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who), "cannot read camera raw (" << OneLine(err) << ")");
   const ImageHeader& spec = in->header();
   if (spec.channels != 1)
-    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (LibRaw returned " << spec.channels
-                           << " channels, expected the 1-channel sensor mosaic)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who),
+                          "cannot read camera raw (LibRaw returned "
+                              << spec.channels
+                              << " channels, expected the 1-channel sensor mosaic)");
   ImageU16 mosaic(spec.width, spec.height);
   if (!in->ReadWhole(PixelType::kUInt16, mosaic.data().data()))
-    MESOSCAN_BAD_INPUT(who << ": cannot read camera raw (" << OneLine(in->error()) << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who),
+                          "cannot read camera raw (" << OneLine(in->error()) << ")");
   return mosaic;
 }
 
@@ -162,7 +167,7 @@ void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic, cons
         TIFFSetErrorHandler(SilentTiffHandler);
         TIFFSetWarningHandler(SilentTiffHandler);
         std::unique_ptr<TIFF, TiffCloser> tif(TIFFOpen(tmp.c_str(), "w"));
-        if (!tif) MESOSCAN_BAD_INPUT(path.string() << ": cannot create DNG");
+        if (!tif) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot create DNG");
         TIFF* t = tif.get();
         const uint32_t w = mosaic.width(), h = mosaic.height();
         TIFFSetField(t, TIFFTAG_SUBFILETYPE, 0);
@@ -200,8 +205,9 @@ void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic, cons
         for (uint32_t y = 0; y < h; ++y)
           if (TIFFWriteScanline(t, const_cast<uint16_t*>(mosaic.row(static_cast<int>(y))), y, 0) <
               0)
-            MESOSCAN_BAD_INPUT(path.string() << ": cannot write DNG row " << y);
-        if (!TIFFWriteDirectory(t)) MESOSCAN_BAD_INPUT(path.string() << ": cannot write DNG");
+            MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write DNG row " << y);
+        if (!TIFFWriteDirectory(t))
+          MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot write DNG");
       },
       min_bytes, nullptr);
 }

@@ -76,7 +76,7 @@ class Parser {
   explicit Parser(std::string file) : file_(std::move(file)) {}
 
   [[noreturn]] void Fail(const std::string& key, const std::string& what) const {
-    MESOSCAN_BAD_INPUT(file_ << ": " << key << ": " << what);
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::Key(file_, key), what);
   }
   [[noreturn]] void Expected(const std::string& key, const std::string& expected,
                              const Json& got) const {
@@ -331,30 +331,30 @@ ImageInfo ReadInfoLabelled(const fs::path& path, const std::string& label, const
   std::error_code ec;
   const fs::path real = fs::weakly_canonical(path, ec);
   if (ec)
-    MESOSCAN_BAD_INPUT(label << ": cannot resolve the path (" << ec.message() << ") (" << key
-                             << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                          "cannot resolve the path (" << ec.message() << ") (" << key << ")");
   const fs::path real_root = fs::weakly_canonical(fs::absolute(root), ec);
   if (!ec && !PathIsWithin(real, real_root))
-    MESOSCAN_BAD_INPUT(label << ": resolves to " << real.string()
-                             << ", outside the session folder (a symlink leaving it) (" << key
-                             << ")");
-  if (!fs::exists(path)) MESOSCAN_BAD_INPUT(label << ": file not found (" << key << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                          "resolves to " << real.string()
+                                         << ", outside the session folder (a symlink leaving it) ("
+                                         << key << ")");
+  if (!fs::exists(path))
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "file not found (" << key << ")");
   try {
     return ReadImageLayout(path);
-  } catch (const Error& e) {
-    std::string msg = e.what();
+  } catch (const Error& e) {  // the image's error, located at the session's name for the file
     // Out of file descriptors is the process's limit, not the frame's fault.
-    if (msg.find(std::strerror(EMFILE)) != std::string::npos) {
+    if (e.Detail().find(std::strerror(EMFILE)) != std::string::npos) {
       rlimit rl{};
       getrlimit(RLIMIT_NOFILE, &rl);
       MESOSCAN_THROW(e.kind(), "too many open files: the process may open "
                                    << rl.rlim_cur << " (ulimit -n); raise the limit (while reading "
                                    << label << ")");
     }
-    const std::string prefix = path.string() + ": ";
-    if (msg.compare(0, prefix.size(), prefix) == 0) msg = msg.substr(prefix.size());
-    MESOSCAN_THROW(e.kind() == ErrorKind::kInternal ? ErrorKind::kInternal : ErrorKind::kBadInput,
-                   label << ": " << msg << " (" << key << ")");
+    MESOSCAN_THROW_AT(
+        e.kind() == ErrorKind::kInternal ? ErrorKind::kInternal : ErrorKind::kBadInput,
+        ErrorSite::File(label), e.Detail() << " (" << key << ")");
   }
 }
 
@@ -566,7 +566,8 @@ void CheckRigGeometry(const Parser& p, const Rig& rig) {
 
 Session ParseSession(const Json& j, const fs::path& root, const std::string& file_label) {
   const Parser p(file_label);
-  if (!j.is_object()) MESOSCAN_BAD_INPUT(file_label << ": expected a JSON object at the top level");
+  if (!j.is_object())
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(file_label), "expected a JSON object at the top level");
   Session s;
   s.root = root;
 
@@ -761,10 +762,11 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s) {
       const bool ok = raw ? (info.width / 2 == w && info.height / 2 == h)
                           : (info.width == w && info.height == h);
       if (!ok)
-        MESOSCAN_BAD_INPUT(f.file << ": size " << info.width << "x" << info.height << ", expected "
-                                  << (raw ? 2 * w : w) << "x" << (raw ? 2 * h : h)
-                                  << " (rig.camera.width/height" << (raw ? ", raw: twice" : "")
-                                  << ")");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(f.file),
+                              "size " << info.width << "x" << info.height << ", expected "
+                                      << (raw ? 2 * w : w) << "x" << (raw ? 2 * h : h)
+                                      << " (rig.camera.width/height" << (raw ? ", raw: twice" : "")
+                                      << ")");
       infos[i] = std::move(info);
     } catch (const Error& e) {
       errors[i] = e.what();
@@ -790,10 +792,12 @@ std::vector<ImageInfo> CheckSessionFiles(const Session& s) {
       for (const std::string& c : channels)
         if (std::find(info.channel_names.begin(), info.channel_names.end(), c) ==
             info.channel_names.end())
-          MESOSCAN_BAD_INPUT(rel << ": missing channel '" << c << "' (" << k << ")");
+          MESOSCAN_BAD_INPUT_AT(ErrorSite::File(rel),
+                                "missing channel '" << c << "' (" << k << ")");
       if (camera_grid && (info.width != w || info.height != h))
-        MESOSCAN_BAD_INPUT(rel << ": size " << info.width << "x" << info.height << ", expected "
-                               << w << "x" << h << " (rig.camera.width/height)");
+        MESOSCAN_BAD_INPUT_AT(ErrorSite::File(rel), "size " << info.width << "x" << info.height
+                                                            << ", expected " << w << "x" << h
+                                                            << " (rig.camera.width/height)");
     };
     check_gt(s.ground_truth->points, "points", {"X", "Y", "Z"}, true);
     check_gt(s.ground_truth->height, "height", {"Z"}, false);
@@ -813,7 +817,8 @@ std::string SessionTimeNow() {
 Rig LoadRigFile(const fs::path& path) {
   const Json j = ReadJsonFile(path);
   if (!j.is_object() || !j.contains("rig") || !j["rig"].is_object())
-    MESOSCAN_BAD_INPUT(path.string() << ": rig: expected an object (the session format's rig)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path),
+                          "rig: expected an object (the session format's rig)");
   // Parse through the session parser so the rig is validated exactly as in a session.
   Json wrapper = {{"format", kSessionFormat},
                   {"rig", j["rig"]},
@@ -829,19 +834,20 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
   std::error_code ec;
   if (fs::is_regular_file(dir, ec) && dir.extension() == ".json") root = dir.parent_path();
   const fs::path manifest = fs::is_regular_file(dir, ec) ? dir : dir / "session.json";
-  if (!fs::exists(manifest, ec)) MESOSCAN_BAD_INPUT(manifest.string() << ": file not found");
+  if (!fs::exists(manifest, ec)) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(manifest), "file not found");
   const std::string label = manifest.filename().string();
 
-  if (fs::is_directory(manifest, ec)) MESOSCAN_BAD_INPUT(label << ": cannot read (a folder)");
+  if (fs::is_directory(manifest, ec))
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "cannot read (a folder)");
   if (!fs::is_regular_file(manifest, ec))  // a FIFO or a device would block or never end
-    MESOSCAN_BAD_INPUT(label << ": cannot read (not a regular file)");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "cannot read (not a regular file)");
   std::string text;
   {
     errno = 0;
     std::ifstream in(manifest, std::ios::binary);
     if (!in)
-      MESOSCAN_BAD_INPUT(label << ": cannot read (" << (errno ? std::strerror(errno) : "unknown")
-                               << ")");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label),
+                            "cannot read (" << (errno ? std::strerror(errno) : "unknown") << ")");
     std::ostringstream ss;
     ss << in.rdbuf();
     text = ss.str();
@@ -852,13 +858,13 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
     j = Json::parse(text);
   } catch (const Json::parse_error& e) {
     const auto [line, col] = LineColumn(text, e.byte);
-    MESOSCAN_BAD_INPUT(label << ": not valid JSON (syntax error at line " << line << ", column "
-                             << col << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "not valid JSON (syntax error at line "
+                                                      << line << ", column " << col << ")");
   } catch (const Json::exception& e) {  // e.g. a number beyond double range (K = 1e999)
     std::string what = e.what();
     if (const size_t close = what.find("] "); close != std::string::npos)
       what = what.substr(close + 2);
-    MESOSCAN_BAD_INPUT(label << ": not valid JSON (" << what << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(label), "not valid JSON (" << what << ")");
   }
   Session s =
       ParseSession(j, fs::absolute(root.empty() ? fs::path(".") : root).lexically_normal(), label);

@@ -23,6 +23,8 @@ namespace {
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
 #define BOARD_USAGE(expr) MESOSCAN_THROW(ErrorKind::kUsage, expr)
+// A bad value of the options field `field` ("BoardSimOptions.pose").
+#define BOARD_OPTION(field, expr) MESOSCAN_BAD_OPTION(field, expr)
 
 // splitmix64, deterministic per (seed, frame, pixel).
 inline uint64_t SplitMix(uint64_t z) {
@@ -97,21 +99,22 @@ class BoardTexture {
 
 void BoardSimOptions::Check() const {
   if (board.cols < 2 || board.rows < 2 || !(board.square_m > 0))
-    BOARD_USAGE(
-        "--object: expected board:checker:COLSxROWS:SQUARE_MM or "
-        "board:charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
+    BOARD_OPTION("BoardSimOptions.board",
+                 "expected board:checker:COLSxROWS:SQUARE_MM or "
+                 "board:charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT");
   for (double v : pose)
-    if (!std::isfinite(v)) BOARD_USAGE("--pose: expected six finite numbers");
+    if (!std::isfinite(v)) BOARD_OPTION("BoardSimOptions.pose", "expected six finite numbers");
   if (!(dark_albedo >= 0 && dark_albedo <= 1 && light_albedo >= 0 && light_albedo <= 1))
     BOARD_USAGE("board albedo: expected values in [0, 1]");
   if (!(margin_squares >= 0 && margin_squares < 100))
     BOARD_USAGE("board margin: expected [0, 100)");
   for (double p : ps_periods_y_px)
     if (!(p > 2.0) || !std::isfinite(p))
-      BOARD_USAGE("--ps-periods-y: expected periods > 2 px, got " << p);
+      BOARD_OPTION("BoardSimOptions.ps_periods_y_px", "expected periods > 2 px, got " << p);
   if (frame_format != "png16" && frame_format != "png8" && frame_format != "bmp" &&
       frame_format != "tif8")
-    BOARD_USAGE("--frame-format: '" << frame_format << "', expected png16, png8, bmp or tif8");
+    BOARD_OPTION("BoardSimOptions.frame_format",
+                 "'" << frame_format << "', expected png16, png8, bmp or tif8");
 }
 
 bool IsBoardObject(const std::string& object) { return object.rfind("board:", 0) == 0; }
@@ -122,17 +125,22 @@ std::array<double, 6> ParseBoardPose(const std::string& text) {
   std::string item;
   int n = 0;
   while (std::getline(ss, item, ',')) {
-    if (n >= 6) BOARD_USAGE("--pose: '" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
+    if (n >= 6)
+      BOARD_OPTION("BoardSimOptions.pose",
+                   "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
     try {
       size_t used = 0;
       pose[n] = std::stod(item, &used);
       if (used != item.size() || !std::isfinite(pose[n])) throw std::invalid_argument(item);
     } catch (const std::exception&) {
-      BOARD_USAGE("--pose: '" << text << "': expected six numbers rx,ry,rz,tx,ty,tz (degrees, mm)");
+      BOARD_OPTION("BoardSimOptions.pose",
+                   "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz (degrees, mm)");
     }
     ++n;
   }
-  if (n != 6) BOARD_USAGE("--pose: '" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
+  if (n != 6)
+    BOARD_OPTION("BoardSimOptions.pose",
+                 "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
   return pose;
 }
 
@@ -162,7 +170,9 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   o.object = "plane";  // Check() wants a known object; the board replaces it
   o.Check();
   if (o.ps_periods_px.empty() || bo.ps_periods_y_px.empty())
-    BOARD_USAGE("board: expected sine periods along both axes (--ps-periods, --ps-periods-y)");
+    BOARD_USAGE("board: expected sine periods along both axes ("
+                << OptionRef{"SimulateOptions.ps_periods_px"} << ", "
+                << OptionRef{"BoardSimOptions.ps_periods_y_px"} << ")");
   const Rig rig = ResolveRig(o);
   const PinholeCamera& cam = rig.camera;
   const PinholeCamera& prj = rig.projector;
@@ -179,7 +189,7 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   const double r0 = prj_centre.norm();
   const int W = cam.width, H = cam.height, S = o.supersample;
   if (n_world.dot(cam_centre - b0) <= 0)
-    BOARD_USAGE("--pose: the camera sees the back of the board at this pose");
+    BOARD_OPTION("BoardSimOptions.pose", "the camera sees the back of the board at this pose");
 
   // ---- frame plan (session/patterns.h, as `capture --plan calibration`): sines along x then
   // y (every period, phases 2 pi k / N), white, black ----

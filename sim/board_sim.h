@@ -38,7 +38,7 @@ struct BoardSimOptions {
 // "board:checker:13x9:10" -> the board; "" if `object` does not start with "board:".
 bool IsBoardObject(const std::string& object);
 
-// "rx,ry,rz,tx,ty,tz" (degrees, mm) -> pose; throws Error(kUsage) naming --pose.
+// "rx,ry,rz,tx,ty,tz" (degrees, mm) -> pose; throws Error(kUsage) at BoardSimOptions.pose.
 std::array<double, 6> ParseBoardPose(const std::string& text);
 // world_from_board of a pose.
 Rigid3d BoardPoseToRigid(const std::array<double, 6>& pose);

@@ -92,7 +92,7 @@ GroundTruthPoints ReadGroundTruthPoints(const Session& session) {
   const auto& names = gt.info.channel_names;
   for (const char* c : {"X", "Y", "Z"})
     if (std::find(names.begin(), names.end(), c) == names.end())
-      MESOSCAN_BAD_INPUT(gt.path.string() << ": missing channel '" << c << "'");
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(gt.path), "missing channel '" << c << "'");
   return gt;
 }
 
@@ -111,13 +111,14 @@ GroundTruthErrors EvaluateAgainstGroundTruth(const GroundTruthPoints& gt_points,
     const auto it = std::find(names.begin(), names.end(), c);
     return it == names.end() ? -1 : static_cast<int>(it - names.begin());
   };
-  if (channel("Z") < 0) MESOSCAN_BAD_INPUT(path.string() << ": missing channel 'Z'");
+  if (channel("Z") < 0) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "missing channel 'Z'");
   const int cz = channel("Z"), c_lit = channel("lit_fraction"), c_relief = channel("relief");
   const bool footprint = c_lit >= 0 && c_relief >= 0;
   const int w = points.xyz.width(), h = points.xyz.height();
   if (gt.width() != w || gt.height() != h)
-    MESOSCAN_BAD_INPUT(path.string() << ": size " << gt.width() << "x" << gt.height()
-                                     << ", expected the camera's " << w << "x" << h);
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "size " << gt.width() << "x" << gt.height()
+                                                         << ", expected the camera's " << w << "x"
+                                                         << h);
   PixelRect roi = roi_in;
   if (roi.w <= 0 || roi.h <= 0) roi = {0, 0, w, h};
   GroundTruthErrors e;

@@ -35,6 +35,8 @@ constexpr double kMaxSigmaStepPx = 0.02;  // light tables: largest blur step bet
 constexpr int kPngCompressionLevel = 1;
 
 #define SIM_USAGE(expr) MESOSCAN_THROW(ErrorKind::kUsage, expr)
+// A bad value of the SimulateOptions field `field`.
+#define SIM_OPTION(field, expr) MESOSCAN_BAD_OPTION("SimulateOptions." field, expr)
 
 // splitmix64: a small counter-based generator, deterministic per (seed, frame).
 struct Rng {
@@ -578,48 +580,52 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
 // ---------------------------------------------------------------------------------------------
 
 void SimulateOptions::Check() const {
-  if (object.empty()) SIM_USAGE("--object: expected coin, plane, ramp, leaf or FILE.exr");
+  if (object.empty()) SIM_OPTION("object", "expected coin, plane, ramp, leaf or FILE.exr");
   if (object_pixel_size_m < 0 || !(object_pixel_size_m < 1e-3))
-    SIM_USAGE("--object-pixel-size: expected 0 (default) or a spacing in (0, 1e-3) m");
-  if (rig.empty()) SIM_USAGE("--rig: expected 'paper' or a RIG.json file");
+    SIM_OPTION("object_pixel_size_m", "expected 0 (default) or a spacing in (0, 1e-3) m");
+  if (rig.empty()) SIM_OPTION("rig", "expected 'paper' or a RIG.json file");
   for (double p : ps_periods_px)
     if (!(p > 2.0) || !std::isfinite(p))
-      SIM_USAGE("--ps-periods: expected periods > 2 px, got " << p);
+      SIM_OPTION("ps_periods_px", "expected periods > 2 px, got " << p);
   if (!ps_periods_px.empty() && ps_phases < 3)
-    SIM_USAGE("--ps-phases: expected >= 3, got " << ps_phases);
+    SIM_OPTION("ps_phases", "expected >= 3, got " << ps_phases);
   if (ls_frames != 0 && ls_frames < 4)
-    SIM_USAGE("--ls-frames: expected 0 or >= 4, got " << ls_frames);
+    SIM_OPTION("ls_frames", "expected 0 or >= 4, got " << ls_frames);
   if (ps_periods_px.empty() && ls_frames == 0 && !white && !black)
     SIM_USAGE("frame plan: no frames requested");
-  if (axis != 'x' && axis != 'y') SIM_USAGE("--axis: expected x or y, got '" << axis << "'");
+  if (axis != 'x' && axis != 'y') SIM_OPTION("axis", "expected x or y, got '" << axis << "'");
   if (supersample < 1 || supersample > 8)
-    SIM_USAGE("--supersample: expected 1..8, got " << supersample);
+    SIM_OPTION("supersample", "expected 1..8, got " << supersample);
   if (!(fill_factor > 0 && fill_factor <= 1))
-    SIM_USAGE("--fill-factor: expected (0, 1], got " << fill_factor);
+    SIM_OPTION("fill_factor", "expected (0, 1], got " << fill_factor);
   if (!(blur_sigma_px > 0.05 && blur_sigma_px <= 20))
-    SIM_USAGE("--blur: expected a sigma in (0.05, 20] px, got " << blur_sigma_px);
+    SIM_OPTION("blur_sigma_px", "expected a sigma in (0.05, 20] px, got " << blur_sigma_px);
   if (!(defocus_px_per_m >= 0 && defocus_px_per_m <= 1e5))
-    SIM_USAGE("--defocus: expected [0, 1e5] px/m, got " << defocus_px_per_m);
+    SIM_OPTION("defocus_px_per_m", "expected [0, 1e5] px/m, got " << defocus_px_per_m);
   if (!std::isnan(focus_height_m) && !(std::abs(focus_height_m) < 1.0))
-    SIM_USAGE("--focus-height: expected |z| < 1 m, got " << focus_height_m);
+    SIM_OPTION("focus_height_m", "expected |z| < 1 m, got " << focus_height_m);
   if (!(std::abs(shift_gain_x) + std::abs(shift_gain_y) + 2 * std::abs(shift_gain_r) < 0.5))
-    SIM_USAGE("--shift-gain: expected |gx| + |gy| + 2|gr| < 0.5");
+    SIM_USAGE(OptionRef{"SimulateOptions.shift_gain_x"}
+              << ", " << OptionRef{"SimulateOptions.shift_gain_y"} << ", "
+              << OptionRef{"SimulateOptions.shift_gain_r"}
+              << ": expected |gx| + |gy| + 2|gr| < 0.5");
   if (!(projector_gamma > 0 && projector_gamma <= 5))
-    SIM_USAGE("--projector-gamma: expected (0, 5], got " << projector_gamma);
+    SIM_OPTION("projector_gamma", "expected (0, 5], got " << projector_gamma);
   if (!(exposure > 0 && exposure <= 100))
-    SIM_USAGE("--exposure: expected (0, 100], got " << exposure);
-  if (!(ambient >= 0 && ambient <= 100)) SIM_USAGE("--ambient: expected [0, 100], got " << ambient);
-  if (!(noise >= 0 && noise <= 100)) SIM_USAGE("--noise: expected [0, 100], got " << noise);
-  if (!(full_well_e > 0)) SIM_USAGE("--full-well: expected > 0 electrons, got " << full_well_e);
+    SIM_OPTION("exposure", "expected (0, 100], got " << exposure);
+  if (!(ambient >= 0 && ambient <= 100))
+    SIM_OPTION("ambient", "expected [0, 100], got " << ambient);
+  if (!(noise >= 0 && noise <= 100)) SIM_OPTION("noise", "expected [0, 100], got " << noise);
+  if (!(full_well_e > 0)) SIM_OPTION("full_well_e", "expected > 0 electrons, got " << full_well_e);
   if (!(read_noise_e >= 0))
-    SIM_USAGE("--read-noise: expected >= 0 electrons, got " << read_noise_e);
-  if (adc_bits < 8 || adc_bits > 16) SIM_USAGE("--adc-bits: expected 8..16, got " << adc_bits);
+    SIM_OPTION("read_noise_e", "expected >= 0 electrons, got " << read_noise_e);
+  if (adc_bits < 8 || adc_bits > 16) SIM_OPTION("adc_bits", "expected 8..16, got " << adc_bits);
   if (!(shift_position_error_px >= 0 && shift_position_error_px < 0.5))
-    SIM_USAGE("--shift-position-error: expected [0, 0.5) px, got " << shift_position_error_px);
+    SIM_OPTION("shift_position_error_px", "expected [0, 0.5) px, got " << shift_position_error_px);
   if (!(gain_jitter >= 0 && gain_jitter < 0.2))
-    SIM_USAGE("--gain-jitter: expected [0, 0.2), got " << gain_jitter);
+    SIM_OPTION("gain_jitter", "expected [0, 0.2), got " << gain_jitter);
   if (crop && (crop->w < 1 || crop->h < 1 || crop->x < 0 || crop->y < 0))
-    SIM_USAGE("--crop: expected X,Y,W,H (or WxH+X+Y) with W, H >= 1 and X, Y >= 0");
+    SIM_OPTION("crop", "expected X,Y,W,H (or WxH+X+Y) with W, H >= 1 and X, Y >= 0");
 }
 
 double NoiseModel::Variance(double mean) const {
@@ -670,8 +676,8 @@ Rig PaperRig() {
 PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& c) {
   if (c.w < 1 || c.h < 1 || c.x < 0 || c.y < 0 || int64_t{c.x} + c.w > camera.width ||
       int64_t{c.y} + c.h > camera.height)
-    SIM_USAGE("--crop: " << ToString(c) << " (X,Y,W,H) does not lie inside the " << camera.width
-                         << "x" << camera.height << " camera");
+    SIM_OPTION("crop", ToString(c) << " (X,Y,W,H) does not lie inside the " << camera.width << "x"
+                                   << camera.height << " camera");
   PinholeCamera out = camera;
   out.width = c.w;
   out.height = c.h;
@@ -724,13 +730,12 @@ FramePlanOptions SimulationFramePlan(const SimulateOptions& o, const Rig& rig) {
   plan.lens_shift_frames = o.ls_frames;
   if (o.ls_frames > 0) {
     if (!rig.lens_shifter)
-      SIM_USAGE("--ls-frames " << o.ls_frames
-                               << ": the rig has no lens_shifter (use --ls-frames 0)");
+      SIM_OPTION("ls_frames", o.ls_frames << ": the rig has no lens_shifter (use 0)");
     plan.range_steps = rig.lens_shifter->range_steps;
     const int64_t positions = int64_t{plan.range_steps[1]} - plan.range_steps[0] + 1;
     if (o.ls_frames > positions)
-      SIM_USAGE("--ls-frames " << o.ls_frames << ": the rig's shifter has only " << positions
-                               << " positions");
+      SIM_OPTION("ls_frames",
+                 o.ls_frames << ": the rig's shifter has only " << positions << " positions");
   }
   plan.white = o.white;
   plan.black = o.black;
@@ -756,12 +761,14 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   SimulateSummary summary;
   const Rig rig = ResolveRig(options);
   if (rig.lens_shifter && rig.lens_shifter->axis != options.axis && options.ls_frames > 0)
-    SIM_USAGE("--rig: the lens shifter moves along axis \""
-              << rig.lens_shifter->axis << "\", expected \"" << options.axis << "\" as --axis");
+    SIM_OPTION("rig", "the lens shifter moves along axis \""
+                          << rig.lens_shifter->axis << "\", expected \"" << options.axis << "\" as "
+                          << OptionRef{"SimulateOptions.axis"});
   const std::vector<Frame> frames = MakeSimulationFrames(options, rig);
 
   // The scene: the object on the mount plane z = 0.
-  const SceneObject object = MakeObject(options.object, options.object_pixel_size_m);
+  const SceneObject object =
+      MakeObject(options.object, options.object_pixel_size_m, "SimulateOptions.object");
   EmbreeScene scene;
   scene.AddHeightField(object.height);
   const double focus_z = FocusHeight(object, options.focus_height_m);

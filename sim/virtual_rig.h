@@ -90,7 +90,7 @@ struct SimulateOptions {
   double gain_jitter = 0.005;  // per-frame multiplicative gain, relative sigma, >= 0
   uint64_t seed = 1;           // random seed (frames are deterministic for a seed)
 
-  void Check() const;  // throws Error(kUsage) naming the option
+  void Check() const;  // throws Error(kUsage) at the field at fault
 };
 
 // Per-pixel noise of a frame in normalised units [0, 1] (sim/README.md "Noise"): for a noise-free
@@ -121,7 +121,7 @@ Rig PortraitProjector(Rig rig);
 // options.rig resolved ("paper", turned portrait for axis 'y', or a file), with options.crop
 // applied.
 Rig ResolveRig(const SimulateOptions& options);
-// Applies a camera crop; throws Error(kUsage) naming --crop if it leaves the camera.
+// Applies a camera crop; throws Error(kUsage) at SimulateOptions.crop if it leaves the camera.
 PinholeCamera CropCamera(const PinholeCamera& camera, const PixelRect& crop);
 
 // The lens-shifter gain g(u, v) of the options at projector pixel (u, v).
@@ -129,7 +129,8 @@ double ShifterGain(const SimulateOptions& options, const PinholeCamera& projecto
                    double v);
 
 // The frame plan the options ask for (session/patterns.h: sines along x, lens shift over the rig's
-// shifter range, white, black); throws Error(kUsage) naming --ls-frames when the rig cannot do it.
+// shifter range, white, black); throws Error(kUsage) at SimulateOptions.ls_frames when the rig
+// cannot do it.
 FramePlanOptions SimulationFramePlan(const SimulateOptions& options, const Rig& rig);
 // MakeStandardFrames of that plan: files frames/*.png.
 std::vector<Frame> MakeSimulationFrames(const SimulateOptions& options, const Rig& rig);

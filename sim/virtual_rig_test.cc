@@ -319,11 +319,12 @@ TEST(VirtualRig, BadOptionsAreRefused) {
   o.ls_frames = 3;
   EXPECT_THROW(o.Check(), Error);
   try {
-    MakeObject("teapot");
+    MakeObject("teapot", 0.0, "SimulateOptions.object");
     FAIL();
   } catch (const Error& e) {
     EXPECT_EQ(e.kind(), ErrorKind::kBadInput);
-    EXPECT_NE(std::string(e.what()).find("--object"), std::string::npos);
+    EXPECT_EQ(e.option(), "SimulateOptions.object");
+    EXPECT_NE(std::string(e.what()).find("'teapot'"), std::string::npos) << e.what();
   }
 }
 

@@ -403,11 +403,12 @@ TEST_F(CalibrateSim, BadInput) {
        {"checker:1x7:6", "charuco:11x8:6:7:DICT_5X5_100", "charuco:11x8:6:4.5:DICT_9X9_1",
         "charuco:30x30:6:4.5:DICT_4X4_50", "charuco:11x8:6"}) {
     try {
-      CalibrationBoard::Parse(bad, "--board");
+      CalibrationBoard::Parse(bad, "CalibrateOptions.board");
       ADD_FAILURE() << bad << " accepted";
     } catch (const Error& e) {
       EXPECT_EQ(e.kind(), ErrorKind::kUsage) << bad;
-      EXPECT_EQ(std::string(e.what()).rfind("--board: '", 0), 0u) << e.what();
+      EXPECT_EQ(e.option(), "CalibrateOptions.board");
+      EXPECT_EQ(std::string(e.what()).rfind("CalibrateOptions.board: '", 0), 0u) << e.what();
       EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
     }
   }
