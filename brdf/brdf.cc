@@ -8,19 +8,6 @@
 
 namespace mesoscan {
 
-std::string Brdf::Kind() const {
-  switch (model_.index()) {
-    case 0:
-      return "lambert";
-    case 1:
-      return "ggx";
-    case 2:
-      return "merl";
-    default:
-      return "rgl";
-  }
-}
-
 Brdf LoadBrdf(const std::filesystem::path& path, const MerlOptions& merl_options) {
   std::error_code ec;
   const auto st = std::filesystem::status(path, ec);
@@ -69,7 +56,7 @@ BrdfInfo DescribeBrdf(const Brdf& brdf) {
     if (merl->invalid_entries() > 0) res << ", " << merl->invalid_entries() << " unmeasured";
     info.energy = merl->energy().Summary();
   } else {
-    info.format = "analytic " + brdf.Kind();
+    info.format = std::string("analytic ") + brdf.Name();
     res << "analytic";
   }
   info.resolution = res.str();

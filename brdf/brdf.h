@@ -11,6 +11,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <variant>
 
 #include "brdf/common.h"
@@ -43,8 +44,19 @@ class Brdf {
     return std::visit([&](const auto& m) { return Deref(m).Pdf(wo, wi); }, model_);
   }
 
-  // "lambert", "ggx", "merl", "rgl".
-  std::string Kind() const;
+  // The model's own name (each model's static Name(): "lambert", "ggx", "merl", "rgl").
+  const char* Name() const {
+    return std::visit([](const auto& m) { return std::decay_t<decltype(Deref(m))>::Name(); },
+                      model_);
+  }
+  // True if the model is a T (LambertBrdf, GgxBrdf<double>, MerlBrdf, RglBrdf).
+  template <typename T>
+  bool Is() const {
+    if constexpr (kHeldByValue<T>)
+      return std::holds_alternative<T>(model_);
+    else
+      return Get<T>() != nullptr;
+  }
   const Model& model() const { return model_; }
   // The measured table, or nullptr when the model is another kind.
   template <typename T>
@@ -54,6 +66,14 @@ class Brdf {
   }
 
  private:
+  // True if T is an alternative of Model itself (the analytic models; tables are shared_ptrs).
+  template <typename T, typename V>
+  struct Holds;
+  template <typename T, typename... Ts>
+  struct Holds<T, std::variant<Ts...>> : std::bool_constant<(std::is_same_v<T, Ts> || ...)> {};
+  template <typename T>
+  static constexpr bool kHeldByValue = Holds<T, Model>::value;
+
   template <typename T>
   static const T& Deref(const T& m) {
     return m;

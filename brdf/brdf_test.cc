@@ -2,6 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <set>
+#include <utility>
+
 #include "brdf/brdf_test_util.h"
 
 namespace mesoscan {
@@ -147,6 +150,34 @@ TEST(Brdf, GgxCheckRejectsBadParameters) {
   EXPECT_THROW(GgxBrdf<double>::Dielectric(0.0, 1.5).Check(), Error);
   EXPECT_THROW(GgxBrdf<double>::Dielectric(0.3, -1.0).Check(), Error);
   EXPECT_NO_THROW(GgxBrdf<double>::Dielectric(0.3, 1.5).Check());
+}
+
+// The model type behind a variant alternative (measured tables are held by shared_ptr).
+template <typename T>
+struct ModelOf {
+  using type = T;
+};
+template <typename T>
+struct ModelOf<std::shared_ptr<const T>> {
+  using type = T;
+};
+
+TEST(Brdf, EveryModelNamesItself) {
+  std::set<std::string> names;
+  [&]<size_t... I>(std::index_sequence<I...>) {
+    (names.insert(ModelOf<std::variant_alternative_t<I, Brdf::Model>>::type::Name()), ...);
+  }
+  (std::make_index_sequence<std::variant_size_v<Brdf::Model>>());
+  EXPECT_EQ(names.size(), std::variant_size_v<Brdf::Model>) << "two models share a name";
+  EXPECT_EQ(names.count(""), 0u);
+  const Brdf lambert(LambertBrdf(Rgb(0.5, 0.5, 0.5)));
+  const Brdf ggx(GgxBrdf<double>::Dielectric(0.3, 1.5));
+  EXPECT_EQ(std::string(lambert.Name()), "lambert");
+  EXPECT_EQ(std::string(ggx.Name()), "ggx");
+  EXPECT_TRUE(lambert.Is<LambertBrdf>());
+  EXPECT_FALSE(ggx.Is<LambertBrdf>());
+  EXPECT_TRUE(ggx.Is<GgxBrdf<double>>());
+  EXPECT_FALSE(ggx.Is<MerlBrdf>());
 }
 
 TEST(Brdf, BelowHorizonIsZero) {

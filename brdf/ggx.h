@@ -57,6 +57,7 @@ T FresnelConductor(T cos_i, T eta, T k) {
 template <typename T>
 class GgxBrdf {
  public:
+  static constexpr const char* Name() { return "ggx"; }
   // alpha: GGX roughness (RMS slope / sqrt 2), in [1e-3, 1]. Smaller is
   // sharper. eta, k: per-channel complex index of refraction. kDielectric uses
   // eta only (k ignored);

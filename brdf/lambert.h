@@ -7,6 +7,7 @@ namespace mesoscan {
 
 class LambertBrdf {
  public:
+  static constexpr const char* Name() { return "lambert"; }
   // albedo: hemispherical reflectance per channel, each in [0, 1].
   explicit LambertBrdf(const Rgb& albedo = Rgb::Constant(0.5)) : albedo_(albedo) {}
 

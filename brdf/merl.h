@@ -54,6 +54,7 @@ struct MerlOptions {
 
 class MerlBrdf {
  public:
+  static constexpr const char* Name() { return "merl"; }
   static constexpr int kThetaH = 90, kThetaD = 90, kPhiD = 180;
   static constexpr size_t kEntries = size_t{kThetaH} * kThetaD * kPhiD;  // per channel
   static constexpr size_t kFileBytes = 12 + 3 * kEntries * sizeof(double);

@@ -219,7 +219,9 @@ TEST_F(MerlTest, EnergyClampOfAnOverBrightTable) {
 
 TEST_F(MerlTest, LoadBrdfDetectsMerl) {
   const Brdf b = LoadBrdf(*dir_ / "ggx.binary");
-  EXPECT_EQ(b.Kind(), "merl");
+  EXPECT_EQ(std::string(b.Name()), "merl");
+  EXPECT_TRUE(b.Is<MerlBrdf>());
+  EXPECT_FALSE(b.Is<LambertBrdf>());
 }
 
 TEST_F(MerlTest, BadInputIsOneClearError) {

@@ -28,6 +28,7 @@ namespace mesoscan {
 
 class RglBrdf {
  public:
+  static constexpr const char* Name() { return "rgl"; }
   // Reads and validates a tensor file; throws Error(kBadInput) naming the file and the field
   // (missing, wrong type or shape, truncated data, non-finite or negative densities). Spectral
   // files (fields "spectra"/"wavelengths" instead of "rgb") are refused. energy_clamp = false keeps

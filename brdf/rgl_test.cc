@@ -63,7 +63,7 @@ TEST(Rgl, EveryFileLoadsAndIsFiniteAndNonNegative) {
         ASSERT_TRUE(s->f.allFinite() && std::isfinite(s->pdf) && s->pdf > 0) << p;
       }
     }
-    EXPECT_EQ(LoadBrdf(p).Kind(), "rgl");
+    EXPECT_EQ(std::string(LoadBrdf(p).Name()), "rgl");
   }
 }
 

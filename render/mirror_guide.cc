@@ -18,7 +18,7 @@ double Power(double a, double b) {
 }  // namespace
 
 bool MirrorGuide::Useful(const EnvironmentMap& env, const Brdf& brdf) {
-  return !env.is_constant() && brdf.Kind() != "lambert";
+  return !env.is_constant() && !brdf.Is<LambertBrdf>();
 }
 
 MirrorGuide::MirrorGuide(const EnvironmentMap& env, const Brdf& brdf, const Options& o)
