@@ -26,7 +26,7 @@ namespace fs = std::filesystem;
 namespace {
 
 struct ExportArgs {
-  std::string scan, out, formats = "exr,png16,glb,ply", normals = "gl", crop, name, albedo;
+  std::string scan, out, formats = ExportFormatList(), normals = "gl", crop, name, albedo;
   double pixel_size_m = 0.0;
   int64_t max_triangles = ExportOptions().max_triangles;
   double mesh_tolerance_m = 0.0;
@@ -165,7 +165,7 @@ void AddExportCommand(CLI::App* app) {
   cmd->add_option("SCAN", a->scan, "Scan folder (written by reconstruct)")->required();
   cmd->add_option("--out", a->out, "Output folder (written atomically; replaces an earlier export)")
       ->required();
-  cmd->add_option("--format", a->formats, "Comma-separated subset of exr,png16,glb,ply")
+  cmd->add_option("--format", a->formats, "Comma-separated subset of " + ExportFormatList())
       ->capture_default_str();
   cmd->add_option("--normals", a->normals,
                   "Normal-map convention: gl (OpenGL, +Y) or dx (DirectX, -Y)")

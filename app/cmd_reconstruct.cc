@@ -234,7 +234,7 @@ void AddReconstructCommand(CLI::App* app) {
                   "Height-field grid pixel (um); 0 = camera footprint")
       ->check(CLI::Range(0.0, 1e6));
   cmd->add_option("--export", args->export_formats,
-                  "Also export for DCC tools, as `mesoscan export`: formats exr,png16,glb,ply");
+                  "Also export for DCC tools, as `mesoscan export`: formats " + ExportFormatList());
   cmd->add_option("--export-dir", args->export_dir, "Folder for --export (default SCAN/export)");
   cmd->add_option("--threads", args->threads, "Worker threads (0 = all cores)")
       ->check(CLI::Range(0, 4096));

@@ -243,9 +243,36 @@ std::string SessionPathFromReport(const Json& report) {
 
 // ---- public helpers -------------------------------------------------------------------------
 
+namespace {
+
+// The formats, in the order of the full list: the name, another spelling, the flag that asks
+// for it. The writers are ExportScan's steps.
+struct ExportFormat {
+  const char* name;
+  const char* alias;
+  bool ExportOptions::*flag;
+};
+constexpr ExportFormat kExportFormats[] = {{"exr", "", &ExportOptions::exr},
+                                           {"png16", "png", &ExportOptions::png16},
+                                           {"glb", "gltf", &ExportOptions::glb},
+                                           {"ply", "", &ExportOptions::ply}};
+
+}  // namespace
+
+std::string ExportFormatList() {
+  std::string list;
+  for (const ExportFormat& f : kExportFormats) {
+    if (!list.empty()) list += ',';
+    list += f.name;
+  }
+  return list;
+}
+
 void ExportOptions::Check() const {
-  if (!exr && !png16 && !glb && !ply)
-    MESOSCAN_BAD_OPTION("ExportOptions.formats", "expected at least one of exr,png16,glb,ply");
+  bool any = false;
+  for (const ExportFormat& f : kExportFormats) any = any || this->*f.flag;
+  if (!any)
+    MESOSCAN_BAD_OPTION("ExportOptions.formats", "expected at least one of " << ExportFormatList());
   if (!(pixel_size_m >= 0) || !std::isfinite(pixel_size_m))
     MESOSCAN_BAD_OPTION("ExportOptions.pixel_size_m", "expected a positive number of metres");
   if (max_triangles <= 0)
@@ -270,21 +297,17 @@ std::string ExportSummary::BriefReport() const {
 }
 
 void ParseExportFormats(const std::string& list, ExportOptions* o) {
-  o->exr = o->png16 = o->glb = o->ply = false;
+  for (const ExportFormat& f : kExportFormats) o->*f.flag = false;
   std::stringstream ss(list);
   std::string item;
   while (std::getline(ss, item, ',')) {
-    if (item == "exr")
-      o->exr = true;
-    else if (item == "png16" || item == "png")
-      o->png16 = true;
-    else if (item == "glb" || item == "gltf")
-      o->glb = true;
-    else if (item == "ply")
-      o->ply = true;
-    else
-      MESOSCAN_BAD_OPTION("ExportOptions.formats",
-                          "unknown format '" << item << "' (expected exr, png16, glb, ply)");
+    const ExportFormat* format = nullptr;
+    for (const ExportFormat& f : kExportFormats)
+      if (item == f.name || (*f.alias && item == f.alias)) format = &f;
+    if (!format)
+      MESOSCAN_BAD_OPTION("ExportOptions.formats", "unknown format '" << item << "' (expected "
+                                                                      << ExportFormatList() << ")");
+    o->*format->flag = true;
   }
 }
 

@@ -85,8 +85,11 @@ struct ExportSummary {
 ExportSummary ExportScan(const Scan& scan, const ExportOptions& options,
                          const std::filesystem::path& dir);
 
-// "exr,png16,glb,ply" (any subset, any order) into the format flags of `options`.
-// Throws Error(kUsage) at ExportOptions.formats naming the unknown entry.
+// Every export format, comma-separated: "exr,png16,glb,ply".
+std::string ExportFormatList();
+
+// A subset of ExportFormatList() (any order; "png" for png16, "gltf" for glb) into the format
+// flags of `options`. Throws Error(kUsage) at ExportOptions.formats naming the unknown entry.
 void ParseExportFormats(const std::string& list, ExportOptions* options);
 
 // The export grid: `crop` of `hf`, then resampled to `pixel_size_m` (0: unchanged). Also
