@@ -195,388 +195,469 @@ std::string MapsSummary::BriefReport() const {
   return s.str();
 }
 
-MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& dir) {
-  o.Check();
-  MapsSummary summary;
-  StageTimer timer(&summary.seconds_per_stage);
-  if (scan.height.width() < 2 || scan.height.height() < 2)
-    MESOSCAN_BAD_INPUT("height.exr: the height grid is " << scan.height.width() << "x"
-                                                         << scan.height.height()
-                                                         << ", too small for maps");
-  // 1. Crop.
-  timer.Skip();
-  const HeightField cropped = CropAndResample(scan.height, o.crop, 0.0);
-  {
-    int64_t valid = 0;
-    for (float v : cropped.z.data()) valid += std::isfinite(v);
-    if (valid == 0) MESOSCAN_BAD_INPUT("height.exr: no valid height sample in the map region");
-  }
-  timer.Stage("crop");
-  // 2. Fill.
-  timer.Skip();
-  FillResult fill = FillHoles(cropped, o.fill);
-  timer.Stage("fill");
-  const HeightField& filled_field = fill.field;
-  // 3. Albedo with the projector's falloff divided out.
-  timer.Skip();
-  ImageF albedo;
-  std::string albedo_source = "none";
-  if (o.maps.albedo) {
-    if (!o.albedo.empty()) {
-      if (o.albedo.width() != scan.height.width() || o.albedo.height() != scan.height.height())
-        MESOSCAN_BAD_INPUT("maps: albedo: expected the " << scan.height.width() << "x"
-                                                         << scan.height.height() << " height grid");
-      albedo = CropAndResampleImage(o.albedo, scan.height, o.crop, 0.0);
-      albedo_source = "given on the height grid (no falloff correction)";
-    } else if (o.albedo_from_session) {
-      const std::string session = SessionPathFromReport(scan.report);
-      if (!session.empty() && fs::is_directory(session)) {
-        try {
-          const Session s = ReadSession(session, /*check_frames=*/false);
-          albedo = AlbedoFromSession(filled_field, session);
-          const ImageF e = ProjectorIrradiance(filled_field, NormalsOf(filled_field, false),
-                                               s.rig.projector.CentreInWorld());
-          for (int c = 0; c < albedo.channels(); ++c)
-            for (size_t p = 0; p < albedo.pixels(); ++p) {
-              float& a = albedo.channel(c)[p];
-              a = fill.filled.data()[p] || !(e.data()[p] > 0.05f) ? kNan : a / e.data()[p];
-            }
-          albedo_source = "white frame of session " + session +
-                          " divided by the projector's falloff cos(i)/r^2 (median 1)";
-        } catch (const Error& e) {
-          MESOSCAN_LOG(kWarning) << "maps: no albedo (" << e.what() << ")";
-          albedo = ImageF();
-        }
-      }
-    }
-    if (!albedo.empty()) {
-      // Filled pixels get the albedo filled the same way (harmonic from the border).
-      FillOptions fo = o.fill;
-      if (fo.method == FillMethod::kNone) fo.method = FillMethod::kHarmonic;
-      for (int c = 0; c < albedo.channels(); ++c) {
-        HeightField f = AsField(albedo, c, filled_field);
-        for (size_t p = 0; p < f.z.pixels(); ++p)
-          if (!fill.filled.data()[p] && !std::isfinite(cropped.z.data()[p])) f.z.data()[p] = 0.0f;
-        const FillResult fr = FillHoles(f, fo);
-        for (size_t p = 0; p < f.z.pixels(); ++p)
-          albedo.channel(c)[p] = std::isfinite(cropped.z.data()[p]) || fill.filled.data()[p]
-                                     ? fr.field.z.data()[p]
-                                     : kNan;
-      }
-      const double q99 = Quantile(albedo, 0.99);
-      const float scale = q99 > 0 ? static_cast<float>(1.0 / q99) : 1.0f;
-      for (float& v : albedo.data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : kNan;
-    }
-  }
-  timer.Stage("albedo");
-  // 4. Flatten (filled pixels are left out of the fit).
-  timer.Skip();
-  ImageU8 fit_mask(fill.filled.width(), fill.filled.height(), 1, 1);
-  for (size_t p = 0; p < fit_mask.pixels(); ++p) fit_mask.data()[p] = fill.filled.data()[p] ? 0 : 1;
-  FlattenResult flat = Flatten(filled_field, fit_mask, o.flatten);
-  summary.flatten = flat.description;
-  timer.Stage("flatten");
-  // 5. Tile.
-  timer.Skip();
-  HeightField final_field;
-  ImageF final_albedo;
-  ImageU8 final_filled;
-  std::optional<TileResult> tile;
-  if (o.tile) {
-    tile = MakeTile(flat.field, albedo, fill.filled, o.tile_options);
-    final_field = tile->field;
-    final_albedo = tile->albedo;
-    final_filled = tile->filled;
-    summary.tile = tile->BriefReport();
-    summary.seams = tile->seams_after;
-  } else {
-    final_field = flat.field;
-    final_albedo = albedo;
-    final_filled = fill.filled;
-  }
-  timer.Stage("tile");
-  const bool periodic = o.tile;
-  const int w = final_field.width(), h = final_field.height();
-  // Holes left (large, or outside the sample): hole_value in the maps, 0 in the mask.
-  const float hole_value = 0.0f;
-  ImageF zout = final_field.z;
-  ImageU8 mask(w, h, 1, 255);
-  for (size_t p = 0; p < zout.pixels(); ++p) {
-    if (!std::isfinite(zout.data()[p]))
-      zout.data()[p] = hole_value, mask.data()[p] = 0;
-    else if (final_filled.data()[p])
-      mask.data()[p] = 128;
-  }
-  // 6. Derived maps on the final height (holes excluded, periodic for a tile).
-  timer.Skip();
-  ImageF normals, ao, curvature;
-  {
-    tbb::task_group g;
-    g.run([&] { normals = NormalsOf(final_field, periodic); });
-    if (o.maps.ao) g.run([&] { ao = AmbientOcclusion(final_field, o.ao, periodic); });
-    if (o.maps.curvature)
-      g.run([&] { curvature = MeanCurvature(final_field, o.curvature_sigma_px, periodic); });
-    g.wait();
-  }
-  timer.Stage("derived");
+namespace {
 
-  // 7. Files, in parallel, into a temporary folder.
-  timer.Skip();
-  const std::string n = o.name;
-  const std::string conv = o.normals == NormalConvention::kOpenGl ? "gl" : "dx";
-  const double p = final_field.pixel_size;
-  const std::map<std::string, double> grid_attrs = {
-      {kAttrX0, final_field.x0}, {kAttrY0, final_field.y0}, {kAttrPixelSize, p}};
-  double zmin = 1e30, zmax = -1e30;
-  for (float v : zout.data()) zmin = std::min<double>(zmin, v), zmax = std::max<double>(zmax, v);
-  const double span = std::max(zmax - zmin, 1e-9), midlevel = -zmin / span;
-  Json files = Json::array();
-  std::vector<std::string> names;
-  auto add = [&](const std::string& file, Json entry) {
-    entry["file"] = file;
-    files.push_back(std::move(entry));
-    names.push_back(file);
-  };
-  const ImageF nmap = EncodeNormalMap(normals, o.normals);
-  double cavity_scale = 0;
-  if (o.maps.curvature)
-    cavity_scale =
-        std::max(std::abs(Quantile(curvature, 0.01)), std::abs(Quantile(curvature, 0.99)));
-  std::vector<std::function<void(const fs::path&)>> writers;
-  if (o.maps.height) {
-    add(n + "_height.exr",
-        {{"role", "height"},
-         {"format", "exr"},
-         {"channels", {"Y"}},
-         {"units", "m"},
-         {"colour_space", "Non-Color"},
-         {"midlevel", 0.0},
-         {"scale", 1.0},
-         {"meaning", o.flatten.method == FlattenMethod::kNone
-                         ? "metres above the mount plane"
-                         : "metres relative to the removed shape (NAME_height_removed.exr)"}});
-    writers.push_back([&, f = n + "_height.exr"](const fs::path& d) {
-      auto attrs = grid_attrs;
-      attrs["mesoscan:midlevel"] = 0.0, attrs["mesoscan:scale"] = 1.0,
-      attrs["mesoscan:hole_value"] = hole_value;
-      WriteExr(d / f, zout, {"Y"}, attrs, {{"mesoscan:units", "m"}});
-    });
-    add(n + "_height.png", {{"role", "height"},
-                            {"format", "png"},
-                            {"pixel_type", "uint16"},
-                            {"units", "m"},
-                            {"colour_space", "Non-Color"},
-                            {"midlevel", midlevel},
-                            {"scale", span},
-                            {"meaning", "metres = (value / 65535 - midlevel) * scale"}});
-    writers.push_back([&, f = n + "_height.png", fj = n + "_height.json"](const fs::path& d) {
-      ImageU16 q(w, h, 1);
-      for (size_t i = 0; i < q.pixels(); ++i)
-        q.data()[i] = static_cast<uint16_t>(
-            std::lround(std::clamp((zout.data()[i] - zmin) / span, 0.0, 1.0) * 65535));
-      WritePng16(d / f, q, 1);
-      WriteJsonFile(d / fj, {{"file", f},
-                             {"units", "m"},
-                             {"min_m", zmin},
-                             {"max_m", zmax},
-                             {"midlevel", midlevel},
-                             {"scale", span},
-                             {"decode", "metres = (value / 65535 - midlevel) * scale"}});
-    });
-    add(n + "_height.json", {{"role", "height sidecar"}, {"format", "json"}});
-    if (o.flatten.method != FlattenMethod::kNone) {
-      add(n + "_height_removed.exr", {{"role", "height removed"},
-                                      {"format", "exr"},
-                                      {"channels", {"Y"}},
-                                      {"units", "m"},
-                                      {"meaning",
-                                       "the low-frequency part flatten removed, on the source "
-                                       "grid: height = flattened + removed"},
-                                      {"grid",
-                                       {{"width_px", flat.removed.width()},
-                                        {"height_px", flat.removed.height()},
-                                        {"x0_m", cropped.x0},
-                                        {"y0_m", cropped.y0},
-                                        {"pixel_size_m", cropped.pixel_size}}}});
-      writers.push_back([&, f = n + "_height_removed.exr"](const fs::path& d) {
-        WriteExr(
-            d / f, flat.removed, {"Y"},
-            {{kAttrX0, cropped.x0}, {kAttrY0, cropped.y0}, {kAttrPixelSize, cropped.pixel_size}},
-            {{"mesoscan:units", "m"}, {"mesoscan:flatten", FlattenName(o.flatten)}},
-            // Uncompressed: the whole source grid (3 M samples at full resolution), where
-            // ZIP costs ~1 s of CPU for a smooth map.
-            "none");
-      });
+// ---- the steps of BuildMapSet --------------------------------------------------------------
+
+// The map region of the scan's height grid, with at least one valid sample.
+HeightField CropForMaps(const HeightField& height, const PixelRect& crop) {
+  if (height.width() < 2 || height.height() < 2)
+    MESOSCAN_BAD_INPUT("height.exr: the height grid is " << height.width() << "x" << height.height()
+                                                         << ", too small for maps");
+  HeightField cropped = CropAndResample(height, crop, 0.0);
+  int64_t valid = 0;
+  for (float v : cropped.z.data()) valid += std::isfinite(v);
+  if (valid == 0) MESOSCAN_BAD_INPUT("height.exr: no valid height sample in the map region");
+  return cropped;
+}
+
+// 1 where the height was measured, 0 where it was filled (left out of the flatten fit).
+ImageU8 MeasuredMask(const FillResult& fill) {
+  ImageU8 mask(fill.filled.width(), fill.filled.height(), 1, 1);
+  for (size_t p = 0; p < mask.pixels(); ++p) mask.data()[p] = fill.filled.data()[p] ? 0 : 1;
+  return mask;
+}
+
+// The albedo on the cropped grid and where it came from.
+struct MapAlbedo {
+  ImageF image;  // empty: no albedo
+  std::string source = "none";
+};
+
+// The given albedo, or the session's white frame with the projector's falloff divided out.
+MapAlbedo ReadAlbedo(const Scan& scan, const MapsOptions& o, const FillResult& fill) {
+  MapAlbedo a;
+  if (!o.albedo.empty()) {
+    if (o.albedo.width() != scan.height.width() || o.albedo.height() != scan.height.height())
+      MESOSCAN_BAD_INPUT("maps: albedo: expected the " << scan.height.width() << "x"
+                                                       << scan.height.height() << " height grid");
+    a.image = CropAndResampleImage(o.albedo, scan.height, o.crop, 0.0);
+    a.source = "given on the height grid (no falloff correction)";
+  } else if (o.albedo_from_session) {
+    const HeightField& filled_field = fill.field;
+    const std::string session = SessionPathFromReport(scan.report);
+    if (!session.empty() && fs::is_directory(session)) {
+      try {
+        const Session s = ReadSession(session, /*check_frames=*/false);
+        a.image = AlbedoFromSession(filled_field, session);
+        const ImageF e = ProjectorIrradiance(filled_field, NormalsOf(filled_field, false),
+                                             s.rig.projector.CentreInWorld());
+        for (int c = 0; c < a.image.channels(); ++c)
+          for (size_t p = 0; p < a.image.pixels(); ++p) {
+            float& v = a.image.channel(c)[p];
+            v = fill.filled.data()[p] || !(e.data()[p] > 0.05f) ? kNan : v / e.data()[p];
+          }
+        a.source = "white frame of session " + session +
+                   " divided by the projector's falloff cos(i)/r^2 (median 1)";
+      } catch (const Error& e) {
+        MESOSCAN_LOG(kWarning) << "maps: no albedo (" << e.what() << ")";
+        a.image = ImageF();
+      }
     }
   }
-  if (o.maps.normal) {
-    const std::string conv_text = conv == "gl" ? "OpenGL (+Y up)" : "DirectX (-Y)";
-    add(n + "_normal_" + conv + ".png", {{"role", "normal"},
-                                         {"format", "png"},
-                                         {"pixel_type", "uint16"},
-                                         {"convention", conv_text},
-                                         {"colour_space", "Non-Color"},
-                                         {"encoding", "rgb = 0.5 + 0.5 * n"}});
-    writers.push_back([&, f = n + "_normal_" + conv + ".png"](const fs::path& d) {
-      WritePng16(d / f, QuantizeU16(nmap), 1);
-    });
-    add(n + "_normal_" + conv + ".exr", {{"role", "normal"},
+  return a;
+}
+
+// Filled pixels get the albedo filled the same way as the height (harmonic from the border);
+// then the albedo is scaled so that its 99th percentile is 1.
+void FillAndNormalizeAlbedo(const MapsOptions& o, const HeightField& cropped,
+                            const FillResult& fill, ImageF* albedo) {
+  FillOptions fo = o.fill;
+  if (fo.method == FillMethod::kNone) fo.method = FillMethod::kHarmonic;
+  for (int c = 0; c < albedo->channels(); ++c) {
+    HeightField f = AsField(*albedo, c, fill.field);
+    for (size_t p = 0; p < f.z.pixels(); ++p)
+      if (!fill.filled.data()[p] && !std::isfinite(cropped.z.data()[p])) f.z.data()[p] = 0.0f;
+    const FillResult fr = FillHoles(f, fo);
+    for (size_t p = 0; p < f.z.pixels(); ++p)
+      albedo->channel(c)[p] =
+          std::isfinite(cropped.z.data()[p]) || fill.filled.data()[p] ? fr.field.z.data()[p] : kNan;
+  }
+  const double q99 = Quantile(*albedo, 0.99);
+  const float scale = q99 > 0 ? static_cast<float>(1.0 / q99) : 1.0f;
+  for (float& v : albedo->data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : kNan;
+}
+
+// What the maps are made of: the flattened field (tiled or not), its albedo and filled pixels.
+struct FinalSurface {
+  HeightField field;
+  ImageF albedo;
+  ImageU8 filled;
+  std::optional<TileResult> tile;  // set for a tile
+};
+
+FinalSurface TileOrKeep(const MapsOptions& o, const FlattenResult& flat, const ImageF& albedo,
+                        const FillResult& fill) {
+  FinalSurface f;
+  if (o.tile) {
+    f.tile = MakeTile(flat.field, albedo, fill.filled, o.tile_options);
+    f.field = f.tile->field;
+    f.albedo = f.tile->albedo;
+    f.filled = f.tile->filled;
+  } else {
+    f.field = flat.field;
+    f.albedo = albedo;
+    f.filled = fill.filled;
+  }
+  return f;
+}
+
+// The height as written: holes (large, or outside the sample) at kHoleValue; the mask 255
+// measured, 128 filled, 0 hole; the range and its 16-bit PNG encoding.
+constexpr float kHoleValue = 0.0f;
+struct HeightOut {
+  ImageF z;
+  ImageU8 mask;
+  double zmin = 1e30, zmax = -1e30, span = 0, midlevel = 0;
+};
+
+HeightOut HeightAndMask(const FinalSurface& f) {
+  HeightOut out;
+  out.z = f.field.z;
+  out.mask = ImageU8(f.field.width(), f.field.height(), 1, 255);
+  for (size_t p = 0; p < out.z.pixels(); ++p) {
+    if (!std::isfinite(out.z.data()[p]))
+      out.z.data()[p] = kHoleValue, out.mask.data()[p] = 0;
+    else if (f.filled.data()[p])
+      out.mask.data()[p] = 128;
+  }
+  for (float v : out.z.data())
+    out.zmin = std::min<double>(out.zmin, v), out.zmax = std::max<double>(out.zmax, v);
+  out.span = std::max(out.zmax - out.zmin, 1e-9);
+  out.midlevel = -out.zmin / out.span;
+  return out;
+}
+
+// Normals, ambient occlusion and curvature of the final height (periodic for a tile).
+struct DerivedMaps {
+  ImageF normals, ao, curvature;
+  ImageF nmap;              // the encoded normal map in the chosen convention
+  double cavity_scale = 0;  // curvature of the 1st/99th percentile: the cavity map's scale
+};
+
+DerivedMaps Derive(const MapsOptions& o, const HeightField& field, bool periodic) {
+  DerivedMaps d;
+  tbb::task_group g;
+  g.run([&] { d.normals = NormalsOf(field, periodic); });
+  if (o.maps.ao) g.run([&] { d.ao = AmbientOcclusion(field, o.ao, periodic); });
+  if (o.maps.curvature)
+    g.run([&] { d.curvature = MeanCurvature(field, o.curvature_sigma_px, periodic); });
+  g.wait();
+  d.nmap = EncodeNormalMap(d.normals, o.normals);
+  if (o.maps.curvature)
+    d.cavity_scale =
+        std::max(std::abs(Quantile(d.curvature, 0.01)), std::abs(Quantile(d.curvature, 0.99)));
+  return d;
+}
+
+// Everything the files are written from; lives until the folder is written.
+struct MapSet {
+  MapSet(const MapsOptions& o, const HeightField& cropped, const FlattenResult& flat,
+         const FinalSurface& surface, const HeightOut& height, const DerivedMaps& derived,
+         std::string albedo_source)
+      : o(o),
+        cropped(cropped),
+        flat(flat),
+        surface(surface),
+        height(height),
+        derived(derived),
+        albedo_source(std::move(albedo_source)),
+        periodic(o.tile),
+        conv(o.normals == NormalConvention::kOpenGl ? "gl" : "dx"),
+        grid_attrs({{kAttrX0, surface.field.x0},
+                    {kAttrY0, surface.field.y0},
+                    {kAttrPixelSize, surface.field.pixel_size}}),
+        w(surface.field.width()),
+        h(surface.field.height()),
+        pixel_size(surface.field.pixel_size) {}
+  const MapsOptions& o;
+  const HeightField& cropped;  // the grid before tiling (the removed shape's)
+  const FlattenResult& flat;
+  const FinalSurface& surface;
+  const HeightOut& height;
+  const DerivedMaps& derived;
+  std::string albedo_source;
+  bool periodic;     // a tile
+  std::string conv;  // "gl" or "dx"
+  std::map<std::string, double> grid_attrs;
+  int w, h;
+  double pixel_size;
+};
+
+// The files of the set: manifest entries, names and writers (run in parallel), in order.
+struct MapFiles {
+  Json entries = Json::array();
+  std::vector<std::string> names;
+  std::vector<std::function<void(const fs::path&)>> writers;
+  void Add(const std::string& file, Json entry) {
+    entry["file"] = file;
+    entries.push_back(std::move(entry));
+    names.push_back(file);
+  }
+};
+
+void AddHeightFiles(const MapSet& m, MapFiles* files) {
+  const std::string n = m.o.name;
+  const HeightOut& ho = m.height;
+  files->Add(n + "_height.exr",
+             {{"role", "height"},
+              {"format", "exr"},
+              {"channels", {"Y"}},
+              {"units", "m"},
+              {"colour_space", "Non-Color"},
+              {"midlevel", 0.0},
+              {"scale", 1.0},
+              {"meaning", m.o.flatten.method == FlattenMethod::kNone
+                              ? "metres above the mount plane"
+                              : "metres relative to the removed shape (NAME_height_removed.exr)"}});
+  files->writers.push_back([&m, f = n + "_height.exr"](const fs::path& d) {
+    auto attrs = m.grid_attrs;
+    attrs["mesoscan:midlevel"] = 0.0, attrs["mesoscan:scale"] = 1.0,
+    attrs["mesoscan:hole_value"] = kHoleValue;
+    WriteExr(d / f, m.height.z, {"Y"}, attrs, {{"mesoscan:units", "m"}});
+  });
+  files->Add(n + "_height.png", {{"role", "height"},
+                                 {"format", "png"},
+                                 {"pixel_type", "uint16"},
+                                 {"units", "m"},
+                                 {"colour_space", "Non-Color"},
+                                 {"midlevel", ho.midlevel},
+                                 {"scale", ho.span},
+                                 {"meaning", "metres = (value / 65535 - midlevel) * scale"}});
+  files->writers.push_back([&m, f = n + "_height.png", fj = n + "_height.json"](const fs::path& d) {
+    const HeightOut& ho = m.height;
+    ImageU16 q(m.w, m.h, 1);
+    for (size_t i = 0; i < q.pixels(); ++i)
+      q.data()[i] = static_cast<uint16_t>(
+          std::lround(std::clamp((ho.z.data()[i] - ho.zmin) / ho.span, 0.0, 1.0) * 65535));
+    WritePng16(d / f, q, 1);
+    WriteJsonFile(d / fj, {{"file", f},
+                           {"units", "m"},
+                           {"min_m", ho.zmin},
+                           {"max_m", ho.zmax},
+                           {"midlevel", ho.midlevel},
+                           {"scale", ho.span},
+                           {"decode", "metres = (value / 65535 - midlevel) * scale"}});
+  });
+  files->Add(n + "_height.json", {{"role", "height sidecar"}, {"format", "json"}});
+  if (m.o.flatten.method == FlattenMethod::kNone) return;
+  files->Add(n + "_height_removed.exr", {{"role", "height removed"},
                                          {"format", "exr"},
-                                         {"convention", conv_text},
-                                         {"colour_space", "Non-Color"},
-                                         {"encoding", "rgb = 0.5 + 0.5 * n"}});
-    writers.push_back([&, f = n + "_normal_" + conv + ".exr"](const fs::path& d) {
-      WriteExr(d / f, nmap, {"R", "G", "B"}, grid_attrs);
-    });
+                                         {"channels", {"Y"}},
+                                         {"units", "m"},
+                                         {"meaning",
+                                          "the low-frequency part flatten removed, on the source "
+                                          "grid: height = flattened + removed"},
+                                         {"grid",
+                                          {{"width_px", m.flat.removed.width()},
+                                           {"height_px", m.flat.removed.height()},
+                                           {"x0_m", m.cropped.x0},
+                                           {"y0_m", m.cropped.y0},
+                                           {"pixel_size_m", m.cropped.pixel_size}}}});
+  files->writers.push_back([&m, f = n + "_height_removed.exr"](const fs::path& d) {
+    WriteExr(
+        d / f, m.flat.removed, {"Y"},
+        {{kAttrX0, m.cropped.x0}, {kAttrY0, m.cropped.y0}, {kAttrPixelSize, m.cropped.pixel_size}},
+        {{"mesoscan:units", "m"}, {"mesoscan:flatten", FlattenName(m.o.flatten)}},
+        // Uncompressed: the whole source grid (3 M samples at full resolution), where
+        // ZIP costs ~1 s of CPU for a smooth map.
+        "none");
+  });
+}
+
+void AddNormalFiles(const MapSet& m, MapFiles* files) {
+  const std::string n = m.o.name, conv = m.conv;
+  const std::string conv_text = conv == "gl" ? "OpenGL (+Y up)" : "DirectX (-Y)";
+  files->Add(n + "_normal_" + conv + ".png", {{"role", "normal"},
+                                              {"format", "png"},
+                                              {"pixel_type", "uint16"},
+                                              {"convention", conv_text},
+                                              {"colour_space", "Non-Color"},
+                                              {"encoding", "rgb = 0.5 + 0.5 * n"}});
+  files->writers.push_back([&m, f = n + "_normal_" + conv + ".png"](const fs::path& d) {
+    WritePng16(d / f, QuantizeU16(m.derived.nmap), 1);
+  });
+  files->Add(n + "_normal_" + conv + ".exr", {{"role", "normal"},
+                                              {"format", "exr"},
+                                              {"convention", conv_text},
+                                              {"colour_space", "Non-Color"},
+                                              {"encoding", "rgb = 0.5 + 0.5 * n"}});
+  files->writers.push_back([&m, f = n + "_normal_" + conv + ".exr"](const fs::path& d) {
+    WriteExr(d / f, m.derived.nmap, {"R", "G", "B"}, m.grid_attrs);
+  });
+}
+
+void AddAlbedoFile(const MapSet& m, MapFiles* files) {
+  const std::string n = m.o.name;
+  files->Add(n + "_albedo.png", {{"role", "albedo"},
+                                 {"format", "png"},
+                                 {"colour_space", "sRGB"},
+                                 {"source", m.albedo_source},
+                                 {"meaning", "relative albedo, 99th percentile = 1"}});
+  files->writers.push_back([&m, f = n + "_albedo.png"](const fs::path& d) {
+    ImageF a = m.surface.albedo;
+    for (float& v : a.data()) v = std::isfinite(v) ? v : 0.0f;
+    WritePng8(d / f, QuantizeU8(a, true));
+  });
+}
+
+void AddConfidenceFiles(const MapSet& m, MapFiles* files) {
+  const std::string n = m.o.name;
+  files->Add(n + "_confidence.png",
+             {{"role", "confidence"},
+              {"format", "png"},
+              {"colour_space", "Non-Color"},
+              {"meaning", "confidence in [0, 1]; 0 at filled pixels and holes"}});
+  files->writers.push_back([&m, f = n + "_confidence.png"](const fs::path& d) {
+    const HeightField& field = m.surface.field;
+    ImageF c = field.confidence.empty() ? ImageF(m.w, m.h, 1, 1.0f) : field.confidence;
+    for (size_t i = 0; i < c.pixels(); ++i)
+      if (m.height.mask.data()[i] != 255) c.data()[i] = 0.0f;
+    WritePng8(d / f, QuantizeU8(c));
+  });
+  files->Add(n + "_mask.png",
+             {{"role", "mask"},
+              {"format", "png"},
+              {"colour_space", "Non-Color"},
+              {"meaning", "255 measured, 128 filled, 0 hole (height = hole_value_m)"}});
+  files->writers.push_back(
+      [&m, f = n + "_mask.png"](const fs::path& d) { WritePng8(d / f, m.height.mask); });
+}
+
+void AddAoFile(const MapSet& m, MapFiles* files) {
+  const std::string n = m.o.name;
+  files->Add(n + "_ao.png",
+             {{"role", "ao"},
+              {"format", "png"},
+              {"colour_space", "Non-Color"},
+              {"meaning", "ambient occlusion, 1 = unoccluded (horizon-based, radius " +
+                              std::to_string(m.o.ao.radius_m * 1e3) + " mm)"}});
+  files->writers.push_back([&m, f = n + "_ao.png"](const fs::path& d) {
+    ImageF a = m.derived.ao;
+    for (float& v : a.data()) v = std::isfinite(v) ? v : 1.0f;
+    WritePng8(d / f, QuantizeU8(a));
+  });
+}
+
+void AddCurvatureFiles(const MapSet& m, MapFiles* files) {
+  const std::string n = m.o.name;
+  files->Add(n + "_curvature.exr", {{"role", "curvature"},
+                                    {"format", "exr"},
+                                    {"units", "1/m"},
+                                    {"meaning", "mean curvature, positive on bumps"}});
+  files->writers.push_back([&m, f = n + "_curvature.exr"](const fs::path& d) {
+    WriteExr(d / f, m.derived.curvature, {"Y"}, m.grid_attrs);
+  });
+  files->Add(n + "_cavity.png", {{"role", "cavity"},
+                                 {"format", "png"},
+                                 {"colour_space", "Non-Color"},
+                                 {"meaning", "0.5 + 0.5 * curvature / scale_per_m, clamped"},
+                                 {"scale_per_m", m.derived.cavity_scale}});
+  files->writers.push_back([&m, f = n + "_cavity.png"](const fs::path& d) {
+    const double cavity_scale = m.derived.cavity_scale;
+    ImageF c(m.w, m.h, 1);
+    for (size_t i = 0; i < c.pixels(); ++i) {
+      const float k = m.derived.curvature.data()[i];
+      c.data()[i] = std::isfinite(k) && cavity_scale > 0
+                        ? static_cast<float>(0.5 + 0.5 * k / cavity_scale)
+                        : 0.5f;
+    }
+    WritePng8(d / f, QuantizeU8(c));
+  });
+}
+
+// Every map side by side, with its label and its physical width.
+ImageU8 MakeContactSheet(const MapSet& m) {
+  std::vector<Panel> panels;
+  std::vector<double> widths;
+  const DerivedMaps& dm = m.derived;
+  const double wm = m.w * m.pixel_size;
+  auto range = [](const ImageF& im) {
+    return std::make_pair(Quantile(im, 0.005), Quantile(im, 0.995));
+  };
+  const auto [hl, hh] = range(m.surface.field.z);
+  panels.push_back(
+      {"height " + std::to_string(static_cast<int>(std::lround((hh - hl) * 1e6))) + " um p-p",
+       GreyPanel(m.surface.field.z, hl, hh)});
+  widths.push_back(wm);
+  panels.push_back({"normal (" + m.conv + ")", RgbPanel(dm.nmap, false)});
+  widths.push_back(wm);
+  panels.push_back({"shaded", ShadePanel(dm.normals)});
+  widths.push_back(wm);
+  if (!m.surface.albedo.empty())
+    panels.push_back({"albedo", RgbPanel(m.surface.albedo, true)}), widths.push_back(wm);
+  if (m.o.maps.ao)
+    panels.push_back({"ambient occlusion", GreyPanel(dm.ao, 0.0, 1.0)}), widths.push_back(wm);
+  if (m.o.maps.curvature) {
+    ImageF c = dm.curvature;
+    panels.push_back({"curvature", GreyPanel(c, -dm.cavity_scale, dm.cavity_scale)});
+    widths.push_back(wm);
   }
-  if (o.maps.albedo && !final_albedo.empty()) {
-    add(n + "_albedo.png", {{"role", "albedo"},
-                            {"format", "png"},
-                            {"colour_space", "sRGB"},
-                            {"source", albedo_source},
-                            {"meaning", "relative albedo, 99th percentile = 1"}});
-    writers.push_back([&, f = n + "_albedo.png"](const fs::path& d) {
-      ImageF a = final_albedo;
-      for (float& v : a.data()) v = std::isfinite(v) ? v : 0.0f;
-      WritePng8(d / f, QuantizeU8(a, true));
-    });
+  {
+    ImageF mask(m.w, m.h, 1);
+    for (size_t i = 0; i < mask.pixels(); ++i) mask.data()[i] = m.height.mask.data()[i] / 255.0f;
+    panels.push_back({"mask: measured/filled/hole", GreyPanel(mask, 0, 1)});
+    widths.push_back(wm);
   }
-  if (o.maps.confidence) {
-    add(n + "_confidence.png", {{"role", "confidence"},
-                                {"format", "png"},
-                                {"colour_space", "Non-Color"},
-                                {"meaning", "confidence in [0, 1]; 0 at filled pixels and holes"}});
-    writers.push_back([&, f = n + "_confidence.png"](const fs::path& d) {
-      ImageF c = final_field.confidence.empty() ? ImageF(w, h, 1, 1.0f) : final_field.confidence;
-      for (size_t i = 0; i < c.pixels(); ++i)
-        if (mask.data()[i] != 255) c.data()[i] = 0.0f;
-      WritePng8(d / f, QuantizeU8(c));
-    });
-    add(n + "_mask.png", {{"role", "mask"},
-                          {"format", "png"},
-                          {"colour_space", "Non-Color"},
-                          {"meaning", "255 measured, 128 filled, 0 hole (height = hole_value_m)"}});
-    writers.push_back([&, f = n + "_mask.png"](const fs::path& d) { WritePng8(d / f, mask); });
+  if (m.o.flatten.method != FlattenMethod::kNone) {
+    const auto [rl, rh] = range(m.flat.removed);
+    panels.push_back(
+        {"removed " + std::to_string(static_cast<int>(std::lround((rh - rl) * 1e6))) + " um p-p",
+         GreyPanel(m.flat.removed, rl, rh)});
+    widths.push_back(m.flat.removed.width() * m.cropped.pixel_size);
   }
-  if (o.maps.ao) {
-    add(n + "_ao.png", {{"role", "ao"},
-                        {"format", "png"},
-                        {"colour_space", "Non-Color"},
-                        {"meaning", "ambient occlusion, 1 = unoccluded (horizon-based, radius " +
-                                        std::to_string(o.ao.radius_m * 1e3) + " mm)"}});
-    writers.push_back([&, f = n + "_ao.png"](const fs::path& d) {
-      ImageF a = ao;
-      for (float& v : a.data()) v = std::isfinite(v) ? v : 1.0f;
-      WritePng8(d / f, QuantizeU8(a));
-    });
+  if (m.periodic) {
+    // 2 x 2 repeats of the shaded tile: a seam would show as a cross through the centre.
+    cv::Mat s = ShadePanel(dm.normals), big;
+    cv::repeat(s, 2, 2, big);
+    panels.push_back({"shaded, tiled 2 x 2", big});
+    widths.push_back(2 * wm);
   }
-  if (o.maps.curvature) {
-    add(n + "_curvature.exr", {{"role", "curvature"},
-                               {"format", "exr"},
-                               {"units", "1/m"},
-                               {"meaning", "mean curvature, positive on bumps"}});
-    writers.push_back([&, f = n + "_curvature.exr"](const fs::path& d) {
-      WriteExr(d / f, curvature, {"Y"}, grid_attrs);
-    });
-    add(n + "_cavity.png", {{"role", "cavity"},
-                            {"format", "png"},
-                            {"colour_space", "Non-Color"},
-                            {"meaning", "0.5 + 0.5 * curvature / scale_per_m, clamped"},
-                            {"scale_per_m", cavity_scale}});
-    writers.push_back([&, f = n + "_cavity.png"](const fs::path& d) {
-      ImageF c(w, h, 1);
-      for (size_t i = 0; i < c.pixels(); ++i) {
-        const float k = curvature.data()[i];
-        c.data()[i] = std::isfinite(k) && cavity_scale > 0
-                          ? static_cast<float>(0.5 + 0.5 * k / cavity_scale)
-                          : 0.5f;
-      }
-      WritePng8(d / f, QuantizeU8(c));
-    });
-  }
-  // The contact sheet.
-  if (o.contact_sheet) {
-    add(n + "_contact_sheet.png",
-        {{"role", "contact sheet"}, {"format", "png"}, {"colour_space", "sRGB"}});
-    writers.push_back([&, f = n + "_contact_sheet.png"](const fs::path& d) {
-      std::vector<Panel> panels;
-      std::vector<double> widths;
-      const double wm = w * p;
-      auto range = [](const ImageF& im) {
-        return std::make_pair(Quantile(im, 0.005), Quantile(im, 0.995));
-      };
-      const auto [hl, hh] = range(final_field.z);
-      panels.push_back(
-          {"height " + std::to_string(static_cast<int>(std::lround((hh - hl) * 1e6))) + " um p-p",
-           GreyPanel(final_field.z, hl, hh)});
-      widths.push_back(wm);
-      panels.push_back({"normal (" + conv + ")", RgbPanel(nmap, false)});
-      widths.push_back(wm);
-      panels.push_back({"shaded", ShadePanel(normals)});
-      widths.push_back(wm);
-      if (!final_albedo.empty())
-        panels.push_back({"albedo", RgbPanel(final_albedo, true)}), widths.push_back(wm);
-      if (o.maps.ao)
-        panels.push_back({"ambient occlusion", GreyPanel(ao, 0.0, 1.0)}), widths.push_back(wm);
-      if (o.maps.curvature) {
-        ImageF c = curvature;
-        panels.push_back({"curvature", GreyPanel(c, -cavity_scale, cavity_scale)});
-        widths.push_back(wm);
-      }
-      {
-        ImageF m(w, h, 1);
-        for (size_t i = 0; i < m.pixels(); ++i) m.data()[i] = mask.data()[i] / 255.0f;
-        panels.push_back({"mask: measured/filled/hole", GreyPanel(m, 0, 1)});
-        widths.push_back(wm);
-      }
-      if (o.flatten.method != FlattenMethod::kNone) {
-        const auto [rl, rh] = range(flat.removed);
-        panels.push_back({"removed " +
-                              std::to_string(static_cast<int>(std::lround((rh - rl) * 1e6))) +
-                              " um p-p",
-                          GreyPanel(flat.removed, rl, rh)});
-        widths.push_back(flat.removed.width() * cropped.pixel_size);
-      }
-      if (periodic) {
-        // 2 x 2 repeats of the shaded tile: a seam would show as a cross through the centre.
-        cv::Mat s = ShadePanel(normals), big;
-        cv::repeat(s, 2, 2, big);
-        panels.push_back({"shaded, tiled 2 x 2", big});
-        widths.push_back(2 * wm);
-      }
-      WritePng8(d / f, ContactSheet(panels, widths));
-    });
-  }
-  // The manifest.
-  Json manifest = {
+  return ContactSheet(panels, widths);
+}
+
+void AddContactSheet(const MapSet& m, MapFiles* files) {
+  const std::string f = m.o.name + "_contact_sheet.png";
+  files->Add(f, {{"role", "contact sheet"}, {"format", "png"}, {"colour_space", "sRGB"}});
+  files->writers.push_back([&m, f](const fs::path& d) { WritePng8(d / f, MakeContactSheet(m)); });
+}
+
+// The tile's figures for the manifest, or null when the set is not a tile.
+Json TileJson(const MapSet& m) {
+  if (!m.periodic) return Json(nullptr);
+  const TileResult& t = *m.surface.tile;
+  return Json{
+      {"size_m", m.w * m.pixel_size},
+      {"requested_size_m", m.o.tile_options.size_m},
+      {"method", TileMethodName(m.o.tile_options.method)},
+      {"source_square_px", {t.src_x, t.src_y, t.src_size}},
+      {"blend_shift_px", {t.shift_x, t.shift_y}},
+      {"seam_gradient_ratio", {t.seams_after.ratio_x(), t.seams_after.ratio_y()}},
+      {"seam_gradient_ratio_pooled", t.seams_after.pooled_ratio()},
+      {"interior_column_row_spread", {t.seams_after.column_spread_x, t.seams_after.row_spread_y}},
+      {"seam_gradient_ratio_untiled", {t.seams_before.ratio_x(), t.seams_before.ratio_y()}},
+      {"seam_rms_m", {t.seams_after.seam_rms_x, t.seams_after.seam_rms_y}},
+      {"interior_rms_m", {t.seams_after.interior_rms_x, t.seams_after.interior_rms_y}}};
+}
+
+Json MapsManifest(const Scan& scan, const MapSet& m, const FillResult& fill, Json files) {
+  const MapsOptions& o = m.o;
+  const std::string& n = o.name;
+  const double p = m.pixel_size;
+  const HeightField& field = m.surface.field;
+  return {
       {"format", kMapsFormat},
       {"name", n},
       {"units", "m"},
       {"grid",
-       {{"width_px", w},
-        {"height_px", h},
+       {{"width_px", m.w},
+        {"height_px", m.h},
         {"pixel_size_m", p},
-        {"x0_m", final_field.x0},
-        {"y0_m", final_field.y0},
-        {"physical_size_m", {w * p, h * p}}}},
-      {"tileable", periodic},
-      {"tile",
-       periodic ? Json{{"size_m", w * p},
-                       {"requested_size_m", o.tile_options.size_m},
-                       {"method", TileMethodName(o.tile_options.method)},
-                       {"source_square_px", {tile->src_x, tile->src_y, tile->src_size}},
-                       {"blend_shift_px", {tile->shift_x, tile->shift_y}},
-                       {"seam_gradient_ratio",
-                        {tile->seams_after.ratio_x(), tile->seams_after.ratio_y()}},
-                       {"seam_gradient_ratio_pooled", tile->seams_after.pooled_ratio()},
-                       {"interior_column_row_spread",
-                        {tile->seams_after.column_spread_x, tile->seams_after.row_spread_y}},
-                       {"seam_gradient_ratio_untiled",
-                        {tile->seams_before.ratio_x(), tile->seams_before.ratio_y()}},
-                       {"seam_rms_m", {tile->seams_after.seam_rms_x, tile->seams_after.seam_rms_y}},
-                       {"interior_rms_m",
-                        {tile->seams_after.interior_rms_x, tile->seams_after.interior_rms_y}}}
-                : Json(nullptr)},
+        {"x0_m", field.x0},
+        {"y0_m", field.y0},
+        {"physical_size_m", {m.w * p, m.h * p}}}},
+      {"tileable", m.periodic},
+      {"tile", TileJson(m)},
       {"fill",
        {{"method", FillMethodName(o.fill.method)},
         {"max_hole_radius_m", o.fill.max_hole_radius_m},
@@ -586,27 +667,32 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
         {"pixels_left", fill.pixels_left}}},
       {"flatten",
        {{"method", FlattenName(o.flatten)},
-        {"description", flat.description},
-        {"coefficients", flat.coefficients}}},
+        {"description", m.flat.description},
+        {"coefficients", m.flat.coefficients}}},
       {"height",
-       {{"min_m", zmin},
-        {"max_m", zmax},
-        {"hole_value_m", hole_value},
+       {{"min_m", m.height.zmin},
+        {"max_m", m.height.zmax},
+        {"hole_value_m", kHoleValue},
         {"blender", {{"midlevel", 0.0}, {"scale", 1.0}, {"file", n + "_height.exr"}}},
-        {"png16", {{"midlevel", midlevel}, {"scale", span}}}}},
-      {"normal_convention", conv},
-      {"albedo", albedo_source},
+        {"png16", {{"midlevel", m.height.midlevel}, {"scale", m.height.span}}}}},
+      {"normal_convention", m.conv},
+      {"albedo", m.albedo_source},
       {"source_grid",
        {{"width_px", scan.height.width()},
         {"height_px", scan.height.height()},
         {"pixel_size_m", scan.height.pixel_size}}},
       {"crop_px", o.crop.whole() ? Json(nullptr) : Json{o.crop.x, o.crop.y, o.crop.w, o.crop.h}},
-      {"files", files}};
+      {"files", std::move(files)}};
+}
+
+// The writers in parallel into a temporary folder, then the manifest; the folder replaces `dir`
+// only if every file was written (the first error is thrown).
+void WriteMapFolder(const fs::path& dir, const MapFiles& files, const Json& manifest) {
   WriteFolderAtomically(dir, [&](const fs::path& tmp) {
     tbb::task_group g;
     std::mutex err_mutex;
     std::optional<Error> err;
-    for (auto& fn : writers)
+    for (auto& fn : files.writers)
       g.run([&, fn] {
         try {
           fn(tmp);
@@ -619,8 +705,63 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
     if (err) throw *err;
     WriteJsonFile(tmp / "manifest.json", manifest);
   });
+}
+
+}  // namespace
+
+MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& dir) {
+  o.Check();
+  MapsSummary summary;
+  StageTimer timer(&summary.seconds_per_stage);
+  // 1. Crop.
+  timer.Skip();
+  const HeightField cropped = CropForMaps(scan.height, o.crop);
+  timer.Stage("crop");
+  // 2. Fill the holes bounded by surface.
+  timer.Skip();
+  FillResult fill = FillHoles(cropped, o.fill);
+  timer.Stage("fill");
+  // 3. Albedo with the projector's falloff divided out, filled like the height.
+  timer.Skip();
+  MapAlbedo albedo;
+  if (o.maps.albedo) {
+    albedo = ReadAlbedo(scan, o, fill);
+    if (!albedo.image.empty()) FillAndNormalizeAlbedo(o, cropped, fill, &albedo.image);
+  }
+  timer.Stage("albedo");
+  // 4. Flatten (filled pixels are left out of the fit).
+  timer.Skip();
+  const FlattenResult flat = Flatten(fill.field, MeasuredMask(fill), o.flatten);
+  summary.flatten = flat.description;
+  timer.Stage("flatten");
+  // 5. Tile.
+  timer.Skip();
+  const FinalSurface surface = TileOrKeep(o, flat, albedo.image, fill);
+  if (surface.tile) {
+    summary.tile = surface.tile->BriefReport();
+    summary.seams = surface.tile->seams_after;
+  }
+  timer.Stage("tile");
+  const HeightOut height = HeightAndMask(surface);
+  // 6. Derived maps on the final height (holes excluded, periodic for a tile).
+  timer.Skip();
+  const DerivedMaps derived = Derive(o, surface.field, o.tile);
+  timer.Stage("derived");
+  // 7. Files, in parallel, into a temporary folder; the manifest last.
+  timer.Skip();
+  const MapSet set(o, cropped, flat, surface, height, derived, albedo.source);
+  MapFiles files;
+  if (o.maps.height) AddHeightFiles(set, &files);
+  if (o.maps.normal) AddNormalFiles(set, &files);
+  if (o.maps.albedo && !surface.albedo.empty()) AddAlbedoFile(set, &files);
+  if (o.maps.confidence) AddConfidenceFiles(set, &files);
+  if (o.maps.ao) AddAoFile(set, &files);
+  if (o.maps.curvature) AddCurvatureFiles(set, &files);
+  if (o.contact_sheet) AddContactSheet(set, &files);
+  Json manifest = MapsManifest(scan, set, fill, files.entries);
+  WriteMapFolder(dir, files, manifest);
   timer.Stage("write");
-  for (const auto& f : names) summary.files.push_back(dir / f);
+  for (const auto& f : files.names) summary.files.push_back(dir / f);
   summary.files.push_back(dir / "manifest.json");
   fill.field = HeightField();
   fill.filled = ImageU8();
