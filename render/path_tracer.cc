@@ -522,67 +522,76 @@ double ToneCurveSlope(double v, double white) {
   return (1 + 2 * v / w2 + v * v / w2) / ((1 + v) * (1 + v));
 }
 
-}  // namespace
+// ---- the steps of Render ---------------------------------------------------------------------
 
-RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const EnvironmentMap& env,
-                    const RenderOptions& options, const RenderProgressFn& on_round) {
-  options.Check();
-  const auto start = std::chrono::steady_clock::now();
-  auto elapsed = [&] {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  };
-  // Heights are exaggerated around the mount plane for previews of low relief.
+// Seconds since construction (the time budget's clock).
+class Clock {
+ public:
+  double Seconds() const {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+ private:
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+};
+
+// The height field with its heights exaggerated around the mount plane (previews of low
+// relief), and their range.
+HeightField ScaleRelief(const HeightField& hf_in, const RenderOptions& options, double* zmin,
+                        double* zmax) {
   HeightField hf = hf_in;
-  double zmin = 1e30, zmax = -1e30;
+  *zmin = 1e30, *zmax = -1e30;
   for (float& z : hf.z.data()) {
     if (!std::isfinite(z)) continue;
     z = static_cast<float>(z * options.relief_scale);
-    zmin = std::min(zmin, static_cast<double>(z));
-    zmax = std::max(zmax, static_cast<double>(z));
+    *zmin = std::min(*zmin, static_cast<double>(z));
+    *zmax = std::max(*zmax, static_cast<double>(z));
   }
-  if (zmin > zmax) MESOSCAN_BAD_INPUT("render: the height field has no valid sample");
+  if (*zmin > *zmax) MESOSCAN_BAD_INPUT("render: the height field has no valid sample");
   if (options.albedo &&
       (options.albedo->width() != hf.width() || options.albedo->height() != hf.height()))
     MESOSCAN_BAD_INPUT("render: the albedo map ("
                        << options.albedo->width() << "x" << options.albedo->height()
                        << ") does not match the height field (" << hf.width() << "x" << hf.height()
                        << ")");
+  return hf;
+}
 
-  Scene scene;
-  scene.hf = &hf;
-  scene.albedo = options.albedo;
-  scene.max_depth = options.max_depth;
-  scene.hf_id = scene.embree.AddHeightField(hf);
+// The Embree scene (the height field and the mount plane under it), what camera rays may skip,
+// the mount's irradiance and the mirrored-environment sampler where it helps. Returns whether the
+// camera can see the mount.
+bool BuildScene(const HeightField& hf, double zmin, double zmax, const PinholeCamera& cam,
+                const Brdf& brdf, const EnvironmentMap& env, const RenderOptions& options,
+                Scene* scene, std::optional<MirrorGuide>* guide) {
+  scene->hf = &hf;
+  scene->albedo = options.albedo;
+  scene->max_depth = options.max_depth;
+  scene->hf_id = scene->embree.AddHeightField(hf);
   const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
-  scene.plane_id = scene.embree.AddPlane(std::min(0.0, zmin) - 1e-6, 10 * extent + 1.0);
-  bool result_mount_visible = true;
-  scene.embree.Commit();
-  const PinholeCamera cam = MakeCamera(hf, zmin, zmax, options);
-  result_mount_visible = !(options.skip_invisible_mount &&
-                           CameraCannotSeeMount(hf, zmax, std::min(0.0, zmin) - 1e-6, cam));
-  if (!result_mount_visible) scene.camera_mask = EmbreeScene::kMaskHeightFields;
-  const LambertBrdf mount(options.mount_albedo);
-  scene.mount_irradiance = env.UpperHemisphereIrradiance();
-  std::optional<MirrorGuide> guide;
+  scene->plane_id = scene->embree.AddPlane(std::min(0.0, zmin) - 1e-6, 10 * extent + 1.0);
+  scene->embree.Commit();
+  const bool mount_visible = !(options.skip_invisible_mount &&
+                               CameraCannotSeeMount(hf, zmax, std::min(0.0, zmin) - 1e-6, cam));
+  if (!mount_visible) scene->camera_mask = EmbreeScene::kMaskHeightFields;
+  scene->mount_irradiance = env.UpperHemisphereIrradiance();
   if (options.mirror_guide && MirrorGuide::Useful(env, brdf)) {
-    guide.emplace(env, brdf);
-    scene.guide = &*guide;
+    guide->emplace(env, brdf);
+    scene->guide = &**guide;
   }
   // Not under error-driven allocation (RenderOptions::allocate_*): it already spends the samples
   // on the rim, and there the candidates cost more than they saved (demo, 8 spp allocated: MSE
   // -5% raw / -16% denoised for +27% CPU; uniform 16 spp: -33% for +17%).
   const bool allocates =
       (options.time_limit_s > 0 || options.allocate_spp > 0) && options.allocate_pilot_spp > 0;
-  if (scene.guide && !allocates) scene.resample = std::min(options.resample_candidates, 16);
+  if (scene->guide && !allocates) scene->resample = std::min(options.resample_candidates, 16);
+  return mount_visible;
+}
 
-  const int W = options.width, H = options.height;
-  int log2_spp = 0;
-  while ((1 << log2_spp) < options.max_spp) ++log2_spp;
-  log2_spp += log2_spp & 1;  // even: every prefix of 4^k samples of a pixel is a (0,2k,2)-net
-  std::vector<PixelState> px(static_cast<size_t>(W) * H);
+// The result's images, zero, and what the summary knows before the first sample.
+RenderResult NewRenderResult(int W, int H, bool mount_visible, bool mirror_guide) {
   RenderResult result;
-  result.summary.mount_visible = result_mount_visible;
-  result.summary.mirror_guide = scene.guide != nullptr;
+  result.summary.mount_visible = mount_visible;
+  result.summary.mirror_guide = mirror_guide;
   result.radiance = ImageF(W, H, 3, 0.0f);
   result.sample_mask = ImageF(W, H, 1, 0.0f);
   result.normal = ImageF(W, H, 3, 0.0f);
@@ -591,217 +600,311 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   result.half[0] = ImageF(W, H, 3, 0.0f);
   result.half[1] = ImageF(W, H, 3, 0.0f);
   result.spp = ImageF(W, H, 1, 0.0f);
-  std::atomic<int64_t> samples{0};
-  std::vector<float> var(px.size()), var_s(px.size());
+  return result;
+}
 
-  // The images from the pixels' sums, on the pool (between rounds the other core would idle).
-  auto update_images = [&] {
-    ParallelForRows(H, [&](int y0, int y1) {
-      for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
-        const PixelState& p = px[i];
-        const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
-        for (int c = 0; c < 3; ++c)
-          result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
-        result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
-        result.spp(x, y, 0) = static_cast<float>(p.n);
-        const double inv = p.n ? 1.0 / p.n : 0.0;
-        for (int c = 0; c < 3; ++c) {
-          result.normal(x, y, c) = static_cast<float>(p.normal[c] * inv);
-          result.albedo(x, y, c) = static_cast<float>(p.albedo[c] * inv);
-        }
-        result.depth(x, y, 0) = static_cast<float>(p.depth * inv);
-        const int na = (p.n + 1) / 2, nb = p.n / 2;
-        for (int c = 0; c < 3; ++c) {
-          result.half[0](x, y, c) = na ? static_cast<float>(p.a[c] / na) : 0.0f;
-          result.half[1](x, y, c) = nb ? static_cast<float>(p.b[c] / nb) : result.half[0](x, y, c);
-        }
+// The images from the pixels' sums, on the pool (between rounds the other core would idle), and
+// the exposure metered on them.
+void UpdateImages(const std::vector<PixelState>& px, int W, int H, RenderResult* r) {
+  RenderResult& result = *r;
+  ParallelForRows(H, [&](int y0, int y1) {
+    for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
+      const PixelState& p = px[i];
+      const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
+      for (int c = 0; c < 3; ++c)
+        result.radiance(x, y, c) = p.n ? static_cast<float>((p.a[c] + p.b[c]) / p.n) : 0.0f;
+      result.sample_mask(x, y, 0) = p.n ? static_cast<float>(p.hits) / p.n : 0.0f;
+      result.spp(x, y, 0) = static_cast<float>(p.n);
+      const double inv = p.n ? 1.0 / p.n : 0.0;
+      for (int c = 0; c < 3; ++c) {
+        result.normal(x, y, c) = static_cast<float>(p.normal[c] * inv);
+        result.albedo(x, y, c) = static_cast<float>(p.albedo[c] * inv);
       }
-    });
-    result.tone = MeterExposure(result.radiance, &result.sample_mask);
-  };
+      result.depth(x, y, 0) = static_cast<float>(p.depth * inv);
+      const int na = (p.n + 1) / 2, nb = p.n / 2;
+      for (int c = 0; c < 3; ++c) {
+        result.half[0](x, y, c) = na ? static_cast<float>(p.a[c] / na) : 0.0f;
+        result.half[1](x, y, c) = nb ? static_cast<float>(p.b[c] / nb) : result.half[0](x, y, c);
+      }
+    }
+  });
+  result.tone = MeterExposure(result.radiance, &result.sample_mask);
+}
 
-  Progress progress("render (pixels done)", static_cast<int64_t>(W) * H);
+// How many samples each pixel takes in the next round: a uniform target doubling every round
+// (shortened to fit a time budget), or per-pixel goals under error-driven allocation.
+struct SampleSchedule {
+  double sample_budget = 0;  // RenderOptions::allocate_spp * pixels (0: none)
+  bool allocate = false;     // error-driven allocation under a time or sample budget
+  bool allocating = false;   // the pilot is done: the goals decide
+  int target = 0;            // the uniform target (samples per pixel)
+  std::vector<int> goal;     // per-pixel goals while allocating
+  // The last round's start: wall seconds, samples and the pixels' summed cost.
+  double round_start_s = 0, round_start_samples = 0, round_start_cost = 0;
+};
+
+SampleSchedule StartSchedule(const RenderOptions& options, int W, int H) {
+  SampleSchedule s;
   // Under a time budget the rounds start at 1 spp (so even the first round respects the
   // budget on a slow or loaded machine); adaptivity still waits for min_spp.
   // A sample budget (allocate_spp) is spent like a time budget, in rounds from 1 spp.
-  const double sample_budget = options.allocate_spp * static_cast<double>(W) * H;
-  int target = options.time_limit_s > 0 || sample_budget > 0
-                   ? 1
-                   : std::min(options.min_spp, options.max_spp);
-  int active = W * H;
+  s.sample_budget = options.allocate_spp * static_cast<double>(W) * H;
+  s.target = options.time_limit_s > 0 || s.sample_budget > 0
+                 ? 1
+                 : std::min(options.min_spp, options.max_spp);
   // Error-driven allocation under a time or sample budget (RenderOptions::allocate_*): per-pixel
   // goals instead of one uniform target, once every pixel has the pilot's samples.
-  const bool allocate =
-      (options.time_limit_s > 0 || sample_budget > 0) && options.allocate_pilot_spp > 0;
-  bool allocating = false;
-  std::vector<int> goal;
-  double round_start_s = 0, round_start_samples = 0, round_start_cost = 0;
-  for (int round = 0; active > 0; ++round) {
-    // Shorten the round if it would overrun the time budget (paths/s measured so far).
-    if (options.time_limit_s > 0 && round > 0) {
-      const double rate = samples.load() / std::max(elapsed(), 1e-3);
-      const double left = options.time_limit_s - elapsed();
-      if (left <= 0) break;
-      int prev = 0;
-      for (const auto& p : px) prev = std::max(prev, p.done ? 0 : p.n);
-      const double affordable = left * rate / std::max(active, 1);
-      target = std::min(target, prev + std::max(1, static_cast<int>(affordable)));
-    }
-    if (allocate && round > 0) {
-      int prev = 0;
-      for (const auto& p : px) prev = std::max(prev, p.done ? 0 : p.n);
-      const int pilot = options.allocate_for_denoiser ? options.allocate_denoise_pilot_spp
-                                                      : options.allocate_pilot_spp;
-      if (prev >= pilot) allocating = true;
-    }
-    if (allocating) {
-      // What is left to spend, in samples (by the time left and the paths/s so far, or by the
-      // sample budget), and this round's share: as many samples as so far (rounds double).
-      // Paths per second of the last round (the allocated rounds' mix of cheap and costly
-      // pixels differs from the uniform pilot's).
-      const double done = static_cast<double>(samples.load());
-      const double rate = (done - round_start_samples) / std::max(elapsed() - round_start_s, 1e-3);
-      const double left =
-          sample_budget > 0 ? sample_budget - done : (options.time_limit_s - elapsed()) * rate;
-      const double budget = std::min(left, done);
-      if (budget < 1) break;
-      AllocateSamples(px, W, H, options, budget, done + left, round, &goal);
-      if (options.time_limit_s > 0) {
-        // The goals' predicted wall time: each pixel's new samples at its measured seconds per
-        // sample, times the last round's wall seconds per thread-second of pixel work. If the
-        // round would overrun the budget (the goals favour costly pixels, so the paths/s above
-        // are optimistic), shrink it once in proportion.
-        double work = 0, cost_now = 0;
-        for (size_t i = 0; i < px.size(); ++i) {
-          const PixelState& p = px[i];
-          cost_now += p.cost;
-          if (!p.done && goal[i] > p.n && p.n > 0) work += (goal[i] - p.n) * p.cost / p.n;
-        }
-        const double wall_per_work =
-            (elapsed() - round_start_s) / std::max(cost_now - round_start_cost, 1e-9);
-        const double predicted = work * wall_per_work, time_left = options.time_limit_s - elapsed();
-        if (predicted > time_left && predicted > 0) {
-          if (budget * time_left / predicted < 1) break;
-          AllocateSamples(px, W, H, options, budget * time_left / predicted,
-                          done + left * time_left / predicted, round, &goal);
-        }
-      }
-    }
-    round_start_s = elapsed();
-    round_start_samples = static_cast<double>(samples.load());
-    round_start_cost = 0;
-    for (const PixelState& p : px) round_start_cost += p.cost;
-    ParallelForRows(H, [&](int y0, int y1) {
-      int64_t local = 0;
-      ZSobolSampler sampler(log2_spp, W, H, options.seed);
-      for (int y = y0; y < y1; ++y) {
-        if (options.time_limit_s > 0 && round > 0 && elapsed() > 1.05 * options.time_limit_s + 0.05)
-          break;  // safety: the prediction was wrong (the load changed)
-        for (int x = 0; x < W; ++x) {
-          PixelState& p = px[static_cast<size_t>(y) * W + x];
-          if (p.done) continue;
-          const int goal_n = allocating ? goal[static_cast<size_t>(y) * W + x] : target;
-          if (p.n >= goal_n) continue;
-          const auto t_pixel = std::chrono::steady_clock::now();
-          for (; p.n < goal_n; ++p.n) {
-            sampler.StartPixelSample(x, y, static_cast<uint32_t>(p.n));
-            double jx, jy;
-            sampler.Get2D(&jx, &jy);
-            const double sx = (x + jx) / W * 2 - 1;
-            const double sy = 1 - (y + jy) / H * 2;
-            FirstHit first;
-            const Rgb L =
-                TracePath(scene, brdf, mount, env, cam.eye, cam.Direction(sx, sy), sampler, &first);
-            double* acc = (p.n & 1) ? p.b : p.a;
-            for (int c = 0; c < 3; ++c) {
-              acc[c] += L[c];
-              p.normal[c] += first.normal[c];
-              p.albedo[c] += first.albedo[c];
-            }
-            p.depth += first.depth;
-            p.hits += first.sample;
-            ++local;
-          }
-          p.cost +=
-              std::chrono::duration<double>(std::chrono::steady_clock::now() - t_pixel).count();
-        }
-      }
-      samples.fetch_add(local, std::memory_order_relaxed);
-    });
-    update_images();
-    // Error per pixel: (mean_a - mean_b)^2 / 4 estimates the variance of the pixel mean.
-    ParallelForRows(H, [&](int y0, int y1) {
-      for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
-        const PixelState& p = px[i];
-        const int na = (p.n + 1) / 2, nb = p.n / 2;
-        if (na == 0 || nb == 0) {
-          var[i] = 0;
-          continue;
-        }
-        const Rgb ma(p.a[0] / na, p.a[1] / na, p.a[2] / na),
-            mb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb);
-        const double d = Luminance(ma) - Luminance(mb);
-        var[i] = static_cast<float>(0.25 * d * d);
-      }
-    });
-    // 3x3 mean of the estimates (the single-pixel estimate has one degree of freedom).
-    ParallelForRows(H, [&](int ya, int yb) {
-      for (int y = ya; y < yb; ++y)
-        for (int x = 0; x < W; ++x) {
-          double s = 0;
-          int k = 0;
-          for (int dy = -1; dy <= 1; ++dy)
-            for (int dx = -1; dx <= 1; ++dx) {
-              const int xx = x + dx, yy = y + dy;
-              if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
-              s += var[static_cast<size_t>(yy) * W + xx];
-              ++k;
-            }
-          var_s[static_cast<size_t>(y) * W + x] = static_cast<float>(s / k);
-        }
-    });
-    const int was_active = active;
-    active = 0;
+  s.allocate = (options.time_limit_s > 0 || s.sample_budget > 0) && options.allocate_pilot_spp > 0;
+  return s;
+}
+
+// The largest sample count of the pixels still sampled.
+int MaxActiveSamples(const std::vector<PixelState>& px) {
+  int prev = 0;
+  for (const auto& p : px) prev = std::max(prev, p.done ? 0 : p.n);
+  return prev;
+}
+
+// Plans round `round` (> 0) from what the last rounds cost; false: the budget is spent.
+bool PlanRound(const std::vector<PixelState>& px, int W, int H, const RenderOptions& options,
+               int round, int active, int64_t samples, const Clock& clock, SampleSchedule* s) {
+  // Shorten the round if it would overrun the time budget (paths/s measured so far).
+  if (options.time_limit_s > 0) {
+    const double rate = samples / std::max(clock.Seconds(), 1e-3);
+    const double left = options.time_limit_s - clock.Seconds();
+    if (left <= 0) return false;
+    const int prev = MaxActiveSamples(px);
+    const double affordable = left * rate / std::max(active, 1);
+    s->target = std::min(s->target, prev + std::max(1, static_cast<int>(affordable)));
+  }
+  if (s->allocate) {
+    const int prev = MaxActiveSamples(px);
+    const int pilot = options.allocate_for_denoiser ? options.allocate_denoise_pilot_spp
+                                                    : options.allocate_pilot_spp;
+    if (prev >= pilot) s->allocating = true;
+  }
+  if (!s->allocating) return true;
+  // What is left to spend, in samples (by the time left and the paths/s so far, or by the
+  // sample budget), and this round's share: as many samples as so far (rounds double).
+  // Paths per second of the last round (the allocated rounds' mix of cheap and costly
+  // pixels differs from the uniform pilot's).
+  const double done = static_cast<double>(samples);
+  const double rate =
+      (done - s->round_start_samples) / std::max(clock.Seconds() - s->round_start_s, 1e-3);
+  const double left = s->sample_budget > 0 ? s->sample_budget - done
+                                           : (options.time_limit_s - clock.Seconds()) * rate;
+  const double budget = std::min(left, done);
+  if (budget < 1) return false;
+  AllocateSamples(px, W, H, options, budget, done + left, round, &s->goal);
+  if (options.time_limit_s > 0) {
+    // The goals' predicted wall time: each pixel's new samples at its measured seconds per
+    // sample, times the last round's wall seconds per thread-second of pixel work. If the
+    // round would overrun the budget (the goals favour costly pixels, so the paths/s above
+    // are optimistic), shrink it once in proportion.
+    double work = 0, cost_now = 0;
     for (size_t i = 0; i < px.size(); ++i) {
-      PixelState& p = px[i];
-      if (p.done) continue;
-      const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
-      if (p.n >= options.max_spp) {
-        p.done = true;
+      const PixelState& p = px[i];
+      cost_now += p.cost;
+      if (!p.done && s->goal[i] > p.n && p.n > 0) work += (s->goal[i] - p.n) * p.cost / p.n;
+    }
+    const double wall_per_work =
+        (clock.Seconds() - s->round_start_s) / std::max(cost_now - s->round_start_cost, 1e-9);
+    const double predicted = work * wall_per_work,
+                 time_left = options.time_limit_s - clock.Seconds();
+    if (predicted > time_left && predicted > 0) {
+      if (budget * time_left / predicted < 1) return false;
+      AllocateSamples(px, W, H, options, budget * time_left / predicted,
+                      done + left * time_left / predicted, round, &s->goal);
+    }
+  }
+  return true;
+}
+
+// What one round traces: the scene and its camera, the sampler's dimension.
+struct RoundTracer {
+  const Scene& scene;
+  const Brdf& brdf;
+  const LambertBrdf& mount;
+  const EnvironmentMap& env;
+  const PinholeCamera& cam;
+  int log2_spp = 0;
+};
+
+// Traces every active pixel up to its goal (or the target), on the pool; returns the samples
+// taken. Each pixel's samples go to its two half-buffers, its features and its cost.
+int64_t TraceRound(const RoundTracer& t, const RenderOptions& options, int round,
+                   const SampleSchedule& s, const Clock& clock, std::vector<PixelState>* pixels) {
+  std::vector<PixelState>& px = *pixels;
+  const int W = options.width, H = options.height;
+  std::atomic<int64_t> samples{0};
+  ParallelForRows(H, [&](int y0, int y1) {
+    int64_t local = 0;
+    ZSobolSampler sampler(t.log2_spp, W, H, options.seed);
+    for (int y = y0; y < y1; ++y) {
+      if (options.time_limit_s > 0 && round > 0 &&
+          clock.Seconds() > 1.05 * options.time_limit_s + 0.05)
+        break;  // safety: the prediction was wrong (the load changed)
+      for (int x = 0; x < W; ++x) {
+        PixelState& p = px[static_cast<size_t>(y) * W + x];
+        if (p.done) continue;
+        const int goal_n = s.allocating ? s.goal[static_cast<size_t>(y) * W + x] : s.target;
+        if (p.n >= goal_n) continue;
+        const auto t_pixel = std::chrono::steady_clock::now();
+        for (; p.n < goal_n; ++p.n) {
+          sampler.StartPixelSample(x, y, static_cast<uint32_t>(p.n));
+          double jx, jy;
+          sampler.Get2D(&jx, &jy);
+          const double sx = (x + jx) / W * 2 - 1;
+          const double sy = 1 - (y + jy) / H * 2;
+          FirstHit first;
+          const Rgb L = TracePath(t.scene, t.brdf, t.mount, t.env, t.cam.eye,
+                                  t.cam.Direction(sx, sy), sampler, &first);
+          double* acc = (p.n & 1) ? p.b : p.a;
+          for (int c = 0; c < 3; ++c) {
+            acc[c] += L[c];
+            p.normal[c] += first.normal[c];
+            p.albedo[c] += first.albedo[c];
+          }
+          p.depth += first.depth;
+          p.hits += first.sample;
+          ++local;
+        }
+        p.cost += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_pixel).count();
+      }
+    }
+    samples.fetch_add(local, std::memory_order_relaxed);
+  });
+  return samples.load();
+}
+
+// The variance of each pixel's mean, (mean_a - mean_b)^2 / 4 in luminance, then its 3x3 mean
+// (the single-pixel estimate has one degree of freedom).
+void EstimatePixelVariance(const std::vector<PixelState>& px, int W, int H,
+                           std::vector<float>* var_out, std::vector<float>* smoothed) {
+  std::vector<float>& var = *var_out;
+  ParallelForRows(H, [&](int y0, int y1) {
+    for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
+      const PixelState& p = px[i];
+      const int na = (p.n + 1) / 2, nb = p.n / 2;
+      if (na == 0 || nb == 0) {
+        var[i] = 0;
         continue;
       }
-      // With error-driven allocation the allocation decides (a pixel's own noise test would make
-      // its sample count depend on its samples, and the display-space test stops the bright rim
-      // that dominates the linear error first).
-      if (options.noise > 0 && !allocate && p.n >= options.min_spp && p.n >= 4) {
-        const double v =
-            result.tone.exposure * Luminance(Rgb(result.radiance(x, y, 0), result.radiance(x, y, 1),
-                                                 result.radiance(x, y, 2)));
-        const double err = std::sqrt(var_s[i]) * result.tone.exposure *
-                           ToneCurveSlope(std::max(0.0, v), result.tone.white);
-        if (err < options.noise) {
-          p.done = true;
-          ++result.summary.pixels_converged;
-          continue;
-        }
-      }
-      ++active;
+      const Rgb ma(p.a[0] / na, p.a[1] / na, p.a[2] / na),
+          mb(p.b[0] / nb, p.b[1] / nb, p.b[2] / nb);
+      const double d = Luminance(ma) - Luminance(mb);
+      var[i] = static_cast<float>(0.25 * d * d);
     }
+  });
+  ParallelForRows(H, [&](int ya, int yb) {
+    for (int y = ya; y < yb; ++y)
+      for (int x = 0; x < W; ++x) {
+        double s = 0;
+        int k = 0;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int xx = x + dx, yy = y + dy;
+            if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+            s += var[static_cast<size_t>(yy) * W + xx];
+            ++k;
+          }
+        (*smoothed)[static_cast<size_t>(y) * W + x] = static_cast<float>(s / k);
+      }
+  });
+}
+
+// Marks the pixels that are done (at max_spp, or their displayed error below options.noise)
+// and returns how many are still sampled.
+int RetireConvergedPixels(const std::vector<float>& var_s, const RenderOptions& options,
+                          bool allocate, std::vector<PixelState>* pixels, RenderResult* result) {
+  const int W = options.width;
+  int active = 0;
+  for (size_t i = 0; i < pixels->size(); ++i) {
+    PixelState& p = (*pixels)[i];
+    if (p.done) continue;
+    const int x = static_cast<int>(i % W), y = static_cast<int>(i / W);
+    if (p.n >= options.max_spp) {
+      p.done = true;
+      continue;
+    }
+    // With error-driven allocation the allocation decides (a pixel's own noise test would make
+    // its sample count depend on its samples, and the display-space test stops the bright rim
+    // that dominates the linear error first).
+    if (options.noise > 0 && !allocate && p.n >= options.min_spp && p.n >= 4) {
+      const ImageF& radiance = result->radiance;
+      const double v = result->tone.exposure *
+                       Luminance(Rgb(radiance(x, y, 0), radiance(x, y, 1), radiance(x, y, 2)));
+      const double err = std::sqrt(var_s[i]) * result->tone.exposure *
+                         ToneCurveSlope(std::max(0.0, v), result->tone.white);
+      if (err < options.noise) {
+        p.done = true;
+        ++result->summary.pixels_converged;
+        continue;
+      }
+    }
+    ++active;
+  }
+  return active;
+}
+
+}  // namespace
+
+RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const EnvironmentMap& env,
+                    const RenderOptions& options, const RenderProgressFn& on_round) {
+  options.Check();
+  const Clock clock;
+  // 1. The scene: the height field (relief scaled), the mount, the camera.
+  double zmin, zmax;
+  const HeightField hf = ScaleRelief(hf_in, options, &zmin, &zmax);
+  const PinholeCamera cam = MakeCamera(hf, zmin, zmax, options);
+  Scene scene;
+  std::optional<MirrorGuide> guide;
+  const bool mount_visible = BuildScene(hf, zmin, zmax, cam, brdf, env, options, &scene, &guide);
+  const LambertBrdf mount(options.mount_albedo);
+  // 2. The pixels and the images; the sampler's dimension.
+  const int W = options.width, H = options.height;
+  int log2_spp = 0;
+  while ((1 << log2_spp) < options.max_spp) ++log2_spp;
+  log2_spp += log2_spp & 1;  // even: every prefix of 4^k samples of a pixel is a (0,2k,2)-net
+  const RoundTracer tracer{scene, brdf, mount, env, cam, log2_spp};
+  std::vector<PixelState> px(static_cast<size_t>(W) * H);
+  RenderResult result = NewRenderResult(W, H, mount_visible, scene.guide != nullptr);
+  int64_t samples = 0;
+  std::vector<float> var(px.size()), var_s(px.size());
+  Progress progress("render (pixels done)", static_cast<int64_t>(W) * H);
+  // 3. Rounds until every pixel is done or the budget is spent.
+  SampleSchedule schedule = StartSchedule(options, W, H);
+  int active = W * H;
+  for (int round = 0; active > 0; ++round) {
+    // Plan the round, trace it, then update the images and the pixels' error estimates.
+    if (round > 0 && !PlanRound(px, W, H, options, round, active, samples, clock, &schedule)) break;
+    schedule.round_start_s = clock.Seconds();
+    schedule.round_start_samples = static_cast<double>(samples);
+    schedule.round_start_cost = 0;
+    for (const PixelState& p : px) schedule.round_start_cost += p.cost;
+    samples += TraceRound(tracer, options, round, schedule, clock, &px);
+    UpdateImages(px, W, H, &result);
+    EstimatePixelVariance(px, W, H, &var, &var_s);
+    const int was_active = active;
+    active = RetireConvergedPixels(var_s, options, schedule.allocate, &px, &result);
+    // Report the round; stop at the budget; else double the target.
     result.summary.rounds = round + 1;
-    result.summary.samples = samples.load();
+    result.summary.samples = samples;
     result.summary.mean_spp = static_cast<double>(result.summary.samples) / px.size();
-    result.summary.seconds = elapsed();
+    result.summary.seconds = clock.Seconds();
     progress.Advance(was_active - active);
     if (on_round) on_round(result);
-    if (options.time_limit_s > 0 && elapsed() >= options.time_limit_s) break;
-    if (sample_budget > 0 && static_cast<double>(samples.load()) >= sample_budget - 0.5) break;
-    target = std::min(options.max_spp, 2 * target);
+    if (options.time_limit_s > 0 && clock.Seconds() >= options.time_limit_s) break;
+    if (schedule.sample_budget > 0 && static_cast<double>(samples) >= schedule.sample_budget - 0.5)
+      break;
+    schedule.target = std::min(options.max_spp, 2 * schedule.target);
     // A sample budget without allocation: uniform rounds up to the budget's spp.
-    if (sample_budget > 0 && !allocate)
-      target = std::min(target, static_cast<int>(std::ceil(options.allocate_spp)));
+    if (schedule.sample_budget > 0 && !schedule.allocate)
+      schedule.target =
+          std::min(schedule.target, static_cast<int>(std::ceil(options.allocate_spp)));
   }
   progress.Finish();
-  result.summary.seconds = elapsed();
+  result.summary.seconds = clock.Seconds();
   return result;
 }
 
