@@ -1,5 +1,5 @@
 # The README's commands. Each installs what is missing (scripts/install-deps), builds in build/
-# (Release with debug info) and runs.
+# (Release with debug info) what it needs and runs.
 BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?=
@@ -20,7 +20,10 @@ configure: deps
 build: configure
 	@cmake --build $(BUILD) -j $(JOBS)
 
-demo: build
+# The demo builds only what it runs: the mesoscan executable with its modules and the Blender
+# add-on zip (not the tests, benchmarks or fuzzers: `make test` and `make bench` build those).
+demo: configure
+	@cmake --build $(BUILD) -j $(JOBS) --target mesoscan
 	@bash scripts/demo $(BUILD)
 
 test: build
