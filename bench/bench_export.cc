@@ -91,7 +91,7 @@ void BM_Export(benchmark::State& state, std::string formats, std::string label) 
   Csv(label, s.seconds, s);
 }
 
-BENCHMARK_CAPTURE(BM_Export, all, std::string("exr,png16,glb,ply"), std::string("all"))
+BENCHMARK_CAPTURE(BM_Export, all, ExportFormatList(), std::string("all"))
     ->Unit(benchmark::kSecond)
     ->UseRealTime()
     ->Iterations(1);
