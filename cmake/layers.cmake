@@ -1,7 +1,8 @@
 # The layer table: each library module and the modules below it that it may include and link.
 # Arrows point down only (no back arrows, no circles):
-#   core <- session <- capture ; session <- heightfield <- calibration ; heightfield <- maps ;
-#   core <- brdf <- render ; core <- assets ; sim above all of them ;
+#   core <- session <- capture ; session <- heightfield <- calibration ; session <- maps ;
+#   core <- brdf <- render ; core <- assets ; sim above reconstruction, calibration, render and
+#   assets (docs/architecture.md, "Modules");
 #   app/, tests/, bench/, fuzz/ (and the *_test.cc files beside each library source) on top.
 # Checked at configure time on the CMake targets' links (mesoscan_check_layer_links below) and
 # by the ctest test house_layers on the sources' #include lines (cmake/check_layers.cmake).
@@ -12,11 +13,11 @@ set(MESOSCAN_LAYER_session core)
 set(MESOSCAN_LAYER_capture core session)
 set(MESOSCAN_LAYER_heightfield core session)
 set(MESOSCAN_LAYER_calibration core session heightfield)
-set(MESOSCAN_LAYER_maps core session heightfield)
+set(MESOSCAN_LAYER_maps core session)
 set(MESOSCAN_LAYER_brdf core)
 set(MESOSCAN_LAYER_render core brdf)
 set(MESOSCAN_LAYER_assets core)
-set(MESOSCAN_LAYER_sim core session capture heightfield calibration maps brdf render assets)
+set(MESOSCAN_LAYER_sim core session heightfield calibration brdf render assets)
 
 # Fails the configuration if a module's target links a library module the table does not
 # allow it (PUBLIC or PRIVATE).
