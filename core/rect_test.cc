@@ -21,7 +21,7 @@ void ExpectUsage(const std::string& text) {
 }
 
 TEST(PixelRect, CommasAndGeometrySpellTheSameRectangle) {
-  const PixelRect r = ParsePixelRect("960,620,256,192", "ReconstructOptions.roi");
+  const PixelRect r = ParsePixelRect("960,620,256,192", "FrameLoadOptions.roi");
   EXPECT_EQ(r, (PixelRect{960, 620, 256, 192}));
   EXPECT_EQ(ParsePixelRect("256x192+960+620", "ExportOptions.crop"), r);
   EXPECT_EQ(ParsePixelRect(" 1, 2 ,3,4", "ExportOptions.crop"), (PixelRect{1, 2, 3, 4}));
