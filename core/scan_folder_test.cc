@@ -49,9 +49,10 @@ TEST(ScanFolder, ReadsBackWhatItWrote) {
   }
   EXPECT_EQ(back.points.confidence.data(), scan.points.confidence.data());
   EXPECT_EQ(back.points.projector_u.data(), scan.points.projector_u.data());
-  EXPECT_EQ(back.height.x0, scan.height.x0);
-  EXPECT_EQ(back.height.y0, scan.height.y0);
-  EXPECT_EQ(back.height.pixel_size, scan.height.pixel_size);
+  // The grid attributes are stored as float (docs/formats.md).
+  EXPECT_FLOAT_EQ(back.height.x0, scan.height.x0);
+  EXPECT_FLOAT_EQ(back.height.y0, scan.height.y0);
+  EXPECT_FLOAT_EQ(back.height.pixel_size, scan.height.pixel_size);
   EXPECT_TRUE(std::isnan(back.height.z(2, 1)));
   EXPECT_EQ(back.height.z(0, 0), 2e-4f);
   EXPECT_EQ(back.normals.channels(), 3);
