@@ -503,12 +503,11 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
         << " the other frames at " << pct << "% of the decoded pixels (frames swapped, copied, "
         << "mislabelled in session.json, in other units or of another capture?)";
     } else {
-      o << (session.root / "session.json").string() << ": the sine"
-        << (use_ls ? " and lens-shift" : "") << " frames contradict each other at " << pct
-        << "% of the decoded pixels: too dark or noisy for their code, or not the frames "
+      o << "the sine" << (use_ls ? " and lens-shift" : "") << " frames contradict each other at "
+        << pct << "% of the decoded pixels: too dark or noisy for their code, or not the frames "
         << "session.json describes";
     }
-    MESOSCAN_BAD_INPUT(o.str());
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(session.root / "session.json"), o.str());
   }
   MESOSCAN_LOG(kDebug) << "consistency: " << report.ToJson().dump();
   return report;

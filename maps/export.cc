@@ -161,7 +161,7 @@ std::vector<uint8_t> EncodePng8(const ImageU8& im, const fs::path& near) {
   std::string err;
   bool no_memory_writer = false;
   if (!Oiio().Encode("png", {w}, &bytes, &err, &no_memory_writer))
-    MESOSCAN_BAD_INPUT(near.string() << ": cannot encode PNG texture (" << err << ")");
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(near), "cannot encode PNG texture (" << err << ")");
   return std::vector<uint8_t>(bytes.begin(), bytes.end());
 }
 
