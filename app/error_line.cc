@@ -55,6 +55,7 @@ constexpr OptionFlag kOptionFlags[] = {
     // calibrate
     {"CalibrateOptions.board", "", "--board"},
     {"CalibrateOptions.fix", "", "--fix"},
+    {"CalibrateOptions.model", "", "--model"},
     // reconstruct
     {"FrameLoadOptions.roi", "", "--roi"},
     {"ReconstructOptions.num_threads", "", "--threads"},

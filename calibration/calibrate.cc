@@ -408,8 +408,8 @@ void CalibrateOptions::ParseModel(const std::string& text) {
   else if (text == "full")
     model = CalibrationModel::kFull;
   else
-    MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--model: '" << text << "': expected auto, none, k1, k1k2 or full");
+    MESOSCAN_BAD_OPTION("CalibrateOptions.model",
+                        "'" << text << "': expected auto, none, k1, k1k2 or full");
 }
 
 ProjectorCoordinates DecodeProjectorCoordinates(const Session& session,

@@ -88,7 +88,7 @@ struct CalibrateOptions {
   void Check() const;
   // "k3,tangential" -> the fix flags; throws Error(kUsage) at "CalibrateOptions.fix".
   void ParseFix(const std::string& list);
-  // "auto", "none", "k1", "k1k2", "full"; throws Error(kUsage) naming --model.
+  // "auto", "none", "k1", "k1k2", "full"; throws Error(kUsage) at "CalibrateOptions.model".
   void ParseModel(const std::string& text);
 };
 
