@@ -278,11 +278,13 @@ TEST_F(CalibrateSim, RecoversTheRigFromTwelvePoses) {
   EXPECT_TRUE(r.camera_model.terms & DeviceModel::kK1) << r.camera_model.ToString();
   EXPECT_TRUE(r.projector_model.terms & DeviceModel::kK1) << r.projector_model.ToString();
   EXPECT_FALSE(r.camera_model.terms & DeviceModel::kK3);  // --fix k3
-  for (const auto& c : r.candidates)
-    if (c["stage"] == "distortion" && c["label"] == "none")
+  for (const auto& c : r.candidates) {
+    if (c["stage"] == "distortion" && c["label"] == "none") {
       EXPECT_GT(c["held_out_error_over_noise"].get<double>(), 1.5) << c.dump();
-    else if (c["chosen"].get<bool>())
+    } else if (c["chosen"].get<bool>()) {
       EXPECT_LT(c["held_out_error_over_noise"].get<double>(), 1.1) << c.dump();
+    }
+  }
   // Every view held out in turn (the mount board too): reprojected with the rig fitted without it
   // at its noise (held-out error over the corners' noise below 2, measured 1.0-1.1), its corners
   // triangulated as a scan would at the board's scale: the focal lengths' 1e-3 above would allow
@@ -664,8 +666,9 @@ TEST_F(CalibrateSim, FailedReportWriteLeavesNoRigAndNoReport) {
   for (const auto& e : fs::directory_iterator(rig.parent_path())) {
     const std::string name = e.path().filename().string();
     if (name.find(report.filename().string()) != std::string::npos ||
-        name.find(rig.stem().string()) != std::string::npos)
+        name.find(rig.stem().string()) != std::string::npos) {
       EXPECT_NE(name[0], '.') << "a temporary was left: " << name;
+    }
   }
 }
 
