@@ -579,16 +579,6 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
 
 namespace {
 
-Rigid3d PoseFromArray(const double* a) {
-  Rigid3d t;
-  double r[9];
-  ceres::AngleAxisToRotationMatrix(a, r);  // column-major
-  for (int c = 0; c < 3; ++c)
-    for (int rr = 0; rr < 3; ++rr) t.rotation(rr, c) = r[c * 3 + rr];
-  t.translation = Vec3d(a[3], a[4], a[5]);
-  return t;
-}
-
 double Rms(const std::vector<Vec2d>& r) {
   double s = 0;
   int n = 0;

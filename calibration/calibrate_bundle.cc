@@ -79,16 +79,6 @@ struct ProjectorCost : CornerResidual {
   }
 };
 
-Rigid3d PoseFromArray(const double* a) {
-  Rigid3d t;
-  double r[9];
-  ceres::AngleAxisToRotationMatrix(a, r);  // column-major
-  for (int c = 0; c < 3; ++c)
-    for (int rr = 0; rr < 3; ++rr) t.rotation(rr, c) = r[c * 3 + rr];
-  t.translation = Vec3d(a[3], a[4], a[5]);
-  return t;
-}
-
 std::vector<int> HeldIntrinsics(const DeviceModel& m) {
   std::vector<int> held;
   if (m.equal_focal) held.push_back(1);
@@ -148,6 +138,16 @@ double Rms(const std::vector<double>& v) {
 }
 
 }  // namespace
+
+Rigid3d PoseFromArray(const double* a) {
+  Rigid3d t;
+  double r[9];
+  ceres::AngleAxisToRotationMatrix(a, r);  // column-major
+  for (int c = 0; c < 3; ++c)
+    for (int rr = 0; rr < 3; ++rr) t.rotation(rr, c) = r[c * 3 + rr];
+  t.translation = Vec3d(a[3], a[4], a[5]);
+  return t;
+}
 
 int DeviceModel::FreeParameters() const {
   int n = equal_focal ? 1 : 2;

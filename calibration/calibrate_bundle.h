@@ -21,6 +21,9 @@ namespace mesoscan {
 
 struct CalibrationView;
 
+// A pose as the adjustment stores it (angle-axis, rad, then translation, m) as a transform.
+Rigid3d PoseFromArray(const double* a);
+
 // Which parameters of one device the adjustment fits; the others are held (distortion terms at
 // 0, the principal point at the image centre ((W - 1) / 2, (H - 1) / 2), fy at fx).
 struct DeviceModel {
