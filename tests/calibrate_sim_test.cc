@@ -344,7 +344,9 @@ TEST_F(CalibrateSim, UncertaintiesCoverTheErrors) {
         {"distortion/p2", {e.distortion[3], t.distortion[3]}},
         {"distortion/k3", {e.distortion[4], t.distortion[4]}}};
     for (const auto& [name, v] : params) {
-      const Json::json_pointer ptr("/" + std::string(dev) + "/" + name);
+      std::string pointer = "/";
+      pointer.append(dev).append("/").append(name);
+      const Json::json_pointer ptr(pointer);
       ASSERT_TRUE(u.contains(ptr)) << name << " " << u.dump();
       const double sigma = u[ptr].get<double>(), z = (v.first - v.second) / sigma;
       std::printf(

@@ -82,7 +82,7 @@ class CheckCliTest : public ::testing::Test {
       for (int x = 0; x < 16; ++x) {
         const Vec3d o = s.rig.camera.CentreInWorld();
         const Vec3d d = s.rig.camera.RayDirectionInWorld({double(x), double(y)});
-        Vec2d uv;
+        Vec2d uv = Vec2d::Zero();
         EXPECT_TRUE(s.rig.projector.Project(o - o.z() / d.z() * d, &uv));
         u(x, y) = static_cast<float>(uv.x());
       }

@@ -81,7 +81,11 @@ std::map<std::string, std::pair<uintmax_t, int64_t>> Snapshot(const fs::path& di
   return m;
 }
 
-std::string Q(const fs::path& p) { return "'" + p.string() + "'"; }
+std::string Q(const fs::path& p) {
+  std::string q = "'";
+  q.append(p.string()).append("'");
+  return q;
+}
 
 class Hostile : public ::testing::Test {
  protected:
