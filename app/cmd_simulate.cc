@@ -2,6 +2,8 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <string>
+#include <vector>
 
 #include "app/commands.h"
 #include "core/budget.h"
@@ -29,6 +31,9 @@ void AddSimulateCommand(CLI::App* app) {
     std::string pose = "0,0,0,0,0,0", periods_y, frame_format = "png16";
     bool low_contrast = false;
     std::string axis = "x";
+    // The object's pose and a known change (sim/object_change.h).
+    std::string object_pose;
+    std::vector<std::string> scratches, erosions;
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
@@ -117,6 +122,18 @@ void AddSimulateCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_flag("--low-contrast", args->low_contrast,
                 "Board only: grey squares (albedo 0.45) on white paper (0.8)");
+  cmd->add_option("--object-pose", args->object_pose,
+                  "The object's pose on the mount: rx,ry,rz,tx,ty,tz (rotation vector in degrees "
+                  "about the world origin, then mm), e.g. a re-placed object to compare");
+  cmd->add_option("--scratch", args->scratches,
+                  "A known change: a groove X0,Y0,X1,Y1,WIDTH,DEPTH (object mm, mm, mm, mm, um, "
+                  "um; flat bottom, 60 um walls); repeatable");
+  cmd->add_option("--erosion", args->erosions,
+                  "A known change: a round patch worn away CX,CY,RADIUS,DEPTH (object mm, mm, mm, "
+                  "um; 60 um walls); repeatable");
+  cmd->add_option("--wear", o.change.wear_file,
+                  "A known change: a height-change EXR (channel Z, signed metres, the scan-outputs "
+                  "grid attributes) added to the object's surface in object coordinates");
   cmd->add_option("--shift-position-error", o.shift_position_error_px,
                   "Lens-shifter position error per frame, RMS in projector px")
       ->capture_default_str();
@@ -154,6 +171,12 @@ void AddSimulateCommand(CLI::App* app) {
       return;
     }
     opt.ps_periods_px = ParsePeriodList(args->periods, "SimulateOptions.ps_periods_px");
+    if (!args->object_pose.empty())
+      opt.change.pose = ParseBoardPose(args->object_pose, "ObjectChange.pose");
+    for (const std::string& s : args->scratches)
+      opt.change.scratches.push_back(ParseScratch(s, "ObjectChange.scratches"));
+    for (const std::string& s : args->erosions)
+      opt.change.erosions.push_back(ParseErosion(s, "ObjectChange.erosions"));
     if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "SimulateOptions.crop");
     opt.axis = args->axis.front();
     // Periods whose phases repeat within the projector make a session nothing can decode:
@@ -176,10 +199,13 @@ void AddSimulateCommand(CLI::App* app) {
     opt.shadows = !args->no_shadows;
     // A FILE.exr object and a RIG.json are inputs: --out must not be, contain or lie in them.
     const auto is_file = [](const std::string& v) { return std::filesystem::exists(v); };
-    const OutputSpec out_spec{
-        "simulate",  "--out",
-        args->out,   {is_file(opt.object) ? opt.object : "", is_file(opt.rig) ? opt.rig : ""},
-        args->force, {}};
+    const OutputSpec out_spec{"simulate",
+                              "--out",
+                              args->out,
+                              {is_file(opt.object) ? opt.object : "",
+                               is_file(opt.rig) ? opt.rig : "", opt.change.wear_file},
+                              args->force,
+                              {}};
     CheckOutputFolder(out_spec);
     // Simulation memory, checked before anything is built: the scene (~300 MB for the procedural
     // objects) and per camera pixel ~100 bytes plus ~30 per supersample ray (measured: 91 and

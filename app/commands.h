@@ -17,5 +17,6 @@ void AddRenderCommand(CLI::App* app);       // cmd_render.cc
 void AddCaptureCommand(CLI::App* app);      // cmd_capture.cc
 void AddMapsCommand(CLI::App* app);         // cmd_maps.cc
 void AddCalibrateCommand(CLI::App* app);    // cmd_calibrate.cc
+void AddCompareCommand(CLI::App* app);      // cmd_compare.cc
 
 }  // namespace mesoscan

@@ -41,7 +41,7 @@ TEST(ErrorLine, AFieldSetByAnotherFlagInOneCommand) {
 std::vector<fs::path> LibrarySources() {
   std::vector<fs::path> files;
   for (const char* module : {"core", "session", "capture", "heightfield", "calibration", "maps",
-                             "brdf", "render", "assets", "sim"})
+                             "brdf", "render", "assets", "sim", "compare"})
     for (const auto& entry : fs::directory_iterator(fs::path(MESOSCAN_SOURCE_DIR) / module)) {
       const std::string ext = entry.path().extension().string();
       if (ext == ".cc" || ext == ".h") files.push_back(entry.path());

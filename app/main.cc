@@ -50,6 +50,7 @@ int main(int argc, char** argv) {
   AddReconstructCommand(&app);
   AddExportCommand(&app);
   AddMapsCommand(&app);
+  AddCompareCommand(&app);
   AddCheckCommand(&app);
   AddBrdfCommand(&app);
   AddRenderCommand(&app);

@@ -1,13 +1,13 @@
 # The layer table: each library module and the modules below it that it may include and link.
 # Arrows point down only (no back arrows, no circles):
 #   core <- session <- capture ; session <- heightfield <- calibration ; session <- maps ;
-#   core <- brdf <- render ; core <- assets ; sim above reconstruction, calibration, render and
-#   assets (docs/architecture.md, "Modules");
+#   core <- brdf <- render ; core <- assets ; maps <- compare ; sim above reconstruction,
+#   calibration, maps, render and assets (docs/architecture.md, "Modules");
 #   app/, tests/, bench/, fuzz/ (and the *_test.cc files beside each library source) on top.
 # Checked at configure time on the CMake targets' links (mesoscan_check_layer_links below) and
 # by the ctest test house_layers on the sources' #include lines (cmake/check_layers.cmake).
 set(MESOSCAN_LIBRARY_MODULES
-    core session capture heightfield calibration maps brdf render assets sim)
+    core session capture heightfield calibration maps brdf render assets sim compare)
 set(MESOSCAN_LAYER_core "")
 set(MESOSCAN_LAYER_session core)
 set(MESOSCAN_LAYER_capture core session)
@@ -17,7 +17,8 @@ set(MESOSCAN_LAYER_maps core session)
 set(MESOSCAN_LAYER_brdf core)
 set(MESOSCAN_LAYER_render core brdf)
 set(MESOSCAN_LAYER_assets core)
-set(MESOSCAN_LAYER_sim core session heightfield calibration brdf render assets)
+set(MESOSCAN_LAYER_sim core session heightfield calibration maps brdf render assets)
+set(MESOSCAN_LAYER_compare core maps)
 
 # Fails the configuration if a module's target links a library module the table does not
 # allow it (PUBLIC or PRIVATE).

@@ -119,28 +119,24 @@ void BoardSimOptions::Check() const {
 
 bool IsBoardObject(const std::string& object) { return object.rfind("board:", 0) == 0; }
 
-std::array<double, 6> ParseBoardPose(const std::string& text) {
+std::array<double, 6> ParseBoardPose(const std::string& text, const std::string& option) {
   std::array<double, 6> pose{};
   std::stringstream ss(text);
   std::string item;
   int n = 0;
   while (std::getline(ss, item, ',')) {
-    if (n >= 6)
-      BOARD_OPTION("BoardSimOptions.pose",
-                   "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
+    if (n >= 6) BOARD_OPTION(option, "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
     try {
       size_t used = 0;
       pose[n] = std::stod(item, &used);
       if (used != item.size() || !std::isfinite(pose[n])) throw std::invalid_argument(item);
     } catch (const std::exception&) {
-      BOARD_OPTION("BoardSimOptions.pose",
+      BOARD_OPTION(option,
                    "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz (degrees, mm)");
     }
     ++n;
   }
-  if (n != 6)
-    BOARD_OPTION("BoardSimOptions.pose",
-                 "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
+  if (n != 6) BOARD_OPTION(option, "'" << text << "': expected six numbers rx,ry,rz,tx,ty,tz");
   return pose;
 }
 

@@ -38,8 +38,9 @@ struct BoardSimOptions {
 // "board:checker:13x9:10" -> the board; "" if `object` does not start with "board:".
 bool IsBoardObject(const std::string& object);
 
-// "rx,ry,rz,tx,ty,tz" (degrees, mm) -> pose; throws Error(kUsage) at BoardSimOptions.pose.
-std::array<double, 6> ParseBoardPose(const std::string& text);
+// "rx,ry,rz,tx,ty,tz" (degrees, mm) -> pose; throws Error(kUsage) at the options field `option`.
+std::array<double, 6> ParseBoardPose(const std::string& text,
+                                     const std::string& option = "BoardSimOptions.pose");
 // world_from_board of a pose.
 Rigid3d BoardPoseToRigid(const std::array<double, 6>& pose);
 

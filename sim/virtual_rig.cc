@@ -534,6 +534,7 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
                    {"source", options.object},
                    {"grid_pixel_size_m", object.height.pixel_size},
                    {"grid_size", {object.height.width(), object.height.height()}}};
+  if (!options.change.empty()) sim["object_change"] = ObjectChangeRecord(options.change);
   sim["rig"] = options.rig;
   if (options.crop)  // [W, H, X, Y], as earlier sessions recorded it
     sim["crop"] = {options.crop->w, options.crop->h, options.crop->x, options.crop->y};
@@ -624,6 +625,15 @@ void SimulateOptions::Check() const {
     SIM_OPTION("shift_position_error_px", "expected [0, 0.5) px, got " << shift_position_error_px);
   if (!(gain_jitter >= 0 && gain_jitter < 0.2))
     SIM_OPTION("gain_jitter", "expected [0, 0.2), got " << gain_jitter);
+  for (const Scratch& s : change.scratches)
+    if (!(s.width_m > 0) || !(s.depth_m >= 0) || !std::isfinite(s.x0 + s.y0 + s.x1 + s.y1))
+      SIM_OPTION("change", "a scratch needs finite ends, a width > 0 and a depth >= 0");
+  for (const ErosionPatch& e : change.erosions)
+    if (!(e.radius_m > kWearWallM) || !(e.depth_m >= 0) || !std::isfinite(e.cx + e.cy))
+      SIM_OPTION("change", "an erosion patch needs a finite centre, a radius > "
+                               << kWearWallM << " m and a depth >= 0");
+  for (double v : change.pose)
+    if (!std::isfinite(v)) SIM_OPTION("change", "the object pose must be finite");
   if (crop && (crop->w < 1 || crop->h < 1 || crop->x < 0 || crop->y < 0))
     SIM_OPTION("crop", "expected X,Y,W,H (or WxH+X+Y) with W, H >= 1 and X, Y >= 0");
 }
@@ -767,8 +777,9 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   const std::vector<Frame> frames = MakeSimulationFrames(options, rig);
 
   // The scene: the object on the mount plane z = 0.
-  const SceneObject object =
+  SceneObject object =
       MakeObject(options.object, options.object_pixel_size_m, "SimulateOptions.object");
+  ApplyObjectChange(options.change, &object);
   EmbreeScene scene;
   scene.AddHeightField(object.height);
   const double focus_z = FocusHeight(object, options.focus_height_m);

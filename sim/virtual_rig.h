@@ -17,6 +17,7 @@
 #include "core/rect.h"
 #include "session/patterns.h"
 #include "session/session.h"
+#include "sim/object_change.h"
 
 namespace mesoscan {
 
@@ -35,6 +36,9 @@ struct SimulateOptions {
   std::optional<PixelRect> crop;
   // The session's "object" text; empty: the object's name.
   std::string object_label;
+  // The object's pose on the mount and a known change to its surface (scratches, erosion, a
+  // wear EXR), applied before ray casting (sim/object_change.h); empty: the object as generated.
+  ObjectChange change;
 
   // ---- frame plan (patterns vary along projector u, axis "x", or v, axis "y") ----
   // Fringe axis of every sine and stripes frame: 'x' (vertical fringes) or 'y' (horizontal). With

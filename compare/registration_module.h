@@ -1,0 +1,47 @@
+#pragma once
+// Open3D's registration behind a module loaded on first use (core/module.h:
+// libmesoscan_open3d.so, built from compare/registration_module.cc): Open3D links ~100 shared
+// libraries that no other command needs. Coarse alignment by FPFH features and RANSAC, then
+// robust point-to-plane ICP (Tukey's kernel), then the points beyond 3 robust sigmas excluded and
+// a refit (a changed area must not pull the registration).
+
+#include <cstdint>
+#include <vector>
+
+#include "core/transform.h"
+
+namespace mesoscan {
+
+struct RegistrationInput {
+  // Target A and source B: points (world metres) with unit normals.
+  std::vector<Vec3d> a_points, a_normals, b_points, b_normals;
+  double voxel_m = 0;         // coarse voxel (features, RANSAC), > 0
+  double max_distance_m = 0;  // fine correspondences' largest distance, > 0
+  int seed = 1;               // RANSAC's random seed
+};
+
+struct RegistrationOutput {
+  Mat4d b_to_a = Mat4d::Identity();
+  double coarse_fitness = 0, coarse_rmse_m = 0;  // RANSAC's, at the voxel scale
+  double coarse_icp_fitness = 0;                 // after the coarse point-to-plane refinement
+  double robust_sigma_m = 0;  // 1.4826 MAD of the point-to-plane residuals at the solution
+  int64_t b_inliers = 0;      // B's points within 3 robust sigmas (the final fit's)
+  // The final fit's normal equations at the solution, for the uncertainty: J^T J of the
+  // residuals' derivatives by a correction (rx, ry, rz, tx, ty, tz) applied after b_to_a, the sum
+  // of squared inlier residuals and their count.
+  Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+  double sum_squares = 0;
+  int64_t inliers = 0;
+  double seconds_coarse = 0, seconds_fine = 0;
+};
+
+class RegistrationModule {
+ public:
+  virtual ~RegistrationModule() = default;
+  virtual RegistrationOutput Register(const RegistrationInput& input) const = 0;
+};
+
+// The module, loaded on the first call. Throws Error(kInternal) if it cannot be loaded.
+const RegistrationModule& Registration();
+
+}  // namespace mesoscan

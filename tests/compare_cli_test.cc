@@ -1,0 +1,133 @@
+// `mesoscan compare` as a user runs it: synthetic scan folders (a relief of scattered bumps, B the
+// same relief re-placed), the comparison folder it writes, and one clear line with a distinct
+// exit code for each bad input.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <string>
+
+#include "core/image_io.h"
+#include "core/json.h"
+#include "core/scan_folder.h"
+#include "tests/cli_util.h"
+
+namespace mesoscan {
+namespace {
+namespace fs = std::filesystem;
+
+// A 12 x 12 mm plate 1 mm high with 60 bumps (10-25 um, 1-1.8 mm wide) in world frame
+// `world_from_object` (a rotation about z and a shift), sampled on a 55 um grid, with noise.
+Scan Relief(double angle_deg, double tx, double ty, uint64_t seed, bool empty = false) {
+  std::mt19937 rng(7);  // the same bumps in every scan
+  std::uniform_real_distribution<double> u(0, 1);
+  struct Bump {
+    double x, y, r, h;
+  };
+  std::vector<Bump> bumps;
+  for (int k = 0; k < 60; ++k)
+    bumps.push_back({(u(rng) - 0.5) * 10e-3, (u(rng) - 0.5) * 10e-3, 0.5e-3 + 0.4e-3 * u(rng),
+                     10e-6 + 15e-6 * u(rng)});
+  std::mt19937 noise_rng(seed);
+  std::normal_distribution<double> noise(0, 1e-6);
+  Scan s;
+  HeightField& hf = s.height;
+  hf.pixel_size = 55e-6;
+  const int n = 300;
+  hf.x0 = -(n - 1) / 2.0 * hf.pixel_size;
+  hf.y0 = (n - 1) / 2.0 * hf.pixel_size;
+  hf.z = ImageF(n, n, 1, 0.0f);
+  hf.confidence = ImageF(n, n, 1, 0.9f);
+  const double a = angle_deg * 3.14159265358979323846 / 180.0;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      // Object coordinates of the world point (inverse of rotation a then shift).
+      const double wx = hf.X(i) - tx, wy = hf.Y(j) - ty;
+      const double x = std::cos(a) * wx + std::sin(a) * wy,
+                   y = -std::sin(a) * wx + std::cos(a) * wy;
+      // Off the plate: no sample (as a scan drops its steep sides), or the empty mount.
+      double z = empty ? 0.0 : std::nan("");
+      if (!empty && std::abs(x) < 6e-3 && std::abs(y) < 6e-3) {
+        z = 1e-3 + 15e-6 * std::sin(x / 0.7e-3) * std::cos(y / 0.9e-3);
+        for (const Bump& b : bumps) {
+          const double q = (std::pow(x - b.x, 2) + std::pow(y - b.y, 2)) / (b.r * b.r);
+          if (q < 1) z += b.h * (1 - q) * (1 - q);
+        }
+      }
+      hf.z(i, j) = static_cast<float>(z + noise(noise_rng));
+    }
+  s.normals = hf.Normals();
+  s.points.xyz = ImageF(2, 2, 3, std::nanf(""));
+  s.points.confidence = ImageF(2, 2, 1, 0.0f);
+  s.points.projector_u = ImageF(2, 2, 1, std::nanf(""));
+  s.report["summary"]["predicted_depth_rms_m"] = 1e-6;
+  return s;
+}
+
+class CompareCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    work_ = TestTempPath("compare_cli",
+                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(work_);
+    WriteScanFolder(work_ / "a.scan", Relief(0, 0, 0, 1));
+    WriteScanFolder(work_ / "b.scan", Relief(5, 0.4e-3, -0.3e-3, 2));
+  }
+  // 'WORK/name', quoted for the shell (built by append: GCC 12's -Wrestrict misfires on +).
+  std::string P(const std::string& name) const {
+    std::string q = "'";
+    q += (work_ / name).string();
+    q += "'";
+    return q;
+  }
+  fs::path work_;
+};
+
+TEST_F(CompareCli, WritesTheComparisonFolder) {
+  const CliRun r =
+      RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --out " + P("ab"), work_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* f : {"deviation.exr", "deviation.png", "report.json", ".mesoscan-output"})
+    EXPECT_TRUE(fs::is_regular_file(work_ / "ab" / f)) << f;
+  const Json rep = ReadJsonFile(work_ / "ab" / "report.json");
+  EXPECT_NEAR(rep.at("b_to_a_rotation_deg").get<double>(), 5.0, 0.01);
+  // The plate's points, 1 um of noise in each scan (and B's grid interpolated at A's points
+  // re-placed: the coin pairs of compare_test.cc hold the accuracy figures).
+  EXPECT_LT(rep.at("deviation_rms_um").get<double>(), 2.0);
+  EXPECT_LE(rep.at("changed_fraction").get<double>(), 1e-2);
+  const ImageF dev = ReadImage(work_ / "ab" / "deviation.exr");  // Z, sigma, changed
+  EXPECT_EQ(dev.width(), 300);
+  EXPECT_EQ(dev.channels(), 3);
+  // Run again onto its own earlier output: replaced.
+  EXPECT_EQ(RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --out " + P("ab"), work_).code,
+            0);
+}
+
+TEST_F(CompareCli, BadInputsSayOneLineWithTheirExitCode) {
+  // A missing scan folder: bad input naming it, nothing written.
+  CliRun r = RunCli("compare " + P("a.scan") + " " + P("nope.scan") + " --out " + P("x"), work_);
+  EXPECT_EQ(r.code, 3) << r.err;
+  EXPECT_EQ(r.ErrLines(), 1) << r.err;
+  EXPECT_NE(r.err.find("nope.scan"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(work_ / "x"));
+  // --out inside an input: usage.
+  r = RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --out " + P("a.scan/cmp"), work_);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_EQ(r.ErrLines(), 1) << r.err;
+  // A bad option value names its flag.
+  r = RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --window 4 --out " + P("x"), work_);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("--window"), std::string::npos) << r.err;
+  // A scan of the empty mount has no object to register: bad input naming it.
+  WriteScanFolder(work_ / "empty.scan", Relief(0, 0, 0, 3, /*empty=*/true));
+  r = RunCli("compare " + P("a.scan") + " " + P("empty.scan") + " --out " + P("x"), work_);
+  EXPECT_EQ(r.code, 3) << r.err;
+  EXPECT_EQ(r.ErrLines(), 1) << r.err;
+  EXPECT_NE(r.err.find("empty.scan"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(work_ / "x"));
+}
+
+}  // namespace
+}  // namespace mesoscan
