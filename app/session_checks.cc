@@ -30,8 +30,9 @@ Scan ReconstructLocated(const Session& session, const ReconstructOptions& option
   }
 }
 
-// Why no point came out: the stage that rejected most of the pixels, in the user's terms.
-std::string WhyNoPoint(const ReconstructSummary& s) {
+// Why no point came out (or why few did): the stage that rejected most of the pixels, in the
+// user's terms.
+std::string WhyNoPoint(const ReconstructSummary& s, const ReconstructOptions& options) {
   if (s.pixels_roi == 0) return "the ROI and mask select no pixel";
   if (s.pixels_saturated * 2 >= s.pixels_roi)
     return std::to_string(s.pixels_saturated) +
@@ -42,7 +43,7 @@ std::string WhyNoPoint(const ReconstructSummary& s) {
   if (s.consistency.ambiguous_stripes * 2 > s.consistency.decoded && s.consistency.decoded > 0)
     return "the sine periods fix the projector column too coarsely for the 2-px lens-shift "
            "stripes (their noise allows a wrong stripe period): add shorter periods";
-  const std::pair<int64_t, const char*> reasons[] = {
+  const std::pair<int64_t, std::string> reasons[] = {
       {s.pixels_rejected_unwrap,
        "the sine periods' phases disagree at every pixel (unwrapping failed): are the periods "
        "and phases in session.json those of the frames?"},
@@ -59,7 +60,13 @@ std::string WhyNoPoint(const ReconstructSummary& s) {
       {s.pixels_rejected_ambiguous,
        "the frames are too noisy for the code (a wrong fringe order or a depth error over 100 um "
        "would be likely): too dark or low-contrast frames?"},
-      {s.pixels_rejected_discontinuity, "every point lies on a depth step or shadow edge"}};
+      {s.pixels_rejected_uncertain,
+       "the code fixes the projector column too coarsely: the points' predicted depth sigma "
+       "exceeds " +
+           std::to_string(std::lround(options.consistency.max_depth_sigma_m * 1e6)) +
+           " um (a depth error over 100 um would be likely): add shorter sine periods or "
+           "lens-shift frames, or raise the exposure"},
+      {s.pixels_rejected_discontinuity, "the points lie on depth steps or shadow edges"}};
   const auto* best = &reasons[0];
   for (const auto& r : reasons)
     if (r.first > best->first) best = &r;
@@ -81,7 +88,7 @@ std::optional<Error> NoPointError(const Session& session, const ReconstructOptio
   msg << (points ? "too few points" : "no point") << " could be reconstructed from the "
       << summary.pixels_roi << " pixels tried (" << summary.pixels_lit << " lit and modulated"
       << (points ? ", " + std::to_string(points) + " points" : std::string())
-      << "): " << WhyNoPoint(summary);
+      << "): " << WhyNoPoint(summary, options);
   return Error(ErrorKind::kBadInput, ErrorSite::File(session.root / "session.json"), msg.Parts());
 }
 
@@ -93,6 +100,17 @@ Scan ReconstructOrExplain(const Session& session, const ReconstructOptions& opti
   ReconstructSummary* summary = summary_out ? summary_out : &local;
   Scan scan = ReconstructLocated(session, options, summary);
   if (std::optional<Error> e = NoPointError(session, options, *summary, scan)) throw *e;
+  // A scan that kept fewer than half of its lit pixels is said loudly, with the main reason.
+  // It is also kept in report.json's "warnings".
+  if (summary->pixels_lit > 0 && summary->pixels_valid * 2 < summary->pixels_lit) {
+    const std::string warning =
+        "only " + std::to_string(summary->pixels_valid) + " of " +
+        std::to_string(summary->pixels_lit) + " lit pixels gave a point (" +
+        std::to_string(std::lround(100.0 * summary->pixels_valid / summary->pixels_lit)) +
+        "%): " + WhyNoPoint(*summary, options);
+    MESOSCAN_LOG(kWarning) << (session.root / "session.json").string() << ": " << warning;
+    scan.report["warnings"].push_back(warning);
+  }
   return scan;
 }
 

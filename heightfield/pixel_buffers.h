@@ -34,7 +34,9 @@ enum class PixelState : uint8_t {
                     // isolated fringe order (low signal: the periods' phases are mostly noise)
   kInconsistent,    // consistency: the phases contradict the pixel's column beyond their noise
   kAmbiguous,       // consistency: the noise cannot fix the fringe order or the stripes'
-                    // period, or the predicted depth sigma is too large to trust
+                    // period
+  kUncertain,       // consistency (RejectUncertainPoints): the predicted depth sigma is too
+                    // large to trust (a code too coarse or too noisy for the promised 100 um)
   kNoIntersection,  // triangulate: the camera ray misses the projector plane
   kDiscontinuity,   // mixed pixels: a mixed pixel at a depth step or shadow edge
   kActive,          // still in the running

@@ -138,7 +138,8 @@ struct ReconstructSummary {
   int64_t pixels_rejected_discontinuity = 0;
   int64_t pixels_rejected_isolated = 0;  // combine: isolated fringe orders (RejectIsolatedColumns)
   int64_t pixels_rejected_inconsistent = 0;  // consistency: phases contradict the column
-  int64_t pixels_rejected_ambiguous = 0;     // consistency: order or depth too uncertain
+  int64_t pixels_rejected_ambiguous = 0;     // consistency: fringe order or stripes too uncertain
+  int64_t pixels_rejected_uncertain = 0;     // consistency: predicted depth sigma too large
   ConsistencyReport consistency;
   int lens_shift_frames = 0, phase_shift_frames = 0;
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated

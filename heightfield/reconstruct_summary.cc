@@ -46,6 +46,7 @@ Json ReconstructSummary::ToJson() const {
                  {"rejected_isolated", pixels_rejected_isolated},
                  {"rejected_inconsistent", pixels_rejected_inconsistent},
                  {"rejected_ambiguous", pixels_rejected_ambiguous},
+                 {"rejected_uncertain", pixels_rejected_uncertain},
                  {"rejected_discontinuity", pixels_rejected_discontinuity}};
   j["frames"] = {{"lens_shift", lens_shift_frames}, {"phase_shift", phase_shift_frames}};
   j["frame_gains"] = frame_gains;
@@ -68,6 +69,7 @@ void CountFinalStates(const PixelStates& state, ReconstructSummary* s) {
     s->pixels_rejected_isolated += st == PixelState::kIsolated;
     s->pixels_rejected_inconsistent += st == PixelState::kInconsistent;
     s->pixels_rejected_ambiguous += st == PixelState::kAmbiguous;
+    s->pixels_rejected_uncertain += st == PixelState::kUncertain;
   }
 }
 

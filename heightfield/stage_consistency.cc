@@ -527,7 +527,7 @@ int64_t RejectUncertainPoints(const RoiGrid& grid, const std::vector<float>& sig
         const size_t i = static_cast<size_t>(y) * w + x;
         if (state[i] != PixelState::kOk || sigma_z[i] <= max_sigma_m) continue;
         ++rows_n;
-        state[i] = PixelState::kAmbiguous;
+        state[i] = PixelState::kUncertain;
         const int cx = x + grid.roi.x, cy = y + grid.roi.y;
         for (int c = 0; c < 3; ++c) points->xyz(cx, cy, c) = kNaN;
         points->confidence(cx, cy) = 0.0f;

@@ -81,7 +81,7 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
                                         PixelStates* state);
 
 // After triangulation: kOk points whose predicted depth sigma exceeds max_sigma_m are moved to
-// kAmbiguous (NaN, confidence 0): with max_sigma_m = 20 um, a point within 5 sigma is within
+// kUncertain (NaN, confidence 0): with max_sigma_m = 20 um, a point within 5 sigma is within
 // 100 um. Returns the number rejected.
 int64_t RejectUncertainPoints(const RoiGrid& grid, const std::vector<float>& sigma_z,
                               double max_sigma_m, ScanPoints* points, PixelStates* state);

@@ -229,5 +229,51 @@ TEST_F(Consistency, DarkCapturesKeepNoWrongPoint) {
   fs::remove_all(s);
 }
 
+// A code too coarse for the promised 100 um (a 50-px period over an 800-px cue, no lens shift)
+// is refused with that reason, not blamed on dark frames; a dim 16-bit capture that keeps fewer
+// than half of its lit pixels says so with the reason.
+TEST_F(Consistency, CoarseCodeAndDimCaptureSayWhy) {
+  const fs::path coarse = *work_ / "coarse";
+  ASSERT_EQ(RunCli("simulate --object coin --crop 160x120+1000+700 --ls-frames 0 "
+                   "--ps-periods 800,50 --out " +
+                       Q(coarse),
+                   *work_)
+                .code,
+            0);
+  const CliRun r = RunCli("reconstruct " + Q(coarse) + " --out " + Q(*work_ / "coarse_sc"), *work_);
+  EXPECT_EQ(r.code, 3) << r.err;
+  EXPECT_NE(r.err.find("predicted depth sigma exceeds 20 um"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("add shorter sine periods"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("dark"), std::string::npos) << r.err;
+  fs::remove_all(coarse);
+
+  const fs::path dim = *work_ / "dim16";
+  ASSERT_EQ(RunCli("simulate --object coin --crop 160x120+1000+700 --adc-bits 16 --exposure 0.08 "
+                   "--out " +
+                       Q(dim),
+                   *work_)
+                .code,
+            0);
+  const fs::path out = *work_ / "dim16_sc";
+  const CliRun d = RunCli("reconstruct " + Q(dim) + " --out " + Q(out), *work_);
+  ASSERT_EQ(d.code, 0) << d.err;
+  const Json px = ReadJsonFile(out / "report.json").at("summary").at("pixels");
+  const int64_t valid = px["valid"].get<int64_t>(), lit = px["lit"].get<int64_t>();
+  std::printf("dim 16-bit capture: %lld of %lld lit pixels kept\n", static_cast<long long>(valid),
+              static_cast<long long>(lit));
+  // The warning (stderr without -q) is also in report.json.
+  const Json report = ReadJsonFile(out / "report.json");
+  if (valid * 2 < lit) {
+    ASSERT_TRUE(report.contains("warnings")) << report.dump();
+    const std::string w = report["warnings"].at(0).get<std::string>();
+    EXPECT_NE(w.find("lit pixels gave a point"), std::string::npos) << w;
+    EXPECT_NE(w.find("too noisy"), std::string::npos) << w;
+  } else {
+    EXPECT_FALSE(report.contains("warnings")) << report.dump();
+  }
+  fs::remove_all(dim);
+  fs::remove_all(out);
+}
+
 }  // namespace
 }  // namespace mesoscan
