@@ -83,6 +83,8 @@ void RunCapture(const Args& a) {
   Session s;
   s.root = a.out;
   s.object = a.object;
+  if (a.rehearse && s.object.empty())
+    s.object = "capture rehearsal: the screen camera's frames are the projector's own image";
   s.rig = rig;
   s.frames = MakeStandardFrames(plan);
 
@@ -143,7 +145,13 @@ void RunCapture(const Args& a) {
     throw;
   }
   std::signal(SIGINT, previous);
-  std::cout << a.out << ": " << summary.BriefReport() << "\n" << std::flush;
+  std::cout << a.out << ": " << summary.BriefReport() << "\n";
+  if (rehearsal && camera_name != "gphoto2" && camera_name.rfind("gphoto2:", 0) != 0)
+    std::cout << a.out
+              << ": a rehearsal of the capture chain: the screen camera sees the projector's own "
+                 "image, not a scene (its white is saturated), so `check --quick` accepts the "
+                 "session and `check` and `reconstruct` refuse it\n";
+  std::cout << std::flush;
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include "capture/sequencer.h"
 #include "capture/xvfb_server_test_util.h"
 #include "core/image_io.h"
+#include "core/json.h"
 #include "heightfield/frames.h"
 #include "session/patterns.h"
 #include "session/raw_frame.h"
@@ -328,8 +329,12 @@ TEST(CaptureRehearse, AFullCaptureWithoutHardwarePassesCheckQuick) {
       RunMesoscan("-q capture --rehearse --out " + (dir / "R").string() + " --rig " +
                   (dir / "rig.json").string() + " --periods 7,11 --ls-frames 4 --settle 0");
   ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("a rehearsal of the capture chain"), std::string::npos) << r.output;
   EXPECT_TRUE(fs::exists(dir / "R" / "session.json"));
   EXPECT_FALSE(fs::exists(dir / "R" / kCaptureJournal));
+  EXPECT_NE(ReadJsonFile(dir / "R" / "session.json")["object"].get<std::string>().find(
+                "capture rehearsal"),
+            std::string::npos);
   const CliResult c = RunMesoscan("check --quick " + (dir / "R").string());
   EXPECT_EQ(c.code, 0) << c.output;
   fs::remove_all(dir);
