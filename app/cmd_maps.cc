@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <sstream>
 
 #include "app/commands.h"
 #include "app/map_options.h"
@@ -19,6 +20,21 @@
 namespace mesoscan {
 namespace fs = std::filesystem;
 
+namespace {
+
+// "X,Y": two integers >= 0.
+std::array<int, 2> ParseTileAt(const std::string& text) {
+  std::array<int, 2> v{};
+  char comma = 0, extra = 0;
+  std::istringstream in(text);
+  if (!(in >> v[0] >> comma >> v[1]) || comma != ',' || (in >> extra) || v[0] < 0 || v[1] < 0)
+    MESOSCAN_BAD_OPTION("TileOptions.at_px",
+                        "'" << text << "': expected X,Y (pixels of the height grid, >= 0)");
+  return v;
+}
+
+}  // namespace
+
 void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
   const std::string g =
       standalone ? "" : " (map set: also writes a finished map set into OUT/maps)";
@@ -30,13 +46,17 @@ void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
       "Remove the sample's shape: none, plane, poly:N or highpass:MM (cutoff wavelength)" + g);
   cmd->add_option("--tile", a->tile_mm, "Make a tileable square of this size in mm" + g);
   cmd->add_option("--tile-method", a->tile_method, "blend (offset-and-blend, default) or mirror");
+  cmd->add_option("--tile-at", a->tile_at,
+                  "X,Y: the tile's source square at this top-left pixel of the scan's height grid "
+                  "(default: chosen on the sample, textured and measured)");
   cmd->add_option("--maps", a->maps,
                   "Maps to write: any of height,normal,albedo,confidence,ao,curvature" + g);
   cmd->add_option("--ao-radius-mm", a->ao_radius_mm, "Ambient occlusion search radius, mm");
 }
 
 bool MapArgs::any() const {
-  return !fill.empty() || !flatten.empty() || tile_mm > 0 || !maps.empty() || !tile_method.empty();
+  return !fill.empty() || !flatten.empty() || tile_mm > 0 || !maps.empty() ||
+         !tile_method.empty() || !tile_at.empty();
 }
 
 MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop) const {
@@ -60,6 +80,10 @@ MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop)
     if (tile_mm <= 0) MESOSCAN_THROW(ErrorKind::kUsage, "--tile-method needs --tile SIZE_MM");
     o.tile_options.method = ParseTileMethod(tile_method);
   }
+  if (!tile_at.empty()) {
+    if (tile_mm <= 0) MESOSCAN_THROW(ErrorKind::kUsage, "--tile-at needs --tile SIZE_MM");
+    o.tile_options.at_px = ParseTileAt(tile_at);
+  }
   if (!maps.empty()) ParseMapSelection(maps, &o);
   if (ao_radius_mm > 0) o.ao.radius_m = ao_radius_mm * 1e-3;
   if (!crop.empty()) o.crop = ParsePixelRect(crop, "MapsOptions.crop");
@@ -73,6 +97,14 @@ void PrintMapSet(const MapsSummary& s, const fs::path& dir) {
   std::cout << "map set in " << abs.string() << " (manifest.json; contact sheet "
             << s.manifest.at("name").get<std::string>() << "_contact_sheet.png)\n";
   std::cout << "load in Blender: " << BlenderLoadLine(abs / "manifest.json") << "\n";
+}
+
+std::string ScanName(const fs::path& scan) {
+  fs::path p = scan.lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  std::string name = p.filename().string();
+  if (p.extension() == ".scan") name = p.stem().string();
+  return name.empty() || name == "." || name == ".." ? "scan" : name;
 }
 
 std::string BlenderLoadLine(const fs::path& manifest) {

@@ -81,6 +81,7 @@ constexpr OptionFlag kOptionFlags[] = {
     {"FlattenOptions.highpass_wavelength_m", "", "--flatten"},
     {"TileOptions.size_m", "", "--tile"},
     {"TileOptions.method", "", "--tile-method"},
+    {"TileOptions.at_px", "", "--tile-at"},
     // compare
     {"CompareOptions.mount_clearance_m", "", "--mount-clearance"},
     {"CompareOptions.min_confidence", "", "--min-confidence"},

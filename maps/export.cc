@@ -197,7 +197,8 @@ void WritePly(const fs::path& path, const HeightField& hf, const ImageF& normals
   });
 }
 
-// Scales an albedo so its 99th percentile (of the channel mean over valid samples) is 1.
+// Scales an albedo so its 99th percentile (of the channel mean over valid samples) is 1; NaN
+// stays NaN (FillExportHeights fills it where the height is known).
 ImageF NormaliseAlbedo(const ImageF& a) {
   std::vector<float> lum;
   lum.reserve(a.pixels());
@@ -211,7 +212,7 @@ ImageF NormaliseAlbedo(const ImageF& a) {
   const size_t q = static_cast<size_t>(0.99 * (lum.size() - 1));
   std::nth_element(lum.begin(), lum.begin() + q, lum.end());
   const float scale = lum[q] > 0 ? 1.0f / lum[q] : 1.0f;
-  for (float& v : out.data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : 0.0f;
+  for (float& v : out.data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : v;
   return out;
 }
 
@@ -550,6 +551,15 @@ ExportHeights FillExportHeights(const FillOptions& fill, ExportGrid* grid) {
   h.midlevel = -h.range.min / h.span;
   h.hole_fill = FillHoles(hf, fill);
   h.filled = FillHoles(h.hole_fill.field.z, h.hole_value);
+  // The albedo wherever the height is now known (no black outline around a filled hole); 0 in
+  // the holes left.
+  if (!grid->albedo.empty()) {
+    ImageU8 want(hf.width(), hf.height(), 1, 0);
+    for (size_t p = 0; p < want.pixels(); ++p)
+      want.data()[p] = std::isfinite(h.hole_fill.field.z.data()[p]);
+    grid->albedo = FillImageWhere(grid->albedo, want, hf.pixel_size, fill);
+    for (float& v : grid->albedo.data()) v = std::isfinite(v) ? std::max(0.0f, v) : 0.0f;
+  }
   if (h.hole_fill.filled_pixels > 0) {
     const ImageF fn = h.hole_fill.field.Normals();
     for (int j = 0; j < hf.height(); ++j)

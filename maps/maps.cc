@@ -25,6 +25,9 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr const char* kMapsFormat = "mesoscan-maps/1";
+// Above this share of filled pixels, or under this share on the sample, the tile is doubtful.
+constexpr double kTileFilledWarnFraction = 0.20;
+constexpr double kTileOnSampleWarnFraction = 0.80;
 constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
 
 // Value of the q-quantile of the finite values of channel 0..nc-1 (mean over channels).
@@ -40,15 +43,6 @@ double Quantile(const ImageF& im, double q) {
   const size_t i = static_cast<size_t>(q * (v.size() - 1));
   std::nth_element(v.begin(), v.begin() + i, v.end());
   return v[i];
-}
-
-// A single-channel image as a HeightField on the grid of `g` (for FillHoles on other maps).
-HeightField AsField(const ImageF& im, int c, const HeightField& g) {
-  HeightField f;
-  f.z = ImageF(im.width(), im.height(), 1);
-  std::copy(im.channel(c), im.channel(c) + im.pixels(), f.z.channel(0));
-  f.x0 = g.x0, f.y0 = g.y0, f.pixel_size = g.pixel_size;
-  return f;
 }
 
 // ---- contact sheet ------------------------------------------------------------------------
@@ -258,21 +252,17 @@ MapAlbedo ReadAlbedo(const Scan& scan, const MapsOptions& o, const FillResult& f
   return a;
 }
 
-// Filled pixels get the albedo filled the same way as the height (harmonic from the border);
-// then the albedo is scaled so that its 99th percentile is 1.
+// The albedo wherever the height is known (measured or filled: FillImageWhere), then scaled
+// so that its 99th percentile is 1.
 void FillAndNormalizeAlbedo(const MapsOptions& o, const HeightField& cropped,
                             const FillResult& fill, ImageF* albedo) {
-  FillOptions fo = o.fill;
-  if (fo.method == FillMethod::kNone) fo.method = FillMethod::kHarmonic;
-  for (int c = 0; c < albedo->channels(); ++c) {
-    HeightField f = AsField(*albedo, c, fill.field);
-    for (size_t p = 0; p < f.z.pixels(); ++p)
-      if (!fill.filled.data()[p] && !std::isfinite(cropped.z.data()[p])) f.z.data()[p] = 0.0f;
-    const FillResult fr = FillHoles(f, fo);
-    for (size_t p = 0; p < f.z.pixels(); ++p)
-      albedo->channel(c)[p] =
-          std::isfinite(cropped.z.data()[p]) || fill.filled.data()[p] ? fr.field.z.data()[p] : kNan;
-  }
+  ImageU8 want(cropped.width(), cropped.height(), 1, 0);
+  for (size_t p = 0; p < want.pixels(); ++p)
+    want.data()[p] = std::isfinite(cropped.z.data()[p]) || fill.filled.data()[p] != 0;
+  *albedo = FillImageWhere(*albedo, want, cropped.pixel_size, o.fill);
+  for (int c = 0; c < albedo->channels(); ++c)
+    for (size_t p = 0; p < want.pixels(); ++p)
+      if (!want.data()[p]) albedo->channel(c)[p] = kNan;
   const double q99 = Quantile(*albedo, 0.99);
   const float scale = q99 > 0 ? static_cast<float>(1.0 / q99) : 1.0f;
   for (float& v : albedo->data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : kNan;
@@ -286,11 +276,15 @@ struct FinalSurface {
   std::optional<TileResult> tile;  // set for a tile
 };
 
+// The tile's square is chosen on the sample: the filled but unflattened height says where the
+// sample stands off the mount plane.
 FinalSurface TileOrKeep(const MapsOptions& o, const FlattenResult& flat, const ImageF& albedo,
                         const FillResult& fill) {
   FinalSurface f;
   if (o.tile) {
-    f.tile = MakeTile(flat.field, albedo, fill.filled, o.tile_options);
+    TileOptions to = o.tile_options;
+    if (!o.crop.whole()) to.origin_px = {o.crop.x, o.crop.y};
+    f.tile = MakeTile(flat.field, albedo, fill.filled, to, fill.field.z);
     f.field = f.tile->field;
     f.albedo = f.tile->albedo;
     f.filled = f.tile->filled;
@@ -300,6 +294,23 @@ FinalSurface TileOrKeep(const MapsOptions& o, const FlattenResult& flat, const I
     f.filled = fill.filled;
   }
   return f;
+}
+
+// Loud when the tile is doubtful: much of it invented by the fill, or off the sample.
+void WarnAboutTile(const TileResult& t) {
+  const int x = t.origin_x + t.src_x, y = t.origin_y + t.src_y;
+  if (t.filled_fraction > kTileFilledWarnFraction)
+    MESOSCAN_LOG(kWarning) << "maps: " << std::lround(100 * t.filled_fraction)
+                           << "% of the tile's square at (" << x << ", " << y
+                           << ") is filled (interpolated), above "
+                           << std::lround(100 * kTileFilledWarnFraction)
+                           << "%: its texture is partly invented; try a smaller tile, another "
+                              "square or a finer fill";
+  if (t.on_sample_fraction < kTileOnSampleWarnFraction)
+    MESOSCAN_LOG(kWarning) << "maps: only " << std::lround(100 * t.on_sample_fraction)
+                           << "% of the tile's square at (" << x << ", " << y
+                           << ") stands off the mount: the tile shows bare mount; try a smaller "
+                              "tile or another square";
 }
 
 // The height as written: holes (large, or outside the sample) at kHoleValue; the mask 255
@@ -575,6 +586,21 @@ ImageU8 MakeContactSheet(const MapSet& m) {
   auto range = [](const ImageF& im) {
     return std::make_pair(Quantile(im, 0.005), Quantile(im, 0.995));
   };
+  if (m.periodic) {
+    // Where the tile came from: the (unflattened) scan with the source square drawn in red.
+    const TileResult& t = *m.surface.tile;
+    const auto [sl, sh] = range(m.cropped.z);
+    cv::Mat src = GreyPanel(m.cropped.z, sl, sh);
+    const int thick =
+        std::max(1, static_cast<int>(std::lround(1.5 * std::max(src.cols, src.rows) / 320.0)));
+    cv::rectangle(src, cv::Rect(t.src_x, t.src_y, t.src_size, t.src_size), cv::Scalar(0, 0, 255),
+                  thick);
+    panels.push_back({"tile: " + std::to_string(std::lround(100 * t.on_sample_fraction)) +
+                          "% on sample, " + std::to_string(std::lround(100 * t.filled_fraction)) +
+                          "% filled",
+                      src});
+    widths.push_back(m.cropped.width() * m.cropped.pixel_size);
+  }
   const auto [hl, hh] = range(m.surface.field.z);
   panels.push_back(
       {"height " + std::to_string(static_cast<int>(std::lround((hh - hl) * 1e6))) + " um p-p",
@@ -631,6 +657,13 @@ Json TileJson(const MapSet& m) {
       {"requested_size_m", m.o.tile_options.size_m},
       {"method", TileMethodName(m.o.tile_options.method)},
       {"source_square_px", {t.src_x, t.src_y, t.src_size}},
+      {"source_square_height_grid_px", {t.origin_x + t.src_x, t.origin_y + t.src_y, t.src_size}},
+      {"source_chosen", t.chosen ? "on the sample" : "given"},
+      {"mount_clearance_m", m.o.tile_options.mount_clearance_m},
+      {"on_sample_fraction", t.on_sample_fraction},
+      {"measured_on_sample_fraction", t.measured_on_sample_fraction},
+      {"filled_fraction", t.filled_fraction},
+      {"texture_rms_step_m", t.texture_rms_m},
       {"blend_shift_px", {t.shift_x, t.shift_y}},
       {"seam_gradient_ratio", {t.seams_after.ratio_x(), t.seams_after.ratio_y()}},
       {"seam_gradient_ratio_pooled", t.seams_after.pooled_ratio()},
@@ -740,6 +773,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   if (surface.tile) {
     summary.tile = surface.tile->BriefReport();
     summary.seams = surface.tile->seams_after;
+    WarnAboutTile(*surface.tile);
   }
   timer.Stage("tile");
   const HeightOut height = HeightAndMask(surface);

@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/photo.hpp>
 #include <sstream>
 #include <vector>
 
@@ -186,6 +188,50 @@ void FillOptions::Check() const {
   if (!(max_hole_radius_m > 0) || !std::isfinite(max_hole_radius_m))
     MESOSCAN_THROW(ErrorKind::kUsage,
                    "fill: max hole radius " << max_hole_radius_m << " m: expected > 0");
+}
+
+ImageF FillImageWhere(const ImageF& image, const ImageU8& want, double pixel_size_m,
+                      const FillOptions& options) {
+  MESOSCAN_CHECK(want.width() == image.width() && want.height() == image.height());
+  FillOptions fo = options;
+  if (fo.method == FillMethod::kNone) fo.method = FillMethod::kHarmonic;
+  const size_t n = image.pixels();
+  ImageF out(image.width(), image.height(), image.channels());
+  for (int c = 0; c < image.channels(); ++c) {
+    HeightField f;
+    f.pixel_size = pixel_size_m;
+    f.z = ImageF(image.width(), image.height(), 1);
+    std::copy(image.channel(c), image.channel(c) + n, f.z.channel(0));
+    const FillResult fr = FillHoles(f, fo);
+    cv::Mat a(image.height(), image.width(), CV_32FC1), unknown(a.size(), CV_8UC1);
+    float* av = a.ptr<float>();  // both continuous: pixel p at [p]
+    uint8_t* uv = unknown.ptr<uint8_t>();
+    bool any_known = false, any_left = false;
+    for (size_t p = 0; p < n; ++p) {
+      const float v = fr.field.z.data()[p];
+      const bool known = std::isfinite(v);
+      av[p] = known ? v : 0.0f;
+      uv[p] = known ? 0 : 255;
+      any_known |= known;
+      any_left |= !known && want.data()[p] != 0;
+    }
+    if (!any_known) {
+      std::copy(image.channel(c), image.channel(c) + n, out.channel(c));
+      continue;
+    }
+    if (any_left) {
+      cv::Mat painted;
+      cv::inpaint(a, unknown, painted, 3.0, cv::INPAINT_TELEA);
+      a = painted;
+      av = a.ptr<float>();
+    }
+    constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
+    for (size_t p = 0; p < n; ++p) {
+      const float v = image.channel(c)[p];
+      out.channel(c)[p] = std::isfinite(v) ? v : want.data()[p] ? av[p] : kNan;
+    }
+  }
+  return out;
 }
 
 FillMethod ParseFillMethod(const std::string& t) {

@@ -49,6 +49,17 @@ struct FillResult {
 // Fills the holes (NaN) of `hf`. Never throws for any input grid; NaN-free output where filled.
 FillResult FillHoles(const HeightField& hf, const FillOptions& options);
 
+// An image on the grid (an albedo, any channel count) given wherever `want` is non-zero (the
+// height is known there, measured or filled): its NaN gaps are filled per channel as FillHoles
+// fills heights (`options`, harmonic when its method is none), and what that leaves (a gap wider
+// than the limit, one that runs into a hole of the height or to the border) is inpainted from
+// the nearest known values (OpenCV's Telea, Telea 2004). The image's finite values are kept
+// everywhere; a gap stays NaN where `want` is 0, and everywhere if the channel has no finite
+// value.
+// pixel_size_m: the grid's spacing (for options.max_hole_radius_m).
+ImageF FillImageWhere(const ImageF& image, const ImageU8& want, double pixel_size_m,
+                      const FillOptions& options);
+
 // "harmonic" | "biharmonic" | "none"; throws Error(kUsage) at FillOptions.method otherwise.
 FillMethod ParseFillMethod(const std::string& text);
 const char* FillMethodName(FillMethod method);

@@ -13,20 +13,23 @@
 namespace mesoscan {
 namespace {
 
-// Summed-area table of a 0/1 predicate, (w+1) x (h+1).
-template <typename Pred>
-std::vector<int64_t> Integral(int w, int h, Pred&& pred) {
-  std::vector<int64_t> s(static_cast<size_t>(w + 1) * (h + 1), 0);
+// Summed-area table of value(x, y) (a 0/1 predicate or a double), (w+1) x (h+1).
+template <typename T, typename Value>
+std::vector<T> Integral(int w, int h, Value&& value) {
+  std::vector<T> s(static_cast<size_t>(w + 1) * (h + 1), T(0));
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x)
-      s[(y + 1) * (w + 1) + x + 1] = (pred(x, y) ? 1 : 0) + s[y * (w + 1) + x + 1] +
+      s[(y + 1) * (w + 1) + x + 1] = static_cast<T>(value(x, y)) + s[y * (w + 1) + x + 1] +
                                      s[(y + 1) * (w + 1) + x] - s[y * (w + 1) + x];
   return s;
 }
-int64_t BoxSum(const std::vector<int64_t>& s, int w, int x, int y, int n) {
+template <typename T>
+T BoxSum(const std::vector<T>& s, int w, int x, int y, int n) {
   return s[(y + n) * (w + 1) + x + n] - s[y * (w + 1) + x + n] - s[(y + n) * (w + 1) + x] +
          s[y * (w + 1) + x];
 }
+
+double Sqr(double v) { return v * v; }
 
 // Mean of the finite values of channel c.
 double MeanOf(const ImageF& im, int c) {
@@ -133,6 +136,9 @@ ImageF CropSquare(const ImageF& im, int x0, int y0, int n) {
 void TileOptions::Check() const {
   if (!(size_m > 0) || !std::isfinite(size_m))
     MESOSCAN_BAD_OPTION("TileOptions.size_m", size_m * 1e3 << " mm: expected a size > 0");
+  if (!(mount_clearance_m >= 0) || !std::isfinite(mount_clearance_m))
+    MESOSCAN_BAD_OPTION("TileOptions.mount_clearance_m",
+                        mount_clearance_m * 1e6 << " um: expected a height >= 0");
 }
 
 TileMethod ParseTileMethod(const std::string& t) {
@@ -198,7 +204,11 @@ std::string TileResult::BriefReport() const {
   std::ostringstream s;
   s.precision(3);
   s << "tile: " << size_px << " px (" << size_px * field.pixel_size * 1e3 << " mm) from the "
-    << src_size << " px square at (" << src_x << ", " << src_y << "); seam/interior gradient RMS "
+    << src_size << " px square at (" << origin_x + src_x << ", " << origin_y + src_y
+    << ") of the height grid (" << (chosen ? "chosen on the sample" : "given") << ": "
+    << std::lround(100 * on_sample_fraction) << "% on the sample, "
+    << std::lround(100 * measured_on_sample_fraction) << "% measured there, "
+    << std::lround(100 * filled_fraction) << "% filled); seam/interior gradient RMS "
     << "x " << seams_after.ratio_x() << ", y " << seams_after.ratio_y() << " (untiled crop: x "
     << seams_before.ratio_x() << ", y " << seams_before.ratio_y() << "); single interior columns "
     << "scatter by " << seams_after.column_spread_x << ", rows by " << seams_after.row_spread_y;
@@ -206,7 +216,7 @@ std::string TileResult::BriefReport() const {
 }
 
 TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& filled,
-                    const TileOptions& o) {
+                    const TileOptions& o, const ImageF& mount_height) {
   o.Check();
   const int w = hf.width(), h = hf.height();
   const int n_target = static_cast<int>(std::lround(o.size_m / hf.pixel_size));
@@ -220,22 +230,86 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
                                  << h * hf.pixel_size * 1e3 << " mm) is smaller than the "
                                  << OptionRef{"TileOptions.size_m"} << " square of "
                                  << src * hf.pixel_size * 1e3 << " mm");
-  // 1. The hole-free square with the fewest filled pixels, nearest to the centre.
-  const auto holes = Integral(w, h, [&](int x, int y) { return !std::isfinite(hf.z(x, y)); });
-  const auto fills =
-      Integral(w, h, [&](int x, int y) { return !filled.empty() && filled(x, y) != 0; });
-  int64_t best_fill = std::numeric_limits<int64_t>::max();
-  double best_d = 0;
+  MESOSCAN_CHECK(mount_height.empty() || (mount_height.width() == w && mount_height.height() == h));
+  MESOSCAN_CHECK(filled.empty() || (filled.width() == w && filled.height() == h));
+  // 1. The square: given, or chosen on the sample (see the header).
+  const auto is_filled = [&](int x, int y) { return !filled.empty() && filled(x, y) != 0; };
+  const auto on_sample = [&](int x, int y) {
+    if (!std::isfinite(hf.z(x, y))) return false;
+    return mount_height.empty() || mount_height(x, y) > o.mount_clearance_m;
+  };
+  const auto measured = [&](int x, int y) { return std::isfinite(hf.z(x, y)) && !is_filled(x, y); };
+  const auto holes =
+      Integral<int64_t>(w, h, [&](int x, int y) { return !std::isfinite(hf.z(x, y)); });
+  const auto fills = Integral<int64_t>(w, h, is_filled);
+  const auto on = Integral<int64_t>(w, h, on_sample);
+  const auto measured_on =
+      Integral<int64_t>(w, h, [&](int x, int y) { return on_sample(x, y) && !is_filled(x, y); });
+  // Squared height steps to the right and lower neighbours where both are measured, and how many.
+  const auto step2 = Integral<double>(w, h, [&](int x, int y) {
+    if (!measured(x, y)) return 0.0;
+    double s = 0;
+    if (x + 1 < w && measured(x + 1, y)) s += Sqr(hf.z(x + 1, y) - hf.z(x, y));
+    if (y + 1 < h && measured(x, y + 1)) s += Sqr(hf.z(x, y + 1) - hf.z(x, y));
+    return s;
+  });
+  const auto steps = Integral<int64_t>(w, h, [&](int x, int y) {
+    if (!measured(x, y)) return 0;
+    return (x + 1 < w && measured(x + 1, y) ? 1 : 0) + (y + 1 < h && measured(x, y + 1) ? 1 : 0);
+  });
+  const auto texture2 = [&](int x, int y) {
+    const int64_t n = BoxSum(steps, w, x, y, src);
+    return n ? BoxSum(step2, w, x, y, src) / static_cast<double>(n) : 0.0;
+  };
   int bx = -1, by = -1;
-  const double cx = 0.5 * (w - src), cy = 0.5 * (h - src);
-  for (int y = 0; y + src <= h; ++y)
-    for (int x = 0; x + src <= w; ++x) {
-      if (BoxSum(holes, w, x, y, src) != 0) continue;
-      const int64_t f = BoxSum(fills, w, x, y, src);
-      const double d = (x - cx) * (x - cx) + (y - cy) * (y - cy);
-      if (f < best_fill || (f == best_fill && d < best_d))
-        best_fill = f, best_d = d, bx = x, by = y;
-    }
+  if (o.at_px) {
+    const auto [ax, ay] = *o.at_px;
+    bx = ax - o.origin_px[0], by = ay - o.origin_px[1];
+    if (bx < 0 || by < 0 || bx + src > w || by + src > h)
+      MESOSCAN_BAD_OPTION("TileOptions.at_px", ax << "," << ay << ": the " << src
+                                                  << " px square leaves the " << w << "x" << h
+                                                  << " map grid at (" << o.origin_px[0] << ", "
+                                                  << o.origin_px[1] << ") of the height grid");
+    if (const int64_t n = BoxSum(holes, w, bx, by, src); n != 0)
+      MESOSCAN_BAD_OPTION("TileOptions.at_px", ax << "," << ay << ": the " << src
+                                                  << " px square holds " << n
+                                                  << " hole pixels (not filled)");
+  } else {
+    // The best measured-on-sample count, then the most textured square within the band below it.
+    int64_t best_on = -1;
+    for (int y = 0; y + src <= h; ++y)
+      for (int x = 0; x + src <= w; ++x)
+        if (BoxSum(holes, w, x, y, src) == 0)
+          best_on = std::max(best_on, BoxSum(measured_on, w, x, y, src));
+    const int64_t band = static_cast<int64_t>(kTileBandFraction * src * src);
+    const auto in_band = [&](int x, int y) {
+      return BoxSum(holes, w, x, y, src) == 0 &&
+             BoxSum(measured_on, w, x, y, src) >= best_on - band;
+    };
+    double best_t2 = 0;
+    for (int y = 0; y + src <= h; ++y)
+      for (int x = 0; x + src <= w; ++x)
+        if (in_band(x, y)) best_t2 = std::max(best_t2, texture2(x, y));
+    // Of the textured ones (RMS step within kTileTextureFraction of the best), the most measured
+    // on the sample, then the one nearest the sample's centre.
+    const double min_t2 = kTileTextureFraction * kTileTextureFraction * best_t2;
+    int64_t best_m = -1;
+    double best_d = std::numeric_limits<double>::max();
+    // The sample's centre: the centroid of its pixels (the grid's centre if it has none).
+    double sx = 0, sy = 0, sn = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x)
+        if (on_sample(x, y)) sx += x, sy += y, ++sn;
+    const double cx = (sn > 0 ? sx / sn : 0.5 * (w - 1)) - 0.5 * (src - 1);
+    const double cy = (sn > 0 ? sy / sn : 0.5 * (h - 1)) - 0.5 * (src - 1);
+    for (int y = 0; y + src <= h; ++y)
+      for (int x = 0; x + src <= w; ++x) {
+        if (!in_band(x, y) || texture2(x, y) < min_t2) continue;
+        const int64_t m = BoxSum(measured_on, w, x, y, src);
+        const double d = (x - cx) * (x - cx) + (y - cy) * (y - cy);
+        if (m > best_m || (m == best_m && d < best_d)) best_m = m, best_d = d, bx = x, by = y;
+      }
+  }
   if (bx < 0)
     MESOSCAN_BAD_INPUT_AT(ErrorSite::File("height.exr"),
                           "no hole-free square of "
@@ -245,6 +319,13 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
                               << OptionRef{"MapsOptions.crop"});
   TileResult r;
   r.src_x = bx, r.src_y = by, r.src_size = src;
+  r.origin_x = o.origin_px[0], r.origin_y = o.origin_px[1];
+  r.chosen = !o.at_px.has_value();
+  const double area = static_cast<double>(src) * src;
+  r.on_sample_fraction = BoxSum(on, w, bx, by, src) / area;
+  r.measured_on_sample_fraction = BoxSum(measured_on, w, bx, by, src) / area;
+  r.filled_fraction = BoxSum(fills, w, bx, by, src) / area;
+  r.texture_rms_m = std::sqrt(texture2(bx, by));
   const ImageF zsq = CropSquare(hf.z, bx, by, src);
   r.seams_before = MeasureSeams(zsq);
   // 2. Periodic height, albedo, confidence and filled mask.

@@ -15,8 +15,20 @@
 //           slope reverses at the seams (a visible crease on directional textures).
 // Albedo and confidence follow the same blend; normals and derived maps are computed afterwards
 // on the periodic height (maps_derived.h with periodic = true).
+//
+// Where the square is taken (unless TileOptions::at_px gives it): on the sample, never the bare
+// mount. Among the hole-free squares, those whose share of measured (not filled) pixels standing
+// off the mount (height above the mount plane z = 0 over mount_clearance_m) is within
+// kTileBandFraction of the best are kept; of these, the textured ones (whose RMS height step
+// between measured neighbours of the flattened height is at least kTileTextureFraction of the
+// most textured one's: not a blank field of a coin) compete: the one with the most measured
+// pixels on the sample is taken, and of equals the one nearest the sample's centre (the centroid
+// of its pixels). The bare mount is flat and fully measured, which a
+// rule of "fewest filled pixels" alone prefers over a sample whose steep flanks are filled.
 
+#include <array>
 #include <cmath>
+#include <optional>
 #include <string>
 
 #include "core/height_field.h"
@@ -25,9 +37,26 @@ namespace mesoscan {
 
 enum class TileMethod { kBlend, kMirror };
 
+// Squares whose measured-on-sample share is at most this far below the best one compete on
+// texture (a fraction of the square's pixels).
+inline constexpr double kTileBandFraction = 0.05;
+// Squares whose RMS height step is at least this fraction of the most textured one's count as
+// textured (a stationary texture: all of them, so the choice is not driven by noise).
+inline constexpr double kTileTextureFraction = 0.7;
+
 struct TileOptions {
   double size_m = 10e-3;  // tile edge, metres; at least 8 grid pixels
   TileMethod method = TileMethod::kBlend;
+  // Where the grid MakeTile gets has its pixel (0, 0) in the scan's height grid (a crop's
+  // top-left corner): at_px and the report are in the scan's pixels.
+  std::array<int, 2> origin_px = {0, 0};
+  // Top-left pixel (column, row) of the source square in the scan's height grid; unset: the
+  // square is chosen on the sample (see above). The square must lie in the grid, hole-free.
+  std::optional<std::array<int, 2>> at_px;
+  // A pixel is on the sample where its (unflattened, filled) height above the mount plane
+  // exceeds this, metres, >= 0: well above the height noise of a scan (a few um) and below the
+  // thinnest sample (paper, ~90 um).
+  double mount_clearance_m = 20e-6;
   void Check() const;
 };
 
@@ -51,20 +80,29 @@ SeamStats MeasureSeams(const ImageF& z);
 
 struct TileResult {
   int src_x = 0, src_y = 0, src_size = 0;  // the square taken from the input (grid pixels)
-  int size_px = 0;                         // output tile edge in pixels
-  int shift_x = 0, shift_y = 0;            // blend: offsets of the shifted copies (pixels)
-  HeightField field;                       // periodic height; x0/y0 of the source square
-  ImageF albedo;                           // same blend (if given)
-  ImageU8 filled;                          // 1 where a filled pixel contributes
-  SeamStats seams_before, seams_after;     // the raw square's seams, the tile's
+  int origin_x = 0, origin_y = 0;          // TileOptions::origin_px (src + origin: scan pixels)
+  bool chosen = true;                      // false: the square was given (TileOptions::at_px)
+  // Shares of the source square's pixels: on the sample (measured or filled), measured and on
+  // the sample, filled (interpolated) by the hole fill.
+  double on_sample_fraction = 0, measured_on_sample_fraction = 0, filled_fraction = 0;
+  double texture_rms_m = 0;      // RMS height step between measured neighbours in the square, m
+  int size_px = 0;               // output tile edge in pixels
+  int shift_x = 0, shift_y = 0;  // blend: offsets of the shifted copies (pixels)
+  HeightField field;             // periodic height; x0/y0 of the source square
+  ImageF albedo;                 // same blend (if given)
+  ImageU8 filled;                // 1 where a filled pixel contributes
+  SeamStats seams_before, seams_after;  // the raw square's seams, the tile's
   std::string BriefReport() const;
 };
 
-// Picks the hole-free square (of size_m, or half for mirror) with the fewest filled pixels,
-// nearest to the grid's centre, and makes it periodic. `albedo` and `filled` may be empty.
-// Throws Error(kBadInput) if no hole-free square of that size exists.
+// Picks the square (of size_m, or half for mirror) on the sample as described above, or takes
+// options.at_px, and makes it periodic. `albedo`, `filled` (1 = filled by the hole fill) and
+// `mount_height` (the unflattened height above the mount plane on the same grid; empty: every
+// finite pixel counts as sample) may be empty. Throws Error(kBadInput) if no hole-free square of
+// that size exists, Error(kUsage) at TileOptions.at_px if the given square leaves the grid or
+// holds a hole.
 TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& filled,
-                    const TileOptions& options);
+                    const TileOptions& options, const ImageF& mount_height = ImageF());
 
 TileMethod ParseTileMethod(const std::string& text);  // "blend" | "mirror", else Error(kUsage)
 const char* TileMethodName(TileMethod method);

@@ -5,6 +5,10 @@
 //    flattened height is the texture (the sample's tilt and sag removed) and the removed part
 //    is written; it prints the one line that loads the set in Blender;
 //  - bad input gives one line, a distinct exit code and no output folder;
+//  - the tile is cut from the sample, not the bare mount around it (a simulated corner of the
+//    woven fabric), `--tile-at` overrides the choice and a tile on the mount is warned about;
+//  - the albedo of `export` and `maps` has a value wherever the height has one (filled holes
+//    included: no black outline around the coin's letters and rim);
 //  - `export --tile` writes the same map set into OUT/maps next to the raw exports;
 //  - Blender 3.4 installs the add-on zip, imports the set onto a plane of its physical size
 //    with the expected node tree (Displacement Midlevel 0, Scale 1, world space, Repeat), a
@@ -14,10 +18,12 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <vector>
 
 #include "assets/objects.h"
 #include "core/image_io.h"
@@ -331,6 +337,186 @@ TEST_F(MapsCli, BlenderImportsTheSetAtTrueScaleAndTheTileHasNoSeam) {
     EXPECT_NEAR(st.at(std::string(a) + "_ratio").get<double>(), 1.0, 0.4) << a;
   }
   EXPECT_GT(std::max(su.at("x_ratio").get<double>(), su.at("y_ratio").get<double>()), 1.5);
+}
+
+// A corner of the woven fabric (assets/objects.h MakeFabric: a 30 mm square centred on the
+// origin) with the bare mount around it, through the virtual rig: a 200 x 200 crop of the paper
+// rig's camera (55 um on the mount) whose lower-right 85 x 85 px are fabric, reconstructed and
+// made into a 4 mm (73 px) tile. The mount is flat and fully measured while the weave's steep
+// flanks are rejected and filled, so "the square with the fewest filled pixels" took the mount
+// (at (40, 63): entirely off the fabric).
+class MapsTileCli : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = fs::temp_directory_path() / ("mesoscan_maps_tile_cli_test_" + std::to_string(getpid()));
+    fs::remove_all(root_);
+    fs::create_directories(root_);
+    const std::string session = Q(root_ / "corner.session"), scan = Q(root_ / "corner.scan");
+    std::string out;
+    status_ = RunMesoscan(
+        "-q simulate --object fabric --crop 700,330,200,200 --supersample 1 "
+        "--object-pixel-size 40e-6 --ls-frames 20 --out " +
+            session,
+        &log_);
+    if (status_ == 0) status_ = RunMesoscan("-q reconstruct " + session + " --out " + scan, &out);
+    log_ += out;
+    if (status_ == 0)
+      status_ = RunMesoscan("maps " + scan + " --out " + Q(root_ / "tile") +
+                                " --flatten poly:2 --tile 4 --maps height,albedo",
+                            &auto_log_);
+    log_ += auto_log_;
+    if (status_ == 0)
+      status_ = RunMesoscan("maps " + scan + " --out " + Q(root_ / "at") +
+                                " --flatten poly:2 --tile 4 --tile-at 10,12 --maps height",
+                            &at_log_);
+    log_ += at_log_;
+    // The whole grid untiled: its mask says which pixels were filled.
+    if (status_ == 0)
+      status_ = RunMesoscan(
+          "-q maps " + scan + " --out " + Q(root_ / "whole") + " --maps height,confidence", &out);
+    log_ += out;
+  }
+  static void TearDownTestSuite() {
+    std::error_code ec;
+    fs::remove_all(root_, ec);
+  }
+  void SetUp() override { ASSERT_EQ(status_, 0) << log_; }
+  static inline fs::path root_;
+  static inline int status_ = -1;
+  static inline std::string log_, auto_log_, at_log_;
+};
+
+TEST_F(MapsTileCli, TheTileLiesOnTheSample) {
+  const Json m = ReadJsonFile(root_ / "tile/manifest.json");
+  const Json& t = m.at("tile");
+  std::cout << auto_log_;
+  EXPECT_EQ(t.at("source_chosen"), "on the sample");
+  EXPECT_GE(t.at("on_sample_fraction").get<double>(), 0.95) << t.dump();
+  // Ground truth: the source square (grid pixel centres x0 + i p, y0 - j p) lies on the fabric.
+  const double p = m.at("grid").at("pixel_size_m"), x0 = m.at("grid").at("x0_m"),
+               y0 = m.at("grid").at("y0_m");
+  const int n = t.at("source_square_px")[2];
+  EXPECT_GE(x0, -kMaterialHalfM);
+  EXPECT_LE(x0 + (n - 1) * p, kMaterialHalfM);
+  EXPECT_LE(y0, kMaterialHalfM);
+  EXPECT_GE(y0 - (n - 1) * p, -kMaterialHalfM);
+  // The printed square is the manifest's.
+  const Json sq = t.at("source_square_height_grid_px");
+  EXPECT_NE(auto_log_.find("px square at (" + std::to_string(sq[0].get<int>()) + ", " +
+                           std::to_string(sq[1].get<int>()) + ") of the height grid"),
+            std::string::npos);
+  // Its filled fraction is the share of filled pixels (mask 128) of the whole grid's map set in
+  // that square.
+  const ImageF mask = ReadImage(root_ / "whole/corner_mask.png");
+  int64_t filled = 0;
+  for (int y = sq[1]; y < sq[1].get<int>() + n; ++y)
+    for (int x = sq[0]; x < sq[0].get<int>() + n; ++x)
+      filled += std::abs(mask(x, y) - 128 / 255.0f) < 1e-3f;
+  EXPECT_NEAR(t.at("filled_fraction").get<double>(), static_cast<double>(filled) / (n * n), 1e-9);
+  // As measured as the fabric is on average: the reconstruction rejects the weave's steep flanks
+  // (mixed pixels), so a third of the fabric is filled and no square of it is 80% measured; the
+  // tile is not allowed to be worse than the fabric's own measured share (its pixels 0.2 mm
+  // inside the fabric's edge), less the 5-point band it is chosen from.
+  const Json g = ReadJsonFile(root_ / "whole/manifest.json").at("grid");
+  const double gp = g.at("pixel_size_m"), gx0 = g.at("x0_m"), gy0 = g.at("y0_m");
+  int64_t inside = 0, measured = 0;
+  for (int y = 0; y < mask.height(); ++y)
+    for (int x = 0; x < mask.width(); ++x)
+      if (std::abs(gx0 + x * gp) < kMaterialHalfM - 0.2e-3 &&
+          std::abs(gy0 - y * gp) < kMaterialHalfM - 0.2e-3)
+        ++inside, measured += mask(x, y) > 0.99f;
+  ASSERT_GT(inside, n * n);
+  const double fabric_measured = static_cast<double>(measured) / inside;
+  std::cout << "tile: " << t.at("on_sample_fraction").get<double>() << " on the sample, "
+            << t.at("measured_on_sample_fraction").get<double>()
+            << " measured there; the fabric: " << fabric_measured << " measured\n";
+  EXPECT_GE(t.at("measured_on_sample_fraction").get<double>(), fabric_measured - 0.05);
+  // The contact sheet's first panel is the scan with the square in red, where it was taken
+  // (the panel: 320 px wide at (8, 34), the 199 px grid scaled by 320 / 199).
+  const ImageF sheet = ReadImage(root_ / "tile/corner_contact_sheet.png");
+  const int gw = m.at("source_grid").at("width_px"), gh = m.at("source_grid").at("height_px");
+  const double s = 320.0 / std::max(gw, gh);
+  int rx0 = 1 << 30, ry0 = 1 << 30, rx1 = -1, ry1 = -1;
+  for (int y = 34; y < 34 + 320; ++y)
+    for (int x = 8; x < 8 + 320; ++x)
+      if (sheet(x, y, 0) > 0.9f && sheet(x, y, 1) < 0.1f && sheet(x, y, 2) < 0.1f)
+        rx0 = std::min(rx0, x), ry0 = std::min(ry0, y), rx1 = std::max(rx1, x),
+        ry1 = std::max(ry1, y);
+  ASSERT_GE(rx1, 0) << "no red square on the contact sheet";
+  EXPECT_NEAR(rx0, 8 + sq[0].get<int>() * s, 2);
+  EXPECT_NEAR(ry0, 34 + sq[1].get<int>() * s, 2);
+  EXPECT_NEAR(rx1, 8 + (sq[0].get<int>() + n) * s, 3);
+  EXPECT_NEAR(ry1, 34 + (sq[1].get<int>() + n) * s, 3);
+}
+
+TEST_F(MapsTileCli, TileAtOverridesAndATileOnTheMountIsWarnedAbout) {
+  const Json t = ReadJsonFile(root_ / "at/manifest.json").at("tile");
+  EXPECT_EQ(t.at("source_chosen"), "given");
+  EXPECT_EQ(t.at("source_square_height_grid_px"), Json({10, 12, 73}));
+  EXPECT_LT(t.at("on_sample_fraction").get<double>(), 0.05);  // the bare mount
+  EXPECT_NE(at_log_.find("stands off the mount"), std::string::npos) << at_log_;
+  EXPECT_EQ(auto_log_.find("stands off the mount"), std::string::npos) << auto_log_;
+  // A square leaving the grid: one line naming --tile-at, exit 2, no output.
+  std::string out;
+  EXPECT_EQ(RunMesoscan("maps " + Q(root_ / "corner.scan") + " --out " + Q(root_ / "bad") +
+                            " --tile 4 --tile-at 150,0",
+                        &out),
+            2)
+      << out;
+  EXPECT_NE(out.find("--tile-at"), std::string::npos) << out;
+  EXPECT_FALSE(fs::exists(root_ / "bad"));
+}
+
+// The coin's rim and lettering through the virtual rig (a 140 x 140 crop at the coin's left
+// edge, focused on the mount as scripts/demo does): the rim's flank and the letters' edges are
+// rejected and filled in the height; the albedo there was left 0 (black outlines, min 0).
+TEST(MapsAlbedoCli, TheAlbedoIsFilledWhereTheHeightIs) {
+  const fs::path root =
+      fs::temp_directory_path() / ("mesoscan_maps_albedo_cli_test_" + std::to_string(getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root);
+  std::string out;
+  const std::string scan = Q(root / "rim.scan");
+  ASSERT_EQ(RunMesoscan("-q simulate --object coin --crop 880,640,140,140 --focus-height 0 "
+                        "--supersample 1 --object-pixel-size 20e-6 --ls-frames 20 --out " +
+                            Q(root / "rim.session"),
+                        &out),
+            0)
+      << out;
+  ASSERT_EQ(RunMesoscan("-q reconstruct " + Q(root / "rim.session") + " --out " + scan, &out), 0)
+      << out;
+  ASSERT_EQ(
+      RunMesoscan("-q export " + scan + " --out " + Q(root / "export") + " --format png16", &out),
+      0)
+      << out;
+  ASSERT_EQ(RunMesoscan("-q maps " + scan + " --out " + Q(root / "maps") +
+                            " --maps height,albedo,confidence",
+                        &out),
+            0)
+      << out;
+  for (const fs::path& dir : {root / "export", root / "maps"}) {
+    const Json m = ReadJsonFile(dir / "manifest.json");
+    const Json& fill = m.at("fill");
+    ASSERT_GT(fill.at("pixels_filled").get<int64_t>(), 100) << fill.dump();  // holes to fill
+    ASSERT_EQ(fill.at("pixels_left").get<int64_t>(), 0) << fill.dump();      // a height everywhere
+    const ImageF albedo = ReadImage(dir / "rim_albedo.png");
+    const ImageF conf = ReadImage(dir / "rim_confidence.png");
+    // The measured albedo's 1st percentile, and the darkest pixel anywhere (filled ones included).
+    std::vector<float> measured;
+    float darkest = 1;
+    for (size_t p = 0; p < albedo.pixels(); ++p) {
+      darkest = std::min(darkest, albedo.data()[p]);
+      if (conf.data()[p] > 0) measured.push_back(albedo.data()[p]);
+    }
+    ASSERT_FALSE(measured.empty());
+    std::nth_element(measured.begin(), measured.begin() + measured.size() / 100, measured.end());
+    const float p1 = measured[measured.size() / 100];
+    std::cout << dir.filename() << ": albedo (sRGB) darkest " << darkest
+              << ", measured 1st percentile " << p1 << "\n";
+    EXPECT_GE(darkest, 0.5f * p1) << dir;
+  }
+  std::error_code ec;
+  fs::remove_all(root, ec);
 }
 
 }  // namespace
