@@ -34,14 +34,6 @@ struct ExportArgs {
   bool force = false;
 };
 
-std::string DefaultName(const fs::path& scan) {
-  fs::path p = scan.lexically_normal();
-  if (p.filename().empty()) p = p.parent_path();
-  std::string name = p.filename().string();
-  if (p.extension() == ".scan") name = p.stem().string();
-  return name.empty() || name == "." || name == ".." ? "scan" : name;
-}
-
 // Sizes a user or the scan controls, checked before ExportScan allocates anything: the crop
 // (in 64 bits: X + W may overflow an int), the output grid against the memory budget, and a
 // height field with no valid sample at all.
@@ -94,7 +86,7 @@ void RunExport(const ExportArgs& a) {
   if (!a.crop.empty()) o.crop = ParsePixelRect(a.crop, "ExportOptions.crop");
   o.max_triangles = a.max_triangles;
   o.mesh_tolerance_m = a.mesh_tolerance_m;
-  o.name = a.name.empty() ? DefaultName(a.scan) : a.name;
+  o.name = a.name.empty() ? ScanName(a.scan) : a.name;
   o.Check();
   std::optional<MapsOptions> maps;
   if (a.maps.any()) maps = a.maps.ToOptions(o.name, a.crop);

@@ -124,16 +124,8 @@ struct MapsCmdArgs {
   bool force = false;
 };
 
-std::string DefaultMapsName(const fs::path& scan) {
-  fs::path p = scan.lexically_normal();
-  if (p.filename().empty()) p = p.parent_path();
-  std::string name = p.filename().string();
-  if (p.extension() == ".scan") name = p.stem().string();
-  return name.empty() || name == "." || name == ".." ? "scan" : name;
-}
-
 void RunMaps(const MapsCmdArgs& a) {
-  MapsOptions o = a.maps.ToOptions(a.name.empty() ? DefaultMapsName(a.scan) : a.name, a.crop);
+  MapsOptions o = a.maps.ToOptions(a.name.empty() ? ScanName(a.scan) : a.name, a.crop);
   o.normals = a.normals == "dx" ? NormalConvention::kDirectX : NormalConvention::kOpenGl;
   // --out must not be, contain or lie inside the scan or the albedo (core/output_dir.h).
   const OutputSpec out_spec{"maps", "--out", a.out, {a.scan, a.albedo}, a.force, {"manifest.json"}};

@@ -56,14 +56,14 @@ void Run(const ReconstructArgs& a) {
   ExportOptions export_options;
   if (!a.export_formats.empty()) {
     ParseExportFormats(a.export_formats, &export_options);
-    export_options.name = "scan";
+    export_options.name = ScanName(a.out);  // files named after the scan, as `export` names them
     export_options.Check();
   }
   std::optional<MapsOptions> maps;
   if (a.maps.any()) {
     if (a.export_formats.empty())
       MESOSCAN_THROW(ErrorKind::kUsage, "--fill/--flatten/--tile/--maps need --export FORMATS");
-    maps = a.maps.ToOptions("scan", "");
+    maps = a.maps.ToOptions(ScanName(a.out), "");
     if (!a.maps.fill.empty()) export_options.fill = maps->fill;
   }
 

@@ -16,6 +16,10 @@ struct MapArgs {
   MapsOptions ToOptions(const std::string& name, const std::string& crop) const;
 };
 
+// The file-name prefix a scan folder gives its exports and maps: the folder's name without a
+// ".scan" extension ("out/coin.scan/" -> "coin"); "scan" when the path has no name.
+std::string ScanName(const std::filesystem::path& scan);
+
 // Registers --fill, --flatten, --tile, --tile-method, --maps, ... on `cmd`.
 void AddMapOptions(CLI::App* cmd, MapArgs* args, bool standalone);
 // Prints the summary, the folder and the one line that loads it in Blender.

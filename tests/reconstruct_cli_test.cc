@@ -75,10 +75,13 @@ TEST(ReconstructCli, ExportFromReconstruct) {
   const CliResult r = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
                                   out.string() + " --roi 40,30,64,48 --export glb,png16");
   ASSERT_EQ(r.code, 0) << r.output;
-  for (const char* f : {"export/scan.glb", "export/scan_height.png", "export/scan_height.json",
-                        "export/manifest.json"})
-    EXPECT_TRUE(fs::exists(out / f)) << f;
-  EXPECT_FALSE(fs::exists(out / "export/scan_height.exr"));  // only the formats asked for
+  // Files named after the scan folder without ".scan", as `mesoscan export` names them.
+  const std::string n = out.stem().string();
+  for (const std::string& f :
+       {n + ".glb", n + "_height.png", n + "_height.json", std::string("manifest.json")})
+    EXPECT_TRUE(fs::exists(out / "export" / f)) << f;
+  EXPECT_FALSE(fs::exists(out / "export/scan.glb"));
+  EXPECT_FALSE(fs::exists(out / "export" / (n + "_height.exr")));  // only the formats asked for
   const CliResult bad = RunMesoscan("-q reconstruct " + kCoinEdge.string() + " --out " +
                                     out.string() + "2 --export tiff");
   EXPECT_EQ(bad.code, 2) << bad.output;
