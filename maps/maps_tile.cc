@@ -136,9 +136,8 @@ ImageF CropSquare(const ImageF& im, int x0, int y0, int n) {
 void TileOptions::Check() const {
   if (!(size_m > 0) || !std::isfinite(size_m))
     MESOSCAN_BAD_OPTION("TileOptions.size_m", size_m * 1e3 << " mm: expected a size > 0");
-  if (!(mount_clearance_m >= 0) || !std::isfinite(mount_clearance_m))
-    MESOSCAN_BAD_OPTION("TileOptions.mount_clearance_m",
-                        mount_clearance_m * 1e6 << " um: expected a height >= 0");
+  // Not a command-line option: a bad value is a caller's bug.
+  MESOSCAN_CHECK(mount_clearance_m >= 0 && std::isfinite(mount_clearance_m));
 }
 
 TileMethod ParseTileMethod(const std::string& t) {
