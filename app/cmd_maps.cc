@@ -49,6 +49,14 @@ void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
   cmd->add_option("--tile-at", a->tile_at,
                   "X,Y: the tile's source square at this top-left pixel of the scan's height grid "
                   "(default: chosen on the sample, textured and measured)");
+  cmd->add_option("--size", a->size_px,
+                  "N: every map resampled to N px, a power of two (a tile N x N, else the longest "
+                  "side N; the physical size kept)" +
+                      g);
+  cmd->add_option("--roughness", a->roughness,
+                  "Principled roughness in [0, 1]: written as NAME_roughness.png, linked by the "
+                  "Blender add-on" +
+                      g);
   cmd->add_option("--maps", a->maps,
                   "Maps to write: any of height,normal,albedo,confidence,ao,curvature" + g);
   cmd->add_option("--ao-radius-mm", a->ao_radius_mm, "Ambient occlusion search radius, mm");
@@ -56,7 +64,7 @@ void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
 
 bool MapArgs::any() const {
   return !fill.empty() || !flatten.empty() || tile_mm > 0 || !maps.empty() ||
-         !tile_method.empty() || !tile_at.empty();
+         !tile_method.empty() || !tile_at.empty() || size_px != 0 || roughness != -1.0;
 }
 
 MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop) const {
@@ -84,6 +92,8 @@ MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop)
     if (tile_mm <= 0) MESOSCAN_THROW(ErrorKind::kUsage, "--tile-at needs --tile SIZE_MM");
     o.tile_options.at_px = ParseTileAt(tile_at);
   }
+  o.size_px = size_px;
+  o.roughness = roughness;
   if (!maps.empty()) ParseMapSelection(maps, &o);
   if (ao_radius_mm > 0) o.ao.radius_m = ao_radius_mm * 1e-3;
   if (!crop.empty()) o.crop = ParsePixelRect(crop, "MapsOptions.crop");

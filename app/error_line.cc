@@ -82,6 +82,8 @@ constexpr OptionFlag kOptionFlags[] = {
     {"TileOptions.size_m", "", "--tile"},
     {"TileOptions.method", "", "--tile-method"},
     {"TileOptions.at_px", "", "--tile-at"},
+    {"MapsOptions.size_px", "", "--size"},
+    {"MapsOptions.roughness", "", "--roughness"},
     // compare
     {"CompareOptions.mount_clearance_m", "", "--mount-clearance"},
     {"CompareOptions.min_confidence", "", "--min-confidence"},

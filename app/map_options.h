@@ -12,7 +12,9 @@ namespace mesoscan {
 struct MapArgs {
   std::string fill, flatten, tile_method, tile_at, maps;
   double fill_max_radius_mm = 0.0, tile_mm = 0.0, ao_radius_mm = 0.0;
-  bool any() const;  // any map option given (export / reconstruct then write a map set)
+  int size_px = 0;
+  double roughness = -1.0;  // < 0: not given
+  bool any() const;         // any map option given (export / reconstruct then write a map set)
   MapsOptions ToOptions(const std::string& name, const std::string& crop) const;
 };
 

@@ -149,6 +149,11 @@ void MapsOptions::Check() const {
   if (!(curvature_sigma_px >= 0))
     MESOSCAN_THROW(ErrorKind::kUsage,
                    "maps: curvature sigma " << curvature_sigma_px << ": expected >= 0");
+  if (!(roughness <= 1.0) || (roughness < 0 && roughness != -1.0))
+    MESOSCAN_BAD_OPTION("MapsOptions.roughness", roughness << ": expected a roughness in [0, 1]");
+  if (size_px != 0 && (size_px < 8 || size_px > 16384 || (size_px & (size_px - 1)) != 0))
+    MESOSCAN_BAD_OPTION("MapsOptions.size_px",
+                        size_px << ": expected a power of two from 8 to 16384 (or 0: unchanged)");
   if (name.empty() || name.find_first_of("/\\") != std::string::npos)
     MESOSCAN_BAD_OPTION("MapsOptions.name", "'" << name << "': expected a file name prefix");
   if (!maps.height && !maps.normal && !maps.albedo && !maps.confidence && !maps.ao &&
@@ -294,6 +299,85 @@ FinalSurface TileOrKeep(const MapsOptions& o, const FlattenResult& flat, const I
     f.filled = fill.filled;
   }
   return f;
+}
+
+// A square periodic image resampled to n_out x n_out on its period: its Fourier series cut (or
+// zero-padded) to the frequencies both grids hold, so the result stays exactly periodic and its
+// mean is kept. Non-finite samples count as the channel's mean.
+ImageF FourierResample(const ImageF& im, int n_out) {
+  const int n = im.width();
+  MESOSCAN_CHECK(im.height() == n && n_out > 0);
+  const int half = (std::min(n, n_out) - 1) / 2;  // frequencies -half..half (no Nyquist term)
+  const float scale = static_cast<float>(static_cast<double>(n_out) * n_out / (n * n));
+  ImageF out(n_out, n_out, im.channels());
+  for (int c = 0; c < im.channels(); ++c) {
+    cv::Mat src(n, n, CV_32F);
+    double sum = 0;
+    int64_t finite = 0;
+    for (size_t p = 0; p < im.pixels(); ++p)
+      if (std::isfinite(im.channel(c)[p])) sum += im.channel(c)[p], ++finite;
+    const float mean = finite ? static_cast<float>(sum / finite) : 0.0f;
+    for (size_t p = 0; p < im.pixels(); ++p) {
+      const float v = im.channel(c)[p];
+      src.ptr<float>()[p] = std::isfinite(v) ? v : mean;
+    }
+    cv::Mat spec, dst = cv::Mat::zeros(n_out, n_out, CV_32FC2), res;
+    cv::dft(src, spec, cv::DFT_COMPLEX_OUTPUT);
+    for (int ky = -half; ky <= half; ++ky)
+      for (int kx = -half; kx <= half; ++kx)
+        dst.at<cv::Vec2f>((ky + n_out) % n_out, (kx + n_out) % n_out) =
+            spec.at<cv::Vec2f>((ky + n) % n, (kx + n) % n);
+    cv::idft(dst, res, cv::DFT_REAL_OUTPUT | cv::DFT_SCALE);
+    for (size_t p = 0; p < out.pixels(); ++p) out.channel(c)[p] = res.ptr<float>()[p] * scale;
+  }
+  return out;
+}
+
+// --size: the final surface resampled to N (MapsOptions::size_px).
+void ResampleSurface(int n, FinalSurface* f) {
+  HeightField& hf = f->field;
+  const double p = hf.pixel_size;
+  if (f->tile) {
+    // Periodic: band-limited on the period; the physical size n_src * p kept.
+    const int m = hf.width();
+    const double p2 = m * p / n;
+    HeightField r;
+    r.pixel_size = p2;
+    r.x0 = hf.x0 - 0.5 * p + 0.5 * p2;  // the square's corner stays where it was
+    r.y0 = hf.y0 + 0.5 * p - 0.5 * p2;
+    r.z = FourierResample(hf.z, n);
+    if (!hf.confidence.empty()) {
+      r.confidence = FourierResample(hf.confidence, n);
+      for (float& v : r.confidence.data()) v = std::clamp(v, 0.0f, 1.0f);
+    }
+    if (!f->albedo.empty()) {
+      f->albedo = FourierResample(f->albedo, n);
+      for (float& v : f->albedo.data()) v = std::max(v, 0.0f);
+    }
+    if (!f->filled.empty()) {
+      ImageU8 fl(n, n, 1, 0);
+      for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x)
+          fl(x, y) = f->filled(std::min(m - 1, static_cast<int>((x + 0.5) * m / n)),
+                               std::min(m - 1, static_cast<int>((y + 0.5) * m / n)));
+      f->filled = std::move(fl);
+    }
+    hf = std::move(r);
+    return;
+  }
+  // Not periodic: the longest side N, the span of the pixel centres kept (export's resampling).
+  const int longest = std::max(hf.width(), hf.height());
+  const double p2 = (longest - 1) * p / (n - 1);
+  const HeightField src = hf;
+  hf = CropAndResample(src, PixelRect{}, p2);
+  if (!f->albedo.empty()) f->albedo = CropAndResampleImage(f->albedo, src, PixelRect{}, p2);
+  if (!f->filled.empty()) {
+    ImageF fl(src.width(), src.height(), 1);
+    for (size_t i = 0; i < fl.pixels(); ++i) fl.data()[i] = f->filled.data()[i];
+    const ImageF r = CropAndResampleImage(fl, src, PixelRect{}, p2);
+    f->filled = ImageU8(r.width(), r.height(), 1, 0);
+    for (size_t i = 0; i < r.pixels(); ++i) f->filled.data()[i] = r.data()[i] > 0.5f;
+  }
 }
 
 // Loud when the tile is doubtful: much of it invented by the fill, or off the sample.
@@ -577,6 +661,18 @@ void AddCurvatureFiles(const MapSet& m, MapFiles* files) {
   });
 }
 
+void AddRoughnessFile(const MapSet& m, MapFiles* files) {
+  const std::string f = m.o.name + "_roughness.png";
+  files->Add(f, {{"role", "roughness"},
+                 {"format", "png"},
+                 {"colour_space", "Non-Color"},
+                 {"value", m.o.roughness},
+                 {"meaning", "Principled BSDF roughness in [0, 1], uniform (as given)"}});
+  files->writers.push_back([&m, f](const fs::path& d) {
+    WritePng8(d / f, QuantizeU8(ImageF(m.w, m.h, 1, static_cast<float>(m.o.roughness))));
+  });
+}
+
 // Every map side by side, with its label and its physical width.
 ImageU8 MakeContactSheet(const MapSet& m) {
   std::vector<Panel> panels;
@@ -769,13 +865,19 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   timer.Stage("flatten");
   // 5. Tile.
   timer.Skip();
-  const FinalSurface surface = TileOrKeep(o, flat, albedo.image, fill);
+  FinalSurface surface = TileOrKeep(o, flat, albedo.image, fill);
   if (surface.tile) {
     summary.tile = surface.tile->BriefReport();
     summary.seams = surface.tile->seams_after;
     WarnAboutTile(*surface.tile);
   }
   timer.Stage("tile");
+  const int native_w = surface.field.width(), native_h = surface.field.height();
+  if (o.size_px > 0) {
+    timer.Skip();
+    ResampleSurface(o.size_px, &surface);
+    timer.Stage("size");
+  }
   const HeightOut height = HeightAndMask(surface);
   // 6. Derived maps on the final height (holes excluded, periodic for a tile).
   timer.Skip();
@@ -790,9 +892,16 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   if (o.maps.albedo && !surface.albedo.empty()) AddAlbedoFile(set, &files);
   if (o.maps.confidence) AddConfidenceFiles(set, &files);
   if (o.maps.ao) AddAoFile(set, &files);
+  if (o.roughness >= 0) AddRoughnessFile(set, &files);
   if (o.maps.curvature) AddCurvatureFiles(set, &files);
   if (o.contact_sheet) AddContactSheet(set, &files);
   Json manifest = MapsManifest(scan, set, fill, files.entries);
+  manifest["size"] = o.size_px > 0
+                         ? Json{{"size_px", o.size_px},
+                                {"from_px", {native_w, native_h}},
+                                {"method", surface.tile ? "Fourier series on the tile's period"
+                                                        : "area average / bilinear"}}
+                         : Json(nullptr);
   WriteMapFolder(dir, files, manifest);
   timer.Stage("write");
   for (const auto& f : files.names) summary.files.push_back(dir / f);

@@ -10,6 +10,7 @@
 //   4. flatten  plane / poly:N / highpass:MM (maps/maps_flatten.h); the removed part is
 //               its own map;
 //   5. tile     a periodic square of a physical size (maps/maps_tile.h), seams measured;
+//   5b. size    with size_px, every map resampled to N (a tile on its period, in Fourier);
 //   6. derived  normals, ambient occlusion, curvature, on the final (periodic) height;
 //   7. files    named as `export` names them, a manifest.json and a contact sheet, written into
 //               a temporary folder that replaces DIR on success.
@@ -24,6 +25,7 @@
 //   NAME_confidence.png        8-bit, 0 at filled and hole pixels
 //   NAME_mask.png              8-bit: 255 measured, 128 filled, 0 hole (value = hole_value_m)
 //   NAME_ao.png                8-bit linear ambient occlusion (1 = open)
+//   NAME_roughness.png         8-bit Principled roughness (with MapsOptions::roughness)
 //   NAME_curvature.exr         float32 mean curvature, 1/m (+ on bumps)
 //   NAME_cavity.png            8-bit: 0.5 flat, brighter convex, darker concave
 //   NAME_contact_sheet.png     every map side by side with a scale bar
@@ -57,6 +59,13 @@ struct MapsOptions {
   TileOptions tile_options;
   AoOptions ao;
   double curvature_sigma_px = 1.0;  // Gaussian before the curvature, pixels, >= 0
+  // Every map of the set resampled to this power of two, 8..16384 (a tile: N x N, band-limited
+  // on its period, its physical size kept; otherwise the longest side N, the span of its pixel
+  // centres kept); 0: the height grid's own pixels.
+  int size_px = 0;
+  // Principled roughness in [0, 1] written as NAME_roughness.png (a uniform map the Blender
+  // add-on links to the BSDF's Roughness); < 0: no roughness map.
+  double roughness = -1.0;
   MapSelection maps;
   NormalConvention normals = NormalConvention::kOpenGl;
   std::string name = "scan";  // file name prefix, no path separators

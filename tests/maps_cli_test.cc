@@ -5,6 +5,7 @@
 //    flattened height is the texture (the sample's tilt and sag removed) and the removed part
 //    is written; it prints the one line that loads the set in Blender;
 //  - bad input gives one line, a distinct exit code and no output folder;
+//  - `--size N` resamples every map to N px (a tile on its period), the physical size kept;
 //  - the tile is cut from the sample, not the bare mount around it (a simulated corner of the
 //    woven fabric), `--tile-at` overrides the choice and a tile on the mount is warned about;
 //  - the albedo of `export` and `maps` has a value wherever the height has one (filled holes
@@ -91,7 +92,8 @@ class MapsCli : public ::testing::Test {
     WriteExr(root_ / "albedo.exr", syn_->albedo, {"Y"});
     const std::string scan = Q(root_ / "metal.scan");
     status_ = RunMesoscan("maps " + scan + " --out " + Q(root_ / "tiled") +
-                              " --flatten poly:2 --tile 8 --albedo " + Q(root_ / "albedo.exr"),
+                              " --flatten poly:2 --tile 8 --roughness 0.35 --albedo " +
+                              Q(root_ / "albedo.exr"),
                           &log_);
     // The untiled control: a square crop of the same size, flattened the same way.
     std::string out;
@@ -133,8 +135,11 @@ TEST_F(MapsCli, WritesAFinishedTileableMapSet) {
     roles.insert(f.at("role"));
   }
   for (const char* r : {"height", "height removed", "normal", "albedo", "confidence", "mask", "ao",
-                        "curvature", "cavity", "contact sheet"})
+                        "curvature", "cavity", "roughness", "contact sheet"})
     EXPECT_TRUE(roles.count(r)) << r;
+  // --roughness 0.35: a uniform 8-bit map of that value.
+  const ImageF rough = ReadImage(root_ / "tiled/metal_roughness.png");
+  for (float v : rough.data()) ASSERT_NEAR(v, 0.35f, 0.5f / 255) << "roughness map";
   // Seam gradient statistics: both seams pooled against the interior within 10%, and each seam
   // no outlier among single interior columns/rows (within 2.5 of their standard deviations:
   // the hammer dents are ~40 px wide, so one column of 160 samples scatters by that much).
@@ -255,6 +260,67 @@ TEST_F(MapsCli, BadInputIsOneLineAndNoOutput) {
       << out;
 }
 
+// --size: every map of the tile (160 px native) resampled to 256 px on its period; the manifest
+// keeps the physical size, the height keeps its RMS (the texture is sampled well above its
+// detail, so band-limited resampling keeps its variance) and its seams stay those of the
+// interior, as the native tile's are held to (10%). Untiled: the longest side is N.
+TEST_F(MapsCli, SizeResamplesEveryMapToAPowerOfTwoKeepingThePhysicalSize) {
+  std::string out;
+  const std::string scan = Q(root_ / "metal.scan");
+  ASSERT_EQ(
+      RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "sized") +
+                      " --flatten poly:2 --tile 8 --size 256 --albedo " + Q(root_ / "albedo.exr"),
+                  &out),
+      0)
+      << out;
+  const Json m = ReadJsonFile(root_ / "sized/manifest.json");
+  const Json native = ReadJsonFile(root_ / "tiled/manifest.json");
+  const Json& g = m.at("grid");
+  EXPECT_EQ(g.at("width_px"), 256);
+  EXPECT_EQ(g.at("height_px"), 256);
+  const double size = native.at("grid").at("physical_size_m")[0];
+  EXPECT_NEAR(g.at("physical_size_m")[0].get<double>(), size, 1e-9);
+  EXPECT_NEAR(g.at("pixel_size_m").get<double>() * 256, size, 1e-9);
+  EXPECT_NEAR(m.at("tile").at("size_m").get<double>(), size, 1e-9);
+  int maps = 0;
+  for (const Json& f : m.at("files")) {
+    const std::string role = f.at("role");
+    if (role == "contact sheet" || role == "height sidecar" || role == "height removed") continue;
+    const ImageInfo info = ReadImageInfo(root_ / "sized" / f.at("file").get<std::string>());
+    EXPECT_EQ(info.width, 256) << f.dump();
+    EXPECT_EQ(info.height, 256) << f.dump();
+    ++maps;
+  }
+  EXPECT_GE(maps, 8);  // height x2, normal x2, albedo, confidence, mask, ao, curvature, cavity
+  auto rms = [](const ImageF& z) {
+    double s = 0, s2 = 0;
+    for (float v : z.data()) s += v, s2 += static_cast<double>(v) * v;
+    const double mean = s / z.pixels();
+    return std::sqrt(s2 / z.pixels() - mean * mean);
+  };
+  const ImageF z = ReadExrChannels(root_ / "sized/metal_height.exr", {"Y"});
+  const ImageF z0 = ReadExrChannels(root_ / "tiled/metal_height.exr", {"Y"});
+  const SeamStats seams = MeasureSeams(z);
+  std::cout << "256 px: height RMS " << rms(z) << " m (native 160 px: " << rms(z0)
+            << "), seam/interior gradient RMS pooled " << seams.pooled_ratio() << "\n";
+  EXPECT_NEAR(rms(z) / rms(z0), 1.0, 0.02);
+  EXPECT_NEAR(seams.pooled_ratio(), 1.0, 0.10);
+  // Untiled: the longest side N.
+  ASSERT_EQ(RunMesoscan("-q maps " + scan + " --out " + Q(root_ / "sized_whole") +
+                            " --size 64 --maps height",
+                        &out),
+            0)
+      << out;
+  const Json w = ReadJsonFile(root_ / "sized_whole/manifest.json").at("grid");
+  EXPECT_EQ(std::max(w.at("width_px").get<int>(), w.at("height_px").get<int>()), 64) << w.dump();
+  // Not a power of two: one line naming --size, exit 2, no output.
+  EXPECT_EQ(RunMesoscan("maps " + scan + " --out " + Q(root_ / "bad_size") + " --size 300", &out),
+            2)
+      << out;
+  EXPECT_NE(out.find("--size"), std::string::npos) << out;
+  EXPECT_FALSE(fs::exists(root_ / "bad_size"));
+}
+
 TEST_F(MapsCli, ExportWritesTheMapSetNextToTheRawExports) {
   std::string out;
   ASSERT_EQ(RunMesoscan("-q export " + Q(root_ / "metal.scan") + " --out " + Q(root_ / "export") +
@@ -314,6 +380,7 @@ TEST_F(MapsCli, BlenderImportsTheSetAtTrueScaleAndTheTileHasNoSeam) {
   EXPECT_TRUE(has("albedo.Color->mesoscan albedo x ao.Color1")) << links.dump();
   EXPECT_TRUE(has("ao.Color->mesoscan albedo x ao.Color2")) << links.dump();
   EXPECT_TRUE(has("mesoscan albedo x ao.Color->Principled BSDF.Base Color")) << links.dump();
+  EXPECT_TRUE(has("roughness.Color->Principled BSDF.Roughness")) << links.dump();
   const Json& images = r.at("images");
   EXPECT_EQ(images.at("height").at("colorspace"), "Non-Color");
   EXPECT_EQ(images.at("albedo").at("colorspace"), "sRGB");

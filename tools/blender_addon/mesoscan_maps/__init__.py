@@ -2,7 +2,8 @@
 #
 # Reads a map set's manifest.json (written by `mesoscan maps` or `mesoscan export --tile ...`)
 # and builds a material with true-scale displacement (the height EXR: Midlevel 0, Scale 1, in
-# world metres), the tangent-space normal map, albedo multiplied by ambient occlusion, either
+# world metres), the tangent-space normal map, albedo multiplied by ambient occlusion, the
+# roughness map (when the set has one) into the Principled BSDF's Roughness, either
 #  - on a new plane of the sample's physical size (one vertex per texel, up to a limit, so
 #    Cycles' true displacement has the map's resolution), repeated `repeat` times for a
 #    tileable set, or
@@ -144,6 +145,10 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
         base = mix.outputs["Color"]
     if base is not None:
         nt.links.new(base, bsdf.inputs["Base Color"])
+    roughness = pick(m, "roughness")
+    if roughness:
+        tex = image_node(roughness, "Non-Color", -800, "roughness")
+        nt.links.new(tex.outputs["Color"], bsdf.inputs["Roughness"])
     mat["mesoscan_manifest"] = json.dumps({"name": name, "grid": m["grid"], "tileable": m.get("tileable")})
     return mat
 
