@@ -210,10 +210,26 @@ HeightField CropForMaps(const HeightField& height, const PixelRect& crop) {
   return cropped;
 }
 
-// 1 where the height was measured, 0 where it was filled (left out of the flatten fit).
-ImageU8 MeasuredMask(const FillResult& fill) {
-  ImageU8 mask(fill.filled.width(), fill.filled.height(), 1, 1);
-  for (size_t p = 0; p < mask.pixels(); ++p) mask.data()[p] = fill.filled.data()[p] ? 0 : 1;
+// Where the flatten is fit: the measured pixels (filled ones are left out) of the sample, those
+// standing more than `clearance_m` off the mount plane, when the scan shows both the sample and
+// the bare mount (each at least 1% of the measured pixels): the sample's shape is removed, not
+// the mount's plane. Otherwise every measured pixel. `region` says which.
+ImageU8 FlattenFitMask(const FillResult& fill, double clearance_m, std::string* region) {
+  const ImageF& z = fill.field.z;
+  ImageU8 mask(z.width(), z.height(), 1, 0);
+  int64_t measured = 0, on = 0;
+  for (size_t p = 0; p < mask.pixels(); ++p) {
+    const float v = z.data()[p];
+    if (fill.filled.data()[p] || !std::isfinite(v)) continue;
+    ++measured;
+    on += v > clearance_m;
+  }
+  const bool sample_only = on >= measured / 100 && measured - on >= measured / 100 && on > 0;
+  for (size_t p = 0; p < mask.pixels(); ++p)
+    mask.data()[p] = !fill.filled.data()[p] && (!sample_only || z.data()[p] > clearance_m);
+  *region = sample_only ? "the sample's measured pixels (" + std::to_string(on) +
+                              " px standing off the mount plane)"
+                        : "every measured pixel";
   return mask;
 }
 
@@ -860,7 +876,9 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   timer.Stage("albedo");
   // 4. Flatten (filled pixels are left out of the fit).
   timer.Skip();
-  const FlattenResult flat = Flatten(fill.field, MeasuredMask(fill), o.flatten);
+  std::string fit_region;
+  const FlattenResult flat = Flatten(
+      fill.field, FlattenFitMask(fill, o.tile_options.mount_clearance_m, &fit_region), o.flatten);
   summary.flatten = flat.description;
   timer.Stage("flatten");
   // 5. Tile.
@@ -896,6 +914,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   if (o.maps.curvature) AddCurvatureFiles(set, &files);
   if (o.contact_sheet) AddContactSheet(set, &files);
   Json manifest = MapsManifest(scan, set, fill, files.entries);
+  if (o.flatten.method != FlattenMethod::kNone) manifest["flatten"]["fit_region"] = fit_region;
   manifest["size"] = o.size_px > 0
                          ? Json{{"size_px", o.size_px},
                                 {"from_px", {native_w, native_h}},

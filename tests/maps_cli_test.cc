@@ -7,7 +7,8 @@
 //  - bad input gives one line, a distinct exit code and no output folder;
 //  - `--size N` resamples every map to N px (a tile on its period), the physical size kept;
 //  - the tile is cut from the sample, not the bare mount around it (a simulated corner of the
-//    woven fabric), `--tile-at` overrides the choice and a tile on the mount is warned about;
+//    woven fabric, the flatten fit on the fabric), `--tile-at` overrides the choice and a tile on
+//    the mount is warned about;
 //  - the albedo of `export` and `maps` has a value wherever the height has one (filled holes
 //    included: no black outline around the coin's letters and rim);
 //  - `export --tile` writes the same map set into OUT/maps next to the raw exports;
@@ -459,6 +460,9 @@ TEST_F(MapsTileCli, TheTileLiesOnTheSample) {
   std::cout << auto_log_;
   EXPECT_EQ(t.at("source_chosen"), "on the sample");
   EXPECT_GE(t.at("on_sample_fraction").get<double>(), 0.95) << t.dump();
+  // The flatten is fit on the fabric, not on the mount around it.
+  const std::string region = m.at("flatten").value("fit_region", "");
+  EXPECT_EQ(region.rfind("the sample's measured pixels", 0), 0u) << m.at("flatten").dump();
   // Ground truth: the source square (grid pixel centres x0 + i p, y0 - j p) lies on the fabric.
   const double p = m.at("grid").at("pixel_size_m"), x0 = m.at("grid").at("x0_m"),
                y0 = m.at("grid").at("y0_m");
