@@ -64,8 +64,11 @@ std::string WhyNoPoint(const ReconstructSummary& s, const ReconstructOptions& op
        "the code fixes the projector column too coarsely: the points' predicted depth sigma "
        "exceeds " +
            std::to_string(std::lround(options.consistency.max_depth_sigma_m * 1e6)) +
-           " um (a depth error over 100 um would be likely): add shorter sine periods or "
-           "lens-shift frames, or raise the exposure"},
+           " um (or, where larger, " +
+           std::to_string(std::lround(options.consistency.max_depth_sigma_per_footprint * 100)) +
+           "% of the camera footprint), so they could lie 100 um or more from the surface: add "
+           "shorter "
+           "sine periods or lens-shift frames, or raise the exposure"},
       {s.pixels_rejected_discontinuity, "the points lie on depth steps or shadow edges"}};
   const auto* best = &reasons[0];
   for (const auto& r : reasons)

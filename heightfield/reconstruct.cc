@@ -115,8 +115,7 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
     RejectMixedPixels(grid, classes.white_level, tri.sigma_z, options.mixed_pixels, &tri.points,
                       &state);
   if (options.consistency.enabled)
-    RejectUncertainPoints(grid, tri.sigma_z, options.consistency.max_depth_sigma_m, &tri.points,
-                          &state);
+    RejectUncertainPoints(grid, tri.sigma_z, options.consistency, rig.camera, &tri.points, &state);
   timer->Stage("triangulate");
   return out;
 }

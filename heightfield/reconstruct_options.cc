@@ -42,6 +42,7 @@ Json ReconstructOptions::ToJson() const {
   j["systematic_phase_noise"] = phase_shift.systematic_phase_noise;
   j["check_consistency"] = consistency.enabled;
   j["max_depth_sigma_m"] = consistency.max_depth_sigma_m;
+  j["max_depth_sigma_per_footprint"] = consistency.max_depth_sigma_per_footprint;
   j["reject_mixed_pixels"] = reject_mixed_pixels;
   j["mixed_pixels"] = {{"max_sigmas", mixed_pixels.max_sigmas},
                        {"outlier_footprints", mixed_pixels.outlier_footprints},

@@ -225,6 +225,9 @@ void ConsistencyOptions::Check() const {
                        << max_inconsistent_fraction);
   if (!(max_depth_sigma_m > 0))
     MESOSCAN_BAD_INPUT("max_depth_sigma_m: expected > 0, got " << max_depth_sigma_m);
+  if (!(max_depth_sigma_per_footprint >= 0) || !std::isfinite(max_depth_sigma_per_footprint))
+    MESOSCAN_BAD_INPUT("max_depth_sigma_per_footprint: expected >= 0, got "
+                       << max_depth_sigma_per_footprint);
 }
 
 Json ConsistencyReport::ToJson() const {
@@ -514,9 +517,15 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
 }
 
 int64_t RejectUncertainPoints(const RoiGrid& grid, const std::vector<float>& sigma_z,
-                              double max_sigma_m, ScanPoints* points, PixelStates* state_out) {
+                              const ConsistencyOptions& options, const PinholeCamera& camera,
+                              ScanPoints* points, PixelStates* state_out) {
+  const double max_sigma_m = options.max_depth_sigma_m;
   if (!(max_sigma_m > 0) || sigma_z.size() != grid.pixels()) return 0;
   constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+  // The footprint's share: sigma_z <= k |X - C| / f, i.e. sigma_z^2 <= per_m2 |X - C|^2.
+  const double focal = std::max(std::abs(camera.K(0, 0)), std::abs(camera.K(1, 1)));
+  const double per_m = focal > 0 ? options.max_depth_sigma_per_footprint / focal : 0.0;
+  const Vec3d centre = camera.CentreInWorld();
   PixelStates& state = *state_out;
   const int w = grid.width;
   std::atomic<int64_t> n{0};
@@ -526,9 +535,13 @@ int64_t RejectUncertainPoints(const RoiGrid& grid, const std::vector<float>& sig
       for (int x = 0; x < w; ++x) {
         const size_t i = static_cast<size_t>(y) * w + x;
         if (state[i] != PixelState::kOk || sigma_z[i] <= max_sigma_m) continue;
+        const int cx = x + grid.roi.x, cy = y + grid.roi.y;
+        if (per_m > 0) {
+          const Vec3d p(points->xyz(cx, cy, 0), points->xyz(cx, cy, 1), points->xyz(cx, cy, 2));
+          if (sigma_z[i] <= per_m * (p - centre).norm()) continue;
+        }
         ++rows_n;
         state[i] = PixelState::kUncertain;
-        const int cx = x + grid.roi.x, cy = y + grid.roi.y;
         for (int c = 0; c < 3; ++c) points->xyz(cx, cy, c) = kNaN;
         points->confidence(cx, cy) = 0.0f;
         if (!points->source.empty()) points->source(cx, cy) = kNaN;
