@@ -168,8 +168,13 @@ void AddExportCommand(CLI::App* app) {
   cmd->add_option("--crop", a->crop, "X,Y,W,H: a rectangle of the scan's height-grid pixels");
   cmd->add_option("--max-triangles", a->max_triangles, "GLB triangle budget (decimates above it)")
       ->capture_default_str();
-  cmd->add_option("--mesh-tolerance", a->mesh_tolerance_m,
-                  "GLB: never split triangles whose height error is below this (metres)");
+  auto* tolerance =
+      cmd->add_option("--mesh-tolerance", a->mesh_tolerance_m,
+                      "GLB: never split triangles whose height error is below this (metres)");
+  cmd->add_option_function<double>(
+         "--max-error-um", [a](double um) { a->mesh_tolerance_m = um * 1e-6; },
+         "GLB: decimate to this maximum height error (micrometres; --mesh-tolerance in um)")
+      ->excludes(tolerance);
   cmd->add_option("--name", a->name, "File name prefix (default: the scan folder's name)");
   cmd->add_option("--albedo", a->albedo,
                   "Linear albedo image on the height grid (default: SCAN/albedo.exr|png, else the "

@@ -821,6 +821,15 @@ Json GlbExtras(const ExportMaps& m, const GridMesh& mesh) {
 }
 
 // The GLB's manifest entry.
+// Vertices of `mesh` on samples the hole filling made.
+int64_t FilledVertices(const ExportMaps& m, const GridMesh& mesh) {
+  const ImageU8& filled = m.heights.hole_fill.filled;
+  if (filled.empty()) return 0;
+  int64_t n = 0;
+  for (const int32_t p : mesh.vertex_pixel) n += filled.data()[p] != 0;
+  return n;
+}
+
 Json GlbEntry(const ExportMaps& m, const GridMesh& mesh) {
   return {{"role", "mesh"},
           {"format", "glb"},
@@ -834,6 +843,8 @@ Json GlbEntry(const ExportMaps& m, const GridMesh& mesh) {
           {"max_height_error_m", mesh.max_height_error_m},
           {"rtin_threshold_m", mesh.threshold_m},
           {"uncovered_samples", mesh.uncovered_samples},
+          {"filled_vertices", FilledVertices(m, mesh)},
+          {"filled_attribute", "_FILLED: 1 at vertices on filled (not measured) samples"},
           {"budget_met", mesh.budget_met},
           {"textures", m.grid.albedo.empty()
                            ? Json{"normal (OpenGL, 8-bit)"}
@@ -855,13 +866,15 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   if (!g.albedo.empty())
     texture_tasks.run(
         [&g, parts, tex] { parts->albedo_png = EncodePng8(QuantizeU8(g.albedo, true), tex); });
-  // The mesh (RTIN within the triangle budget).
+  // The mesh (RTIN within the triangle budget) over the hole-filled field, so that viewers show
+  // no gap where the scan has a hole; its filled vertices are flagged (_FILLED).
+  const HeightField& surface = m.heights.hole_fill.field;
   GridMeshOptions mo;
   mo.max_triangles = m.o.max_triangles;
   mo.tolerance_m = m.o.mesh_tolerance_m;
   const Stopwatch mesh_watch;
   try {
-    parts->mesh = TriangulateHeightField(g.hf, mo);
+    parts->mesh = TriangulateHeightField(surface, mo);
   } catch (...) {
     texture_tasks.wait();
     throw;
@@ -879,12 +892,13 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   w->Add(f, GlbEntry(m, mesh),
          "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
   texture_tasks.wait();
-  w->Run(f, [&g, parts, n, f, extras = GlbExtras(m, mesh), dir = w->dir()] {
+  w->Run(f, [&g, &surface, &m, parts, n, f, extras = GlbExtras(m, mesh), dir = w->dir()] {
     GlbContent c;
     c.name = n;
-    c.grid = &g.hf;
+    c.grid = &surface;
     c.normals = &g.normals;
     c.mesh = &parts->mesh;
+    if (!m.heights.hole_fill.filled.empty()) c.filled = &m.heights.hole_fill.filled;
     c.extras = extras;
     c.normal_png = std::move(parts->normal_png);
     c.base_color_png = std::move(parts->albedo_png);

@@ -144,6 +144,16 @@ void WriteGlb(const fs::path& path, const GlbContent& c) {
       &model, AddView(&model, tan.data(), tan.size() * 4, kArray), kFloat, nv, TINYGLTF_TYPE_VEC4);
   prim.attributes["TEXCOORD_0"] = AddAccessor(
       &model, AddView(&model, uv.data(), uv.size() * 4, kArray), kFloat, nv, TINYGLTF_TYPE_VEC2);
+  if (c.filled) {
+    std::vector<float> flag(nv);
+    for (size_t v = 0; v < nv; ++v) {
+      const int p = mesh.vertex_pixel[v];
+      flag[v] = (*c.filled)(p % w, p / w) ? 1.0f : 0.0f;
+    }
+    prim.attributes["_FILLED"] =
+        AddAccessor(&model, AddView(&model, flag.data(), flag.size() * 4, kArray), kFloat, nv,
+                    TINYGLTF_TYPE_SCALAR);
+  }
   prim.indices =
       AddAccessor(&model, AddView(&model, mesh.indices.data(), mesh.indices.size() * 4, kElements),
                   TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT, mesh.indices.size(), TINYGLTF_TYPE_SCALAR);

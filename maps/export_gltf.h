@@ -13,16 +13,20 @@
 #include <vector>
 
 #include "core/height_field.h"
+#include "core/image.h"
 #include "core/json.h"
 #include "maps/export_mesh.h"
 
 namespace mesoscan {
 
 struct GlbContent {
-  std::string name;                     // mesh, node and material name
-  const HeightField* grid = nullptr;    // the export grid
-  const ImageF* normals = nullptr;      // world unit normals on the grid (3 channels)
-  const GridMesh* mesh = nullptr;       // triangles over the grid
+  std::string name;                   // mesh, node and material name
+  const HeightField* grid = nullptr;  // the export grid
+  const ImageF* normals = nullptr;    // world unit normals on the grid (3 channels)
+  const GridMesh* mesh = nullptr;     // triangles over the grid
+  // Optional (may be null): 1 where the grid's height was filled, not measured; written as the
+  // vertex attribute _FILLED (float 0 or 1).
+  const ImageU8* filled = nullptr;
   std::vector<uint8_t> normal_png;      // encoded PNG of the OpenGL normal map (required)
   std::vector<uint8_t> base_color_png;  // encoded sRGB PNG of the albedo (may be empty)
   Json extras = Json::object();         // node extras (Blender: object custom properties)

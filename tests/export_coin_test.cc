@@ -75,10 +75,20 @@ class ExportCoin : public ::testing::Test {
     log_ += out;
     if (status_ != 0) return;
     scan_ = new Scan(ReadScanFolder(root_ / "coin.scan"));
-    mesh_ = new LosslessMesh(LosslessMeshOf(scan_->height));
+    // The surface the GLB covers: the scan's heights with its holes filled as the export fills
+    // them (the height EXR; pixels left at hole_value_m are holes still).
+    filled_ = new HeightField(scan_->height);
+    const float hole_value =
+        ReadJsonFile(root_ / "a/manifest.json").at("hole_value_m").get<float>();
+    const ImageF z = ReadExrChannels(root_ / "a/coin_height.exr", {"Y"});
+    for (size_t p = 0; p < z.pixels(); ++p)
+      if (!std::isfinite(filled_->z.data()[p]))
+        filled_->z.data()[p] = z.data()[p] == hole_value ? NAN : z.data()[p];
+    mesh_ = new LosslessMesh(LosslessMeshOf(*filled_));
   }
   static void TearDownTestSuite() {
     delete scan_;
+    delete filled_;
     delete mesh_;
     scan_ = nullptr;
     mesh_ = nullptr;
@@ -103,6 +113,7 @@ class ExportCoin : public ::testing::Test {
 
   static inline fs::path root_;
   static inline Scan* scan_ = nullptr;
+  static inline HeightField* filled_ = nullptr;
   static inline LosslessMesh* mesh_ = nullptr;
   static inline int status_ = -1;
   static inline std::string log_, export_log_;
@@ -174,8 +185,19 @@ void ExportCoin::ExpectDecimatedGlbMeetsItsBudgetWithAStatedError() {
              dec = MeshEntry(root_ / "c/manifest.json");
   ASSERT_FALSE(lossless.is_null());
   ASSERT_FALSE(dec.is_null());
-  // Lossless: every sample of a complete triangle is a vertex, no height error.
+  // Lossless: every sample of a complete triangle of the filled surface is a vertex, no height
+  // error. The demo coin's holes (around every letter, the rim's shadow) are all filled: the
+  // mesh has no gap, and its filled vertices are flagged.
   EXPECT_EQ(lossless.at("vertices").get<int64_t>(), mesh_->vertices);
+  int64_t measured = 0, holes_left = 0;
+  for (size_t p = 0; p < filled_->z.pixels(); ++p) {
+    measured += std::isfinite(scan_->height.z.data()[p]);
+    holes_left += !std::isfinite(filled_->z.data()[p]);
+  }
+  EXPECT_EQ(holes_left, 0);
+  EXPECT_EQ(mesh_->vertices, static_cast<int64_t>(filled_->z.pixels()));
+  EXPECT_EQ(lossless.at("filled_vertices").get<int64_t>(), mesh_->vertices - measured);
+  EXPECT_GT(lossless.at("filled_vertices").get<int64_t>(), 0);
   EXPECT_EQ(lossless.at("max_height_error_m").get<double>(), 0.0);
   EXPECT_LE(dec.at("triangles").get<int64_t>(), kDecimatedTriangles);
   EXPECT_TRUE(dec.at("budget_met").get<bool>());
@@ -189,7 +211,8 @@ void ExportCoin::ExpectDecimatedGlbMeetsItsBudgetWithAStatedError() {
   std::cout << "coin GLB: lossless " << lossless.at("triangles") << " triangles, "
             << lossless.at("vertices") << " vertices; decimated " << dec.at("triangles")
             << " triangles, " << dec.at("vertices") << " vertices, max height error " << err * 1e6
-            << " um\n";
+            << " um; filled vertices " << lossless.at("filled_vertices") << " of "
+            << lossless.at("vertices") << ", holes left " << holes_left << "\n";
 }
 
 // The displacement has no trench where the coin's wall shadowed the projector. Every
@@ -264,7 +287,7 @@ TEST_F(ExportCoin, ExportsAreAnnouncedDecimatedWithAStatedErrorAndReadByGltfTran
 TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt) {
   const std::string blender = FindOnPath("blender");
   if (blender.empty()) GTEST_SKIP() << "blender missing: " << kInstall;
-  const HeightField& hf = scan_->height;
+  const HeightField& hf = *filled_;
   const int w = hf.width(), h = hf.height();
   const Json side = ReadJsonFile(root_ / "a/coin_height.json");
   // Sample pixels (mesh vertices): every 3rd of every 3rd row, and the whole rows and columns
@@ -355,6 +378,7 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
     std::vector<std::pair<double, double>> profile;  // (position, z)
     for (size_t k = 0; k < pixels.size(); ++k) {
       const auto [i, j] = pixels[k];
+      if (!std::isfinite(scan_->height.z(i, j))) continue;  // measured samples only
       if (along_x ? j == cj : i == ci)
         profile.emplace_back(along_x ? hf.X(i) : hf.Y(j), z_blender[k]);
     }
@@ -413,7 +437,7 @@ TEST_F(ExportCoin, BlenderOpensTheCoinAtItsSizeAndReliefAndDisplacesAndShadesIt)
   // 4. The OpenGL normal map through a Normal Map node: the scan's normals (16-bit
   // quantisation and Cycles' float shading: 1e-3), and the rim lit from the side it faces.
   const Json& bake = r.at("bake_gl");
-  const double normal_error = MaxBakedNormalError(bake, hf, scan_->normals, 1.0);
+  const double normal_error = MaxBakedNormalError(bake, scan_->height, scan_->normals, 1.0);
   EXPECT_LT(normal_error, 1e-3);
   // Mean baked normal over a flank: the valid samples at radii [r0, r1] within 30 degrees of
   // a direction whose scan normal is tilted by more than 0.2 (in any direction: the slope, not
