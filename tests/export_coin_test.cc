@@ -77,13 +77,7 @@ class ExportCoin : public ::testing::Test {
     scan_ = new Scan(ReadScanFolder(root_ / "coin.scan"));
     // The surface the GLB covers: the scan's heights with its holes filled as the export fills
     // them (the height EXR; pixels left at hole_value_m are holes still).
-    filled_ = new HeightField(scan_->height);
-    const float hole_value =
-        ReadJsonFile(root_ / "a/manifest.json").at("hole_value_m").get<float>();
-    const ImageF z = ReadExrChannels(root_ / "a/coin_height.exr", {"Y"});
-    for (size_t p = 0; p < z.pixels(); ++p)
-      if (!std::isfinite(filled_->z.data()[p]))
-        filled_->z.data()[p] = z.data()[p] == hole_value ? NAN : z.data()[p];
+    filled_ = new HeightField(FilledSurface(scan_->height, root_ / "a", "coin"));
     mesh_ = new LosslessMesh(LosslessMeshOf(*filled_));
   }
   static void TearDownTestSuite() {

@@ -21,6 +21,7 @@
 
 #include "core/height_field.h"
 #include "core/image.h"
+#include "core/image_io.h"
 #include "core/json.h"
 
 namespace mesoscan::consumers {
@@ -176,6 +177,20 @@ inline Json RunBlenderChecks(const std::string& blender, const fs::path& dir, Js
 // it is a corner of a unit triangle (half a grid cell, split along the 4-8 mesh diagonal)
 // whose three corners are all valid. Computed here from that definition, independently of
 // the exporter. Also the vertices' bounding box (world metres, z up).
+// The surface an export's GLB covers: the scan's heights with its holes filled as the export
+// filled them (the export's height EXR; samples left at its manifest's hole_value_m are holes).
+inline HeightField FilledSurface(const HeightField& scan, const fs::path& export_dir,
+                                 const std::string& name) {
+  HeightField f = scan;
+  const float hole_value =
+      ReadJsonFile(export_dir / "manifest.json").at("hole_value_m").get<float>();
+  const ImageF z = ReadExrChannels(export_dir / (name + "_height.exr"), {"Y"});
+  for (size_t p = 0; p < z.pixels(); ++p)
+    if (!std::isfinite(f.z.data()[p]))
+      f.z.data()[p] = z.data()[p] == hole_value ? std::nanf("") : z.data()[p];
+  return f;
+}
+
 struct LosslessMesh {
   std::vector<bool> vertex;  // per pixel j * width + i
   int64_t vertices = 0;
