@@ -150,31 +150,36 @@ bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride
   return true;
 }
 
-LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
-                             FrameGains* gains, const LensShiftStageOptions& options,
-                             PixelStates* state_out) {
-  LensShiftPixels out;
-  if (!plan.use_lens_shift()) return out;
-  out.fit_parameters = options.fit_frequency && !options.smooth_frequency ? 4 : 3;
-  StepClock step(options.step_timings);
-  constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
-  PixelStates& state = *state_out;
-  const RoiGrid grid = RoiGrid::Of(stack);
-  const int w = grid.width, h = grid.height;
-  const size_t np = grid.pixels();
-  const std::vector<int>& ls_stack = plan.ls_stack;
-  const std::vector<double>& ls_shift_px = plan.ls_shift_px;
-  std::vector<float>& inv_gain = gains->inv_gain;  // refined by the frame corrections
-  const int nls = static_cast<int>(ls_stack.size());
-  // The output arrays of n entries, NaN; offset and frequency only if `all`.
-  auto allocate = [&](LensShiftPixels& o, size_t n, bool all) {
-    for (auto* v : {&o.phase0, &o.amplitude, &o.residual_rms, &o.samples}) v->assign(n, kNaN);
-    if (all)
-      for (auto* v : {&o.frequency, &o.offset}) v->assign(n, kNaN);
-  };
-  const double centre = plan.LensShiftCentre();
-  // Box filter: 5-sample moving average ("valid" part only, so no sample is shifted).
-  const bool box = options.box_filter && nls >= 9;
+namespace {
+
+constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
+
+// What every fitting pass reads: the lens-shift frames, their gains, the pixels' states (a pass
+// marks its failures there) and the profile's sampling.
+struct LensShiftData {
+  const FrameStack& stack;
+  const std::vector<int>& ls_stack;
+  const std::vector<float>& inv_gain;  // refined by the frame corrections
+  PixelStates& state;
+  int w, h;
+  int nls;   // lens-shift frames
+  int nx;    // samples of a profile (fewer than nls with the box filter)
+  bool box;  // 5-sample moving average
+  double centre;
+  size_t np;  // ROI pixels
+};
+
+// The output arrays of n entries, NaN; offset and frequency only if `all`.
+void Allocate(LensShiftPixels& o, size_t n, bool all) {
+  for (auto* v : {&o.phase0, &o.amplitude, &o.residual_rms, &o.samples}) v->assign(n, kNaNf);
+  if (all)
+    for (auto* v : {&o.frequency, &o.offset}) v->assign(n, kNaNf);
+}
+
+// The shifts of the profile's samples from the centre; with the box filter, the 5-sample moving
+// average ("valid" part only, so no sample is shifted).
+std::vector<double> ProfileShifts(const std::vector<double>& ls_shift_px, double centre, bool box) {
+  const int nls = static_cast<int>(ls_shift_px.size());
   std::vector<double> x;
   if (box) {
     for (int k = 2; k + 2 < nls; ++k) {
@@ -185,266 +190,344 @@ LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& pla
   } else {
     for (double s : ls_shift_px) x.push_back(s - centre);
   }
-  LensShiftFitOptions fo;
-  fo.fitter = options.fitter;
-  fo.fit_frequency = options.fit_frequency;
-  const int nx = static_cast<int>(x.size());
-  // Pixels of a fitting pass: every `stride`-th pixel of every `stride`-th row, or (complement)
-  // all the others.
-  struct PixelSubset {
-    int stride = 1;
-    bool complement = false;
-    bool Row(int y) const { return complement || y % stride == 0; }
-    bool Has(int x, int y) const { return (x % stride == 0 && y % stride == 0) != complement; }
-  };
-  // Where a pass stores: ROI pixel (x, y) at entry (y / stride) * width + x / stride of `px`
-  // (stride 1: the ROI grid; the frequency pass: its sparse subsample's own grid).
-  struct Target {
-    LensShiftPixels* px;
-    int stride, width;
-    size_t At(size_t x, int y) const {
-      return static_cast<size_t>(y / stride) * width + x / static_cast<size_t>(stride);
+  return x;
+}
+
+// Pixels of a fitting pass: every `stride`-th pixel of every `stride`-th row, or (complement)
+// all the others.
+struct PixelSubset {
+  int stride = 1;
+  bool complement = false;
+  bool Row(int y) const { return complement || y % stride == 0; }
+  bool Has(int x, int y) const { return (x % stride == 0 && y % stride == 0) != complement; }
+};
+
+// Where a pass stores: ROI pixel (x, y) at entry (y / stride) * width + x / stride of `px`
+// (stride 1: the ROI grid; the frequency pass: its sparse subsample's own grid).
+struct Target {
+  LensShiftPixels* px;
+  int stride, width;
+  size_t At(size_t x, int y) const {
+    return static_cast<size_t>(y / stride) * width + x / static_cast<size_t>(stride);
+  }
+};
+
+// The outputs of pixel i (entry di of o) from its fit.
+void StoreFit(const LensShiftData& d, LensShiftPixels& o, size_t di, size_t i,
+              const LensShiftFit& fit) {
+  if (!fit.valid) {
+    d.state[i] = PixelState::kFitFailed;
+    if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
+      o.residual_rms[di] = static_cast<float>(fit.residual_rms);
+      o.samples[di] = static_cast<float>(fit.samples_used);
     }
-  };
-  const Target full{&out, 1, w};
-  // The outputs of pixel i (entry di of o) from its fit.
-  auto store = [&](LensShiftPixels& o, size_t di, size_t i, const LensShiftFit& fit) {
-    if (!fit.valid) {
-      state[i] = PixelState::kFitFailed;
-      if (std::isfinite(fit.residual_rms) && fit.samples_used > 4) {  // noise estimate
-        o.residual_rms[di] = static_cast<float>(fit.residual_rms);
-        o.samples[di] = static_cast<float>(fit.samples_used);
-      }
-      return;
-    }
-    // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
-    o.phase0[di] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * centre);
-    o.amplitude[di] = static_cast<float>(fit.amplitude);
-    if (!o.frequency.empty()) o.frequency[di] = static_cast<float>(fit.frequency);
-    if (!o.offset.empty()) o.offset[di] = static_cast<float>(fit.offset);
-    o.residual_rms[di] = static_cast<float>(fit.residual_rms);
-    o.samples[di] = static_cast<float>(fit.samples_used);
-  };
-  // One pass over the active pixels of `subset`; f_map (if given) is the per-pixel frequency
-  // held fixed. Rows without a pixel of the subset are not even gathered.
-  auto fit_pass = [&](const LensShiftBatchFitter& fitter, const std::vector<float>* f_map,
-                      const PixelSubset& subset, const char* label, const Target& to) {
-    Progress progress(label, h);
-    // Without the box filter and a fixed frequency, the row's pixels of the subset are fitted
-    // together (FitMany: four profiles per vector, Fit's results to rounding).
-    const bool many = !box && !f_map;
-    ParallelForRows(h, [&](int y0, int y1) {
-      const size_t n = static_cast<size_t>(w);
-      // (Sized where first needed: the sparse pass with FitMany reads no full rows, and these
-      // were ~80 MB of zero fills over the pass's tasks.)
-      std::vector<float> buf, prof(static_cast<size_t>(nx)), packed;
-      if (!many) buf.resize(static_cast<size_t>(nls) * n);
-      std::vector<uint32_t> cols;
-      std::vector<LensShiftFit> fits;
-      for (int y = y0; y < y1; ++y) {
-        if (!subset.Row(y)) continue;
-        const size_t i0 = static_cast<size_t>(y) * w;
-        if (many) {
-          // The subset's active pixels of the row, their profiles packed frame-major
-          // (packed[k * m + p]: profile p's sample k).
-          cols.clear();
-          for (size_t j = 0; j < n; ++j)
-            if (state[i0 + j] == PixelState::kActive && subset.Has(static_cast<int>(j), y))
-              cols.push_back(static_cast<uint32_t>(j));
-          const size_t m = cols.size();
-          if (m == 0) continue;
-          const size_t need = static_cast<size_t>(nls) * m;
-          if (packed.size() < need) packed.resize(need);
-          if (subset.stride > 1 && !subset.complement) {
-            for (int k = 0; k < nls; ++k) {
-              const float g = inv_gain[ls_stack[k]];
-              float* to = packed.data() + k * m;
-              for (size_t p = 0; p < m; ++p) to[p] = stack.Value(ls_stack[k], i0 + cols[p]) * g;
-            }
-          } else {
-            if (buf.empty()) buf.resize(static_cast<size_t>(nls) * n);
-            for (int k = 0; k < nls; ++k) {
-              stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
-              const float g = inv_gain[ls_stack[k]];
-              const float* from = buf.data() + k * n;
-              float* to = packed.data() + k * m;
-              for (size_t p = 0; p < m; ++p) to[p] = from[cols[p]] * g;
-            }
-          }
-          fits.resize(m);
-          fitter.FitMany(packed.data(), 1, static_cast<int>(m), static_cast<int>(m), fits.data());
-          for (size_t p = 0; p < m; ++p) {
-            const size_t j = cols[p];
-            store(*to.px, to.stride == 1 ? i0 + j : to.At(j, y), i0 + j, fits[p]);
-          }
-          continue;
-        }
+    return;
+  }
+  // Phase at shift 0 with the pixel's own frequency (the model holds at shift 0).
+  o.phase0[di] = static_cast<float>(fit.phase - 2 * kPi * fit.frequency * d.centre);
+  o.amplitude[di] = static_cast<float>(fit.amplitude);
+  if (!o.frequency.empty()) o.frequency[di] = static_cast<float>(fit.frequency);
+  if (!o.offset.empty()) o.offset[di] = static_cast<float>(fit.offset);
+  o.residual_rms[di] = static_cast<float>(fit.residual_rms);
+  o.samples[di] = static_cast<float>(fit.samples_used);
+}
+
+// One pass over the active pixels of `subset`; f_map (if given) is the per-pixel frequency
+// held fixed. Rows without a pixel of the subset are not even gathered.
+void FitPass(const LensShiftData& d, const LensShiftBatchFitter& fitter,
+             const std::vector<float>* f_map, const PixelSubset& subset, const char* label,
+             const Target& to) {
+  const FrameStack& stack = d.stack;
+  const std::vector<int>& ls_stack = d.ls_stack;
+  const std::vector<float>& inv_gain = d.inv_gain;
+  const PixelStates& state = d.state;
+  const int w = d.w, h = d.h, nls = d.nls, nx = d.nx;
+  const bool box = d.box;
+  Progress progress(label, h);
+  // Without the box filter and a fixed frequency, the row's pixels of the subset are fitted
+  // together (FitMany: four profiles per vector, Fit's results to rounding).
+  const bool many = !box && !f_map;
+  ParallelForRows(h, [&](int y0, int y1) {
+    const size_t n = static_cast<size_t>(w);
+    // (Sized where first needed: the sparse pass with FitMany reads no full rows, and these
+    // were ~80 MB of zero fills over the pass's tasks.)
+    std::vector<float> buf, prof(static_cast<size_t>(nx)), packed;
+    if (!many) buf.resize(static_cast<size_t>(nls) * n);
+    std::vector<uint32_t> cols;
+    std::vector<LensShiftFit> fits;
+    for (int y = y0; y < y1; ++y) {
+      if (!subset.Row(y)) continue;
+      const size_t i0 = static_cast<size_t>(y) * w;
+      if (many) {
+        // The subset's active pixels of the row, their profiles packed frame-major
+        // (packed[k * m + p]: profile p's sample k).
+        cols.clear();
+        for (size_t j = 0; j < n; ++j)
+          if (state[i0 + j] == PixelState::kActive && subset.Has(static_cast<int>(j), y))
+            cols.push_back(static_cast<uint32_t>(j));
+        const size_t m = cols.size();
+        if (m == 0) continue;
+        const size_t need = static_cast<size_t>(nls) * m;
+        if (packed.size() < need) packed.resize(need);
         if (subset.stride > 1 && !subset.complement) {
-          // A sparse subset (the frequency pass: 1 pixel in stride^2): only its samples.
           for (int k = 0; k < nls; ++k) {
             const float g = inv_gain[ls_stack[k]];
-            for (size_t j = 0; j < n; j += subset.stride)
-              buf[k * n + j] = stack.Value(ls_stack[k], i0 + j) * g;
+            float* dst = packed.data() + k * m;
+            for (size_t p = 0; p < m; ++p) dst[p] = stack.Value(ls_stack[k], i0 + cols[p]) * g;
           }
         } else {
+          if (buf.empty()) buf.resize(static_cast<size_t>(nls) * n);
           for (int k = 0; k < nls; ++k) {
             stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
             const float g = inv_gain[ls_stack[k]];
-            for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+            const float* from = buf.data() + k * n;
+            float* dst = packed.data() + k * m;
+            for (size_t p = 0; p < m; ++p) dst[p] = from[cols[p]] * g;
           }
         }
-        for (size_t j = 0; j < n; ++j) {
-          const size_t i = i0 + j;
-          if (state[i] != PixelState::kActive || !subset.Has(static_cast<int>(j), y)) continue;
-          const float* b = buf.data() + j;
-          int stride = static_cast<int>(n);
-          if (box) {
-            for (int k = 0; k < nx; ++k) {
-              float sm = 0;
-              for (int q = 0; q < 5; ++q) sm += buf[(k + q) * n + j];
-              prof[k] = sm / 5;
-            }
-            b = prof.data();
-            stride = 1;
-          }
-          store(*to.px, to.stride == 1 ? i : to.At(j, y), i,
-                f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride));
+        fits.resize(m);
+        fitter.FitMany(packed.data(), 1, static_cast<int>(m), static_cast<int>(m), fits.data());
+        for (size_t p = 0; p < m; ++p) {
+          const size_t j = cols[p];
+          StoreFit(d, *to.px, to.stride == 1 ? i0 + j : to.At(j, y), i0 + j, fits[p]);
         }
+        continue;
       }
-      progress.Advance(y1 - y0);
-    });
-  };
-  // The fixed-frequency pass of every active pixel with the row kernel (LensShiftRowFitter):
-  // tiles of a row gathered frame-major, the gains applied inside the kernel.
-  auto fit_pass_rows = [&](const LensShiftRowFitter& fitter, const QuadraticMap& f_map) {
-    std::vector<float> gain(static_cast<size_t>(nls));
-    for (int k = 0; k < nls; ++k) gain[k] = inv_gain[ls_stack[k]];
-    Progress progress("fit lens shift", h);
-    ParallelForRows(h, [&](int y0, int y1) {
-      constexpr int kTile = 512;
-      std::vector<float> buf(static_cast<size_t>(nls) * kTile);
-      std::vector<uint8_t> use(kTile);
-      std::vector<LensShiftFit> fits(kTile);
-      std::vector<float> f(kTile);  // the map's frequencies of the tile
-      for (int y = y0; y < y1; ++y) {
-        for (int x0 = 0; x0 < w; x0 += kTile) {
-          const int cnt = std::min(kTile, w - x0);
-          const size_t i0 = static_cast<size_t>(y) * w + x0;
-          bool any = false;
-          for (int j = 0; j < cnt; ++j) {
-            use[j] = state[i0 + j] == PixelState::kActive;
-            any = any || use[j];
-          }
-          if (!any) continue;
-          const size_t stride = static_cast<size_t>(cnt);
-          for (int k = 0; k < nls; ++k)
-            stack.Gather(ls_stack[k], i0, stride, buf.data() + k * stride);
-          f_map.Row(y, x0, cnt, f.data());
-          fitter.FitRow(buf.data(), stride, cnt, gain.data(), f.data(), use.data(), fits.data());
-          for (int j = 0; j < cnt; ++j)
-            if (use[j]) store(out, i0 + j, i0 + j, fits[j]);
-        }
-      }
-      progress.Advance(y1 - y0);
-    });
-  };
-  const LensShiftBatchFitter fitter(x, 0.5, fo);
-  if (options.fit_frequency && options.smooth_frequency) {
-    // The shifter's gain varies smoothly over the image: a robust quadratic of the fitted
-    // frequencies, then the phase of every pixel with f held there (3 parameters: lower
-    // variance). The quadratic is fitted to ~50000 frequencies (SmoothFrequencyMap), so the
-    // 4-parameter fit runs on a regular subsample of about twice that many pixels only (all
-    // pixels of crops below that).
-    constexpr size_t kFrequencySamples = 100000;
-    size_t n_active = 0;
-    for (size_t i = 0; i < np; ++i) n_active += state[i] == PixelState::kActive;
-    PixelSubset subset;
-    subset.stride = std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
-    // The 4-parameter fits of the subsample on its own grid (cw x ch): the full-size arrays
-    // are made only for the fixed-frequency pass, after the frame corrections (they
-    // are 75 MB at 3 Mpx, and the frame corrections are the stage's peak).
-    const int sub = subset.stride, cw = (w + sub - 1) / sub, ch = (h + sub - 1) / sub;
-    LensShiftPixels first;
-    allocate(first, static_cast<size_t>(cw) * ch, true);
-    fit_pass(fitter, nullptr, subset, "fit lens shift frequency", {&first, sub, cw});
-    step.Stage("frequency_fit");
-    // Evaluated per row tile where it is used (12.5 MB less at 3 Mpx in the fixed pass).
-    QuadraticMap f_map;
-    const bool have_map = FitSmoothFrequencyMap(first.frequency, cw, ch, sub, w, h, &f_map);
-    step.Stage("frequency_map");
-    // The full grid's arrays with the subsample's fits in place (the fixed-frequency pass
-    // overwrites them, except where it fails).
-    // One array per task (each is 12.5 MB at 3 Mpx, filled right after the last frame: in
-    // turn they were tens of ms of page faults and fills on one core).
-    auto full_arrays = [&](bool all) {
-      std::vector<std::pair<std::vector<float>*, std::vector<float>*>> arrays = {
-          {&first.phase0, &out.phase0},
-          {&first.amplitude, &out.amplitude},
-          {&first.residual_rms, &out.residual_rms},
-          {&first.samples, &out.samples}};
-      if (all) {
-        arrays.emplace_back(&first.frequency, &out.frequency);
-        arrays.emplace_back(&first.offset, &out.offset);
-      }
-      ParallelFor(static_cast<int64_t>(arrays.size()), [&](int64_t a) {
-        const std::vector<float>& from = *arrays[a].first;
-        std::vector<float>& to = *arrays[a].second;
-        to.assign(np, kNaN);
-        for (int y = 0; y < h; y += sub)
-          for (int x = 0; x < w; x += sub)
-            to[static_cast<size_t>(y) * w + x] = from[static_cast<size_t>(y / sub) * cw + x / sub];
-      });
-      first = LensShiftPixels();
-    };
-    if (have_map) {
-      LensShiftFitOptions fo2 = fo;
-      fo2.fit_frequency = false;
-      if (!box) {  // joint frame gains and shifter positions
-        FrameCorrectionOptions fco;
-        fco.method = options.frame_gain_method;
-        fco.estimate_positions = options.correct_positions;
-        FirstPassFits fits;
-        for (int y = 0; y < h; y += sub)
-          for (int x = 0; x < w; x += sub) {
-            const size_t q = static_cast<size_t>(y / sub) * cw + x / sub;
-            if (!std::isfinite(first.frequency[q])) continue;
-            fits.pixels.push_back(static_cast<uint32_t>(static_cast<size_t>(y) * w + x));
-            fits.amplitude.push_back(first.amplitude[q]);
-            fits.phase.push_back(first.phase0[q]);
-            fits.offset.push_back(first.offset[q]);
-          }
-        const FrameCorrections fc = CorrectLensShiftFrames(
-            stack, ls_stack, fits, [&](uint32_t i) { return f_map.At(i); }, &x, &inv_gain, fco,
-            &gains->phase_reference);
+      if (subset.stride > 1 && !subset.complement) {
+        // A sparse subset (the frequency pass: 1 pixel in stride^2): only its samples.
         for (int k = 0; k < nls; ++k) {
-          const size_t f = static_cast<size_t>(plan.frames[ls_stack[k]]);
-          if (f < gains->session_gain.size()) gains->session_gain[f] = 1.0 / inv_gain[ls_stack[k]];
+          const float g = inv_gain[ls_stack[k]];
+          for (size_t j = 0; j < n; j += subset.stride)
+            buf[k * n + j] = stack.Value(ls_stack[k], i0 + j) * g;
         }
-        out.frame_corrections = fc.ToJson();
-        step.Stage("frame_corrections");
-      }
-      full_arrays(options.keep_offset_frequency);
-      if (options.row_kernel && !box && fo2.fitter == LensShiftFitter::kFast) {
-        fit_pass_rows(LensShiftRowFitter(x, 0.5, fo2), f_map);
       } else {
-        const std::vector<float> f_all = f_map.Evaluate();
-        fit_pass(LensShiftBatchFitter(x, 0.5, fo2), &f_all, PixelSubset(), "fit lens shift", full);
+        for (int k = 0; k < nls; ++k) {
+          stack.Gather(ls_stack[k], i0, n, buf.data() + k * n);
+          const float g = inv_gain[ls_stack[k]];
+          for (size_t j = 0; j < n; ++j) buf[k * n + j] *= g;
+        }
       }
-      step.Stage("fixed_frequency_fit");
-    } else {
-      full_arrays(true);
-      if (subset.stride > 1) {
-        // No frequency map: the 4-parameter fit everywhere else too.
-        subset.complement = true;
-        fit_pass(fitter, nullptr, subset, "fit lens shift", full);
+      for (size_t j = 0; j < n; ++j) {
+        const size_t i = i0 + j;
+        if (state[i] != PixelState::kActive || !subset.Has(static_cast<int>(j), y)) continue;
+        const float* b = buf.data() + j;
+        int stride = static_cast<int>(n);
+        if (box) {
+          for (int k = 0; k < nx; ++k) {
+            float sm = 0;
+            for (int q = 0; q < 5; ++q) sm += buf[(k + q) * n + j];
+            prof[k] = sm / 5;
+          }
+          b = prof.data();
+          stride = 1;
+        }
+        StoreFit(d, *to.px, to.stride == 1 ? i : to.At(j, y), i,
+                 f_map ? fitter.Fit(b, stride, (*f_map)[i]) : fitter.Fit(b, stride));
       }
     }
-  } else {
-    allocate(out, np, true);
-    fit_pass(fitter, nullptr, PixelSubset(), "fit lens shift", full);
+    progress.Advance(y1 - y0);
+  });
+}
+
+// The fixed-frequency pass of every active pixel with the row kernel (LensShiftRowFitter):
+// tiles of a row gathered frame-major, the gains applied inside the kernel.
+void FitPassRows(const LensShiftData& d, const LensShiftRowFitter& fitter,
+                 const QuadraticMap& f_map, LensShiftPixels* out) {
+  const int w = d.w, h = d.h, nls = d.nls;
+  std::vector<float> gain(static_cast<size_t>(nls));
+  for (int k = 0; k < nls; ++k) gain[k] = d.inv_gain[d.ls_stack[k]];
+  Progress progress("fit lens shift", h);
+  ParallelForRows(h, [&](int y0, int y1) {
+    constexpr int kTile = 512;
+    std::vector<float> buf(static_cast<size_t>(nls) * kTile);
+    std::vector<uint8_t> use(kTile);
+    std::vector<LensShiftFit> fits(kTile);
+    std::vector<float> f(kTile);  // the map's frequencies of the tile
+    for (int y = y0; y < y1; ++y) {
+      for (int x0 = 0; x0 < w; x0 += kTile) {
+        const int cnt = std::min(kTile, w - x0);
+        const size_t i0 = static_cast<size_t>(y) * w + x0;
+        bool any = false;
+        for (int j = 0; j < cnt; ++j) {
+          use[j] = d.state[i0 + j] == PixelState::kActive;
+          any = any || use[j];
+        }
+        if (!any) continue;
+        const size_t stride = static_cast<size_t>(cnt);
+        for (int k = 0; k < nls; ++k)
+          d.stack.Gather(d.ls_stack[k], i0, stride, buf.data() + k * stride);
+        f_map.Row(y, x0, cnt, f.data());
+        fitter.FitRow(buf.data(), stride, cnt, gain.data(), f.data(), use.data(), fits.data());
+        for (int j = 0; j < cnt; ++j)
+          if (use[j]) StoreFit(d, *out, i0 + j, i0 + j, fits[j]);
+      }
+    }
+    progress.Advance(y1 - y0);
+  });
+}
+
+// The stride of the frequency pass's regular subsample: the quadratic is fitted to ~50000
+// frequencies (SmoothFrequencyMap), so the 4-parameter fit runs on about twice that many pixels
+// only (all pixels of crops below that).
+int FrequencySubsampleStride(const PixelStates& state, size_t np) {
+  constexpr size_t kFrequencySamples = 100000;
+  size_t n_active = 0;
+  for (size_t i = 0; i < np; ++i) n_active += state[i] == PixelState::kActive;
+  return std::max(1, static_cast<int>(std::sqrt(n_active / kFrequencySamples)));
+}
+
+// The subsample's fits (on its grid of width cw) with a frequency, as the frame corrections
+// take them.
+FirstPassFits FirstPassFitsOf(const LensShiftPixels& first, int w, int h, int sub, int cw) {
+  FirstPassFits fits;
+  for (int y = 0; y < h; y += sub)
+    for (int x = 0; x < w; x += sub) {
+      const size_t q = static_cast<size_t>(y / sub) * cw + x / sub;
+      if (!std::isfinite(first.frequency[q])) continue;
+      fits.pixels.push_back(static_cast<uint32_t>(static_cast<size_t>(y) * w + x));
+      fits.amplitude.push_back(first.amplitude[q]);
+      fits.phase.push_back(first.phase0[q]);
+      fits.offset.push_back(first.offset[q]);
+    }
+  return fits;
+}
+
+// Joint frame gains and shifter positions from the frequency pass's fits: refines *x and
+// gains->inv_gain, mirrors the gains into gains->session_gain; returns the report's entry.
+Json CorrectFrames(const LensShiftData& d, const ReconstructPlan& plan,
+                   const LensShiftStageOptions& options, const LensShiftPixels& first, int sub,
+                   int cw, const QuadraticMap& f_map, std::vector<double>* x, FrameGains* gains) {
+  FrameCorrectionOptions fco;
+  fco.method = options.frame_gain_method;
+  fco.estimate_positions = options.correct_positions;
+  const FrameCorrections fc = CorrectLensShiftFrames(
+      d.stack, d.ls_stack, FirstPassFitsOf(first, d.w, d.h, sub, cw),
+      [&](uint32_t i) { return f_map.At(i); }, x, &gains->inv_gain, fco, &gains->phase_reference);
+  for (int k = 0; k < d.nls; ++k) {
+    const size_t f = static_cast<size_t>(plan.frames[d.ls_stack[k]]);
+    if (f < gains->session_gain.size())
+      gains->session_gain[f] = 1.0 / gains->inv_gain[d.ls_stack[k]];
   }
+  return fc.ToJson();
+}
+
+// The full grid's arrays with the subsample's fits in place (the fixed-frequency pass overwrites
+// them, except where it fails); offset and frequency only if `all`. *first is released. One
+// array per task (each is 12.5 MB at 3 Mpx, filled right after the last frame: in turn they were
+// tens of ms of page faults and fills on one core).
+void SpreadToFullGrid(LensShiftPixels* first, int w, int h, size_t np, int sub, int cw, bool all,
+                      LensShiftPixels* out) {
+  std::vector<std::pair<std::vector<float>*, std::vector<float>*>> arrays = {
+      {&first->phase0, &out->phase0},
+      {&first->amplitude, &out->amplitude},
+      {&first->residual_rms, &out->residual_rms},
+      {&first->samples, &out->samples}};
+  if (all) {
+    arrays.emplace_back(&first->frequency, &out->frequency);
+    arrays.emplace_back(&first->offset, &out->offset);
+  }
+  ParallelFor(static_cast<int64_t>(arrays.size()), [&](int64_t a) {
+    const std::vector<float>& from = *arrays[a].first;
+    std::vector<float>& to = *arrays[a].second;
+    to.assign(np, kNaNf);
+    for (int y = 0; y < h; y += sub)
+      for (int x = 0; x < w; x += sub)
+        to[static_cast<size_t>(y) * w + x] = from[static_cast<size_t>(y / sub) * cw + x / sub];
+  });
+  *first = LensShiftPixels();
+}
+
+// The shifter's gain varies smoothly over the image: a robust quadratic of the frequencies
+// fitted on a subsample, then the phase of every pixel with f held there (3 parameters: lower
+// variance). Between the two, the frame corrections (without the box filter).
+void FitWithSmoothFrequency(const LensShiftData& d, const ReconstructPlan& plan,
+                            const LensShiftStageOptions& options, const LensShiftFitOptions& fo,
+                            const LensShiftBatchFitter& fitter, std::vector<double>* x,
+                            FrameGains* gains, StepClock* step, LensShiftPixels* out) {
+  const int w = d.w, h = d.h;
+  PixelSubset subset;
+  subset.stride = FrequencySubsampleStride(d.state, d.np);
+  // The 4-parameter fits of the subsample on its own grid (cw x ch): the full-size arrays
+  // are made only for the fixed-frequency pass, after the frame corrections (they
+  // are 75 MB at 3 Mpx, and the frame corrections are the stage's peak).
+  const int sub = subset.stride, cw = (w + sub - 1) / sub, ch = (h + sub - 1) / sub;
+  LensShiftPixels first;
+  Allocate(first, static_cast<size_t>(cw) * ch, true);
+  FitPass(d, fitter, nullptr, subset, "fit lens shift frequency", {&first, sub, cw});
+  step->Stage("frequency_fit");
+  // Evaluated per row tile where it is used (12.5 MB less at 3 Mpx in the fixed pass).
+  QuadraticMap f_map;
+  const bool have_map = FitSmoothFrequencyMap(first.frequency, cw, ch, sub, w, h, &f_map);
+  step->Stage("frequency_map");
+  if (!have_map) {
+    SpreadToFullGrid(&first, w, h, d.np, sub, cw, true, out);
+    if (subset.stride > 1) {
+      // No frequency map: the 4-parameter fit everywhere else too.
+      subset.complement = true;
+      FitPass(d, fitter, nullptr, subset, "fit lens shift", {out, 1, w});
+    }
+    return;
+  }
+  LensShiftFitOptions fo2 = fo;
+  fo2.fit_frequency = false;
+  if (!d.box) {
+    out->frame_corrections = CorrectFrames(d, plan, options, first, sub, cw, f_map, x, gains);
+    step->Stage("frame_corrections");
+  }
+  SpreadToFullGrid(&first, w, h, d.np, sub, cw, options.keep_offset_frequency, out);
+  if (options.row_kernel && !d.box && fo2.fitter == LensShiftFitter::kFast) {
+    FitPassRows(d, LensShiftRowFitter(*x, 0.5, fo2), f_map, out);
+  } else {
+    const std::vector<float> f_all = f_map.Evaluate();
+    FitPass(d, LensShiftBatchFitter(*x, 0.5, fo2), &f_all, PixelSubset(), "fit lens shift",
+            {out, 1, w});
+  }
+  step->Stage("fixed_frequency_fit");
+}
+
+int64_t PixelsFitted(const PixelStates& state, size_t np) {
+  int64_t n = 0;
   for (size_t i = 0; i < np; ++i)
-    out.pixels_fitted += state[i] == PixelState::kActive || state[i] == PixelState::kFitFailed;
+    n += state[i] == PixelState::kActive || state[i] == PixelState::kFitFailed;
+  return n;
+}
+
+}  // namespace
+
+LensShiftPixels FitLensShift(const FrameStack& stack, const ReconstructPlan& plan,
+                             FrameGains* gains, const LensShiftStageOptions& options,
+                             PixelStates* state_out) {
+  LensShiftPixels out;
+  if (!plan.use_lens_shift()) return out;
+  out.fit_parameters = options.fit_frequency && !options.smooth_frequency ? 4 : 3;
+  StepClock step(options.step_timings);
+  const RoiGrid grid = RoiGrid::Of(stack);
+  const int nls = static_cast<int>(plan.ls_stack.size());
+  const double centre = plan.LensShiftCentre();
+  const bool box = options.box_filter && nls >= 9;
+  std::vector<double> x = ProfileShifts(plan.ls_shift_px, centre, box);
+  const LensShiftData d{stack,
+                        plan.ls_stack,
+                        gains->inv_gain,
+                        *state_out,
+                        grid.width,
+                        grid.height,
+                        nls,
+                        static_cast<int>(x.size()),
+                        box,
+                        centre,
+                        grid.pixels()};
+  LensShiftFitOptions fo;
+  fo.fitter = options.fitter;
+  fo.fit_frequency = options.fit_frequency;
+  const LensShiftBatchFitter fitter(x, 0.5, fo);
+  if (options.fit_frequency && options.smooth_frequency) {
+    FitWithSmoothFrequency(d, plan, options, fo, fitter, &x, gains, &step, &out);
+  } else {
+    Allocate(out, grid.pixels(), true);
+    FitPass(d, fitter, nullptr, PixelSubset(), "fit lens shift", {&out, 1, grid.width});
+  }
+  out.pixels_fitted += PixelsFitted(*state_out, grid.pixels());
   return out;
 }
 
