@@ -22,6 +22,7 @@ namespace mesoscan {
 namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr double kCoarseVoxels = 20000;
 
 bool InRegion(const HeightField& hf, int i, int j, const CompareOptions& o) {
   const float z = hf.z(i, j);
@@ -31,9 +32,9 @@ bool InRegion(const HeightField& hf, int i, int j, const CompareOptions& o) {
 }
 
 // The scan's confident points in the region (world metres) with their normals, at most
-// max_points of them (an even stride).
-void MakeCloud(const Scan& s, const CompareOptions& o, bool use_masks, int max_points,
-               std::vector<Vec3d>* points, std::vector<Vec3d>* normals) {
+// max_points of them (an even stride). Returns how many there were before the stride.
+size_t MakeCloud(const Scan& s, const CompareOptions& o, bool use_masks, int max_points,
+                 std::vector<Vec3d>* points, std::vector<Vec3d>* normals) {
   const HeightField& hf = s.height;
   const ImageF& n = s.normals;
   std::vector<int> idx;
@@ -53,6 +54,7 @@ void MakeCloud(const Scan& s, const CompareOptions& o, bool use_masks, int max_p
     points->emplace_back(hf.X(i), hf.Y(j), hf.z(i, j));
     normals->emplace_back(Vec3d(n(i, j, 0), n(i, j, 1), n(i, j, 2)).normalized());
   }
+  return idx.size();
 }
 
 double Percentile(std::vector<double> v, double q) {
@@ -131,7 +133,8 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
 
   // ---- clouds ----
   RegistrationInput in;
-  MakeCloud(an, o, /*use_masks=*/true, o.max_icp_points, &in.a_points, &in.a_normals);
+  const size_t a_count =
+      MakeCloud(an, o, /*use_masks=*/true, o.max_icp_points, &in.a_points, &in.a_normals);
   MakeCloud(bn, o, /*use_masks=*/false, o.max_icp_points, &in.b_points, &in.b_normals);
   constexpr size_t kMinPoints = 500;
   if (in.a_points.size() < kMinPoints)
@@ -145,7 +148,12 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
         "only " << in.b_points.size()
                 << " confident points in the compared region, expected >= " << kMinPoints);
   const double px = std::max(ha.pixel_size, hb.pixel_size);
-  const double voxel = o.coarse_voxel_m > 0 ? o.coarse_voxel_m : 4 * px;
+  // Auto voxel: 4 pixels, larger for a large field (at most ~20000 voxels of A's points: the
+  // features and RANSAC cost grows with their count, the coarse alignment needs no more).
+  const double voxel =
+      o.coarse_voxel_m > 0
+          ? o.coarse_voxel_m
+          : std::max(4 * px, std::sqrt(static_cast<double>(a_count) * px * px / kCoarseVoxels));
   Json timings;
 
   // ---- registration (Open3D, in its module) ----
@@ -305,6 +313,7 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
   regj["coarse_fitness"] = reg.coarse_fitness;
   regj["coarse_rmse_um"] = reg.coarse_rmse_m * 1e6;
   regj["coarse_refined_fitness"] = reg.coarse_icp_fitness;
+  regj["coarse_hypotheses"] = reg.coarse_hypotheses;
   regj["coarse_voxel_m"] = voxel;
   regj["points_a"] = in.a_points.size();
   regj["points_b"] = in.b_points.size();
@@ -379,6 +388,11 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
                     {"window", o.window},
                     {"seed", o.seed}};
   rep["timings_s"] = timings;
+  if (have_sigma && static_cast<double>(changed) / compared > 0.1)
+    rep["warnings"].push_back(
+        "more than 10% of the compared area changed beyond k sigma: unless the object changed "
+        "that much, the registration failed (a near-symmetric object, too little relief); look "
+        "at deviation.png");
   if (reg.coarse_icp_fitness < 0.5 || reg.b_inliers < 0.5 * in.b_points.size())
     rep["warnings"].push_back(
         "less than half of B's points registered onto A: check that the scans overlap");

@@ -31,7 +31,8 @@ struct CompareOptions {
   // lies beyond k_sigma times that mean's predicted sigma. k_sigma > 0, window odd >= 1.
   double k_sigma = 3.0;
   int window = 5;
-  // Coarse registration voxel in metres; 0: 4 x the larger height-grid pixel.
+  // Coarse registration voxel in metres; 0: 4 x the larger height-grid pixel, or larger so that
+  // A's points fill at most ~20000 voxels.
   double coarse_voxel_m = 0.0;
   // Fine registration: at most this many points of each scan (evenly subsampled), >= 1000.
   int max_icp_points = 200000;

@@ -85,18 +85,62 @@ class Module final : public RegistrationModule {
     const open3d::geometry::KDTreeSearchParamHybrid feature_param(5 * voxel, 100);
     const auto fa = reg::ComputeFPFHFeature(*da, feature_param);
     const auto fb = reg::ComputeFPFHFeature(*db, feature_param);
-    open3d::utility::random::Seed(in.seed);
+    // Hypotheses: RANSAC on FPFH matches (a few seeds: a near-symmetric object such as a coin
+    // leaves single runs unreliable), the identity, and rotations about z every 10 degrees about
+    // the clouds' centroids (a height field's re-placement is mostly that). Each is refined by
+    // point-to-plane ICP at the voxel scale and scored by B's voxels' truncated residual against
+    // A: the lowest wins.
     const reg::CorrespondenceCheckerBasedOnEdgeLength edge_check(0.9);
     const reg::CorrespondenceCheckerBasedOnDistance dist_check(1.5 * voxel);
-    const reg::RegistrationResult coarse = reg::RegistrationRANSACBasedOnFeatureMatching(
-        *db, *da, *fb, *fa, /*mutual_filter=*/true, 1.5 * voxel,
-        reg::TransformationEstimationPointToPoint(false), 3, {edge_check, dist_check},
-        reg::RANSACConvergenceCriteria(100000, 0.999));
-    out.coarse_fitness = coarse.fitness_;
-    out.coarse_rmse_m = coarse.inlier_rmse_;
-    const reg::RegistrationResult coarse_icp = reg::RegistrationICP(
-        *db, *da, 1.5 * voxel, coarse.transformation_, reg::TransformationEstimationPointToPlane(),
-        reg::ICPConvergenceCriteria(1e-9, 1e-9, 50));
+    const open3d::geometry::KDTreeFlann tree_da(*da);
+    const double tau = 0.3 * voxel;
+    auto score = [&](const Mat4d& t) {
+      const std::vector<double> r = PlaneResiduals(*db, *da, tree_da, t, voxel);
+      double sum = 0;
+      for (double v : r) sum += std::isfinite(v) ? std::min(std::abs(v), tau) : tau;
+      return r.empty() ? tau : sum / r.size();
+    };
+    auto refine = [&](const Mat4d& t0) {
+      const reg::RegistrationResult wide =
+          reg::RegistrationICP(*db, *da, 3 * voxel, t0, reg::TransformationEstimationPointToPlane(),
+                               reg::ICPConvergenceCriteria(1e-9, 1e-12, 30));
+      return reg::RegistrationICP(*db, *da, voxel, wide.transformation_,
+                                  reg::TransformationEstimationPointToPlane(),
+                                  reg::ICPConvergenceCriteria(1e-9, 1e-12, 30));
+    };
+    std::vector<Mat4d> starts{Mat4d::Identity()};
+    for (int k = 0; k < 2; ++k) {
+      open3d::utility::random::Seed(in.seed + k);
+      const reg::RegistrationResult c = reg::RegistrationRANSACBasedOnFeatureMatching(
+          *db, *da, *fb, *fa, /*mutual_filter=*/true, 1.5 * voxel,
+          reg::TransformationEstimationPointToPoint(false), 3, {edge_check, dist_check},
+          reg::RANSACConvergenceCriteria(20000, 0.999));
+      if (k == 0) {
+        out.coarse_fitness = c.fitness_;
+        out.coarse_rmse_m = c.inlier_rmse_;
+      }
+      starts.push_back(c.transformation_);
+    }
+    const Vec3d ca_mean = da->GetCenter(), cb_mean = db->GetCenter();
+    for (int deg = 0; deg < 360; deg += 10) {
+      Mat4d t = Mat4d::Identity();
+      t.topLeftCorner<3, 3>() =
+          Eigen::AngleAxisd(deg * 3.14159265358979323846 / 180.0, Vec3d::UnitZ()).matrix();
+      t.topRightCorner<3, 1>() = ca_mean - t.topLeftCorner<3, 3>() * cb_mean;
+      t(2, 3) = 0;
+      starts.push_back(t);
+    }
+    double best_score = std::numeric_limits<double>::infinity();
+    reg::RegistrationResult coarse_icp;
+    for (const Mat4d& t0 : starts) {
+      const reg::RegistrationResult r = refine(t0);
+      const double sc = score(r.transformation_);
+      if (sc < best_score) {
+        best_score = sc;
+        coarse_icp = r;
+      }
+    }
+    out.coarse_hypotheses = static_cast<int>(starts.size());
     out.coarse_icp_fitness = coarse_icp.fitness_;
     Mat4d t = coarse_icp.transformation_;
     out.seconds_coarse = t_coarse.Seconds();

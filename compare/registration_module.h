@@ -1,9 +1,10 @@
 #pragma once
 // Open3D's registration behind a module loaded on first use (core/module.h:
 // libmesoscan_open3d.so, built from compare/registration_module.cc): Open3D links ~100 shared
-// libraries that no other command needs. Coarse alignment by FPFH features and RANSAC, then
-// robust point-to-plane ICP (Tukey's kernel), then the points beyond 3 robust sigmas excluded and
-// a refit (a changed area must not pull the registration).
+// libraries that no other command needs. Coarse alignment by FPFH features and RANSAC (with the
+// identity and a sweep of rotations about z as further starts, the best-fitting refinement kept),
+// then robust point-to-plane ICP (Tukey's kernel), then the points beyond 3 robust sigmas excluded
+// and a refit (a changed area must not pull the registration).
 
 #include <cstdint>
 #include <vector>
@@ -24,6 +25,7 @@ struct RegistrationOutput {
   Mat4d b_to_a = Mat4d::Identity();
   double coarse_fitness = 0, coarse_rmse_m = 0;  // RANSAC's, at the voxel scale
   double coarse_icp_fitness = 0;                 // after the coarse point-to-plane refinement
+  int coarse_hypotheses = 0;  // starts refined and scored (RANSAC seeds, identity, rotations)
   double robust_sigma_m = 0;  // 1.4826 MAD of the point-to-plane residuals at the solution
   int64_t b_inliers = 0;      // B's points within 3 robust sigmas (the final fit's)
   // The final fit's normal equations at the solution, for the uncertainty: J^T J of the
