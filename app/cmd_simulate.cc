@@ -1,5 +1,6 @@
 // mesoscan simulate: the virtual rig (sim/virtual_rig.h, model in sim/README.md).
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <string>
@@ -34,6 +35,7 @@ void AddSimulateCommand(CLI::App* app) {
     // The object's pose and a known change (sim/object_change.h).
     std::string object_pose;
     std::vector<std::string> scratches, erosions;
+    std::string patterns = "sine";
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
@@ -92,7 +94,7 @@ void AddSimulateCommand(CLI::App* app) {
       ->capture_default_str();
   cmd->add_option("--shift-gain-r", o.shift_gain_r, "Lens-shifter gain: radial term in un^2 + vn^2")
       ->capture_default_str();
-  cmd->add_option("--projector-gamma", o.projector_gamma,
+  cmd->add_option("--projector-gamma,--proj-gamma", o.projector_gamma,
                   "Projector response v^g (1 = linear; else written as projector.response)")
       ->capture_default_str();
   cmd->add_option("--exposure", o.exposure,
@@ -134,6 +136,12 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--wear", o.change.wear_file,
                   "A known change: a height-change EXR (channel Z, signed metres, the scan-outputs "
                   "grid attributes) added to the object's surface in object coordinates");
+  cmd->add_option(
+         "--patterns", args->patterns,
+         "sine (the --ps-periods sets) | graycode (a Gray code of the projector's columns "
+         "with inverse frames, white, black; no sines, no lens shift) | sine+graycode (one "
+         "--ps-periods period with a complementary Gray code of half its width)")
+      ->capture_default_str();
   cmd->add_option("--shift-position-error", o.shift_position_error_px,
                   "Lens-shifter position error per frame, RMS in projector px")
       ->capture_default_str();
@@ -177,11 +185,33 @@ void AddSimulateCommand(CLI::App* app) {
       opt.change.scratches.push_back(ParseScratch(s, "ObjectChange.scratches"));
     for (const std::string& s : args->erosions)
       opt.change.erosions.push_back(ParseErosion(s, "ObjectChange.erosions"));
+    if (args->patterns != "sine") {
+      const Rig rig = ResolveRig(opt);
+      const int extent = args->axis == "y" ? rig.projector.height : rig.projector.width;
+      if (args->patterns == "graycode") {
+        opt.ps_periods_px.clear();
+        opt.graycode_block_px = 1;
+      } else if (args->patterns == "sine+graycode") {
+        if (opt.ps_periods_px.size() != 1)
+          MESOSCAN_THROW(
+              ErrorKind::kUsage,
+              "--patterns sine+graycode: expected one --ps-periods period, got " << args->periods);
+        opt.graycode_block_px = 0.5 * opt.ps_periods_px[0];
+        if (!(opt.graycode_block_px >= 1))
+          MESOSCAN_THROW(ErrorKind::kUsage, "--patterns sine+graycode: the period must be >= 2 px");
+      } else {
+        MESOSCAN_THROW(
+            ErrorKind::kUsage,
+            "--patterns: expected sine, graycode or sine+graycode, got " << args->patterns);
+      }
+      opt.graycode_bits = static_cast<int>(std::ceil(std::log2(extent / opt.graycode_block_px)));
+      if (cmd->count("--ls-frames") == 0) opt.ls_frames = 0;
+    }
     if (!args->crop.empty()) opt.crop = ParsePixelRect(args->crop, "SimulateOptions.crop");
     opt.axis = args->axis.front();
     // Periods whose phases repeat within the projector make a session nothing can decode:
     // refused before simulating (the session reader would refuse the written session).
-    if (!opt.ps_periods_px.empty()) {
+    if (!opt.ps_periods_px.empty() && opt.graycode_bits == 0) {
       const Rig rig = ResolveRig(opt);
       const int extent = opt.axis == 'y' ? rig.projector.height : rig.projector.width;
       const double range = UnambiguousRangePx(opt.ps_periods_px, extent);

@@ -15,6 +15,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "heightfield/pixel_buffers.h"
+
 namespace mesoscan {
 
 enum class CodecKind {
@@ -71,6 +73,47 @@ class Codec {
   // kPeriodic: the phase is known up to a constant common to every pixel (the lens shifter's
   // positions estimated up to an offset): the combination references it to the absolute codec.
   virtual bool OffsetUnknown() const { return false; }
+};
+
+// What a planned codec's decoding reads besides its own frames.
+struct CodecInputs {
+  const FrameStack* stack = nullptr;      // holds the codec's frames (linear radiance)
+  const PixelClasses* classes = nullptr;  // white level and black value (white/black frames)
+  const PhaseShiftPixels* ps = nullptr;   // the phase-shift level (2 x a sine set's mean)
+};
+
+// A codec that planning finds in the session (heightfield/codecs.h): it names its frames (they
+// are in ReconstructPlan::frames), decodes them once while they are in memory (the stream's sine
+// branch) and then serves its records. Phase shifting and the lens shift are the pipeline's own
+// stages; every other pattern family is a PlannedCodec.
+class PlannedCodec : public Codec {
+ public:
+  // Decodes every kActive pixel into the codec's own per-pixel arrays; `state` is not changed (a
+  // pixel without a coordinate is invalid in the records: the combine stage rejects it).
+  virtual void DecodeFrames(const CodecInputs& in, const PixelStates& state) = 0;
+  // Planning: this absolute codec fixes the fringe order of one sine period (OrderedCodec), so
+  // coordinates it can only place near a code edge hold (the period's phase decides there).
+  virtual void OrdersPeriod() {}
+};
+
+// A periodic codec whose order an absolute one fixes, as one absolute codec: u = P (round(u_a /
+// P - phi) + phi), valid where both are, the absolute codec's consistency times 1 - (2 (u_a - u)
+// / P)^2 (a coordinate half a period off says nothing of the order); sigma and confidence are the
+// periodic codec's. Views both codecs, which must outlive it.
+class OrderedCodec final : public Codec {
+ public:
+  OrderedCodec(const Codec& absolute, const Codec& periodic);
+  const char* Name() const override { return periodic_.Name(); }
+  CodecKind Kind() const override { return CodecKind::kAbsolute; }
+  std::vector<int> Frames() const override;
+  void SampleNoise(const size_t* pixels, size_t n, double* sigma) const override;
+  void Decode(const size_t* pixels, size_t n, const double* noise, CodecRecord* out) const override;
+  void Describe(const size_t* pixels, const double* noise, const uint32_t* which, size_t m,
+                bool refined, CodecRecord* out) const override;
+
+ private:
+  const Codec& absolute_;
+  const Codec& periodic_;
 };
 
 }  // namespace mesoscan

@@ -114,7 +114,10 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   if (options.reject_mixed_pixels)
     RejectMixedPixels(grid, classes.white_level, tri.sigma_z, options.mixed_pixels, &tri.points,
                       &state);
-  if (options.consistency.enabled)
+  // A code alone (no phase, no stripes) is exact to its blocks, not limited by noise: its depth
+  // sigma is its resolution (points.exr sigma_z), not a doubt about the point.
+  const bool quantised = plan.periods.empty() && !plan.use_lens_shift();
+  if (options.consistency.enabled && !quantised)
     RejectUncertainPoints(grid, tri.sigma_z, options.consistency, rig.camera, &tri.points, &state);
   timer->Stage("triangulate");
   return out;

@@ -5,6 +5,7 @@
 namespace mesoscan {
 
 void ReconstructOptions::Check() const {
+  plan.codecs.Check();
   load.Check();
   classify.Check();
   phase_shift.Check();
@@ -53,6 +54,7 @@ Json ReconstructOptions::ToJson() const {
                        {"passes", mixed_pixels.passes}};
   j["grid_pixel_size_m"] = resample.pixel_size;
   j["grid_max_edge_footprints"] = resample.max_edge_footprints;
+  j["codecs"] = plan.codecs.ToJson();
   return j;
 }
 

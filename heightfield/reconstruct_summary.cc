@@ -17,9 +17,10 @@ double ReconstructSummary::Seconds(const std::string& stage) const {
 std::string ReconstructSummary::BriefReport() const {
   std::ostringstream o;
   o << "reconstruct: " << pixels_valid << " points of " << pixels_roi << " pixels (" << pixels_lit
-    << " lit, " << pixels_fitted << " fitted), "
-    << (used_lens_shift ? "lens shift + phase shift" : "phase shift only") << " (" << unwrapping
-    << " unwrapping), " << total_s << " s";
+    << " lit, " << pixels_fitted << " fitted), " << (used_lens_shift ? "lens shift + " : "")
+    << (phase_shift_frames > 0 ? "phase shift" : unwrapping)  // else a planned codec alone
+    << (used_lens_shift ? "" : " only") << " (" << unwrapping << " unwrapping), " << total_s
+    << " s";
   return o.str();
 }
 

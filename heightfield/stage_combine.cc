@@ -6,6 +6,7 @@
 #include <limits>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
+#include <optional>
 
 #include "core/error.h"
 #include "core/numbers.h"
@@ -203,10 +204,21 @@ CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
 CombinedPixels CombinePhases(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
                              const LensShiftPixels& ls, const CombineOptions& options,
                              PixelStates* state, const PhaseShiftStageOptions& phase_shift) {
-  const PhaseShiftCodec absolute(plan, ps, phase_shift, options.confidence_t);
-  if (ls.empty()) return CombineCodecs(absolute, nullptr, ps.level, options, state);
+  // The absolute coordinate: the sine periods where they unwrap, else the first planned absolute
+  // codec, which then fixes the order of the one sine period (OrderedCodec) if there is one.
+  std::optional<PhaseShiftCodec> sine;
+  if (!plan.periods.empty()) sine.emplace(plan, ps, phase_shift, options.confidence_t);
+  const Codec* absolute = sine && sine->Kind() == CodecKind::kAbsolute ? &*sine : nullptr;
+  for (const auto& c : plan.codecs)
+    if (!absolute && c->Kind() == CodecKind::kAbsolute) absolute = c.get();
+  if (!absolute)
+    MESOSCAN_BAD_INPUT(plan.label << "/session.json: frames: nothing gives the absolute "
+                                     "projector coordinate");
+  std::optional<OrderedCodec> ordered;
+  if (sine && sine->Kind() == CodecKind::kPeriodic) absolute = &ordered.emplace(*absolute, *sine);
+  if (ls.empty()) return CombineCodecs(*absolute, nullptr, ps.level, options, state);
   const LensShiftCodec fine(plan, ls, options.confidence_t);
-  return CombineCodecs(absolute, &fine, ps.level, options, state);
+  return CombineCodecs(*absolute, &fine, ps.level, options, state);
 }
 
 void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,

@@ -192,7 +192,7 @@ void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
       g.session_gain[plan.frames[m.frames[k]]] = gains[k];
     }
   };
-  if (group == GainGroup::kPhaseShift) {
+  if (group == GainGroup::kPhaseShift && !plan.periods.empty()) {
     // Sine frames: a DC shared by every period, a cosine and a sine per period.
     GainModel ps;
     const auto& periods = plan.periods;

@@ -166,8 +166,10 @@ PhaseShiftCodec::PhaseShiftCodec(const ReconstructPlan& plan, const PhaseShiftPi
       ps_(ps),
       options_(options),
       confidence_t_(confidence_t),
-      unwrapper_(plan.PeriodList(), plan.projector_width, options.max_unwrap_residual),
-      solvers_(SolversOf(plan)) {}
+      solvers_(SolversOf(plan)) {
+  if (plan.periods_unwrap)
+    unwrapper_.emplace(plan.PeriodList(), plan.projector_width, options.max_unwrap_residual);
+}
 
 std::vector<int> PhaseShiftCodec::Frames() const {
   std::vector<int> frames;
@@ -188,6 +190,17 @@ void PhaseShiftCodec::Decode(const size_t* pixels, size_t n, const double* noise
   thread_local std::vector<double> th, wt, hint;
   thread_local std::vector<UnwrapResult> unwrapped;
   const int nper = static_cast<int>(plan_.periods.size());
+  if (!unwrapper_) {  // periodic: the one period's phase in cycles
+    out->Resize(n);
+    for (size_t a = 0; a < n; ++a) {
+      const float theta = ps_.theta[0][pixels[a]];
+      out->value[a] = theta / (2 * kPi);
+      out->valid[a] = std::isfinite(theta);
+      out->residual[a] = 0.0;
+      out->consistency[a] = 1.0;
+    }
+    return;
+  }
   UnwrapInputs(ps_, solvers_, options_.systematic_phase_noise, pixels, n, noise, &th, &wt);
   unwrapped.resize(n);
   if (ps_.u_unwrapped.size() == ps_.level.size()) {
@@ -195,13 +208,13 @@ void PhaseShiftCodec::Decode(const size_t* pixels, size_t n, const double* noise
     // residual with these weights; the full search where that fails.
     hint.resize(n);
     for (size_t a = 0; a < n; ++a) hint[a] = ps_.u_unwrapped.At(pixels[a]);
-    unwrapper_.UnwrapAtMany(th.data(), wt.data(), hint.data(), static_cast<int>(n),
-                            unwrapped.data());
+    unwrapper_->UnwrapAtMany(th.data(), wt.data(), hint.data(), static_cast<int>(n),
+                             unwrapped.data());
     for (size_t a = 0; a < n; ++a)
       if (!unwrapped[a].valid)
-        unwrapped[a] = unwrapper_.Unwrap(th.data() + a * nper, wt.data() + a * nper);
+        unwrapped[a] = unwrapper_->Unwrap(th.data() + a * nper, wt.data() + a * nper);
   } else {
-    unwrapper_.UnwrapMany(th.data(), wt.data(), static_cast<int>(n), unwrapped.data());
+    unwrapper_->UnwrapMany(th.data(), wt.data(), static_cast<int>(n), unwrapped.data());
   }
   out->Resize(n);
   for (size_t a = 0; a < n; ++a) {
@@ -243,7 +256,9 @@ ColumnHints UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels
                              const PixelStates& state, const PhaseShiftStageOptions& options) {
   const size_t np = state.size();
   const int nper = static_cast<int>(plan.periods.size());
-  if (nper == 0 || static_cast<int>(ps.theta.size()) != nper || ps.level.size() != np) return {};
+  if (nper == 0 || !plan.periods_unwrap || static_cast<int>(ps.theta.size()) != nper ||
+      ps.level.size() != np)
+    return {};
   const PhaseShiftCodec codec(plan, ps, options);
   ColumnHints u = ColumnHints::For(np, plan.projector_width);
   if (u.size() != np) return {};

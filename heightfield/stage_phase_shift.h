@@ -8,6 +8,7 @@
 // or hierarchical unwrapping (TemporalUnwrapper) gives the absolute coordinate
 // (PhaseShiftCodec, read by the combine stage; UnwrapPhaseShift, its fringe orders made early).
 
+#include <optional>
 #include <vector>
 
 #include "heightfield/codec.h"
@@ -51,7 +52,12 @@ class PhaseShiftCodec final : public Codec {
   PhaseShiftCodec(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
                   const PhaseShiftStageOptions& options, double confidence_t = 4.0);
   const char* Name() const override { return "phase_shift"; }
-  CodecKind Kind() const override { return CodecKind::kAbsolute; }
+  // Absolute where the periods unwrap (ReconstructPlan::periods_unwrap), else periodic: the
+  // phase of the one period, whose order a planned codec fixes.
+  CodecKind Kind() const override {
+    return unwrapper_ ? CodecKind::kAbsolute : CodecKind::kPeriodic;
+  }
+  double PeriodPx() const override { return unwrapper_ ? 0.0 : plan_.periods[0].period; }
   std::vector<int> Frames() const override;
   // Every pixel: the phase-shift residuals (periods of K > 3 frames), else 1% of the level.
   void SampleNoise(const size_t* pixels, size_t n, double* sigma) const override;
@@ -64,7 +70,7 @@ class PhaseShiftCodec final : public Codec {
   const PhaseShiftPixels& ps_;
   PhaseShiftStageOptions options_;
   double confidence_t_;
-  TemporalUnwrapper unwrapper_;
+  std::optional<TemporalUnwrapper> unwrapper_;  // absolute only
   std::vector<WrappedPhaseSolver> solvers_;
 };
 

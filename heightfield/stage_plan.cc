@@ -40,6 +40,8 @@ char DecodeAxis(const Session& session, const FramePlan& fp) {
       for (size_t f : set.frames) at_zero += session.frames[f].shift_steps == 0;
       if (at_zero >= 3) return true;
     }
+    for (const Frame& f : session.frames)  // a planned codec's patterns
+      if (f.pattern.IsCoded() && f.pattern.axis == axis && f.shift_steps == 0) return true;
     return false;
   };
   if (session.rig.lens_shifter && usable(session.rig.lens_shifter->axis))
@@ -74,21 +76,16 @@ ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& o
     }
     if (p.stack_frames.size() >= 3) plan.periods.push_back(std::move(p));
   }
-  if (plan.periods.empty())
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::Key(session.root / "session.json", "frames"),
-                          "no sine pattern along "
-                              << plan.axis
-                              << " with >= 3 phases at shift_steps 0; nothing gives the absolute "
-                                 "projector "
-                              << (plan.axis == 'x' ? "column" : "row"));
   const std::vector<double> period_list = plan.PeriodList();
   plan.projector_width = plan.axis == 'x' ? rig.projector.width : rig.projector.height;
   plan.projector_gamma =
       rig.projector_response.kind == Response::Kind::kGamma ? rig.projector_response.gamma : 1.0;
-  const double longest = *std::max_element(period_list.begin(), period_list.end());
-  plan.unwrapping = period_list.size() == 1           ? "single"
-                    : longest >= plan.projector_width ? "hierarchical"
-                                                      : "temporal";
+  if (!period_list.empty()) {
+    const double longest = *std::max_element(period_list.begin(), period_list.end());
+    plan.unwrapping = period_list.size() == 1           ? "single"
+                      : longest >= plan.projector_width ? "hierarchical"
+                                                        : "temporal";
+  }
 
   // Lens-shift frames (stripes, period 2, along the decoded axis), sorted by shift.
   std::vector<std::pair<int, size_t>> by_shift;
@@ -115,6 +112,39 @@ ReconstructPlan MakeReconstructPlan(const Session& session, const PlanOptions& o
     plan.black = static_cast<int>(plan.frames.size());
     plan.frames.push_back(static_cast<int>(fp.black.front()));
   }
+  // The planned codecs (Gray code, ...): one of them gives the absolute coordinate where the
+  // periods do not.
+  plan.codecs = PlanCodecs(session, options.codecs, &plan);
+  PlannedCodec* absolute = nullptr;
+  for (const auto& c : plan.codecs)
+    if (c->Kind() == CodecKind::kAbsolute) absolute = absolute ? absolute : c.get();
+  const ErrorSite frames_key = ErrorSite::Key(session.root / "session.json", "frames");
+  // The periods unwrap on their own unless a planned absolute codec is there for periods that
+  // repeat across the projector (without one, the unwrapper names the problem).
+  plan.periods_unwrap =
+      !plan.periods.empty() &&
+      (!absolute || UnambiguousRangePx(period_list, plan.projector_width) >= plan.projector_width);
+  if (plan.periods.empty() && !absolute)
+    MESOSCAN_BAD_INPUT_AT(frames_key, "no sine pattern along "
+                                          << plan.axis
+                                          << " with >= 3 phases at shift_steps 0 and no Gray code "
+                                             "along it; nothing gives the absolute projector "
+                                          << (plan.axis == 'x' ? "column" : "row"));
+  if (!plan.periods_unwrap) {
+    if (plan.periods.size() > 1)
+      MESOSCAN_BAD_INPUT_AT(frames_key,
+                            plan.periods.size()
+                                << " sine periods along " << plan.axis
+                                << " that repeat across the projector, expected one period whose "
+                                   "order the Gray code fixes");
+    plan.unwrapping = absolute->Name();
+    if (!plan.periods.empty()) absolute->OrdersPeriod();
+  }
+  if (!plan.has_white() && plan.periods.empty())
+    MESOSCAN_BAD_INPUT_AT(frames_key,
+                          "no white frame and no sine set: expected one of them for the "
+                          "white level that the "
+                              << (absolute ? absolute->Name() : "") << " frames are read against");
   return plan;
 }
 

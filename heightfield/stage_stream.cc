@@ -101,6 +101,9 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
                            &out.gains);
     out.ps = DecodePhaseShift(out.stack, plan, out.gains, out.classes, options.phase_shift,
                               &out.classes.state);
+    // The planned codecs (Gray code, ...) while their frames are in memory.
+    for (const auto& codec : plan.codecs)
+      codec->DecodeFrames({&out.stack, &out.classes, &out.ps}, out.classes.state);
     // The lens-shift frames' phase reference (phase shifting alone) while they still decode; it
     // is kept below if no pixel turns out saturated in a lens-shift frame only (the pixels it
     // samples are then the same: ps.level is the white level at every classified-kActive pixel).
@@ -110,7 +113,7 @@ StreamedFrames DecodeAndPhaseShift(const Session& session, const ReconstructPlan
     }
     // The fringe orders too (the combine stage's search, ~0.25 CPU-s at full resolution, off
     // the time after the last frame); the lens-shift noise sets their weights there.
-    if (overlap)
+    if (overlap && plan.periods_unwrap)
       out.ps.u_unwrapped = UnwrapPhaseShift(plan, out.ps, out.classes.state, options.phase_shift);
     if (overlap)  // only the lens-shift frames are read from here on
       for (int k = 0; k < out.stack.num_frames(); ++k)

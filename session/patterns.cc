@@ -50,6 +50,7 @@ void FramePlanOptions::Check() const {
   if (!periods_px.empty() || !cross_periods_px.empty()) MESOSCAN_CHECK_GE(phases, 3);
   MESOSCAN_CHECK(axis == 'x' || axis == 'y');
   MESOSCAN_CHECK(lens_shift_frames == 0 || lens_shift_frames >= 4);
+  MESOSCAN_CHECK(graycode_bits >= 0 && graycode_bits <= 30 && graycode_block_px >= 1);
   MESOSCAN_CHECK_LT(range_steps[0], range_steps[1]);
   // Distinct positions: at most one frame per step.
   MESOSCAN_CHECK(lens_shift_frames <= int64_t{range_steps[1]} - range_steps[0] + 1);
@@ -116,6 +117,19 @@ std::vector<Frame> MakeStandardFrames(const FramePlanOptions& o) {
         f.pattern.phase = 2 * kPi * k / o.phases;
         frames.push_back(f);
       }
+  for (int k = 0; k < o.graycode_bits; ++k)
+    for (bool inverted : {false, true}) {
+      if (inverted && !o.graycode_inverse) continue;
+      Frame f;
+      f.file = dir + (inverted ? "gci" : "gc") + std::to_string(k) + o.extension;
+      f.pattern.type = PatternType::kGrayCode;
+      f.pattern.axis = o.axis;
+      f.pattern.bits = o.graycode_bits;
+      f.pattern.bit = k;
+      f.pattern.block_px = o.graycode_block_px;
+      f.pattern.inverted = inverted;
+      frames.push_back(f);
+    }
   const auto& r = o.range_steps;
   for (int i = 0; i < o.lens_shift_frames; ++i) {
     Frame f;

@@ -51,6 +51,11 @@ struct FramePlanOptions {
   char axis = 'x';                            // axis of the first sines and of the stripes
   // Lens-shift (stripes) frames: 0 or >= 4, shift_steps evenly over range_steps including both
   // ends (the shifter accepts both), rounded to integers.
+  // Gray code along `axis` (graycode frames gc<k>, and gci<k> with the inverse): 0 bits = none;
+  // blocks of graycode_block_px (>= 1) projector px, block_px * 2^bits must cover the projector.
+  int graycode_bits = 0;
+  double graycode_block_px = 1.0;
+  bool graycode_inverse = true;
   int lens_shift_frames = 50;
   std::array<int, 2> range_steps{-2048, 2048};  // shifter range [min, max], steps
   bool white = true;                            // a white frame (albedo)

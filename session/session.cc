@@ -10,9 +10,11 @@
 #include <fstream>
 #include <iomanip>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <set>
 #include <sstream>
+#include <tuple>
 
 #include "core/error.h"
 #include "core/fs.h"
@@ -374,6 +376,14 @@ double Pattern::Value(double u, double v) const {
       return 1.0;
     case PatternType::kBlack:
       return 0.0;
+    case PatternType::kGrayCode: {
+      const double pixel = std::floor(x + 0.5);  // the pixel whose footprint contains x
+      const int64_t block =
+          std::max<int64_t>(0, static_cast<int64_t>(std::floor(pixel / block_px)));
+      const int64_t gray = block ^ (block >> 1);
+      const bool set = (gray >> (bits - 1 - bit)) & 1;
+      return set != inverted ? 1.0 : 0.0;
+    }
   }
   return 0.0;
 }
@@ -432,6 +442,9 @@ FramePlan MakeFramePlan(const std::vector<Frame>& frames) {
         break;
       case PatternType::kBlack:
         plan.black.push_back(i);
+        break;
+      case PatternType::kGrayCode:
+        plan.graycode.push_back(i);
         break;
     }
   }
@@ -492,7 +505,10 @@ std::string FramePlan::Describe(const Rig& rig) const {
     out << "; unambiguous over " << (range >= 1e6 ? ">= 1e6" : Num(range)) << " px (projector "
         << (axis == 'x' ? "width " : "height ") << Num(extent) << " px)\n";
   }
-  if (sine.empty()) out << "phase shift: none (projector columns cannot be decoded)\n";
+  if (sine.empty())
+    out << "phase shift: none" << (graycode.empty() ? " (projector columns cannot be decoded)" : "")
+        << "\n";
+  if (!graycode.empty()) out << "gray code: " << graycode.size() << " frames\n";
   if (lens_shift.empty()) {
     out << "lens shift: none\n";
   } else {
@@ -636,7 +652,7 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
 
     const std::string pkey = Join(key, "pattern");
     const Json& pj = p.RequireObject(fj, key, "pattern", "an object with type");
-    const std::string types = "\"sine\", \"stripes\", \"white\" or \"black\"";
+    const std::string types = "\"sine\", \"stripes\", \"graycode\", \"white\" or \"black\"";
     const std::string type =
         p.String(p.Require(pj, pkey, "type", types), Join(pkey, "type"), types);
     if (type == "sine") {
@@ -647,6 +663,24 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
       f.pattern.type = PatternType::kWhite;
     } else if (type == "black") {
       f.pattern.type = PatternType::kBlack;
+    } else if (type == "graycode") {
+      f.pattern.type = PatternType::kGrayCode;
+      f.pattern.axis = p.Axis(pj, pkey);
+      const std::string bits_expected = "an integer in [1, 30]";
+      f.pattern.bits = static_cast<int>(p.Integer(p.Require(pj, pkey, "bits", bits_expected),
+                                                  Join(pkey, "bits"), 1, 30, bits_expected));
+      const std::string bit_expected = "an integer in [0, bits - 1]";
+      f.pattern.bit =
+          static_cast<int>(p.Integer(p.Require(pj, pkey, "bit", bit_expected), Join(pkey, "bit"), 0,
+                                     f.pattern.bits - 1, bit_expected));
+      const std::string block_expected = "a finite number >= 1 (projector px)";
+      const Json& bv = p.Require(pj, pkey, "block_px", block_expected);
+      f.pattern.block_px = p.Number(bv, Join(pkey, "block_px"), block_expected);
+      if (!(f.pattern.block_px >= 1)) p.Expected(Join(pkey, "block_px"), block_expected, bv);
+      if (const Json* inv = Parser::Find(pj, "inverted")) {
+        if (!inv->is_boolean()) p.Expected(Join(pkey, "inverted"), "true or false", *inv);
+        f.pattern.inverted = inv->get<bool>();
+      }
     } else {
       p.Expected(Join(pkey, "type"), types, pj["type"]);
     }
@@ -700,11 +734,40 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
                            std::to_string(set.phases.size()) +
                            " distinct phases, expected at least 3");
   }
+  // Gray code: each set (axis, bits, block_px) covers the projector and has every bit; a set along
+  // an axis gives the order of that axis' sine period (one period: e.g. sine + complementary
+  // Gray code).
+  bool graycode_along[2] = {false, false};
+  {
+    std::map<std::tuple<char, int, double>, std::vector<int>> sets;  // -> frames per bit
+    for (size_t i : plan.graycode) {
+      const Pattern& gp = s.frames[i].pattern;
+      auto& bits = sets[{gp.axis, gp.bits, gp.block_px}];
+      bits.resize(gp.bits, 0);
+      ++bits[gp.bit];
+    }
+    for (const auto& [key, bits] : sets) {
+      const auto& [axis, nbits, block] = key;
+      const int extent = axis == 'x' ? s.rig.projector.width : s.rig.projector.height;
+      const std::string what = "Gray code along " + std::string(1, axis) + " (" +
+                               std::to_string(nbits) + " bits, block_px " + Num(block) + ")";
+      if (block * std::ldexp(1.0, nbits) < extent)
+        p.Fail("frames", what + " covers " + Num(block * std::ldexp(1.0, nbits)) +
+                             " px, expected block_px * 2^bits >= the projector's " +
+                             std::to_string(extent) + " px");
+      for (int k = 0; k < nbits; ++k)
+        if (bits[k] == 0)
+          p.Fail("frames", what + " has no frame of bit " + std::to_string(k) +
+                               ", expected every bit (alone or with its inverse)");
+      graycode_along[axis == 'x' ? 0 : 1] = true;
+    }
+  }
   for (char axis : {'x', 'y'}) {
     const std::vector<double> periods = plan.Periods(axis);
     if (periods.empty()) continue;
     const int extent = axis == 'x' ? s.rig.projector.width : s.rig.projector.height;
     const double range = UnambiguousRangePx(periods, extent);
+    if (range < extent && periods.size() == 1 && graycode_along[axis == 'x' ? 0 : 1]) continue;
     if (range < extent) {
       std::string list;
       for (double q : periods) list += (list.empty() ? "" : ", ") + Num(q);
@@ -912,6 +975,14 @@ Json SessionToJson(const Session& s) {
         break;
       case PatternType::kBlack:
         pattern = {{"type", "black"}};
+        break;
+      case PatternType::kGrayCode:
+        pattern = {{"type", "graycode"},
+                   {"axis", std::string(1, f.pattern.axis)},
+                   {"bits", f.pattern.bits},
+                   {"bit", f.pattern.bit},
+                   {"block_px", f.pattern.block_px},
+                   {"inverted", f.pattern.inverted}};
         break;
     }
     frames.push_back(Json{{"file", f.file}, {"pattern", pattern}, {"shift_steps", f.shift_steps}});

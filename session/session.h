@@ -18,13 +18,18 @@ namespace mesoscan {
 
 inline constexpr const char* kSessionFormat = "mesoscan-session/1";
 
-enum class PatternType { kSine, kStripes, kWhite, kBlack };
+enum class PatternType { kSine, kStripes, kWhite, kBlack, kGrayCode };
 
 struct Pattern {
   PatternType type = PatternType::kWhite;
   char axis = 'x';         // 'x' (varies along projector u) or 'y' (along v)
   double period_px = 0.0;  // sine: any real > 2; stripes: >= 2 (2 for the lens-shift pattern)
   double phase = 0.0;      // sine only, radians
+  // graycode only: bit `bit` (0 = the most significant) of the `bits`-bit reflected binary Gray
+  // code of floor(u / block_px); `inverted` shows its complement.
+  int bits = 0, bit = 0;
+  double block_px = 1.0;
+  bool inverted = false;
 
   // Displayed value in [0, 1] at projector pixel (u, v) (spec "Patterns"), before the
   // projector's response. u, v may be fractional (the lens shifter moves the image): sine is
@@ -33,6 +38,8 @@ struct Pattern {
   // are at integers, spec "Conventions"), so a stripe edge lies half-way between two pixels.
   double Value(double u, double v) const;
   bool IsLensShift() const { return type == PatternType::kStripes; }
+  // A pattern that a planned codec decodes (heightfield/codecs.h): graycode.
+  bool IsCoded() const { return type == PatternType::kGrayCode; }
 };
 
 struct Frame {
@@ -99,6 +106,7 @@ struct FramePlan {
   int distinct_shift_steps = 0;                  // distinct shift_steps among lens_shift frames
   int min_shift_steps = 0, max_shift_steps = 0;  // over lens_shift frames (0 if none)
   std::vector<size_t> white, black;
+  std::vector<size_t> graycode;  // graycode frames, in session order
 
   // Sine periods of one axis ('x' or 'y'), ascending.
   std::vector<double> Periods(char axis) const;

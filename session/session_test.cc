@@ -449,8 +449,8 @@ TEST_F(SessionTest, ErrorPatternParameters) {
             "session.json: frames[6].pattern.period_px: expected a finite number >= 2 (projector "
             "px), got 1");
   EXPECT_EQ(ParseError([](Json& j) { j["frames"][2]["pattern"]["type"] = "checker"; }),
-            "session.json: frames[2].pattern.type: expected \"sine\", \"stripes\", \"white\" or "
-            "\"black\", got \"checker\"");
+            "session.json: frames[2].pattern.type: expected \"sine\", \"stripes\", \"graycode\", "
+            "\"white\" or \"black\", got \"checker\"");
   EXPECT_EQ(ParseError([](Json& j) { j["frames"][2]["pattern"]["axis"] = "z"; }),
             "session.json: frames[2].pattern.axis: expected \"x\" or \"y\", got \"z\"");
   EXPECT_EQ(ParseError([](Json& j) { j["frames"][2]["pattern"].erase("phase"); }),
@@ -460,6 +460,74 @@ TEST_F(SessionTest, ErrorPatternParameters) {
   EXPECT_EQ(
       ParseError([](Json& j) { j["frames"][3] = 5; }),
       "session.json: frames[3]: expected an object with file, pattern and shift_steps, got 5");
+}
+
+// Gray-code frames (the spec's "Patterns"): parsed, written back the same, and validated: every bit
+// of a set present, the set covering the projector (60 px here), and one sine period along the
+// same axis accepted (the code fixes its order) where alone it would repeat.
+TEST_F(SessionTest, GrayCodeFrames) {
+  auto graycode = [](int bits, int bit, double block, bool inverted) {
+    return Json{{"file", "frames/gc" + std::to_string(bit) + (inverted ? "i" : "") + ".png"},
+                {"pattern",
+                 {{"type", "graycode"},
+                  {"axis", "x"},
+                  {"bits", bits},
+                  {"bit", bit},
+                  {"block_px", block},
+                  {"inverted", inverted}}},
+                {"shift_steps", 0}};
+  };
+  auto sine = [](double period, double phase) {
+    return Json{
+        {"file", "frames/s" + std::to_string(phase) + ".png"},
+        {"pattern", {{"type", "sine"}, {"axis", "x"}, {"period_px", period}, {"phase", phase}}},
+        {"shift_steps", 0}};
+  };
+  auto with_frames = [&](const std::vector<Json>& frames) {
+    Json j = *valid_;
+    j["frames"] = frames;
+    return j;
+  };
+  // One 12-px sine period (repeats 5 times over 60 px) and a complementary code of 6-px blocks.
+  std::vector<Json> frames = {sine(12, 0), sine(12, 2.1), sine(12, 4.2)};
+  for (int k = 0; k < 4; ++k) frames.push_back(graycode(4, k, 6, k == 3));
+  const Session s = ParseSession(with_frames(frames), *dir_);
+  ASSERT_EQ(s.frames.size(), 7u);
+  const Pattern& p = s.frames[6].pattern;
+  EXPECT_EQ(p.type, PatternType::kGrayCode);
+  EXPECT_EQ(p.bits, 4);
+  EXPECT_EQ(p.bit, 3);
+  EXPECT_EQ(p.block_px, 6.0);
+  EXPECT_TRUE(p.inverted);
+  EXPECT_EQ(MakeFramePlan(s.frames).graycode.size(), 4u);
+  EXPECT_EQ(SessionToJson(s)["frames"][6]["pattern"], frames[6]["pattern"]);
+  // Pattern values: bit 0 of Gray(floor(u / 6)) over the 10 blocks, and its complement.
+  EXPECT_EQ(s.frames[3].pattern.Value(5, 0), 0.0);   // block 0: Gray 0000
+  EXPECT_EQ(s.frames[3].pattern.Value(48, 0), 1.0);  // block 8: Gray 1100
+  EXPECT_EQ(s.frames[6].pattern.Value(6, 0), 0.0);   // block 1: Gray 0001, inverted
+  EXPECT_EQ(s.frames[6].pattern.Value(12, 0), 0.0);  // block 2: Gray 0011, inverted
+  EXPECT_EQ(s.frames[6].pattern.Value(0, 0), 1.0);   // block 0, inverted
+  // A missing bit; too few bits for the projector; the sine period alone.
+  std::vector<Json> missing = frames;
+  missing.erase(missing.begin() + 4);
+  EXPECT_EQ(ErrorOf([&] { ParseSession(with_frames(missing), *dir_); }),
+            "session.json: frames: Gray code along x (4 bits, block_px 6) has no frame of bit 1, "
+            "expected every bit (alone or with its inverse)");
+  std::vector<Json> short_code = {sine(12, 0), sine(12, 2.1), sine(12, 4.2)};
+  for (int k = 0; k < 3; ++k) short_code.push_back(graycode(3, k, 6, false));
+  EXPECT_EQ(ErrorOf([&] { ParseSession(with_frames(short_code), *dir_); }),
+            "session.json: frames: Gray code along x (3 bits, block_px 6) covers 48 px, expected "
+            "block_px * 2^bits >= the projector's 60 px");
+  EXPECT_NE(ErrorOf([&] {
+              ParseSession(with_frames({sine(12, 0), sine(12, 2.1), sine(12, 4.2)}), *dir_);
+            }).find("repeat after 12 px"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] {
+              std::vector<Json> f = frames;
+              f[4]["pattern"]["bit"] = 4;
+              ParseSession(with_frames(f), *dir_);
+            }).find("frames[4].pattern.bit"),
+            std::string::npos);
 }
 
 TEST_F(SessionTest, ErrorFramePaths) {

@@ -400,11 +400,12 @@ PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& ri
                                  const std::vector<std::vector<float>>& kernels) {
   PatternTables out;
   out.frame_table.resize(frames.size());
-  std::map<std::tuple<int, double, double>, int> pattern_index;
+  std::map<std::tuple<int, double, double, int, int, double, bool>, int> pattern_index;
   std::vector<const Pattern*> table_patterns;
   for (size_t f = 0; f < frames.size(); ++f) {
     const Pattern& p = frames[f].pattern;
-    const auto key = std::make_tuple(static_cast<int>(p.type), p.period_px, p.phase);
+    const auto key = std::make_tuple(static_cast<int>(p.type), p.period_px, p.phase, p.bits, p.bit,
+                                     p.block_px, p.inverted);
     auto it = pattern_index.find(key);
     if (it == pattern_index.end()) {
       it = pattern_index.emplace(key, static_cast<int>(table_patterns.size())).first;
@@ -592,7 +593,11 @@ void SimulateOptions::Check() const {
     SIM_OPTION("ps_phases", "expected >= 3, got " << ps_phases);
   if (ls_frames != 0 && ls_frames < 4)
     SIM_OPTION("ls_frames", "expected 0 or >= 4, got " << ls_frames);
-  if (ps_periods_px.empty() && ls_frames == 0 && !white && !black)
+  if (graycode_bits < 0 || graycode_bits > 30)
+    SIM_OPTION("graycode_bits", "expected 0..30, got " << graycode_bits);
+  if (!(graycode_block_px >= 1))
+    SIM_OPTION("graycode_block_px", "expected >= 1, got " << graycode_block_px);
+  if (ps_periods_px.empty() && ls_frames == 0 && graycode_bits == 0 && !white && !black)
     SIM_USAGE("frame plan: no frames requested");
   if (axis != 'x' && axis != 'y') SIM_OPTION("axis", "expected x or y, got '" << axis << "'");
   if (supersample < 1 || supersample > 8)
@@ -738,6 +743,9 @@ FramePlanOptions SimulationFramePlan(const SimulateOptions& o, const Rig& rig) {
   plan.phases = o.ps_phases;
   plan.axis = o.axis;
   plan.lens_shift_frames = o.ls_frames;
+  plan.graycode_bits = o.graycode_bits;
+  plan.graycode_block_px = o.graycode_block_px;
+  plan.graycode_inverse = o.graycode_inverse;
   if (o.ls_frames > 0) {
     if (!rig.lens_shifter)
       SIM_OPTION("ls_frames", o.ls_frames << ": the rig has no lens_shifter (use 0)");

@@ -47,6 +47,10 @@ struct SimulateOptions {
   char axis = 'x';
   std::vector<double> ps_periods_px{7, 11, 13};  // sine periods, each > 2 px
   int ps_phases = 3;                             // phases per period (>= 3), 2*pi*k/phases
+  // Gray code along `axis` (FramePlanOptions::graycode_*): 0 bits = none.
+  int graycode_bits = 0;
+  double graycode_block_px = 1.0;
+  bool graycode_inverse = true;
   int ls_frames = 50;  // lens-shift (1-px stripes) frames evenly over the shifter range incl.
                        // both ends, shift_steps rounded to integers; 0 or >= 4
   bool white = true;   // a white frame

@@ -47,6 +47,11 @@ double SpecPattern(const Pattern& p, int u) {
       return 1.0;
     case PatternType::kBlack:
       return 0.0;
+    case PatternType::kGrayCode: {  // bit k (MSB first) of the block's reflected binary code
+      const int64_t block = static_cast<int64_t>(std::floor(u / p.block_px));
+      const int64_t gray = block ^ (block >> 1);
+      return ((gray >> (p.bits - 1 - p.bit)) & 1) != p.inverted ? 1.0 : 0.0;
+    }
   }
   return 0.0;
 }
