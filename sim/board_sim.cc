@@ -2,6 +2,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <memory>
 #include <numbers>
 #include <optional>
 #include <sstream>
@@ -157,9 +158,40 @@ void WriteRigFile(const fs::path& path, const Rig& rig) {
   WriteJsonFile(path, Json{{"rig", j["rig"]}});
 }
 
-SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOptions& bo,
-                              const fs::path& out_dir) {
-  const Stopwatch t_start;
+namespace {
+
+// The camera's undistorted normalised coordinates on a grid every kGrid px, bilinear in between
+// (the distortion is smooth: < 1e-4 px error for |k1| ~ 0.1 at 4 px spacing).
+class RayGrid {
+ public:
+  explicit RayGrid(const PinholeCamera& cam)
+      : gw_(cam.width / kGrid + 3), gh_(cam.height / kGrid + 3) {
+    grid_.resize(static_cast<size_t>(gw_) * gh_);
+    ParallelFor(gh_, [&](int64_t gy) {
+      for (int gx = 0; gx < gw_; ++gx)
+        grid_[gy * gw_ + gx] = cam.UndistortNormalized(Vec2d(-1.0 + gx * kGrid, -1.0 + gy * kGrid));
+    });
+  }
+  Vec2d Normalised(double x, double y) const {
+    const double fx = (x + 1.0) / kGrid, fy = (y + 1.0) / kGrid;
+    const int ix = std::clamp(static_cast<int>(fx), 0, gw_ - 2);
+    const int iy = std::clamp(static_cast<int>(fy), 0, gh_ - 2);
+    const double ax = fx - ix, ay = fy - iy;
+    const Vec2d& a = grid_[iy * gw_ + ix];
+    const Vec2d& b = grid_[iy * gw_ + ix + 1];
+    const Vec2d& c = grid_[(iy + 1) * gw_ + ix];
+    const Vec2d& d = grid_[(iy + 1) * gw_ + ix + 1];
+    return Vec2d((1 - ay) * ((1 - ax) * a + ax * b) + ay * ((1 - ax) * c + ax * d));
+  }
+
+ private:
+  static constexpr int kGrid = 4;
+  int gw_, gh_;
+  std::vector<Vec2d> grid_;
+};
+
+// The checked options of a board simulation (the board replaces the object; no lens shift).
+SimulateOptions BoardSimulateOptions(const SimulateOptions& options, const BoardSimOptions& bo) {
   bo.Check();
   SimulateOptions o = options;
   o.ls_frames = 0;
@@ -169,26 +201,25 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
     BOARD_USAGE("board: expected sine periods along both axes ("
                 << OptionRef{"SimulateOptions.ps_periods_px"} << ", "
                 << OptionRef{"BoardSimOptions.ps_periods_y_px"} << ")");
-  const Rig rig = ResolveRig(o);
-  const PinholeCamera& cam = rig.camera;
-  const PinholeCamera& prj = rig.projector;
-  // NaN focus (the object's mid height for objects): a calibration plan keeps the focus of the
-  // scans it calibrates for, on the mount plane.
-  const double focus_z = std::isnan(o.focus_height_m) ? 0.0 : o.focus_height_m;
-  const CalibrationBoard& board = bo.board;
-  const Rigid3d world_from_board = BoardPoseToRigid(bo.pose);
-  const Rigid3d board_from_world = world_from_board.Inverse();
-  const Rigid3d prj_from_world = prj.world_from_device.Inverse();
-  const Vec3d n_world = world_from_board.rotation.col(2);
-  const Vec3d b0 = world_from_board.translation;
-  const Vec3d cam_centre = cam.CentreInWorld(), prj_centre = prj.CentreInWorld();
-  const double r0 = prj_centre.norm();
-  const int W = cam.width, H = cam.height, S = o.supersample;
-  if (n_world.dot(cam_centre - b0) <= 0)
-    BOARD_OPTION("BoardSimOptions.pose", "the camera sees the back of the board at this pose");
+  return o;
+}
 
-  // ---- frame plan (session/patterns.h, as `capture --plan calibration`): sines along x then
-  // y (every period, phases 2 pi k / N), white, black ----
+// The frame plan (session/patterns.h, as `capture --plan calibration`): sines along x then y
+// (every period, phases 2 pi k / N), white, black; per frame its sine set and phase.
+struct BoardFrames {
+  struct SineSet {
+    char axis;
+    double period;
+  };
+  std::vector<Frame> frames;
+  std::vector<SineSet> sets;
+  std::vector<int> frame_set;  // per frame: set index (-1 white, -2 black)
+  std::vector<double> cos_phase, sin_phase;
+  std::vector<double> rate;  // per set: 2 pi / period
+};
+
+BoardFrames PlanBoardFrames(const SimulateOptions& o, const BoardSimOptions& bo) {
+  BoardFrames bf;
   FramePlanOptions plan;
   plan.periods_px = o.ps_periods_px;
   plan.cross_periods_px = bo.ps_periods_y_px;
@@ -197,219 +228,263 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   plan.white = o.white;
   plan.black = o.black;
   plan.extension = bo.frame_format == "bmp" ? ".bmp" : bo.frame_format == "tif8" ? ".tif" : ".png";
-  const std::vector<Frame> frames = MakeStandardFrames(plan);
-  struct SineSet {
-    char axis;
-    double period;
-  };
-  std::vector<SineSet> sets;
-  for (double p : o.ps_periods_px) sets.push_back({'x', p});
-  for (double p : bo.ps_periods_y_px) sets.push_back({'y', p});
-  std::vector<int> frame_set;  // per frame: set index (-1 white, -2 black)
-  for (const Frame& f : frames) {
+  bf.frames = MakeStandardFrames(plan);
+  for (double p : o.ps_periods_px) bf.sets.push_back({'x', p});
+  for (double p : bo.ps_periods_y_px) bf.sets.push_back({'y', p});
+  for (const Frame& f : bf.frames) {
     int si = f.pattern.type == PatternType::kWhite ? -1 : -2;
-    for (size_t k = 0; k < sets.size() && f.pattern.type == PatternType::kSine; ++k)
-      if (sets[k].axis == f.pattern.axis && sets[k].period == f.pattern.period_px) {
+    for (size_t k = 0; k < bf.sets.size() && f.pattern.type == PatternType::kSine; ++k)
+      if (bf.sets[k].axis == f.pattern.axis && bf.sets[k].period == f.pattern.period_px) {
         si = static_cast<int>(k);
         break;
       }
-    frame_set.push_back(si);
+    bf.frame_set.push_back(si);
   }
-  const int nf = static_cast<int>(frames.size());
-  std::vector<double> cos_phase(nf), sin_phase(nf);
+  const int nf = static_cast<int>(bf.frames.size());
+  bf.cos_phase.resize(nf);
+  bf.sin_phase.resize(nf);
   for (int f = 0; f < nf; ++f) {
-    cos_phase[f] = std::cos(frames[f].pattern.phase);
-    sin_phase[f] = std::sin(frames[f].pattern.phase);
+    bf.cos_phase[f] = std::cos(bf.frames[f].pattern.phase);
+    bf.sin_phase[f] = std::sin(bf.frames[f].pattern.phase);
   }
+  const int nsets = static_cast<int>(bf.sets.size());
+  bf.rate.resize(nsets);
+  for (int si = 0; si < nsets; ++si) bf.rate[si] = kTwoPi / bf.sets[si].period;
+  return bf;
+}
 
-  // ---- ray directions: undistorted normalised coordinates on a grid every kGrid px, bilinear
-  // in between (the distortion is smooth: < 1e-4 px error for |k1| ~ 0.1 at 4 px spacing) ----
-  constexpr int kGrid = 4;
-  const int gw = W / kGrid + 3, gh = H / kGrid + 3;
-  std::vector<Vec2d> grid(static_cast<size_t>(gw) * gh);
-  ParallelFor(gh, [&](int64_t gy) {
-    for (int gx = 0; gx < gw; ++gx)
-      grid[gy * gw + gx] = cam.UndistortNormalized(Vec2d(-1.0 + gx * kGrid, -1.0 + gy * kGrid));
-  });
-  auto normalised = [&](double x, double y) {
-    const double fx = (x + 1.0) / kGrid, fy = (y + 1.0) / kGrid;
-    const int ix = std::clamp(static_cast<int>(fx), 0, gw - 2);
-    const int iy = std::clamp(static_cast<int>(fy), 0, gh - 2);
-    const double ax = fx - ix, ay = fy - iy;
-    const Vec2d& a = grid[iy * gw + ix];
-    const Vec2d& b = grid[iy * gw + ix + 1];
-    const Vec2d& c = grid[(iy + 1) * gw + ix];
-    const Vec2d& d = grid[(iy + 1) * gw + ix + 1];
-    return Vec2d((1 - ay) * ((1 - ax) * a + ax * b) + ay * ((1 - ax) * c + ax * d));
-  };
+// The rig and the board at its pose: what the ray caster reads.
+struct BoardScene {
+  BoardScene(const SimulateOptions& o_in, const BoardSimOptions& bo_in, const Rig& rig_in)
+      : o(o_in),
+        bo(bo_in),
+        rig(rig_in),
+        cam(rig.camera),
+        prj(rig.projector),
+        board(bo.board),
+        // NaN focus (the object's mid height for objects): a calibration plan keeps the focus of
+        // the scans it calibrates for, on the mount plane.
+        focus_z(std::isnan(o.focus_height_m) ? 0.0 : o.focus_height_m),
+        world_from_board(BoardPoseToRigid(bo.pose)),
+        board_from_world(world_from_board.Inverse()),
+        prj_from_world(prj.world_from_device.Inverse()),
+        n_world(world_from_board.rotation.col(2)),
+        b0(world_from_board.translation),
+        cam_centre(cam.CentreInWorld()),
+        prj_centre(prj.CentreInWorld()),
+        r0(prj_centre.norm()),
+        half_w(board.HalfWidth() + bo.margin_squares * board.square_m),
+        half_h(board.HalfHeight() + bo.margin_squares * board.square_m),
+        rays(cam) {
+    if (board.charuco()) texture = std::make_unique<const BoardTexture>(board, 64);
+  }
+  const SimulateOptions& o;
+  const BoardSimOptions& bo;
+  const Rig& rig;
+  const PinholeCamera& cam;
+  const PinholeCamera& prj;
+  const CalibrationBoard& board;
+  const double focus_z;
+  const Rigid3d world_from_board, board_from_world, prj_from_world;
+  const Vec3d n_world, b0, cam_centre, prj_centre;
+  const double r0;
+  const double half_w, half_h;  // the board with its margin
+  const RayGrid rays;
+  std::unique_ptr<const BoardTexture> texture;  // ChArUco boards only
+};
 
+// The board point of an image point (false if the ray misses the front).
+bool BoardPoint(const BoardScene& sc, double x, double y, Vec3d* world) {
+  const Vec2d n = sc.rays.Normalised(x, y);
+  const Vec3d d = sc.cam.world_from_device.rotation * Vec3d(n.x(), n.y(), 1.0);
+  const double nd = sc.n_world.dot(d);
+  if (!(nd < 0)) return false;  // parallel to, or the back of, the board
+  const double t = sc.n_world.dot(sc.b0 - sc.cam_centre) / nd;
+  if (!(t > 0)) return false;
+  *world = sc.cam_centre + t * d;
+  return true;
+}
+
+// The albedo at world point p of image subsample (qx, qy): background, margin, or the print
+// box-filtered over the subsample's footprint.
+double SubsampleAlbedo(const BoardScene& sc, double qx, double qy, const Vec3d& p) {
+  const BoardSimOptions& bo = sc.bo;
+  const CalibrationBoard& board = sc.board;
+  const int S = sc.o.supersample;
+  const Vec3d pb = sc.board_from_world * p;
+  double albedo = bo.background_albedo;
+  if (std::abs(pb.x()) <= sc.half_w && std::abs(pb.y()) <= sc.half_h) {
+    albedo = bo.light_albedo;
+    if (std::abs(pb.x()) < board.HalfWidth() && std::abs(pb.y()) < board.HalfHeight()) {
+      // The checker box-filtered over the subsample's footprint (its extent along the board's
+      // axes, from the neighbouring subsamples' board points): dark fraction
+      // = (1 + <sx> <sy>) / 2, the box filter being separable.
+      Vec3d px_next, py_next;
+      double hx = 0, hy = 0;
+      if (BoardPoint(sc, qx + 0.5 / S, qy, &px_next) &&
+          BoardPoint(sc, qx, qy + 0.5 / S, &py_next)) {
+        const Vec3d ex = sc.board_from_world.rotation * (px_next - p);
+        const Vec3d ey = sc.board_from_world.rotation * (py_next - p);
+        hx = (std::abs(ex.x()) + std::abs(ey.x())) / board.square_m;
+        hy = (std::abs(ex.y()) + std::abs(ey.y())) / board.square_m;
+      }
+      const double fx = pb.x() / board.square_m + 0.5 * (board.cols - 1) + 1.0;
+      const double fy = pb.y() / board.square_m + 0.5 * (board.rows - 1) + 1.0;
+      const double dark = sc.texture
+                              ? 1.0 - sc.texture->Mean(fx, fy, hx, hy)
+                              : 0.5 * (1.0 + BoxedSquareWave(fx, hx) * BoxedSquareWave(fy, hy));
+      albedo = bo.light_albedo + (bo.dark_albedo - bo.light_albedo) * dark;
+    }
+  }
+  return albedo;
+}
+
+// The projector's light on one subsample: per frame, acc[f] += its irradiance times the albedo
+// (the sines blurred by the projector's Gaussian and pixel box). set_cos / set_sin: scratch of
+// one entry per sine set. False where the projector does not light the point.
+bool AddProjectedLight(const BoardScene& sc, const BoardFrames& bf, const Vec3d& p, double albedo,
+                       std::vector<double>* set_cos, std::vector<double>* set_sin,
+                       std::vector<double>* acc) {
+  const SimulateOptions& o = sc.o;
+  const Vec3d p_dev = sc.prj_from_world * p;
+  double uv[2];
+  if (!sc.prj.ProjectDevice(p_dev.data(), uv)) return false;
+  if (uv[0] < -0.5 || uv[0] > sc.prj.width - 0.5 || uv[1] < -0.5 || uv[1] > sc.prj.height - 0.5)
+    return false;
+  Vec3d l = sc.prj_centre - p;
+  const double r = l.norm();
+  const double cos_i = sc.n_world.dot(l) / r;
+  if (!(cos_i > 0)) return false;
+  const double sh = albedo * cos_i * (sc.r0 / r) * (sc.r0 / r);
+  const double sigma = o.blur_sigma_px + o.defocus_px_per_m * std::abs(p.z() - sc.focus_z);
+  const int nsets = static_cast<int>(bf.sets.size());
+  for (int si = 0; si < nsets; ++si) {
+    const double x = bf.sets[si].axis == 'x' ? uv[0] : uv[1];
+    // The projected sine blurred by a Gaussian (sigma) and a pixel box of the fill factor: its
+    // amplitude times exp(-2 pi^2 s^2 / p^2) sinc(fill / p).
+    const double pf = bf.sets[si].period;
+    const double arg = std::numbers::pi * o.fill_factor / pf;
+    const double att =
+        std::exp(-2.0 * std::numbers::pi * std::numbers::pi * sigma * sigma / (pf * pf)) *
+        std::sin(arg) / arg;
+    (*set_cos)[si] = sh * 0.5 * att * std::cos(bf.rate[si] * x);
+    (*set_sin)[si] = sh * 0.5 * att * std::sin(bf.rate[si] * x);
+  }
+  const int nf = static_cast<int>(bf.frames.size());
+  for (int f = 0; f < nf; ++f) {
+    const int si = bf.frame_set[f];
+    if (si >= 0)
+      (*acc)[f] += 0.5 * sh + (*set_cos)[si] * bf.cos_phase[f] - (*set_sin)[si] * bf.sin_phase[f];
+    else if (si == -1)
+      (*acc)[f] += sh;
+  }
+  return true;
+}
+
+// The frames' pixels: camera values per frame (gains, noise, quantisation), in DN of the frame
+// format.
+struct BoardImages {
+  std::vector<std::vector<uint16_t>> images;
+  int64_t lit_pixels = 0;
+  bool eight_bit = true;
+};
+
+BoardImages RayCastBoard(const BoardScene& sc, const BoardFrames& bf) {
+  const SimulateOptions& o = sc.o;
+  const int W = sc.cam.width, H = sc.cam.height, S = o.supersample;
+  const int nf = static_cast<int>(bf.frames.size()), nsets = static_cast<int>(bf.sets.size());
   const NoiseModel noise = MakeNoiseModel(o);
-  const bool eight_bit = bo.frame_format != "png16";
+  BoardImages out;
+  out.eight_bit = sc.bo.frame_format != "png16";
+  const bool eight_bit = out.eight_bit;
   const int dn_max = eight_bit ? 255 : (1 << o.adc_bits) - 1;
   std::vector<double> gains(nf, 1.0);
   for (int f = 0; f < nf; ++f)
     gains[f] = 1.0 + noise.GainJitterSigma() * NormalOf(SplitMix(o.seed * 7919 + f));
-  std::optional<BoardTexture> texture;
-  if (board.charuco()) texture.emplace(board, 64);
-  const double half_w = board.HalfWidth() + bo.margin_squares * board.square_m;
-  const double half_h = board.HalfHeight() + bo.margin_squares * board.square_m;
   const double inv_ss = 1.0 / (S * S);
-  const int nsets = static_cast<int>(sets.size());
-  std::vector<double> rate(nsets);
-  for (int si = 0; si < nsets; ++si) rate[si] = kTwoPi / sets[si].period;
-  std::vector<std::vector<uint16_t>> images(nf, std::vector<uint16_t>(static_cast<size_t>(W) * H));
+  out.images.assign(nf, std::vector<uint16_t>(static_cast<size_t>(W) * H));
   std::atomic<int64_t> lit_pixels{0};
-  SimulateSummary summary;
-  summary.width = W;
-  summary.height = H;
-  summary.frames = nf;
-  const Stopwatch t_ray;
-  {
-    Progress progress("simulate board", H);
-    ParallelForRows(
-        H,
-        [&](int y0, int y1) {
-          std::vector<double> acc(nf);
-          std::vector<double> set_cos(nsets), set_sin(nsets);
-          for (int py = y0; py < y1; ++py) {
-            for (int px = 0; px < W; ++px) {
-              std::fill(acc.begin(), acc.end(), 0.0);
-              double amb = 0.0;
-              bool any_lit = false;
-              for (int sy = 0; sy < S; ++sy)
-                for (int sx = 0; sx < S; ++sx) {
-                  const double qx = px - 0.5 + (sx + 0.5) / S, qy = py - 0.5 + (sy + 0.5) / S;
-                  // The board point of an image point (NaN if the ray misses the front).
-                  auto board_point = [&](double x, double y, Vec3d* world) {
-                    const Vec2d n = normalised(x, y);
-                    const Vec3d d = cam.world_from_device.rotation * Vec3d(n.x(), n.y(), 1.0);
-                    const double nd = n_world.dot(d);
-                    if (!(nd < 0)) return false;  // parallel to, or the back of, the board
-                    const double t = n_world.dot(b0 - cam_centre) / nd;
-                    if (!(t > 0)) return false;
-                    *world = cam_centre + t * d;
-                    return true;
-                  };
-                  Vec3d p, px_next, py_next;
-                  if (!board_point(qx, qy, &p)) continue;
-                  const Vec3d pb = board_from_world * p;
-                  double albedo = bo.background_albedo;
-                  if (std::abs(pb.x()) <= half_w && std::abs(pb.y()) <= half_h) {
-                    albedo = bo.light_albedo;
-                    if (std::abs(pb.x()) < board.HalfWidth() &&
-                        std::abs(pb.y()) < board.HalfHeight()) {
-                      // The checker box-filtered over the subsample's footprint (its extent
-                      // along the board's axes, from the neighbouring subsamples' board points):
-                      // dark fraction = (1 + <sx> <sy>) / 2, the box filter being separable.
-                      double hx = 0, hy = 0;
-                      if (board_point(qx + 0.5 / S, qy, &px_next) &&
-                          board_point(qx, qy + 0.5 / S, &py_next)) {
-                        const Vec3d ex = board_from_world.rotation * (px_next - p);
-                        const Vec3d ey = board_from_world.rotation * (py_next - p);
-                        hx = (std::abs(ex.x()) + std::abs(ey.x())) / board.square_m;
-                        hy = (std::abs(ex.y()) + std::abs(ey.y())) / board.square_m;
-                      }
-                      const double fx = pb.x() / board.square_m + 0.5 * (board.cols - 1) + 1.0;
-                      const double fy = pb.y() / board.square_m + 0.5 * (board.rows - 1) + 1.0;
-                      const double dark =
-                          texture ? 1.0 - texture->Mean(fx, fy, hx, hy)
-                                  : 0.5 * (1.0 + BoxedSquareWave(fx, hx) * BoxedSquareWave(fy, hy));
-                      albedo = bo.light_albedo + (bo.dark_albedo - bo.light_albedo) * dark;
-                    }
-                  }
-                  amb += albedo;
-                  const Vec3d p_dev = prj_from_world * p;
-                  double uv[2];
-                  if (!prj.ProjectDevice(p_dev.data(), uv)) continue;
-                  if (uv[0] < -0.5 || uv[0] > prj.width - 0.5 || uv[1] < -0.5 ||
-                      uv[1] > prj.height - 0.5)
-                    continue;
-                  Vec3d l = prj_centre - p;
-                  const double r = l.norm();
-                  const double cos_i = n_world.dot(l) / r;
-                  if (!(cos_i > 0)) continue;
-                  any_lit = true;
-                  const double sh = albedo * cos_i * (r0 / r) * (r0 / r);
-                  const double sigma =
-                      o.blur_sigma_px + o.defocus_px_per_m * std::abs(p.z() - focus_z);
-                  for (int si = 0; si < nsets; ++si) {
-                    const double x = sets[si].axis == 'x' ? uv[0] : uv[1];
-                    // The projected sine blurred by a Gaussian (sigma) and a pixel box of the
-                    // fill factor: its amplitude times exp(-2 pi^2 s^2 / p^2) sinc(fill / p).
-                    const double pf = sets[si].period;
-                    const double arg = std::numbers::pi * o.fill_factor / pf;
-                    const double att = std::exp(-2.0 * std::numbers::pi * std::numbers::pi * sigma *
-                                                sigma / (pf * pf)) *
-                                       std::sin(arg) / arg;
-                    set_cos[si] = sh * 0.5 * att * std::cos(rate[si] * x);
-                    set_sin[si] = sh * 0.5 * att * std::sin(rate[si] * x);
-                  }
-                  for (int f = 0; f < nf; ++f) {
-                    const int si = frame_set[f];
-                    if (si >= 0)
-                      acc[f] += 0.5 * sh + set_cos[si] * cos_phase[f] - set_sin[si] * sin_phase[f];
-                    else if (si == -1)
-                      acc[f] += sh;
-                  }
-                }
-              if (any_lit) lit_pixels.fetch_add(1, std::memory_order_relaxed);
-              const size_t pix = static_cast<size_t>(py) * W + px;
-              for (int f = 0; f < nf; ++f) {
-                const double light = frame_set[f] == -2 ? 0.0 : acc[f] * inv_ss;
-                const double mean = o.exposure * (light + o.ambient * amb * inv_ss);
-                double value = rig.projector_response.kind == Response::Kind::kLinear
-                                   ? mean
-                                   : mean;  // the board is simulated with a linear projector
-                value *= gains[f];
-                if (o.noise > 0)
-                  value +=
-                      noise.Sigma(mean) *
-                      NormalOf(SplitMix((o.seed << 40) ^ (static_cast<uint64_t>(f) << 32) ^ pix));
-                const int dn = static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
-                images[f][pix] = eight_bit
-                                     ? static_cast<uint16_t>(dn)
-                                     : static_cast<uint16_t>(std::lround(dn * (65535.0 / dn_max)));
+  Progress progress("simulate board", H);
+  ParallelForRows(
+      H,
+      [&](int y0, int y1) {
+        std::vector<double> acc(nf);
+        std::vector<double> set_cos(nsets), set_sin(nsets);
+        for (int py = y0; py < y1; ++py) {
+          for (int px = 0; px < W; ++px) {
+            std::fill(acc.begin(), acc.end(), 0.0);
+            double amb = 0.0;
+            bool any_lit = false;
+            for (int sy = 0; sy < S; ++sy)
+              for (int sx = 0; sx < S; ++sx) {
+                const double qx = px - 0.5 + (sx + 0.5) / S, qy = py - 0.5 + (sy + 0.5) / S;
+                Vec3d p;
+                if (!BoardPoint(sc, qx, qy, &p)) continue;
+                const double albedo = SubsampleAlbedo(sc, qx, qy, p);
+                amb += albedo;
+                if (AddProjectedLight(sc, bf, p, albedo, &set_cos, &set_sin, &acc)) any_lit = true;
               }
+            if (any_lit) lit_pixels.fetch_add(1, std::memory_order_relaxed);
+            const size_t pix = static_cast<size_t>(py) * W + px;
+            for (int f = 0; f < nf; ++f) {
+              const double light = bf.frame_set[f] == -2 ? 0.0 : acc[f] * inv_ss;
+              const double mean = o.exposure * (light + o.ambient * amb * inv_ss);
+              double value = mean;  // the board is simulated with a linear projector
+              value *= gains[f];
+              if (o.noise > 0)
+                value +=
+                    noise.Sigma(mean) *
+                    NormalOf(SplitMix((o.seed << 40) ^ (static_cast<uint64_t>(f) << 32) ^ pix));
+              const int dn = static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
+              out.images[f][pix] =
+                  eight_bit ? static_cast<uint16_t>(dn)
+                            : static_cast<uint16_t>(std::lround(dn * (65535.0 / dn_max)));
             }
-            progress.Advance();
           }
-        },
-        8);
-    progress.Finish();
-  }
-  summary.seconds_raycast = t_ray.Seconds();
-  summary.lit_pixels = lit_pixels.load();
-  summary.rays = static_cast<int64_t>(W) * H * S * S;
+          progress.Advance();
+        }
+      },
+      8);
+  progress.Finish();
+  out.lit_pixels = lit_pixels.load();
+  return out;
+}
 
-  const Stopwatch t_frames;
+// The session folder: the frames and session.json with the uncalibrated rig, and the true rig
+// and board pose under "simulation". Written atomically.
+void WriteBoardSession(const fs::path& out_dir, const BoardScene& sc, const BoardFrames& bf,
+                       const BoardImages& im) {
+  const SimulateOptions& o = sc.o;
+  const BoardSimOptions& bo = sc.bo;
+  const int W = sc.cam.width, H = sc.cam.height, nf = static_cast<int>(bf.frames.size());
   auto fill = [&](const fs::path& dir) {
     fs::create_directories(dir / "frames");
     ParallelFor(nf, [&](int64_t f) {
-      const fs::path path = dir / frames[f].file;
-      if (!eight_bit) {
+      const fs::path path = dir / bf.frames[f].file;
+      if (!im.eight_bit) {
         ImageU16 image(W, H, 1);
-        std::copy(images[f].begin(), images[f].end(), image.channel(0));
+        std::copy(im.images[f].begin(), im.images[f].end(), image.channel(0));
         WritePng16(path, image, 1);
         return;
       }
       ImageU8 image(W, H, 1);
-      std::copy(images[f].begin(), images[f].end(), image.channel(0));
+      std::copy(im.images[f].begin(), im.images[f].end(), image.channel(0));
       WritePng8(path, image);
     });
     Session s;
     s.root = dir;
     s.created = SessionTimeNow();
-    s.object = "calibration board " + board.ToString();
-    s.rig = rig;
+    s.object = "calibration board " + sc.board.ToString();
+    s.rig = sc.rig;
     s.rig.uncalibrated = true;
     s.rig.lens_shifter.reset();
-    s.frames = frames;
+    s.frames = bf.frames;
     Session truth;
-    truth.rig = rig;
+    truth.rig = sc.rig;
     truth.rig.uncalibrated = false;
     const Json truth_json = SessionToJson(truth);
     s.extra["simulation"] = {
-        {"board", board.ToString()},
+        {"board", sc.board.ToString()},
         {"pose_deg_mm", Json(std::vector<double>(bo.pose.begin(), bo.pose.end()))},
         {"world_from_board", Json::array()},
         {"true_rig", truth_json["rig"]},
@@ -421,12 +496,39 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
         {"supersample", o.supersample},
         {"frame_format", bo.frame_format},
         {"seed", o.seed}};
-    const Mat4d m = world_from_board.Matrix();
+    const Mat4d m = sc.world_from_board.Matrix();
     for (int r = 0; r < 4; ++r)
       s.extra["simulation"]["world_from_board"].push_back({m(r, 0), m(r, 1), m(r, 2), m(r, 3)});
     WriteSessionJson(s);
   };
   WriteFolderAtomically(out_dir, fill);
+}
+
+}  // namespace
+
+SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOptions& bo,
+                              const fs::path& out_dir) {
+  const Stopwatch t_start;
+  const SimulateOptions o = BoardSimulateOptions(options, bo);
+  const Rig rig = ResolveRig(o);
+  const BoardScene scene(o, bo, rig);
+  if (scene.n_world.dot(scene.cam_centre - scene.b0) <= 0)
+    BOARD_OPTION("BoardSimOptions.pose", "the camera sees the back of the board at this pose");
+  const BoardFrames frames = PlanBoardFrames(o, bo);
+
+  SimulateSummary summary;
+  summary.width = rig.camera.width;
+  summary.height = rig.camera.height;
+  summary.frames = static_cast<int>(frames.frames.size());
+  const Stopwatch t_ray;
+  const BoardImages images = RayCastBoard(scene, frames);
+  summary.seconds_raycast = t_ray.Seconds();
+  summary.lit_pixels = images.lit_pixels;
+  summary.rays =
+      static_cast<int64_t>(summary.width) * summary.height * o.supersample * o.supersample;
+
+  const Stopwatch t_frames;
+  WriteBoardSession(out_dir, scene, frames, images);
   summary.seconds_frames = t_frames.Seconds();
   summary.seconds_total = t_start.Seconds();
   return summary;
