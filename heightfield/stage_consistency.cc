@@ -244,86 +244,152 @@ Json ConsistencyReport::ToJson() const {
           {"period_phase_excess", period_phase_excess}};
 }
 
-ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Session& session,
-                                        const PhaseShiftPixels& ps, const LensShiftPixels& ls,
-                                        const ConsistencyOptions& options, CombinedPixels* combined,
-                                        PixelStates* state_out) {
-  ConsistencyReport report;
-  const int nper = static_cast<int>(plan.periods.size());
-  report.period_inconsistent_fraction.assign(nper, 0.0);
-  report.period_phase_rms_rad.assign(nper, 0.0);
-  if (!options.enabled || nper == 0 || static_cast<int>(ps.theta.size()) != nper) return report;
-  PixelStates& state = *state_out;
-  const size_t np = state.size();
-  const bool use_ls = !ls.empty();
-  const int params = options.four_parameter_fit ? 4 : 3;
-  const LevelNoise noise(ps, ls, params);
-  report.noise_model = !noise.empty();
-  std::vector<WrappedPhaseSolver> solvers;
-  for (const auto& p : plan.periods) solvers.emplace_back(p.deltas);
-  const std::vector<Rival> rivals = RivalColumns(plan);
-  const std::vector<double> period_list = plan.PeriodList();
-  const double finest_period =
-      period_list.empty() ? 0.0 : *std::min_element(period_list.begin(), period_list.end());
-  const double min_rival_d2 = std::pow(2 * options.min_order_margin_sigma, 2);
-  double rivals_min_norm2 = std::numeric_limits<double>::infinity();
-  for (const Rival& r : rivals) {
-    double n2 = 0;
-    for (const double v : r.diff) n2 += v * v;
-    rivals_min_norm2 = std::min(rivals_min_norm2, n2);
-  }
-  const double sys2 = std::pow(options.systematic_phase_noise, 2);
-  const double max_coarse_sigma_px = 1.0 / options.min_order_margin_sigma;
-  const double tz = options.max_phase_z;
-  std::vector<double> rate(nper);
-  for (int p = 0; p < nper; ++p) rate[p] = 2 * kPi / plan.periods[p].period;
-  // The predicted phase variance checked against the phases themselves, on the lens-shift
-  // pixels (whose column is precise): median over pixels of d^2 / var is 0.455 for an honest
-  // prediction (chi^2, one degree of freedom). Where the prediction is too large (the median
-  // over periods), every predicted variance is scaled down to match: the noise model and the
-  // systematic term are upper bounds (and lens-shift frames out of order raise their fit
-  // residuals, not the sine frames' noise); a coarse column 1.6x less precise than predicted
-  // failed the stripes' test at 93 % of a plane's pixels whose points were at the Cramer-Rao
-  // floor. Never up: where the phases disagree more than predicted, the wrong columns
-  // of a mislabelled set would set the scale; the contradiction verdict below speaks for them.
-  double var_scale = 1.0;
-  if (use_ls) {
-    std::vector<std::vector<float>> q(nper);
-    const size_t stride = std::max<size_t>(1, np / 20000);
-    for (size_t i = 0; i < np; i += stride) {
-      const double u = combined->u[i];
-      if (state[i] != PixelState::kActive || !std::isfinite(u) || combined->source[i] != 0)
-        continue;
-      const double sigma =
-          std::max(CombineSigma(plan, ps, ls, true, params, i), noise.At(ps.level[i]));
-      for (int p = 0; p < nper; ++p) {
-        const double v = solvers[p].ThetaVariance(sigma, ps.modulation[p][i]) + sys2;
-        const double d = WrapPi(ps.theta[p][i] - rate[p] * u);
-        if (std::isfinite(d) && v > 0) q[p].push_back(static_cast<float>(d * d / v));
-      }
-    }
-    std::vector<double> ratio;
-    for (int p = 0; p < nper; ++p) {
-      if (q[p].size() < 200) continue;
-      std::nth_element(q[p].begin(), q[p].begin() + q[p].size() / 2, q[p].end());
-      ratio.push_back(q[p][q[p].size() / 2] / 0.455);
-    }
-    if (!ratio.empty()) {
-      std::nth_element(ratio.begin(), ratio.begin() + ratio.size() / 2, ratio.end());
-      const double r = ratio[ratio.size() / 2];
-      if (r < 1) var_scale = std::max(r, 1.0 / 256);
-    }
-  }
-  report.noise_scale = std::sqrt(var_scale);
+namespace {
 
-  constexpr int kBlock = 4096;
-  const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
+// The fixed quantities of the per-pixel tests: the periods' solvers and rates, the rival
+// columns, and the options' thresholds.
+struct PhaseTests {
+  PhaseTests(const ReconstructPlan& plan, const ConsistencyOptions& options)
+      : nper(static_cast<int>(plan.periods.size())),
+        rivals(RivalColumns(plan)),
+        period_list(plan.PeriodList()),
+        finest_period(
+            period_list.empty() ? 0.0 : *std::min_element(period_list.begin(), period_list.end())),
+        min_rival_d2(std::pow(2 * options.min_order_margin_sigma, 2)),
+        sys2(std::pow(options.systematic_phase_noise, 2)),
+        max_coarse_sigma_px(1.0 / options.min_order_margin_sigma),
+        tz(options.max_phase_z) {
+    for (const auto& p : plan.periods) solvers.emplace_back(p.deltas);
+    for (const Rival& r : rivals) {
+      double n2 = 0;
+      for (const double v : r.diff) n2 += v * v;
+      rivals_min_norm2 = std::min(rivals_min_norm2, n2);
+    }
+    rate.resize(nper);
+    for (int p = 0; p < nper; ++p) rate[p] = 2 * kPi / plan.periods[p].period;
+  }
+  int nper;
+  std::vector<WrappedPhaseSolver> solvers;
+  std::vector<Rival> rivals;
+  std::vector<double> period_list;
+  double finest_period;
+  double min_rival_d2;
+  double rivals_min_norm2 = std::numeric_limits<double>::infinity();
+  double sys2;
+  double max_coarse_sigma_px;
+  double tz;
+  std::vector<double> rate;
+};
+
+// The predicted phase variance checked against the phases themselves, on the lens-shift
+// pixels (whose column is precise): median over pixels of d^2 / var is 0.455 for an honest
+// prediction (chi^2, one degree of freedom). Where the prediction is too large (the median
+// over periods), every predicted variance is scaled down to match: the noise model and the
+// systematic term are upper bounds (and lens-shift frames out of order raise their fit
+// residuals, not the sine frames' noise); a coarse column 1.6x less precise than predicted
+// failed the stripes' test at 93 % of a plane's pixels whose points were at the Cramer-Rao
+// floor. Never up: where the phases disagree more than predicted, the wrong columns
+// of a mislabelled set would set the scale; the contradiction verdict below speaks for them.
+double PhaseVarianceScale(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                          const LensShiftPixels& ls, const LevelNoise& noise, int params,
+                          const PhaseTests& t, const CombinedPixels& combined,
+                          const PixelStates& state) {
+  const int nper = t.nper;
+  const size_t np = state.size();
+  double var_scale = 1.0;
+  std::vector<std::vector<float>> q(nper);
+  const size_t stride = std::max<size_t>(1, np / 20000);
+  for (size_t i = 0; i < np; i += stride) {
+    const double u = combined.u[i];
+    if (state[i] != PixelState::kActive || !std::isfinite(u) || combined.source[i] != 0) continue;
+    const double sigma =
+        std::max(CombineSigma(plan, ps, ls, true, params, i), noise.At(ps.level[i]));
+    for (int p = 0; p < nper; ++p) {
+      const double v = t.solvers[p].ThetaVariance(sigma, ps.modulation[p][i]) + t.sys2;
+      const double d = WrapPi(ps.theta[p][i] - t.rate[p] * u);
+      if (std::isfinite(d) && v > 0) q[p].push_back(static_cast<float>(d * d / v));
+    }
+  }
+  std::vector<double> ratio;
+  for (int p = 0; p < nper; ++p) {
+    if (q[p].size() < 200) continue;
+    std::nth_element(q[p].begin(), q[p].begin() + q[p].size() / 2, q[p].end());
+    ratio.push_back(q[p][q[p].size() / 2] / 0.455);
+  }
+  if (!ratio.empty()) {
+    std::nth_element(ratio.begin(), ratio.begin() + ratio.size() / 2, ratio.end());
+    const double r = ratio[ratio.size() / 2];
+    if (r < 1) var_scale = std::max(r, 1.0 / 256);
+  }
+  return var_scale;
+}
+
+// The nearest wrong fringe order of a pixel at column u, in its own phase noise (var per
+// period, var_max their largest): unsure unless at least twice the margin away (a wrong order
+// needs an error of half that distance). Only offsets that stay within the projector count: up
+// to the farther edge, where the code distance is checked too (the range's end, approached by
+// the edge columns).
+bool FringeOrderUnsure(const ReconstructPlan& plan, const PhaseTests& t, double u,
+                       const std::vector<double>& var, double var_max) {
+  if (t.rivals.empty()) return false;
+  const int nper = t.nper;
+  bool order_unsure = false;
+  const double reach = std::max(u, plan.projector_width - u);
+  const auto too_close = [&](const std::vector<double>& r) {
+    double d2 = 0;
+    for (int p = 0; p < nper; ++p) d2 += r[p] * r[p] / var[p];
+    return !(d2 >= t.min_rival_d2);
+  };
+  if (!(t.rivals_min_norm2 / var_max >= t.min_rival_d2))
+    for (const Rival& r : t.rivals)
+      if (r.offset <= reach && too_close(r.diff)) {
+        order_unsure = true;
+        break;
+      }
+  if (!order_unsure && reach >= t.finest_period / 2 && reach < plan.projector_width) {
+    double d2 = 0;
+    for (int p = 0; p < nper; ++p) {
+      const double c = reach / t.period_list[p];
+      d2 += std::pow(2 * kPi * (c - std::round(c)), 2) / var[p];
+    }
+    order_unsure = !(d2 >= t.min_rival_d2);
+  }
+  return order_unsure;
+}
+
+// The counts of the per-pixel tests (summed over the pixels, per period where so named).
+struct PixelTally {
+  explicit PixelTally(int nper)
+      : period_bad(nper, 0),
+        period_worst(nper, 0),
+        period_d2(nper, 0.0),
+        period_var(nper, 0.0),
+        period_n(nper, 0) {}
   int64_t tested = 0, inconsistent = 0, ambiguous = 0, stripes = 0;
-  std::vector<int64_t> period_bad(nper, 0), period_worst(nper, 0);
-  std::vector<double> period_d2(nper, 0.0), period_var(nper, 0.0);
-  std::vector<int64_t> period_n(nper, 0);
+  std::vector<int64_t> period_bad, period_worst;
+  std::vector<double> period_d2, period_var;
+  std::vector<int64_t> period_n;
   int64_t failed_before = 0;  // kUnwrapFailed or kCombination: the combine stage's contradictions
   int64_t explained_before = 0;  // kCombination where the coarse column cannot fix the period
+};
+
+// Every decoded pixel tested: its phases against its column (kInconsistent beyond max_phase_z),
+// its fringe order and stripes' period against the noise (kAmbiguous); pixels that fail lose
+// their column and confidence, phase-shift-only pixels get their sigma with the measured noise.
+PixelTally TestPixels(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                      const LensShiftPixels& ls, const LevelNoise& noise, int params,
+                      const PhaseTests& t, double var_scale, CombinedPixels* combined,
+                      PixelStates* state_out) {
+  PixelStates& state = *state_out;
+  const int nper = t.nper;
+  const size_t np = state.size();
+  const bool use_ls = !ls.empty();
+  const std::vector<double>& rate = t.rate;
+  const std::vector<WrappedPhaseSolver>& solvers = t.solvers;
+  const double sys2 = t.sys2, tz = t.tz, max_coarse_sigma_px = t.max_coarse_sigma_px;
+  constexpr int kBlock = 4096;
+  const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
+  PixelTally total(nper);
   std::mutex mutex;
   ParallelForRows(blocks, [&](int b0, int b1) {
     int64_t t_n = 0, i_n = 0, a_n = 0, s_n = 0;
@@ -379,33 +445,7 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
           ++n_good[p];
         }
       }
-      // The nearest wrong fringe order, in the pixel's own phase noise: at least twice the
-      // margin away (a wrong order needs an error of half that distance).
-      // Only offsets that stay within the projector count: up to the farther edge, where the
-      // code distance is checked too (the range's end, approached by the edge columns).
-      bool order_unsure = false;
-      if (!rivals.empty()) {
-        const double reach = std::max(u, plan.projector_width - u);
-        const auto too_close = [&](const std::vector<double>& r) {
-          double d2 = 0;
-          for (int p = 0; p < nper; ++p) d2 += r[p] * r[p] / var[p];
-          return !(d2 >= min_rival_d2);
-        };
-        if (!(rivals_min_norm2 / var_max >= min_rival_d2))
-          for (const Rival& r : rivals)
-            if (r.offset <= reach && too_close(r.diff)) {
-              order_unsure = true;
-              break;
-            }
-        if (!order_unsure && reach >= finest_period / 2 && reach < plan.projector_width) {
-          double d2 = 0;
-          for (int p = 0; p < nper; ++p) {
-            const double c = reach / period_list[p];
-            d2 += std::pow(2 * kPi * (c - std::round(c)), 2) / var[p];
-          }
-          order_unsure = !(d2 >= min_rival_d2);
-        }
-      }
+      const bool order_unsure = FringeOrderUnsure(plan, t, u, var, var_max);
       const bool stripes_unsure = ls_pixel && !(coarse_sigma_px <= max_coarse_sigma_px);
       if (reject_inconsistent) {
         state[i] = PixelState::kInconsistent;
@@ -431,87 +471,128 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
       }
     }
     std::lock_guard<std::mutex> lock(mutex);
-    tested += t_n, inconsistent += i_n, ambiguous += a_n, stripes += s_n, failed_before += f_n;
-    explained_before += x_n;
+    total.tested += t_n, total.inconsistent += i_n, total.ambiguous += a_n, total.stripes += s_n,
+        total.failed_before += f_n;
+    total.explained_before += x_n;
     for (int p = 0; p < nper; ++p) {
-      period_bad[p] += bad[p], period_worst[p] += worst[p];
-      period_d2[p] += d2[p], period_var[p] += v2[p], period_n[p] += n_good[p];
+      total.period_bad[p] += bad[p], total.period_worst[p] += worst[p];
+      total.period_d2[p] += d2[p], total.period_var[p] += v2[p], total.period_n[p] += n_good[p];
     }
   });
-  report.tested = tested;
-  report.inconsistent = inconsistent;
-  report.ambiguous = ambiguous;
-  report.ambiguous_stripes = stripes;
-  report.decoded = tested + failed_before + explained_before;
-  report.contradicted_fraction =
-      report.decoded ? static_cast<double>(failed_before + inconsistent) / report.decoded : 0.0;
-  report.period_phase_excess.assign(nper, 0.0);
+  return total;
+}
+
+void Summarise(const PixelTally& t, int nper, ConsistencyReport* report) {
+  report->tested = t.tested;
+  report->inconsistent = t.inconsistent;
+  report->ambiguous = t.ambiguous;
+  report->ambiguous_stripes = t.stripes;
+  report->decoded = t.tested + t.failed_before + t.explained_before;
+  report->contradicted_fraction =
+      report->decoded ? static_cast<double>(t.failed_before + t.inconsistent) / report->decoded
+                      : 0.0;
+  report->period_phase_excess.assign(nper, 0.0);
   for (int p = 0; p < nper; ++p) {
-    report.period_inconsistent_fraction[p] =
-        report.tested ? static_cast<double>(period_bad[p]) / report.tested : 0.0;
-    report.period_phase_rms_rad[p] = period_n[p] ? std::sqrt(period_d2[p] / period_n[p]) : 0.0;
-    report.period_phase_excess[p] =
-        period_n[p] ? std::sqrt(period_d2[p] / std::max(1e-300, period_var[p])) : 0.0;
+    report->period_inconsistent_fraction[p] =
+        report->tested ? static_cast<double>(t.period_bad[p]) / report->tested : 0.0;
+    report->period_phase_rms_rad[p] =
+        t.period_n[p] ? std::sqrt(t.period_d2[p] / t.period_n[p]) : 0.0;
+    report->period_phase_excess[p] =
+        t.period_n[p] ? std::sqrt(t.period_d2[p] / std::max(1e-300, t.period_var[p])) : 0.0;
   }
+}
+
+// A capture whose phases contradict each other at most pixels is refused: named by the periods
+// whose phases stand out (their error, over the pixels that passed, several times their noise
+// and the other periods'), else the sine and lens-shift frames as a whole (too noisy for their
+// code, or not the frames described). Left alone, such a capture keeps the pixels where a wrong
+// column happens to fit every period.
+void RefuseContradictedCapture(const ReconstructPlan& plan, const Session& session,
+                               const PhaseShiftPixels& ps, const LensShiftPixels& ls,
+                               const LevelNoise& noise, int params, const PhaseTests& t,
+                               double var_scale, const PixelTally& tally,
+                               const ConsistencyReport& report, const CombinedPixels& combined) {
+  const int nper = t.nper;
+  std::vector<int> named;
+  bool blame_stripes = false;
+  const std::vector<double> pair = StripePairFailures(plan, ps, ls, combined.ls_offset_px, noise,
+                                                      params, t.solvers, t.sys2, var_scale);
+  if (!pair.empty()) {
+    // Each short period against the stripes alone (independent of the unwrapping): a period
+    // that contradicts them at many pixels is named; every period alike: the stripes.
+    int informative = 0, failing = 0;
+    for (int p = 0; p < nper; ++p) {
+      if (!(pair[p] >= 0)) continue;
+      ++informative;
+      if (pair[p] > 0.1) {
+        named.push_back(p);
+        ++failing;
+      }
+    }
+    if (informative > 1 && failing == informative) {
+      named.clear();
+      blame_stripes = true;
+    }
+  } else {
+    double least = std::numeric_limits<double>::infinity();
+    for (int p = 0; p < nper; ++p)
+      if (tally.period_n[p] > 0) least = std::min(least, report.period_phase_excess[p]);
+    for (int p = 0; p < nper; ++p)
+      if (nper > 1 && tally.period_n[p] >= 20 && report.period_phase_excess[p] > 2.0 &&
+          report.period_phase_excess[p] > 2.0 * least)
+        named.push_back(p);
+  }
+  std::ostringstream o;
+  const int pct = static_cast<int>(std::lround(100 * report.contradicted_fraction));
+  if (blame_stripes) {
+    o << FrameList(session, plan, plan.ls_stack) << ": the lens-shift frames contradict every "
+      << "sine period at " << pct << "% of the decoded pixels (frames swapped, mislabelled in "
+      << "session.json, or of another capture?)";
+  } else if (!named.empty()) {
+    for (size_t k = 0; k < named.size(); ++k) {
+      const PhasePeriod& pp = plan.periods[named[k]];
+      o << (k ? "; " : "") << FrameList(session, plan, pp.stack_frames) << " (sine period "
+        << pp.period << " px)";
+    }
+    o << ": " << (named.size() > 1 ? "their phases contradict" : "its phases contradict")
+      << " the other frames at " << pct << "% of the decoded pixels (frames swapped, copied, "
+      << "mislabelled in session.json, in other units or of another capture?)";
+  } else {
+    o << "the sine" << (!ls.empty() ? " and lens-shift" : "") << " frames contradict each other at "
+      << pct << "% of the decoded pixels: too dark or noisy for their code, or not the frames "
+      << "session.json describes";
+  }
+  MESOSCAN_BAD_INPUT_AT(ErrorSite::File(session.root / "session.json"), o.str());
+}
+
+}  // namespace
+
+ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Session& session,
+                                        const PhaseShiftPixels& ps, const LensShiftPixels& ls,
+                                        const ConsistencyOptions& options, CombinedPixels* combined,
+                                        PixelStates* state_out) {
+  ConsistencyReport report;
+  const int nper = static_cast<int>(plan.periods.size());
+  report.period_inconsistent_fraction.assign(nper, 0.0);
+  report.period_phase_rms_rad.assign(nper, 0.0);
+  if (!options.enabled || nper == 0 || static_cast<int>(ps.theta.size()) != nper) return report;
+  const int params = options.four_parameter_fit ? 4 : 3;
+  const LevelNoise noise(ps, ls, params);
+  report.noise_model = !noise.empty();
+  const PhaseTests tests(plan, options);
+  const double var_scale =
+      ls.empty() ? 1.0
+                 : PhaseVarianceScale(plan, ps, ls, noise, params, tests, *combined, *state_out);
+  report.noise_scale = std::sqrt(var_scale);
+  const PixelTally tally =
+      TestPixels(plan, ps, ls, noise, params, tests, var_scale, combined, state_out);
+  Summarise(tally, nper, &report);
   // The verdict. Where the frames are what session.json says, the periods and the stripes agree
-  // within their noise at nearly every pixel. A capture whose phases contradict each other at
-  // most pixels is refused: named by the periods whose phases stand out (their error, over the
-  // pixels that passed, several times their noise and the other periods'), else the sine and
-  // lens-shift frames as a whole (too noisy for their code, or not the frames described). Left
-  // alone, such a capture keeps the pixels where a wrong column happens to fit every period.
+  // within their noise at nearly every pixel.
   if (report.decoded >= options.min_pixels_for_verdict &&
-      report.contradicted_fraction > options.max_inconsistent_fraction) {
-    std::vector<int> named;
-    bool blame_stripes = false;
-    const std::vector<double> pair = StripePairFailures(plan, ps, ls, combined->ls_offset_px, noise,
-                                                        params, solvers, sys2, var_scale);
-    if (!pair.empty()) {
-      // Each short period against the stripes alone (independent of the unwrapping): a period
-      // that contradicts them at many pixels is named; every period alike: the stripes.
-      int informative = 0, failing = 0;
-      for (int p = 0; p < nper; ++p) {
-        if (!(pair[p] >= 0)) continue;
-        ++informative;
-        if (pair[p] > 0.1) {
-          named.push_back(p);
-          ++failing;
-        }
-      }
-      if (informative > 1 && failing == informative) {
-        named.clear();
-        blame_stripes = true;
-      }
-    } else {
-      double least = std::numeric_limits<double>::infinity();
-      for (int p = 0; p < nper; ++p)
-        if (period_n[p] > 0) least = std::min(least, report.period_phase_excess[p]);
-      for (int p = 0; p < nper; ++p)
-        if (nper > 1 && period_n[p] >= 20 && report.period_phase_excess[p] > 2.0 &&
-            report.period_phase_excess[p] > 2.0 * least)
-          named.push_back(p);
-    }
-    std::ostringstream o;
-    const int pct = static_cast<int>(std::lround(100 * report.contradicted_fraction));
-    if (blame_stripes) {
-      o << FrameList(session, plan, plan.ls_stack) << ": the lens-shift frames contradict every "
-        << "sine period at " << pct << "% of the decoded pixels (frames swapped, mislabelled in "
-        << "session.json, or of another capture?)";
-    } else if (!named.empty()) {
-      for (size_t k = 0; k < named.size(); ++k) {
-        const PhasePeriod& pp = plan.periods[named[k]];
-        o << (k ? "; " : "") << FrameList(session, plan, pp.stack_frames) << " (sine period "
-          << pp.period << " px)";
-      }
-      o << ": " << (named.size() > 1 ? "their phases contradict" : "its phases contradict")
-        << " the other frames at " << pct << "% of the decoded pixels (frames swapped, copied, "
-        << "mislabelled in session.json, in other units or of another capture?)";
-    } else {
-      o << "the sine" << (use_ls ? " and lens-shift" : "") << " frames contradict each other at "
-        << pct << "% of the decoded pixels: too dark or noisy for their code, or not the frames "
-        << "session.json describes";
-    }
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(session.root / "session.json"), o.str());
-  }
+      report.contradicted_fraction > options.max_inconsistent_fraction)
+    RefuseContradictedCapture(plan, session, ps, ls, noise, params, tests, var_scale, tally, report,
+                              *combined);
   MESOSCAN_LOG(kDebug) << "consistency: " << report.ToJson().dump();
   return report;
 }
