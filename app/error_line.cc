@@ -28,6 +28,8 @@ constexpr OptionFlag kOptionFlags[] = {
     {"SimulateOptions.rig", "", "--rig"},
     {"SimulateOptions.crop", "", "--crop"},
     {"SimulateOptions.axis", "", "--axis"},
+    {"SimulateOptions.graycode_bits", "", "--patterns"},
+    {"SimulateOptions.graycode_block_px", "", "--patterns"},
     {"SimulateOptions.ps_periods_px", "", "--ps-periods"},
     {"SimulateOptions.ps_phases", "", "--ps-phases"},
     {"SimulateOptions.ls_frames", "", "--ls-frames"},

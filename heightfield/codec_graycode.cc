@@ -14,18 +14,11 @@
 namespace mesoscan {
 
 void GrayCodeOptions::Check() const {
-  if (!(min_bit_snr > 0))
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("GrayCodeOptions.min_bit_snr"),
-                          "expected > 0, got " << min_bit_snr);
-  if (!(full_bit_snr > min_bit_snr))
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("GrayCodeOptions.full_bit_snr"),
-                          "expected > min_bit_snr, got " << full_bit_snr);
-  if (!(min_bit_contrast >= 0 && min_bit_contrast < 1))
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("GrayCodeOptions.min_bit_contrast"),
-                          "expected a value in [0, 1), got " << min_bit_contrast);
-  if (!(min_noise >= 0 && min_noise < 1))
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("GrayCodeOptions.min_noise"),
-                          "expected a value in [0, 1), got " << min_noise);
+  // Not command-line options: a bad value is a caller's bug.
+  MESOSCAN_CHECK(min_bit_snr > 0);
+  MESOSCAN_CHECK(full_bit_snr > min_bit_snr);
+  MESOSCAN_CHECK(min_bit_contrast >= 0 && min_bit_contrast < 1);
+  MESOSCAN_CHECK(min_noise >= 0 && min_noise < 1);
 }
 
 namespace {
