@@ -701,241 +701,286 @@ UnwrapResult TemporalUnwrapper::UnwrapAt(const double* theta, const double* weig
 // UnwrapMany's lanes: Unwrap()'s steps for the common case (three periods, residual tables, the
 // best two among the smallest table entries), every step a loop over four pixels (the compiler
 // makes them vector operations), per lane the same operations in the same order as Unwrap().
-// done[l] is false where lane l left the common case (Unwrap() then decides).
+// ok[l] turns false where lane l leaves the common case (Unwrap() then decides). The steps are
+// inlined into UnwrapFour's clones (always_inline: each clone compiles them for its own ISA).
+class TemporalUnwrapper::FourPixels {
+ public:
+  static constexpr int kL = 4;
+  static constexpr int kM = 3;
+  static constexpr double kMagic = 6755399441055744.0;  // RoundNearest's
+  static constexpr double kRoundLimit = 2251799813685248.0;
+
+  explicit FourPixels(const TemporalUnwrapper& u) : u_(u) {}
+
+  // Unwrap()'s input checks, wrapped phases in cycles and weights in px^-2.
+  __attribute__((always_inline)) void Load(const double* theta, const double* weight) {
+    for (int l = 0; l < kL; ++l) {
+      bool good = true;
+      for (int i = 0; i < kM; ++i) {
+        const double th = theta[l * kM + i], w = weight[l * kM + i];
+        good &= std::isfinite(th) & (w > 0.0) & std::isfinite(w);
+      }
+      ok_[l] = good;
+    }
+    for (int i = 0; i < kM; ++i) {
+      const double g = u_.phase_rate_[i];
+      for (int l = 0; l < kL; ++l) {
+        const double c = theta[l * kM + i] / kTwoPi;
+        t_[i][l] = c - std::floor(c);
+        w_px_[i][l] = weight[l * kM + i] * g * g;
+      }
+    }
+  }
+
+  // Unwrap() step 1's variances and the anchor's candidate orders [k_first, k_first + nk).
+  __attribute__((always_inline)) void CandidateOrders() {
+    const int a = u_.anchor_;
+    const double pa = u_.periods_[a];
+    for (int l = 0; l < kL; ++l) var_a_px_[l] = 1.0 / w_px_[a][l];
+    for (int i = 0; i < kM; ++i) {
+      if (i == a) continue;
+      for (int l = 0; l < kL; ++l) {
+        const double var_i_px = 1.0 / w_px_[i][l];
+        inv_var_[i][l] = u_.periods_[i] * u_.periods_[i] / (var_i_px + var_a_px_[l]);
+      }
+    }
+    for (int l = 0; l < kL; ++l) {
+      k_first_[l] = 0, nk_[l] = 0;
+      if (!ok_[l]) continue;
+      const double ta = t_[a][l];
+      const double margin = 0.5 + 6.0 * std::sqrt(var_a_px_[l]);
+      if (!(margin <= u_.range_px_)) {  // Unwrap() returns it invalid
+        ok_[l] = false;
+        continue;
+      }
+      auto inside = [&](int k) {
+        const double u = pa * (ta + k);
+        return !(u < -0.5 - margin || u >= u_.range_px_ - 0.5 + margin);
+      };
+      int kf = static_cast<int>(std::floor((-0.5 - margin) / pa));
+      int kl = static_cast<int>(std::floor((u_.range_px_ - 0.5 + margin) / pa));
+      while (kf <= kl && !inside(kf)) ++kf;
+      while (kl >= kf && !inside(kl)) --kl;
+      ok_[l] = kf <= kl && kl - kf < u_.table_candidates_;
+      if (ok_[l]) k_first_[l] = kf, nk_[l] = kl - kf + 1;
+    }
+  }
+
+  // The residual tables of the two other periods; a NaN entry in either: Unwrap() decides.
+  __attribute__((always_inline)) void ResidualTables() {
+    const int a = u_.anchor_;
+    const double pa = u_.periods_[a];
+    for (int i = 0; i < kM; ++i) {
+      if (i == a) continue;
+      const double ip = u_.inv_periods_[i];
+      for (int j = 0; j < u_.cycle_[i]; ++j)
+        for (int l = 0; l < kL; ++l) {
+          const double r = WrapCyclesSmall(pa * (t_[a][l] + (k_first_[l] + j)) * ip - t_[i][l]);
+          table_[i][j][l] = r * r * inv_var_[i][l];
+        }
+    }
+    // (lanes in one vector: v != v)
+    V4l nan = {0, 0, 0, 0};
+    for (int i : {u_.pair_[0], u_.pair_[1]})
+      for (int j = 0; j < u_.cycle_[i]; ++j) {
+        V4d v;
+        __builtin_memcpy(&v, table_[i][j], sizeof(v));
+        nan |= v != v;
+      }
+    for (int l = 0; l < kL; ++l) ok_[l] &= nan[l] == 0;
+  }
+
+  // The best two candidate orders per lane: the four smallest entries of each table, then
+  // Unwrap()'s comparisons over their 16 pairs as selects; a lane whose second best is not below
+  // every sum outside them leaves the common case.
+  __attribute__((always_inline)) void BestTwoOrders() {
+    const int ia = u_.pair_[0], ib = u_.pair_[1];
+    const int qa = u_.cycle_[ia], qb = u_.cycle_[ib];
+    // SmallestFourInsert per lane: slot k takes x if x < slot k (or the slot is still empty, k >=
+    // j), after shifting up when slot k - 1 took it. Four sorted slots per lane, in GCC vectors
+    // across the lanes (V4d from SmallestFour).
+    auto insert = [&](const double* xp, int j, V4d* sv, V4l* id) {
+      V4d x;
+      __builtin_memcpy(&x, xp, sizeof(x));
+      const V4l jv = {j, j, j, j};
+      V4l m[4];
+      for (int k = 0; k < 4; ++k) m[k] = (x < sv[k]) | (k >= j ? V4l{-1, -1, -1, -1} : V4l{});
+      for (int k = 3; k >= 1; --k) {
+        sv[k] = m[k - 1] ? sv[k - 1] : (m[k] ? x : sv[k]);
+        id[k] = m[k - 1] ? id[k - 1] : (m[k] ? jv : id[k]);
+      }
+      sv[0] = m[0] ? x : sv[0];
+      id[0] = m[0] ? jv : id[0];
+    };
+    // The slots' starting contents never reach a result (slot k takes x at every j <= k, and
+    // both tables have >= 4 entries): +inf and index 1, which the compiler writes with vector
+    // stores (zeros became two `rep stos`, ~4 % of this function's time).
+    const double inf_slot = std::numeric_limits<double>::infinity();
+    const V4d e = {inf_slot, inf_slot, inf_slot, inf_slot};
+    const V4l e_id = {1, 1, 1, 1};
+    V4d sva[4] = {e, e, e, e}, svb[4] = {e, e, e, e};
+    V4l ida[4] = {e_id, e_id, e_id, e_id}, idb[4] = {e_id, e_id, e_id, e_id};
+    for (int j = 0; j < qa || j < qb; ++j) {
+      if (j < qa) insert(table_[ia][j], j, sva, ida);
+      if (j < qb) insert(table_[ib][j], j, svb, idb);
+    }
+    // The best two of the 16 pairs of slots per lane (a slot's value is the table entry at its
+    // index, so the score is the sum of the two slots).
+    const V4l nk_v = {nk_[0], nk_[1], nk_[2], nk_[3]};
+    const double inf = std::numeric_limits<double>::infinity();
+    V4d s0 = {inf, inf, inf, inf}, s1 = s0;
+    V4l r0 = {-1, -1, -1, -1}, r1 = r0;
+    const int* crt = u_.crt_.data();
+    for (int x = 0; x < 4; ++x)
+      for (int y = 0; y < 4; ++y) {
+        const V4l r = {crt[ida[x][0] * qb + idb[y][0]], crt[ida[x][1] * qb + idb[y][1]],
+                       crt[ida[x][2] * qb + idb[y][2]], crt[ida[x][3] * qb + idb[y][3]]};
+        const V4d sc = (0.0 + sva[x]) + svb[y];
+        const V4l in = r < nk_v;
+        const V4l first = in & ((sc < s0) | ((sc == s0) & (r < r0)));
+        const V4l second = in & ~first & ((sc < s1) | ((sc == s1) & (r < r1)));
+        s1 = first ? s0 : (second ? sc : s1);
+        r1 = first ? r0 : (second ? r : r1);
+        s0 = first ? sc : s0;
+        r0 = first ? r : r0;
+      }
+    const V4d bound_a = sva[3] + svb[0], bound_b = sva[0] + svb[3];
+    const V4d bound = bound_b < bound_a ? bound_b : bound_a;  // std::min(bound_a, bound_b)
+    const V4l pair_ok = (r1 >= 0) & (s1 < bound);
+    for (int l = 0; l < kL; ++l) {
+      ok_[l] &= pair_ok[l] != 0;
+      best_k_[0][l] = k_first_[l] + static_cast<int>(r0[l]);
+      best_k_[1][l] = k_first_[l] + static_cast<int>(r1[l]);
+    }
+    for (int l = 0; l < kL; ++l)
+      if (!ok_[l]) best_k_[0][l] = best_k_[1][l] = 0;
+  }
+
+  // Unwrap() step 2 for both candidates together (fringe_order's fast path; a lane where the
+  // exact quotient would decide leaves the common case), then its last pass: u_f_, chi2_f_.
+  __attribute__((always_inline)) void Refine() {
+    double inv_prefix_w[kM][kL];
+    {
+      double sw[kL] = {};
+      for (int o = 0; o < kM; ++o)
+        for (int l = 0; l < kL; ++l) {
+          sw[l] += w_px_[u_.order_[o]][l];
+          inv_prefix_w[o][l] = 1.0 / sw[l];
+        }
+    }
+    // The lanes in GCC vectors (the same operations per lane; |.| by clearing the sign bit).
+    // (Results through pointers: a lambda returning a 32-byte vector has another ABI in the
+    // baseline clone.)
+    auto load = [](const double* p, V4d* v) { __builtin_memcpy(v, p, sizeof(*v)); };
+    auto vabs = [](const V4d& v, V4d* out) {
+      V4l b;
+      __builtin_memcpy(&b, &v, sizeof(b));
+      b &= V4l{0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL,
+               0x7fffffffffffffffLL};
+      __builtin_memcpy(out, &b, sizeof(*out));
+    };
+    const std::vector<double>& periods = u_.periods_;
+    const std::vector<double>& inv_periods = u_.inv_periods_;
+    V4d tv[kM], wv[kM];
+    for (int i = 0; i < kM; ++i) load(t_[i], &tv[i]), load(w_px_[i], &wv[i]);
+    V4l exact = {-1, -1, -1, -1};
+    auto fringe_order = [&](const V4d& u_approx, int i, V4d* n) {
+      const V4d x = u_approx * inv_periods[i] - tv[i];
+      *n = (x + kMagic) - kMagic;
+      V4d ax, ad;
+      vabs(x, &ax);
+      vabs(x - *n, &ad);
+      vabs(ad - 0.5, &ad);
+      exact &= (ax < kRoundLimit) & (ad > 1e-9 * (1.0 + ax));
+    };
+    const int a = u_.anchor_;
+    const double pa = periods[a];
+    V4d u_c[2], swu_c[2];
+    for (int c = 0; c < 2; ++c) {
+      for (int l = 0; l < kL; ++l) u_c[c][l] = pa * (t_[a][l] + best_k_[c][l]);
+      swu_c[c] = V4d{0.0, 0.0, 0.0, 0.0};
+    }
+    for (int o = 0; o < kM; ++o) {
+      const int i = u_.order_[o];
+      V4d inv_w;
+      load(inv_prefix_w[o], &inv_w);
+      for (int c = 0; c < 2; ++c) {
+        V4d n_i;
+        fringe_order(u_c[c], i, &n_i);
+        swu_c[c] += wv[i] * periods[i] * (tv[i] + n_i);
+        u_c[c] = swu_c[c] * inv_w;
+      }
+    }
+    V4d sw_f = {0.0, 0.0, 0.0, 0.0}, swu_f[2] = {sw_f, sw_f};
+    for (int i = 0; i < kM; ++i) {
+      sw_f += wv[i];
+      for (int c = 0; c < 2; ++c) {
+        V4d n_i;
+        fringe_order(u_c[c], i, &n_i);
+        swu_f[c] += wv[i] * periods[i] * (tv[i] + n_i);
+      }
+    }
+    V4d u_fv[2], chi2_fv[2] = {V4d{0.0, 0.0, 0.0, 0.0}, V4d{0.0, 0.0, 0.0, 0.0}};
+    for (int c = 0; c < 2; ++c) u_fv[c] = swu_f[c] / sw_f;
+    for (int i = 0; i < kM; ++i)
+      for (int c = 0; c < 2; ++c) {
+        const V4d x = u_fv[c] / periods[i] - tv[i];
+        V4d ax;
+        vabs(x, &ax);
+        exact &= ax < kRoundLimit;
+        const V4d r_px = (x - ((x + kMagic) - kMagic)) * periods[i];
+        chi2_fv[c] += wv[i] * r_px * r_px;
+      }
+    for (int l = 0; l < kL; ++l) {
+      for (int c = 0; c < 2; ++c) u_f_[c][l] = u_fv[c][l], chi2_f_[c][l] = chi2_fv[c][l];
+      sw_f_[l] = sw_f[l];
+      ok_[l] &= exact[l] != 0;
+    }
+  }
+
+  // Per lane, the candidate Unwrap() keeps (the smaller chi^2, out-of-domain estimates penalised)
+  // and its result; done[l] is false where the lane left the common case.
+  __attribute__((always_inline)) void Results(UnwrapResult* result, bool* done) const {
+    for (int l = 0; l < kL; ++l) {
+      done[l] = ok_[l];
+      if (!done[l]) continue;
+      double best_score_refined = std::numeric_limits<double>::infinity();
+      double best_chi2 = 0.0, best_u = 0.0;
+      for (int c = 0; c < 2; ++c) {
+        const double u = u_f_[c][l], chi2 = chi2_f_[c][l];
+        const double out = std::max({0.0, -0.5 - u, u - (u_.range_px_ - 0.5)});
+        const double score = chi2 + out * out * sw_f_[l];
+        if (score < best_score_refined) {
+          best_score_refined = score;
+          best_chi2 = chi2;
+          best_u = u;
+        }
+      }
+      result[l] = u_.ResultAt(best_u, best_chi2);
+    }
+  }
+
+ private:
+  const TemporalUnwrapper& u_;
+  bool ok_[kL];
+  double t_[kM][kL], w_px_[kM][kL];  // phases in cycles, weights in px^-2
+  double var_a_px_[kL], inv_var_[kM][kL];
+  int k_first_[kL], nk_[kL];
+  double table_[kM][kMaxCycle][kL];
+  int best_k_[2][kL];
+  double u_f_[2][kL], chi2_f_[2][kL], sw_f_[kL];
+};
+
 MESOSCAN_SIMD_CLONES
 void TemporalUnwrapper::UnwrapFour(const double* theta, const double* weight, UnwrapResult* result,
                                    bool* done) const {
-  constexpr int kL = 4;
-  constexpr int kM = 3;
-  constexpr double kMagic = 6755399441055744.0;  // RoundNearest's
-  constexpr double kRoundLimit = 2251799813685248.0;
-  const int a = anchor_;
-  const double pa = periods_[a];
-  bool ok[kL];
-  double t[kM][kL], w_px[kM][kL];
-  for (int l = 0; l < kL; ++l) {
-    bool good = true;
-    for (int i = 0; i < kM; ++i) {
-      const double th = theta[l * kM + i], w = weight[l * kM + i];
-      good &= std::isfinite(th) & (w > 0.0) & std::isfinite(w);
-    }
-    ok[l] = good;
-  }
-  for (int i = 0; i < kM; ++i) {
-    const double g = phase_rate_[i];
-    for (int l = 0; l < kL; ++l) {
-      const double c = theta[l * kM + i] / kTwoPi;
-      t[i][l] = c - std::floor(c);
-      w_px[i][l] = weight[l * kM + i] * g * g;
-    }
-  }
-  double var_a_px[kL], inv_var[kM][kL];
-  for (int l = 0; l < kL; ++l) var_a_px[l] = 1.0 / w_px[a][l];
-  for (int i = 0; i < kM; ++i) {
-    if (i == a) continue;
-    for (int l = 0; l < kL; ++l) {
-      const double var_i_px = 1.0 / w_px[i][l];
-      inv_var[i][l] = periods_[i] * periods_[i] / (var_i_px + var_a_px[l]);
-    }
-  }
-  int k_first[kL], nk[kL];
-  for (int l = 0; l < kL; ++l) {
-    k_first[l] = 0, nk[l] = 0;
-    if (!ok[l]) continue;
-    const double ta = t[a][l];
-    const double margin = 0.5 + 6.0 * std::sqrt(var_a_px[l]);
-    if (!(margin <= range_px_)) {  // Unwrap() returns it invalid
-      ok[l] = false;
-      continue;
-    }
-    auto inside = [&](int k) {
-      const double u = pa * (ta + k);
-      return !(u < -0.5 - margin || u >= range_px_ - 0.5 + margin);
-    };
-    int kf = static_cast<int>(std::floor((-0.5 - margin) / pa));
-    int kl = static_cast<int>(std::floor((range_px_ - 0.5 + margin) / pa));
-    while (kf <= kl && !inside(kf)) ++kf;
-    while (kl >= kf && !inside(kl)) --kl;
-    ok[l] = kf <= kl && kl - kf < table_candidates_;
-    if (ok[l]) k_first[l] = kf, nk[l] = kl - kf + 1;
-  }
-  const int ia = pair_[0], ib = pair_[1];
-  const int qa = cycle_[ia], qb = cycle_[ib];
-  double table[kM][kMaxCycle][kL];
-  for (int i = 0; i < kM; ++i) {
-    if (i == a) continue;
-    const double ip = inv_periods_[i];
-    for (int j = 0; j < cycle_[i]; ++j)
-      for (int l = 0; l < kL; ++l) {
-        const double r = WrapCyclesSmall(pa * (t[a][l] + (k_first[l] + j)) * ip - t[i][l]);
-        table[i][j][l] = r * r * inv_var[i][l];
-      }
-  }
-  {  // a NaN entry in either table: Unwrap() decides (lanes in one vector: v != v)
-    V4l nan = {0, 0, 0, 0};
-    for (int j = 0; j < qa; ++j) {
-      V4d v;
-      __builtin_memcpy(&v, table[ia][j], sizeof(v));
-      nan |= v != v;
-    }
-    for (int j = 0; j < qb; ++j) {
-      V4d v;
-      __builtin_memcpy(&v, table[ib][j], sizeof(v));
-      nan |= v != v;
-    }
-    for (int l = 0; l < kL; ++l) ok[l] &= nan[l] == 0;
-  }
-  // SmallestFourInsert per lane: slot k takes x if x < slot k (or the slot is still empty, k >=
-  // j), after shifting up when slot k - 1 took it.
-  // Four sorted slots per lane, in GCC vectors across the lanes (V4d from SmallestFour).
-  auto insert = [&](const double* xp, int j, V4d* sv, V4l* id) {
-    V4d x;
-    __builtin_memcpy(&x, xp, sizeof(x));
-    const V4l jv = {j, j, j, j};
-    V4l m[4];
-    for (int k = 0; k < 4; ++k) m[k] = (x < sv[k]) | (k >= j ? V4l{-1, -1, -1, -1} : V4l{});
-    for (int k = 3; k >= 1; --k) {
-      sv[k] = m[k - 1] ? sv[k - 1] : (m[k] ? x : sv[k]);
-      id[k] = m[k - 1] ? id[k - 1] : (m[k] ? jv : id[k]);
-    }
-    sv[0] = m[0] ? x : sv[0];
-    id[0] = m[0] ? jv : id[0];
-  };
-  // The slots' starting contents never reach a result (slot k takes x at every j <= k, and
-  // both tables have >= 4 entries): +inf and index 1, which the compiler writes with vector
-  // stores (zeros became two `rep stos`, ~4 % of this function's time).
-  const double inf_slot = std::numeric_limits<double>::infinity();
-  const V4d e = {inf_slot, inf_slot, inf_slot, inf_slot};
-  const V4l e_id = {1, 1, 1, 1};
-  V4d sva[4] = {e, e, e, e}, svb[4] = {e, e, e, e};
-  V4l ida[4] = {e_id, e_id, e_id, e_id}, idb[4] = {e_id, e_id, e_id, e_id};
-  for (int j = 0; j < qa || j < qb; ++j) {
-    if (j < qa) insert(table[ia][j], j, sva, ida);
-    if (j < qb) insert(table[ib][j], j, svb, idb);
-  }
-  // The best two of the 16 pairs of slots per lane: Unwrap()'s comparisons as selects (a slot's
-  // value is the table entry at its index, so the score is the sum of the two slots).
-  const V4l nk_v = {nk[0], nk[1], nk[2], nk[3]};
-  const double inf = std::numeric_limits<double>::infinity();
-  V4d s0 = {inf, inf, inf, inf}, s1 = s0;
-  V4l r0 = {-1, -1, -1, -1}, r1 = r0;
-  for (int x = 0; x < 4; ++x)
-    for (int y = 0; y < 4; ++y) {
-      const V4l r = {crt_[ida[x][0] * qb + idb[y][0]], crt_[ida[x][1] * qb + idb[y][1]],
-                     crt_[ida[x][2] * qb + idb[y][2]], crt_[ida[x][3] * qb + idb[y][3]]};
-      const V4d sc = (0.0 + sva[x]) + svb[y];
-      const V4l in = r < nk_v;
-      const V4l first = in & ((sc < s0) | ((sc == s0) & (r < r0)));
-      const V4l second = in & ~first & ((sc < s1) | ((sc == s1) & (r < r1)));
-      s1 = first ? s0 : (second ? sc : s1);
-      r1 = first ? r0 : (second ? r : r1);
-      s0 = first ? sc : s0;
-      r0 = first ? r : r0;
-    }
-  const V4d bound_a = sva[3] + svb[0], bound_b = sva[0] + svb[3];
-  const V4d bound = bound_b < bound_a ? bound_b : bound_a;  // std::min(bound_a, bound_b)
-  const V4l pair_ok = (r1 >= 0) & (s1 < bound);
-  int best_k[2][kL];
-  for (int l = 0; l < kL; ++l) {
-    ok[l] &= pair_ok[l] != 0;
-    best_k[0][l] = k_first[l] + static_cast<int>(r0[l]);
-    best_k[1][l] = k_first[l] + static_cast<int>(r1[l]);
-  }
-  for (int l = 0; l < kL; ++l)
-    if (!ok[l]) best_k[0][l] = best_k[1][l] = 0;
-  // 2. Refinement, both candidates together (fringe_order's fast path; a lane where the exact
-  //    quotient would decide is left to Unwrap()).
-  double inv_prefix_w[kM][kL];
-  {
-    double sw[kL] = {};
-    for (int o = 0; o < kM; ++o)
-      for (int l = 0; l < kL; ++l) {
-        sw[l] += w_px[order_[o]][l];
-        inv_prefix_w[o][l] = 1.0 / sw[l];
-      }
-  }
-  // The lanes in GCC vectors (the same operations per lane; |.| by clearing the sign bit).
-  // (Results through pointers: a lambda returning a 32-byte vector has another ABI in the
-  // baseline clone.)
-  auto load = [](const double* p, V4d* v) { __builtin_memcpy(v, p, sizeof(*v)); };
-  auto vabs = [](const V4d& v, V4d* out) {
-    V4l b;
-    __builtin_memcpy(&b, &v, sizeof(b));
-    b &=
-        V4l{0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL};
-    __builtin_memcpy(out, &b, sizeof(*out));
-  };
-  V4d tv[kM], wv[kM];
-  for (int i = 0; i < kM; ++i) load(t[i], &tv[i]), load(w_px[i], &wv[i]);
-  V4l exact = {-1, -1, -1, -1};
-  auto fringe_order = [&](const V4d& u_approx, int i, V4d* n) {
-    const V4d x = u_approx * inv_periods_[i] - tv[i];
-    *n = (x + kMagic) - kMagic;
-    V4d ax, ad;
-    vabs(x, &ax);
-    vabs(x - *n, &ad);
-    vabs(ad - 0.5, &ad);
-    exact &= (ax < kRoundLimit) & (ad > 1e-9 * (1.0 + ax));
-  };
-  V4d u_c[2], swu_c[2];
-  for (int c = 0; c < 2; ++c) {
-    for (int l = 0; l < kL; ++l) u_c[c][l] = pa * (t[a][l] + best_k[c][l]);
-    swu_c[c] = V4d{0.0, 0.0, 0.0, 0.0};
-  }
-  for (int o = 0; o < kM; ++o) {
-    const int i = order_[o];
-    V4d inv_w;
-    load(inv_prefix_w[o], &inv_w);
-    for (int c = 0; c < 2; ++c) {
-      V4d n_i;
-      fringe_order(u_c[c], i, &n_i);
-      swu_c[c] += wv[i] * periods_[i] * (tv[i] + n_i);
-      u_c[c] = swu_c[c] * inv_w;
-    }
-  }
-  V4d sw_f = {0.0, 0.0, 0.0, 0.0}, swu_f[2] = {sw_f, sw_f};
-  for (int i = 0; i < kM; ++i) {
-    sw_f += wv[i];
-    for (int c = 0; c < 2; ++c) {
-      V4d n_i;
-      fringe_order(u_c[c], i, &n_i);
-      swu_f[c] += wv[i] * periods_[i] * (tv[i] + n_i);
-    }
-  }
-  V4d u_fv[2], chi2_fv[2] = {V4d{0.0, 0.0, 0.0, 0.0}, V4d{0.0, 0.0, 0.0, 0.0}};
-  for (int c = 0; c < 2; ++c) u_fv[c] = swu_f[c] / sw_f;
-  for (int i = 0; i < kM; ++i)
-    for (int c = 0; c < 2; ++c) {
-      const V4d x = u_fv[c] / periods_[i] - tv[i];
-      V4d ax;
-      vabs(x, &ax);
-      exact &= ax < kRoundLimit;
-      const V4d r_px = (x - ((x + kMagic) - kMagic)) * periods_[i];
-      chi2_fv[c] += wv[i] * r_px * r_px;
-    }
-  double u_f[2][kL], chi2_f[2][kL];
-  bool exact_ok[kL];
-  for (int l = 0; l < kL; ++l) {
-    for (int c = 0; c < 2; ++c) u_f[c][l] = u_fv[c][l], chi2_f[c][l] = chi2_fv[c][l];
-    exact_ok[l] = exact[l] != 0;
-  }
-  for (int l = 0; l < kL; ++l) {
-    done[l] = ok[l] && exact_ok[l];
-    if (!done[l]) continue;
-    double best_score_refined = std::numeric_limits<double>::infinity();
-    double best_chi2 = 0.0, best_u = 0.0;
-    for (int c = 0; c < 2; ++c) {
-      const double u = u_f[c][l], chi2 = chi2_f[c][l];
-      const double out = std::max({0.0, -0.5 - u, u - (range_px_ - 0.5)});
-      const double score = chi2 + out * out * sw_f[l];
-      if (score < best_score_refined) {
-        best_score_refined = score;
-        best_chi2 = chi2;
-        best_u = u;
-      }
-    }
-    result[l] = ResultAt(best_u, best_chi2);
-  }
+  FourPixels lanes(*this);
+  lanes.Load(theta, weight);
+  lanes.CandidateOrders();
+  lanes.ResidualTables();
+  lanes.BestTwoOrders();
+  lanes.Refine();
+  lanes.Results(result, done);
 }
 
 // UnwrapAt()'s steps for three periods on four pixels in vector lanes (V4d), per lane the same

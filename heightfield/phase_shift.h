@@ -146,7 +146,8 @@ class TemporalUnwrapper {
   // each pair of table entries, crt_[(r mod q_a) * q_b + r mod q_b] = r.
   std::vector<int> pair_;
   std::vector<int> crt_;
-  // UnwrapMany's four pixels; false where a lane leaves the common case.
+  // UnwrapMany's four pixels; false where a lane leaves the common case. Its steps: FourPixels.
+  class FourPixels;
   void UnwrapFour(const double* theta, const double* weight, UnwrapResult* result,
                   bool* done) const;
   // The result at u with chi^2 `chi2`: residual, validity and the edge bands (every path).
