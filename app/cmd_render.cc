@@ -1,9 +1,15 @@
 // mesoscan render: a path-traced preview of a scan's height field with a BRDF (measured or
-// analytic) under an environment map. Writes preview.exr (linear RGB) and preview.png, updated
-// after every sampling round of a long render (progressive), plus optional turntable frames,
-// an animated GIF and a side-by-side comparison.
+// analytic) under an environment map: the sample in the BRDF (tinted by the scan's albedo when it
+// has one), the bare mount around it in a neutral diffuse material. Writes preview.exr (linear
+// RGB) and preview.png; while a long render runs, its progressive preview is rewritten at a
+// stable path beside the output (OUT.progress.png). Optional: turntable frames of the object
+// turning (or of the light turning) with an animated GIF, a labelled side-by-side comparison,
+// a scale bar.
+
+#include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -27,9 +33,11 @@
 #include "core/stage_timer.h"
 #include "maps/export.h"
 #include "maps/maps_fill.h"
+#include "maps/maps_tile.h"
 #include "render/animation.h"
 #include "render/denoise.h"
 #include "render/env_map.h"
+#include "render/overlay.h"
 #include "render/path_tracer.h"
 #include "render/ximgproc_module.h"
 
@@ -39,25 +47,38 @@ namespace fs = std::filesystem;
 namespace {
 
 struct RenderArgs {
-  std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480", camera, albedo = "none";
-  std::string compare, compare_scan, turntable_size, fill = "harmonic";
+  std::string scan, out, brdf = "ggx-merl", env = "sky", size = "640x480", camera, albedo = "auto";
+  std::string compare, compare_scan, turntable_size, fill = "harmonic", mount = "neutral";
   RenderOptions options;
   double sun_elevation_deg = 25, sun_azimuth_deg = 200, env_scale = 1.0, env_rotation_deg = 0;
-  int threads = 0, turntable = 0, turntable_spp = 0;
+  int threads = 0, turntable = 0, turntable_light = 0, turntable_spp = 0;
+  bool scale_bar = false;
   bool spp_given = false, min_spp_given = false;
   bool force = false;
   bool denoise = false;  // also write preview_denoised.exr/png (render/denoise.h)
 };
 
-// "lambert", "ggx", "ggx-merl" (GGX tabulated into the MERL layout, written next to the
-// preview and read back: the measured path with no external data), or a measured file.
-Brdf MakeBrdf(const std::string& spec, const fs::path& tmp_dir) {
+// "lambert", "ggx", "ggx-merl" (GGX tabulated into the MERL layout, written and read back: the
+// measured path with no external data), or a measured file (read in place). The tabulated table
+// goes through a scratch file in the system's temporary folder, removed once read: no 35 MB copy
+// in every render folder.
+Brdf MakeBrdf(const std::string& spec) {
   if (spec == "lambert") return Brdf(LambertBrdf(Rgb::Constant(0.7)));
   // Warm copper-like conductor: a material whose highlights show relief clearly.
   const auto ggx = GgxBrdf<double>::Conductor(0.25, Rgb(0.27, 0.68, 1.22), Rgb(3.61, 2.63, 2.29));
   if (spec == "ggx") return Brdf(ggx);
   if (spec == "ggx-merl") {
-    const fs::path file = tmp_dir / "ggx_copper_merl.binary";
+    static std::atomic<int> serial{0};
+    const fs::path file =
+        fs::temp_directory_path() / ("mesoscan_ggx_copper_merl_" + std::to_string(getpid()) + "_" +
+                                     std::to_string(serial++) + ".binary");
+    struct Remove {
+      fs::path f;
+      ~Remove() {
+        std::error_code ec;
+        fs::remove(f, ec);
+      }
+    } remove{file};
     MerlBrdf::Tabulate([&](const Vec3& wo, const Vec3& wi) { return ggx.f(wo, wi); })->Write(file);
     return LoadBrdf(file);
   }
@@ -119,10 +140,13 @@ EnvironmentMap MakeEnvironment(const RenderArgs& a) {
   return EnvironmentMap::Load(a.env, a.env_scale);
 }
 
-// The base colour map for --albedo: "none", "R,G,B", or "scan" (albedo.exr/png in the scan
-// folder, else the session's white frame named by report.json). A relative albedo is
-// normalised to median 1 (a tint of the BRDF's own colour), clamped to [0, 1.4]; holes -> 1.
-std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
+// The base colour map for --albedo: "none", "R,G,B", "scan" (albedo.exr/png in the scan
+// folder, else the session's white frame named by report.json; an error if neither), or "auto"
+// (the default: the scan's albedo when it has one, else none). Colour when the albedo has
+// colour. A relative albedo is normalised to median 1 over the sample's pixels (`on_sample`,
+// all when null) (a tint of the BRDF's own colour), clamped to [0, 1.4]; holes -> 1.
+std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf,
+                                 const ImageU8* on_sample) {
   if (a.albedo == "none") return std::nullopt;
   double r, g, b;
   char tail;
@@ -137,13 +161,41 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
     }
     return im;
   }
-  if (a.albedo != "scan")
+  if (a.albedo != "scan" && a.albedo != "auto")
     MESOSCAN_THROW(ErrorKind::kUsage,
-                   "--albedo: expected scan, none or R,G,B, got '" << a.albedo << "'");
+                   "--albedo: expected auto, scan, none or R,G,B, got '" << a.albedo << "'");
   ImageF alb;
+  std::string source;
   for (const char* f : {"albedo.exr", "albedo.png"})
-    if (alb.pixels() == 0 && fs::exists(fs::path(a.scan) / f))
+    if (alb.pixels() == 0 && fs::exists(fs::path(a.scan) / f)) {
       alb = ReadImage(fs::path(a.scan) / f);
+      source = (fs::path(a.scan) / f).string();
+    }
+  if (alb.pixels() == 0 && a.albedo == "auto") {
+    // The session's white frame when the scan names a session that is still there; else none.
+    fs::path session;
+    if (fs::exists(fs::path(a.scan) / "report.json")) {
+      const Json report = ReadJsonFile(fs::path(a.scan) / "report.json");
+      if (report.contains("session") && report["session"].is_string())
+        session = report["session"].get<std::string>();
+      if (!session.empty() && session.is_relative() && !fs::exists(session))
+        session = fs::path(a.scan) / session;
+    }
+    if (session.empty() || !fs::is_directory(session)) {
+      MESOSCAN_LOG(kInfo) << "render: " << a.scan
+                          << " has no albedo (no albedo.exr/png, no session with a white "
+                             "frame): the BRDF's own colour";
+      return std::nullopt;
+    }
+    try {
+      alb = AlbedoFromSession(hf, session, &source);
+      source = session.string() + " (" + source + ")";
+    } catch (const Error& e) {
+      MESOSCAN_LOG(kWarning) << "render: " << a.scan << ": no albedo from the session (" << e.what()
+                             << "): the BRDF's own colour";
+      return std::nullopt;
+    }
+  }
   if (alb.pixels() == 0) {
     const Json report = ReadJsonFile(fs::path(a.scan) / "report.json");
     if (!report.contains("session") || !report["session"].is_string())
@@ -153,6 +205,7 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
     fs::path session = report["session"].get<std::string>();
     if (session.is_relative() && !fs::exists(session)) session = fs::path(a.scan) / session;
     alb = AlbedoFromSession(hf, session);
+    source = session.string();
   }
   if (alb.width() != hf.width() || alb.height() != hf.height())
     MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo is " << alb.width() << "x"
@@ -160,8 +213,11 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
                               << hf.height());
   const int nc = alb.channels() >= 3 ? 3 : 1;
   std::vector<float> lum;
-  for (size_t i = 0; i < alb.pixels(); ++i)
-    if (std::isfinite(alb.channel(0)[i]) && alb.channel(0)[i] > 0) lum.push_back(alb.channel(0)[i]);
+  for (int pass = 0; pass < 2 && lum.empty(); ++pass)
+    for (size_t i = 0; i < alb.pixels(); ++i)
+      if (std::isfinite(alb.channel(0)[i]) && alb.channel(0)[i] > 0 &&
+          (pass == 1 || !on_sample || on_sample->data()[i]))
+        lum.push_back(alb.channel(0)[i]);
   if (lum.empty())
     MESOSCAN_BAD_INPUT(a.scan << ": --albedo scan: the albedo has no positive sample");
   std::nth_element(lum.begin(), lum.begin() + lum.size() / 2, lum.end());
@@ -173,6 +229,8 @@ std::optional<ImageF> MakeAlbedo(const RenderArgs& a, const HeightField& hf) {
       tint.channel(c)[i] =
           std::isfinite(v) ? static_cast<float>(std::clamp(v / median, 0.0, 1.4)) : 1.0f;
     }
+  MESOSCAN_LOG(kInfo) << "render: albedo from " << source << " (" << (nc == 3 ? "colour" : "grey")
+                      << ", a tint of the BRDF: median 1 on the sample)";
   return tint;
 }
 
@@ -223,49 +281,147 @@ void ValidateHeightField(const HeightField& hf, const RenderOptions& o, const st
                             << " exceed 1e4 times the field's " << extent << " m extent");
 }
 
-void WritePreview(const fs::path& out, const RenderResult& r) {
+// The display images: tone-mapped, with the scale bar when asked (pixels_per_metre > 0: the
+// image scale at the sample's centre).
+struct Display {
+  double pixels_per_metre = 0;
+  ImageU8 operator()(const ImageF& radiance, const ToneMapping& tone) const {
+    ImageU8 im = ToneMapForDisplay(radiance, tone);
+    if (pixels_per_metre > 0) DrawScaleBar(&im, pixels_per_metre * radiance.height());
+    return im;
+  }
+};
+
+void WritePreview(const fs::path& out, const RenderResult& r, const Display& display) {
   WriteExr(out / "preview.exr", r.radiance, {"R", "G", "B"}, {}, {}, "none");
-  WritePng8(out / "preview.png", ToneMapForDisplay(r.radiance, r.tone));
+  WritePng8(out / "preview.png", display(r.radiance, r.tone));
 }
 
-// Everything the render writes, into `out` (the temporary folder that is swapped into place).
-// Progressive previews land there too while a long render runs.
+// The progressive preview's stable path: beside the output folder (whose contents are written
+// into a temporary folder and swapped into place at the end), OUT.progress.png.
+fs::path ProgressPath(const std::string& out) {
+  fs::path p = fs::absolute(out).lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  return p.parent_path() / (p.filename().string() + ".progress.png");
+}
+
 // The second scan of a side by side (--compare-scan, or --compare naming a scan folder).
 struct CompareScan {
   HeightField hf;
   std::optional<ImageF> albedo;
+  ImageU8 on_sample;  // empty: all sample (--mount sample)
 };
 
-// Two tone-mapped images next to each other, 4 white pixels apart.
-ImageU8 SideBySide(const ImageU8& left, const ImageU8& right) {
-  const int gap = 4, w = left.width(), h = left.height();
-  ImageU8 both(2 * w + gap, h, 3, 255);
-  for (int c = 0; c < 3; ++c)
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        both(x, y, c) = left(x, y, c);
-        both(w + gap + x, y, c) = right(x, y, c);
-      }
-  return both;
+// The centre of the height field (its grid's centre, at its median height, relief scaled).
+Vec3 FieldCentre(const HeightField& hf, const RenderOptions& o) {
+  std::vector<float> z;
+  for (const float v : hf.z.data())
+    if (std::isfinite(v)) z.push_back(v);
+  double zc = 0;
+  if (!z.empty()) {
+    std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
+    zc = z[z.size() / 2] * o.relief_scale;
+  }
+  return Vec3(hf.X(0.5 * (hf.width() - 1)), hf.Y(0.5 * (hf.height() - 1)), zc);
 }
 
+// Image pixels per metre at the sample's centre, per pixel of image height (the framing
+// camera's focal length over the centre's depth).
+double PixelsPerMetrePerRow(const HeightField& hf, const RenderOptions& o) {
+  const CameraSpec cam = FramingCamera(hf, o);
+  const Vec3 fwd = (cam.target - cam.eye).normalized();
+  const double depth = (FieldCentre(hf, o) - cam.eye).dot(fwd);
+  const double tan_half = std::tan(0.5 * (o.fov_deg > 0 ? o.fov_deg : 30.0) * kPi / 180);
+  return depth > 0 ? 0.5 / tan_half / depth : 0.0;
+}
+
+// The camera turned by `degrees` about the vertical axis through `centre`.
+CameraSpec TurnCamera(const CameraSpec& cam, const Vec3& centre, double degrees) {
+  const double t = degrees * kPi / 180, c = std::cos(t), s = std::sin(t);
+  const auto turn = [&](const Vec3& p) {
+    const Vec3 d = p - centre;
+    return Vec3(centre.x() + c * d.x() - s * d.y(), centre.y() + s * d.x() + c * d.y(), p.z());
+  };
+  return CameraSpec{turn(cam.eye), turn(cam.target)};
+}
+
+// Turntable frames: `object` true turns the object (the camera and the light turn the other way
+// about its centre: the same images), false turns the light around the still object. Exposure
+// fixed from the still so the frames do not flicker. Each frame is sampled to the still's noise
+// (render/path_tracer.h DisplayNoise: the still's --noise, or what the still reached under
+// --time when that is more), with adaptive stopping, and denoised with --denoise.
+void RenderTurntable(const RenderArgs& a, const HeightField& hf, const Brdf& brdf,
+                     const EnvironmentMap& env, const RenderOptions& o, const RenderResult& still,
+                     const Display& display, bool object, const fs::path& out) {
+  const int n = object ? a.turntable : a.turntable_light;
+  const std::string name = object ? "turntable" : "turntable_light";
+  const fs::path dir = out / name;
+  fs::create_directories(dir);
+  RenderOptions ot = o;
+  if (!a.turntable_size.empty() &&
+      std::sscanf(a.turntable_size.c_str(), "%dx%d", &ot.width, &ot.height) != 2)
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
+  const double still_noise = DisplayNoise(still);
+  ot.noise = std::max(o.noise, still_noise);
+  ot.time_limit_s = 0;  // the noise target decides (uniform rounds, adaptive stopping)
+  ot.allocate_for_denoiser = false;
+  // Under --time the still has no sample cap (65536): the frames stop at 1024.
+  ot.max_spp = o.time_limit_s > 0 ? std::min(o.max_spp, 1024) : o.max_spp;
+  if (a.turntable_spp > 0) ot.max_spp = a.turntable_spp;
+  ot.min_spp = std::min(o.min_spp, ot.max_spp);
+  const CameraSpec base = FramingCamera(hf, o);
+  const Vec3 centre = FieldCentre(hf, o);
+  std::vector<ImageU8> frames;
+  double spp = 0;
+  for (int k = 0; k < n; ++k) {
+    const double turn = 360.0 * k / n;
+    EnvironmentMap e = env;
+    if (object) {
+      // The object turns by +turn: camera and light by -turn about its centre.
+      ot.camera = TurnCamera(base, centre, -turn);
+      e.SetRotation(a.env_rotation_deg - turn);
+    } else {
+      e.SetRotation(a.env_rotation_deg + turn);
+    }
+    RenderOptions of = ot;
+    of.seed = o.seed + 1 + k;
+    const RenderResult f = Render(hf, brdf, e, of);
+    spp += f.summary.mean_spp / n;
+    frames.push_back(display(a.denoise ? DenoisePreview(f) : f.radiance, still.tone));
+    char file[32];
+    std::snprintf(file, sizeof(file), "frame_%03d.png", k);
+    WritePng8(dir / file, frames.back());
+  }
+  WriteAnimatedGif(out / (name + ".gif"), frames, 12);
+  // Named where they end up (`out` is the temporary folder swapped into place).
+  MESOSCAN_LOG(kInfo) << "render: wrote " << n << " frames of the " << (object ? "object" : "light")
+                      << " turning to " << (fs::path(a.out) / name).string() << " and "
+                      << (fs::path(a.out) / (name + ".gif")).string() << " ("
+                      << (a.denoise ? "denoised, " : "") << spp
+                      << " spp on average to the still's noise " << ot.noise << ")";
+}
+
+// Everything the render writes, into `out` (the temporary folder that is swapped into place).
 void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentMap& env,
                   const RenderOptions& options, const fs::path& out,
                   const CompareScan* other_scan) {
-  MESOSCAN_LOG(kInfo) << "render: progressive preview while sampling: "
-                      << (out / "preview.png").string();
-  const Brdf brdf = MakeBrdf(a.brdf, out);
+  const fs::path progress = ProgressPath(a.out);
+  MESOSCAN_LOG(kInfo) << "render: progressive preview while sampling: " << progress.string();
+  const Brdf brdf = MakeBrdf(a.brdf);
   RenderOptions o = options;
+  Display display;
+  if (a.scale_bar) display.pixels_per_metre = PixelsPerMetrePerRow(hf, o);
   // --denoise within --time: the denoiser's share comes out of the budget, measured right before
   // the render (Run() loads the filters' module in the background meanwhile).
   if (a.denoise && o.time_limit_s > 0)
     o.time_limit_s -= MeasureDenoiseTimeReserve(o.width, o.height, o.time_limit_s);
   // The preview, if denoised, spends fewer samples where the denoiser averages many pixels
-  // (the turntable's and side by side's frames are not denoised).
+  // (the side by side's renders are not denoised).
   RenderOptions preview = o;
   preview.allocate_for_denoiser = a.denoise;
 
-  // Progressive output: preview.exr/png rewritten (atomically) after a round when at least 2 s
+  // Progressive output: OUT.progress.png rewritten (atomically) after a round when at least 2 s
   // have passed since the last write and more than 2 s of a --time budget are left.
   auto last_write = std::chrono::steady_clock::now();
   const RenderResult result = Render(hf, brdf, env, preview, [&](const RenderResult& r) {
@@ -274,17 +430,17 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     // Not when the final preview follows within 2 s anyway (a --time budget about to run out):
     // the write would come out of the budget (~0.05 s at 480 x 360).
     if (o.time_limit_s > 0 && o.time_limit_s - r.summary.seconds < 2.0) return;
-    WritePreview(out, r);
+    WritePng8(progress, display(r.radiance, r.tone));
     last_write = now;
   });
-  WritePreview(out, result);
+  WritePreview(out, result, display);
   MESOSCAN_LOG(kInfo) << "render: " << result.summary.BriefReport();
   if (a.denoise) {
     // The optional denoise stage: biased, so written beside the raw preview, never instead.
     const Stopwatch denoise_time;
     const ImageF dn = DenoisePreview(result);
     WriteExr(out / "preview_denoised.exr", dn, {"R", "G", "B"}, {}, {}, "none");
-    WritePng8(out / "preview_denoised.png", ToneMapForDisplay(dn, result.tone));
+    WritePng8(out / "preview_denoised.png", display(dn, result.tone));
     MESOSCAN_LOG(kInfo) << "render: denoised in " << denoise_time.Seconds()
                         << " s: preview_denoised.png / .exr (biased: edge-aware smoothing; the raw "
                            "render is preview.png / .exr)";
@@ -295,53 +451,32 @@ void RenderFolder(const RenderArgs& a, const HeightField& hf, const EnvironmentM
     // BRDF, seed and exposure.
     RenderOptions ob = o;
     ob.albedo = other_scan->albedo ? &*other_scan->albedo : nullptr;
+    ob.sample_material = other_scan->on_sample.empty() ? nullptr : &other_scan->on_sample;
     const RenderResult rb = Render(other_scan->hf, brdf, env, ob);
-    WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
-                                                   ToneMapForDisplay(rb.radiance, result.tone)));
+    WritePng8(
+        out / "side_by_side.png",
+        LabelledSideBySide(display(result.radiance, result.tone), display(rb.radiance, result.tone),
+                           fs::path(a.scan).lexically_normal().filename().string(),
+                           fs::path(a.compare_scan).lexically_normal().filename().string()));
     MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string()
                         << " (left " << a.scan << ", right " << a.compare_scan
-                        << ", one camera and exposure)";
+                        << ", one camera and exposure, labelled)";
   } else if (!a.compare.empty()) {
     // Side by side: the same scan, camera and light with a second BRDF, one exposure.
-    const Brdf other = MakeBrdf(a.compare, out);
+    const Brdf other = MakeBrdf(a.compare);
     const RenderResult rb = Render(hf, other, env, o);
-    WritePng8(out / "side_by_side.png", SideBySide(ToneMapForDisplay(result.radiance, result.tone),
-                                                   ToneMapForDisplay(rb.radiance, result.tone)));
+    const auto label = [](const std::string& spec) {
+      return fs::exists(spec) ? fs::path(spec).filename().string() : spec;
+    };
+    WritePng8(out / "side_by_side.png", LabelledSideBySide(display(result.radiance, result.tone),
+                                                           display(rb.radiance, result.tone),
+                                                           label(a.brdf), label(a.compare)));
     MESOSCAN_LOG(kInfo) << "render: wrote " << (fs::path(a.out) / "side_by_side.png").string()
-                        << " (left " << a.brdf << ", right " << a.compare << ")";
+                        << " (left " << a.brdf << ", right " << a.compare << ", labelled)";
   }
 
-  if (a.turntable > 0) {
-    // The environment turns around the sample; exposure fixed from the main render so the
-    // frames do not flicker.
-    const fs::path dir = out / "turntable";
-    fs::create_directories(dir);
-    RenderOptions ot = o;
-    if (!a.turntable_size.empty() &&
-        std::sscanf(a.turntable_size.c_str(), "%dx%d", &ot.width, &ot.height) != 2)
-      MESOSCAN_THROW(ErrorKind::kUsage,
-                     "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
-    if (a.turntable_spp > 0) {
-      ot.max_spp = a.turntable_spp;
-      ot.min_spp = std::min(ot.min_spp, ot.max_spp);
-    }
-    if (o.time_limit_s > 0) ot.time_limit_s = o.time_limit_s / a.turntable;
-    std::vector<ImageU8> frames;
-    for (int k = 0; k < a.turntable; ++k) {
-      EnvironmentMap e = env;
-      e.SetRotation(a.env_rotation_deg + 360.0 * k / a.turntable);
-      const RenderResult f = Render(hf, brdf, e, ot);
-      frames.push_back(ToneMapForDisplay(f.radiance, result.tone));
-      char name[32];
-      std::snprintf(name, sizeof(name), "frame_%03d.png", k);
-      WritePng8(dir / name, frames.back());
-    }
-    WriteAnimatedGif(out / "turntable.gif", frames, 12);
-    // Named where they end up (`out` is the temporary folder swapped into place).
-    MESOSCAN_LOG(kInfo) << "render: wrote " << a.turntable << " frames to "
-                        << (fs::path(a.out) / "turntable").string() << " and "
-                        << (fs::path(a.out) / "turntable.gif").string();
-  }
+  if (a.turntable > 0) RenderTurntable(a, hf, brdf, env, o, result, display, true, out);
+  if (a.turntable_light > 0) RenderTurntable(a, hf, brdf, env, o, result, display, false, out);
 }
 
 // The scan's height field as the preview shows it: height.exr, validated, bounded holes filled
@@ -389,6 +524,12 @@ void Run(const RenderArgs& args) {
   if (!a.min_spp_given) o.min_spp = std::min(o.min_spp, o.max_spp);
   if (a.turntable < 0 || a.turntable > 720)
     MESOSCAN_THROW(ErrorKind::kUsage, "--turntable: expected 0..720 frames, got " << a.turntable);
+  if (a.turntable_light < 0 || a.turntable_light > 720)
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "--turntable-light: expected 0..720 frames, got " << a.turntable_light);
+  if (a.mount != "neutral" && a.mount != "sample")
+    MESOSCAN_THROW(ErrorKind::kUsage,
+                   "--mount: expected neutral or sample, got '" << a.mount << "'");
   int tw = 0, th = 0;
   if (!a.turntable_size.empty() &&
       (std::sscanf(a.turntable_size.c_str(), "%dx%d", &tw, &th) != 2 || tw < 1 || th < 1 ||
@@ -419,20 +560,50 @@ void Run(const RenderArgs& args) {
   // (maps/maps_fill.h, as the artist-ready maps fill them) unless --fill none, so a
   // shadowed rim is not previewed as a trench; large holes and the outside stay open.
   const HeightField hf = PreviewHeightField(a, a.scan, o);
+  // The sample and the bare mount it sits on (maps/maps_tile.h OnSampleMask: > 20 um above the
+  // mount plane, the maps' rule): the mount in a neutral diffuse material unless --mount sample.
+  const bool neutral_mount = a.mount == "neutral";
+  const ImageU8 on_sample = neutral_mount ? OnSampleMask(hf) : ImageU8();
+  if (neutral_mount) {
+    int64_t n = 0, finite = 0;
+    for (size_t i = 0; i < on_sample.pixels(); ++i) {
+      n += on_sample.data()[i] != 0;
+      finite += std::isfinite(hf.z.data()[i]);
+    }
+    MESOSCAN_LOG(kInfo) << "render: the sample is "
+                        << std::lround(100.0 * n / std::max<int64_t>(1, finite))
+                        << "% of the height field (standing > "
+                        << TileOptions{}.mount_clearance_m * 1e6
+                        << " um off the mount plane); the rest is the mount, neutral diffuse "
+                           "(albedo "
+                        << o.mount_albedo[1] << ")";
+    o.sample_material = &on_sample;
+  }
   std::optional<CompareScan> other;
   if (!a.compare_scan.empty()) {
     other.emplace();
     other->hf = PreviewHeightField(a, a.compare_scan, o);
+    if (neutral_mount) other->on_sample = OnSampleMask(other->hf);
     RenderArgs ab = a;
     ab.scan = a.compare_scan;
-    other->albedo = MakeAlbedo(ab, other->hf);
+    other->albedo =
+        MakeAlbedo(ab, other->hf, other->on_sample.empty() ? nullptr : &other->on_sample);
     // One camera for both: the first scan's framing, unless --camera gave one.
     o.camera = FramingCamera(hf, o);
   }
   EnvironmentMap env = MakeEnvironment(a);
   env.SetRotation(a.env_rotation_deg);
-  const std::optional<ImageF> albedo = MakeAlbedo(a, hf);
+  const std::optional<ImageF> albedo = MakeAlbedo(a, hf, neutral_mount ? &on_sample : nullptr);
   if (albedo) o.albedo = &*albedo;
+  // The progressive preview beside the output is removed once the final one is in place (or
+  // the render failed).
+  struct RemoveProgress {
+    fs::path f;
+    ~RemoveProgress() {
+      std::error_code ec;
+      fs::remove(f, ec);
+    }
+  } remove_progress{ProgressPath(a.out)};
   WriteOutputFolder(out_spec, [&](const fs::path& out) {
     RenderFolder(a, hf, env, o, out, other ? &*other : nullptr);
   });
@@ -508,13 +679,24 @@ void AddRenderCommand(CLI::App* app) {
   cmd->add_option("--max-depth", args->options.max_depth, "Path vertices on the surface")
       ->capture_default_str();
   cmd->add_option("--albedo", args->albedo,
-                  "Base colour: none | scan (the scan's albedo as a tint) | R,G,B")
+                  "Base colour: auto (the scan's albedo as a tint when it has one: albedo.exr/png "
+                  "or its session's white frame; colour if the albedo has colour) | scan (the "
+                  "same, an error without one) | none | R,G,B")
+      ->capture_default_str();
+  cmd->add_option("--mount", args->mount,
+                  "The bare mount around the sample (height field samples under 20 um above the "
+                  "mount plane): neutral (diffuse grey) | sample (the sample's BRDF and albedo)")
       ->capture_default_str();
   cmd->add_option("--turntable", args->turntable,
-                  "Also render N frames of the environment turning once around the sample "
-                  "(turntable/frame_NNN.png and turntable.gif)");
+                  "Also render N frames of the object turning once under the still light and "
+                  "camera (turntable/frame_NNN.png and turntable.gif), each sampled to the "
+                  "still's noise (denoised with --denoise)");
+  cmd->add_option("--turntable-light", args->turntable_light,
+                  "Also render N frames of the light (the environment) turning once around the "
+                  "still object (turntable_light/frame_NNN.png and turntable_light.gif)");
   cmd->add_option("--turntable-spp", args->turntable_spp,
-                  "Samples per pixel of each turntable frame (default: as --spp)");
+                  "Sample cap per pixel of each turntable frame (default: as --spp; 1024 with "
+                  "--time)");
   cmd->add_option("--turntable-size", args->turntable_size,
                   "Turntable frame size WxH (default: as --size)");
   cmd->add_option("--compare", args->compare,
@@ -542,6 +724,8 @@ void AddRenderCommand(CLI::App* app) {
                 "Also write preview_denoised.png / .exr: the render smoothed by an edge-aware "
                 "filter guided by normal and depth buffers (biased; the raw preview is still "
                 "written; with --time its cost comes out of the budget)");
+  cmd->add_flag("--scale-bar", args->scale_bar,
+                "Draw a scale bar (a round length at the sample's centre) on the display images");
   cmd->add_flag("--force", args->force,
                 "Replace an existing --out that is not an earlier output of `mesoscan render`");
   cmd->callback([args] { Run(*args); });

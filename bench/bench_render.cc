@@ -612,7 +612,8 @@ void DemoPreview(const fs::path& dir) {
     const fs::path out = dir / "demo_cli_render", log = dir / "demo_cli_render.log";
     const std::string cmd = "'" + mesoscan.string() + "' render '" + scan + "' --out '" +
                             out.string() + "' --brdf ggx-merl --env sky --size 480x360 --time 3 " +
-                            "--denoise --seed 2 > '" + log.string() + "' 2>&1";
+                            "--denoise --seed 2 --mount sample --albedo none > '" + log.string() +
+                            "' 2>&1";
     struct rusage ru0, ru1;
     getrusage(RUSAGE_CHILDREN, &ru0);
     t0 = Now();

@@ -354,4 +354,19 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
   return r;
 }
 
+ImageU8 OnSampleMask(const HeightField& hf, double clearance_m) {
+  ImageU8 mask(hf.width(), hf.height(), 1, 0);
+  int64_t finite = 0, on = 0;
+  for (const float z : hf.z.data()) {
+    finite += std::isfinite(z);
+    on += std::isfinite(z) && z > clearance_m;
+  }
+  const bool split = on >= finite / 100 && finite - on >= finite / 100 && on > 0 && on < finite;
+  for (size_t p = 0; p < mask.pixels(); ++p) {
+    const float z = hf.z.data()[p];
+    mask.data()[p] = std::isfinite(z) && (!split || z > clearance_m) ? 1 : 0;
+  }
+  return mask;
+}
+
 }  // namespace mesoscan

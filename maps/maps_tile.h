@@ -104,6 +104,13 @@ struct TileResult {
 TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& filled,
                     const TileOptions& options, const ImageF& mount_height = ImageF());
 
+// Which pixels of a height field (heights above the mount plane z = 0) are the sample: the
+// finite ones standing more than clearance_m off the plane (the tile's rule above), when the
+// field shows both the sample and the bare mount (each at least 1% of its finite pixels);
+// otherwise every finite pixel. 1 = sample, 0 = the bare mount or a hole. For the preview's
+// materials (render: the mount in its own neutral material).
+ImageU8 OnSampleMask(const HeightField& hf, double clearance_m = TileOptions{}.mount_clearance_m);
+
 TileMethod ParseTileMethod(const std::string& text);  // "blend" | "mirror", else Error(kUsage)
 const char* TileMethodName(TileMethod method);
 

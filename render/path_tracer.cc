@@ -96,7 +96,8 @@ struct Scene {
   int hf_id = -1;
   int plane_id = -1;
   const HeightField* hf = nullptr;
-  const ImageF* albedo = nullptr;  // on hf's grid, or null
+  const ImageF* albedo = nullptr;            // on hf's grid, or null
+  const ImageU8* sample_material = nullptr;  // on hf's grid, or null (all sample)
   int max_depth = 4;
   Rgb mount_irradiance = Rgb::Zero();  // the environment's, on the mount from above
   // What camera rays see: kMaskHeightFields when the camera provably cannot see the mount.
@@ -104,6 +105,16 @@ struct Scene {
   // The mirrored-environment sampler for continuation rays (render/mirror_guide.h), or null.
   const MirrorGuide* guide = nullptr;
   int resample = 0;  // RenderOptions::resample_candidates (with the guide only)
+
+  // False where RenderOptions::sample_material marks the height field's sample as bare mount.
+  bool OnSample(const Vec3& p) const {
+    if (!sample_material) return true;
+    const int i =
+        std::clamp(static_cast<int>(std::lround(hf->I(p.x()))), 0, sample_material->width() - 1);
+    const int j =
+        std::clamp(static_cast<int>(std::lround(hf->J(p.y()))), 0, sample_material->height() - 1);
+    return (*sample_material)(i, j) != 0;
+  }
 
   Rgb Tint(const Vec3& p) const {
     if (!albedo) return Rgb::Ones();
@@ -145,7 +156,8 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
   for (int depth = 0;; ++depth) {
     const auto hit = scene.embree.Intersect(origin, dir, 1e-9, 1e30,
                                             depth == 0 ? scene.camera_mask : EmbreeScene::kMaskAll);
-    if (depth == 0) first->sample = hit && hit->geometry == scene.hf_id;
+    if (depth == 0)
+      first->sample = hit && hit->geometry == scene.hf_id && scene.OnSample(hit->point);
     if (!hit) {
       if (!prev_cv) {
         double env_pdf = 0;
@@ -169,10 +181,13 @@ Rgb TracePath(const Scene& scene, const Brdf& brdf, const LambertBrdf& mount,
     if (n.dot(dir) > 0) n = -n;  // the underside of the height field, reached through a hole
     const Frame frame(n);
     const Vec3 wo = frame.ToLocal(-dir);
-    const bool on_mount = hit->geometry == scene.plane_id;
-    // The control variate needs the mount seen from above (the closed form is the upper
-    // hemisphere's irradiance).
-    const bool cv = on_mount && n.z() > 0;
+    const bool on_plane = hit->geometry == scene.plane_id;
+    // The mount: the plane under the holes, or the height field where it is the bare mount
+    // around the sample (RenderOptions::sample_material); both Lambert with the mount's albedo.
+    const bool on_mount = on_plane || !scene.OnSample(hit->point);
+    // The control variate needs the plane seen from above (the closed form is the upper
+    // hemisphere's irradiance on a surface facing +z).
+    const bool cv = on_plane && n.z() > 0;
     if (cv) L += beta * mount.albedo() * (kInvPi)*scene.mount_irradiance;
     const Rgb tint = on_mount ? Rgb::Ones() : scene.Tint(hit->point);
     if (depth == 0) {
@@ -565,6 +580,11 @@ bool BuildScene(const HeightField& hf, double zmin, double zmax, const PinholeCa
                 Scene* scene, std::optional<MirrorGuide>* guide) {
   scene->hf = &hf;
   scene->albedo = options.albedo;
+  if (options.sample_material) {
+    MESOSCAN_CHECK(options.sample_material->width() == hf.width() &&
+                   options.sample_material->height() == hf.height());
+    scene->sample_material = options.sample_material;
+  }
   scene->max_depth = options.max_depth;
   scene->hf_id = scene->embree.AddHeightField(hf);
   const double extent = std::max(hf.width(), hf.height()) * hf.pixel_size;
@@ -605,7 +625,8 @@ RenderResult NewRenderResult(int W, int H, bool mount_visible, bool mirror_guide
 
 // The images from the pixels' sums, on the pool (between rounds the other core would idle), and
 // the exposure metered on them.
-void UpdateImages(const std::vector<PixelState>& px, int W, int H, RenderResult* r) {
+void UpdateImages(const std::vector<PixelState>& px, int W, int H, const Rgb& balance,
+                  RenderResult* r) {
   RenderResult& result = *r;
   ParallelForRows(H, [&](int y0, int y1) {
     for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
@@ -628,7 +649,7 @@ void UpdateImages(const std::vector<PixelState>& px, int W, int H, RenderResult*
       }
     }
   });
-  result.tone = MeterExposure(result.radiance, &result.sample_mask);
+  result.tone = MeterExposure(result.radiance, &result.sample_mask, balance);
 }
 
 // How many samples each pixel takes in the next round: a uniform target doubling every round
@@ -869,6 +890,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
   const RoundTracer tracer{scene, brdf, mount, env, cam, log2_spp};
   std::vector<PixelState> px(static_cast<size_t>(W) * H);
   RenderResult result = NewRenderResult(W, H, mount_visible, scene.guide != nullptr);
+  const Rgb balance = WhiteBalanceFor(env);
   int64_t samples = 0;
   std::vector<float> var(px.size()), var_s(px.size());
   Progress progress("render (pixels done)", static_cast<int64_t>(W) * H);
@@ -883,7 +905,7 @@ RenderResult Render(const HeightField& hf_in, const Brdf& brdf, const Environmen
     schedule.round_start_cost = 0;
     for (const PixelState& p : px) schedule.round_start_cost += p.cost;
     samples += TraceRound(tracer, options, round, schedule, clock, &px);
-    UpdateImages(px, W, H, &result);
+    UpdateImages(px, W, H, balance, &result);
     EstimatePixelVariance(px, W, H, &var, &var_s);
     const int was_active = active;
     active = RetireConvergedPixels(var_s, options, schedule.allocate, &px, &result);
@@ -930,7 +952,42 @@ ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const Environm
   return std::move(r.radiance);
 }
 
-ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask) {
+Rgb WhiteBalanceFor(const EnvironmentMap& env) {
+  // The colour of the upper hemisphere's radiance, solid-angle weighted, without its brightest
+  // 2% (a sun disk: its light falls on the mount, while a glossy sample mostly mirrors the sky).
+  const ImageF& im = env.image();
+  if (env.is_constant() || im.pixels() == 0) return Rgb::Ones();
+  struct Texel {
+    float lum;
+    double weight;
+    Rgb rgb;
+  };
+  std::vector<Texel> t;
+  const int w = im.width(), h = im.height();
+  double total = 0;
+  for (int y = 0; y < (h + 1) / 2; ++y) {
+    const double weight = std::sin(kPi * (y + 0.5) / h);
+    for (int x = 0; x < w; ++x) {
+      const Rgb c(std::max(0.0f, im(x, y, 0)), std::max(0.0f, im(x, y, 1)),
+                  std::max(0.0f, im(x, y, 2)));
+      t.push_back({static_cast<float>(Luminance(c)), weight, c});
+      total += weight;
+    }
+  }
+  std::sort(t.begin(), t.end(), [](const Texel& a, const Texel& b) { return a.lum < b.lum; });
+  Rgb sum = Rgb::Zero();
+  double acc = 0;
+  for (const Texel& x : t) {
+    if (acc > 0.98 * total) break;
+    sum += x.rgb * x.weight;
+    acc += x.weight;
+  }
+  if (!((sum > 0).all()) || !sum.allFinite()) return Rgb::Ones();
+  const Rgb g = sum.inverse();
+  return g / Luminance(g);
+}
+
+ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask, const Rgb& balance) {
   // Exposure from the log-average luminance (key 0.18, Reinhard et al. 2002) of the sample's
   // pixels, then the extended Reinhard curve with the white point at their 99.5th percentile, so
   // a sun glint neither blows out the image nor darkens everything else.
@@ -942,16 +999,22 @@ ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask) {
     for (size_t i = 0; i < n; ++i) {
       if (pass == 0 && mask && mask->pixels() == n && !(mask->channel(0)[i] > 0.5f)) continue;
       if (pass == 0 && !(mask && mask->pixels() == n)) continue;
-      const float l = static_cast<float>(
-          Luminance(Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i])));
+      const float l = static_cast<float>(Luminance(
+          Rgb(radiance.channel(0)[i], radiance.channel(1)[i], radiance.channel(2)[i]) * balance));
       lum.push_back(l);
       log_sum += std::log(1e-6 + std::max(0.0f, l));
     }
   }
   ToneMapping t;
+  t.balance = balance;
   if (lum.empty()) return t;
+  // The key: the log-average, or the median where that is brighter (a sample that is mostly one
+  // bright face with dark flanks: the log-average, pulled down by the flanks, overexposed the
+  // face of a polished coin under a sunset).
   const double log_avg = std::exp(log_sum / lum.size());
-  t.exposure = log_avg > 0 ? 0.18 / log_avg : 1.0;
+  std::nth_element(lum.begin(), lum.begin() + lum.size() / 2, lum.end());
+  const double key = std::max(log_avg, static_cast<double>(lum[lum.size() / 2]));
+  t.exposure = key > 0 ? 0.18 / key : 1.0;
   const size_t k = static_cast<size_t>(0.995 * (lum.size() - 1));
   std::nth_element(lum.begin(), lum.begin() + k, lum.end());
   t.white = std::max(1.0, lum[k] * t.exposure);
@@ -964,10 +1027,44 @@ ImageU8 ToneMapForDisplay(const ImageF& radiance, const ToneMapping& tone) {
   const double w2 = tone.white * tone.white;
   for (int c = 0; c < 3; ++c)
     for (size_t i = 0; i < n; ++i) {
-      const double v = std::max(0.0, radiance.channel(c)[i] * tone.exposure);
+      const double v = std::max(0.0, radiance.channel(c)[i] * tone.balance[c] * tone.exposure);
       mapped.channel(c)[i] = static_cast<float>(v * (1 + v / w2) / (1 + v));
     }
   return QuantizeU8(mapped, /*srgb_encode=*/true);
+}
+
+double DisplayNoise(const RenderResult& r) {
+  const int W = r.radiance.width(), H = r.radiance.height();
+  const auto lum = [&](const ImageF& im, int x, int y) {
+    return Luminance(Rgb(im(x, y, 0), im(x, y, 1), im(x, y, 2)));
+  };
+  std::vector<double> var(static_cast<size_t>(W) * H);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const double d = lum(r.half[0], x, y) - lum(r.half[1], x, y);
+      var[static_cast<size_t>(y) * W + x] = 0.25 * d * d;
+    }
+  std::vector<double> err[2];
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      double sum = 0;
+      int k = 0;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int xx = x + dx, yy = y + dy;
+          if (xx < 0 || yy < 0 || xx >= W || yy >= H) continue;
+          sum += var[static_cast<size_t>(yy) * W + xx];
+          ++k;
+        }
+      const double v = r.tone.exposure * std::max(0.0, lum(r.radiance, x, y));
+      const double e = std::sqrt(sum / k) * r.tone.exposure * ToneCurveSlope(v, r.tone.white);
+      const bool on = r.sample_mask.pixels() == var.size() && r.sample_mask(x, y, 0) > 0.5f;
+      err[on ? 0 : 1].push_back(e);
+    }
+  std::vector<double>& e = err[0].empty() ? err[1] : err[0];
+  if (e.empty()) return 0;
+  std::nth_element(e.begin(), e.begin() + e.size() / 2, e.end());
+  return e[e.size() / 2];
 }
 
 ImageU8 ToneMapForDisplay(const ImageF& radiance) {

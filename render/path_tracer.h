@@ -47,6 +47,12 @@ struct RenderOptions {
   // Spatially varying base colour: RGB (or 1-channel) on the height field's grid, multiplies the
   // surface BRDF (nearest sample). nullptr: the BRDF as given.
   const ImageF* albedo = nullptr;
+  // Which of the height field's samples are the sample and which the bare mount it sits on, on
+  // the height field's grid (nearest sample): nonzero = the sample (the BRDF, the albedo), zero =
+  // the mount (Lambert with mount_albedo, as the plane under the holes). nullptr: all sample.
+  // The camera rays' sample mask (RenderResult::sample_mask, the exposure's metering region)
+  // counts the sample's hits only.
+  const ImageU8* sample_material = nullptr;
   uint64_t seed = 1;
   // Camera rays skip the mount plane when the camera provably cannot see it (hole-free field
   // filling the view); false traces it anyway (for the bench's before/after).
@@ -108,14 +114,24 @@ struct RenderSummary {
   std::string BriefReport() const;
 };
 
-// Display mapping: radiance * exposure, extended Reinhard curve with white point `white`, sRGB.
+// Display mapping: radiance * balance * exposure, extended Reinhard curve with white point
+// `white`, sRGB. `balance`: per-channel gains of luminance 1 (a white balance; Render() sets it
+// to the inverse colour of the environment's sky (WhiteBalanceFor), so a glossy material's own
+// colour shows under a blue sky or a red sunset).
 struct ToneMapping {
   double exposure = 1.0, white = 1.0;
+  Rgb balance = Rgb::Ones();
 };
+
+// The white balance for `env`: gains proportional to 1 / the mean colour of its upper
+// hemisphere's radiance (solid-angle weighted, its brightest 2% left out: the sun disk), scaled
+// to luminance 1; ones for a constant environment or one without light.
+Rgb WhiteBalanceFor(const EnvironmentMap& env);
 
 struct RenderResult {
   ImageF radiance;     // linear RGB
-  ImageF sample_mask;  // 1 channel: fraction of each pixel's camera rays that hit the height field
+  ImageF sample_mask;  // 1 channel: fraction of each pixel's camera rays that hit the sample (the
+                       // height field where RenderOptions::sample_material says sample)
   // Feature buffers of the camera rays' first hits, averaged over each pixel's samples (zero
   // where a ray escaped): for the optional preview denoiser (render/denoise.h).
   ImageF normal;     // 3 channels: world-space shading normal, facing the camera
@@ -124,7 +140,7 @@ struct RenderResult {
                      // height field, the mount's albedo on the mount)
   ImageF half[2];    // 3 channels each: the means of the even and of the odd samples
   ImageF spp;        // 1 channel: samples taken per pixel
-  ToneMapping tone;  // metered on the sample (mask > 0.5), not on the mount
+  ToneMapping tone;  // metered on the sample (mask > 0.5), not on the mount; white-balanced
   RenderSummary summary;
 };
 
@@ -143,9 +159,18 @@ ImageF RenderHeightField(const HeightField& hf, const Brdf& brdf, const Environm
                          const RenderOptions& options, RenderSummary* summary = nullptr);
 
 // Exposure from the log-average luminance (key 0.18) of the pixels with mask > 0.5 (all pixels
-// when mask is null or empty), white point at their 99.5th percentile.
-ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask = nullptr);
+// when mask is null or empty, or when no pixel has), white point at their 99.5th percentile;
+// luminance after the white balance `balance` (kept in the result).
+ToneMapping MeterExposure(const ImageF& radiance, const ImageF* mask = nullptr,
+                          const Rgb& balance = Rgb::Ones());
 ImageU8 ToneMapForDisplay(const ImageF& radiance, const ToneMapping& tone);
+
+// A render's noise in the units of RenderOptions::noise (a fraction of the display range through
+// r.tone's curve): the median over the sample's pixels (sample_mask > 0.5; all pixels if none) of
+// each pixel's standard error, estimated from its half-buffers' luminance as the adaptive
+// sampler does ((A - B)^2 / 4 averaged over the pixel's 3x3 neighbourhood). For renders that
+// should match another's noise (the turntable's frames against the still).
+double DisplayNoise(const RenderResult& r);
 // Meters on all pixels.
 ImageU8 ToneMapForDisplay(const ImageF& radiance);
 
