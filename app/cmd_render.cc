@@ -349,7 +349,8 @@ CameraSpec TurnCamera(const CameraSpec& cam, const Vec3& centre, double degrees)
 // about its centre: the same images), false turns the light around the still object. Exposure
 // fixed from the still so the frames do not flicker. Each frame is sampled to the still's noise
 // (render/path_tracer.h DisplayNoise: the still's --noise, or what the still reached under
-// --time when that is more), with adaptive stopping, and denoised with --denoise.
+// --time when that is more), with adaptive stopping, and denoised with --denoise; under --time a
+// frame takes at most the still's seconds per pixel.
 void RenderTurntable(const RenderArgs& a, const HeightField& hf, const Brdf& brdf,
                      const EnvironmentMap& env, const RenderOptions& o, const RenderResult& still,
                      const Display& display, bool object, const fs::path& out) {
@@ -364,7 +365,14 @@ void RenderTurntable(const RenderArgs& a, const HeightField& hf, const Brdf& brd
                    "--turntable-size: expected WxH, got '" << a.turntable_size << "'");
   const double still_noise = DisplayNoise(still);
   ot.noise = std::max(o.noise, still_noise);
-  ot.time_limit_s = 0;  // the noise target decides (uniform rounds, adaptive stopping)
+  // The noise target decides (uniform rounds, adaptive stopping); under --time each frame may
+  // also take at most the still's seconds per pixel.
+  ot.time_limit_s =
+      o.time_limit_s > 0
+          ? std::max(0.05, still.summary.seconds * (static_cast<double>(ot.width) * ot.height) /
+                               (static_cast<double>(o.width) * o.height))
+          : 0;
+  ot.allocate_pilot_spp = 0;
   ot.allocate_for_denoiser = false;
   // Under --time the still has no sample cap (65536): the frames stop at 1024.
   ot.max_spp = o.time_limit_s > 0 ? std::min(o.max_spp, 1024) : o.max_spp;

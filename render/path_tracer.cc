@@ -1058,6 +1058,8 @@ double DisplayNoise(const RenderResult& r) {
         }
       const double v = r.tone.exposure * std::max(0.0, lum(r.radiance, x, y));
       const double e = std::sqrt(sum / k) * r.tone.exposure * ToneCurveSlope(v, r.tone.white);
+      // A pixel of one sample has no second half to compare with.
+      if (r.spp.pixels() == var.size() && r.spp(x, y, 0) < 2) continue;
       const bool on = r.sample_mask.pixels() == var.size() && r.sample_mask(x, y, 0) > 0.5f;
       err[on ? 0 : 1].push_back(e);
     }

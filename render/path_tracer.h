@@ -167,9 +167,9 @@ ImageU8 ToneMapForDisplay(const ImageF& radiance, const ToneMapping& tone);
 
 // A render's noise in the units of RenderOptions::noise (a fraction of the display range through
 // r.tone's curve): the median over the sample's pixels (sample_mask > 0.5; all pixels if none) of
-// each pixel's standard error, estimated from its half-buffers' luminance as the adaptive
-// sampler does ((A - B)^2 / 4 averaged over the pixel's 3x3 neighbourhood). For renders that
-// should match another's noise (the turntable's frames against the still).
+// each pixel's standard error (pixels of at least 2 samples), estimated from its half-buffers'
+// luminance as the adaptive sampler does ((A - B)^2 / 4 averaged over the pixel's 3x3
+// neighbourhood). For renders that should match another's noise (turntable frames, the still).
 double DisplayNoise(const RenderResult& r);
 // Meters on all pixels.
 ImageU8 ToneMapForDisplay(const ImageF& radiance);
