@@ -91,6 +91,12 @@ void RunExport(const ExportArgs& a) {
   std::optional<MapsOptions> maps;
   if (a.maps.any()) maps = a.maps.ToOptions(o.name, a.crop);
   if (maps && !a.maps.fill.empty()) o.fill = maps->fill;
+  // The GLB's material as the map set's: its ambient occlusion and roughness.
+  if (maps) {
+    o.glb_occlusion = maps->maps.ao;
+    o.glb_ao = maps->ao;
+    o.glb_roughness = maps->roughness;
+  }
   // Inputs: the scan, the albedo, and the session the scan came from (its white frame).
   OutputSpec out_spec{"export", "--out", a.out, {a.scan, a.albedo}, a.force, {"manifest.json"}};
   const fs::path report = fs::path(a.scan) / "report.json";

@@ -797,7 +797,7 @@ void AddPly(const ExportMaps& m, ExportWriter* w) {
 // What the GLB writer reads; owned by ExportScan so that it outlives the task.
 struct GlbParts {
   GridMesh mesh;
-  std::vector<uint8_t> normal_png, albedo_png;
+  std::vector<uint8_t> normal_png, albedo_png, occlusion_png;
 };
 
 // The GLB's extras: units, axes, the height maps beside it and the mesh's error.
@@ -830,6 +830,13 @@ int64_t FilledVertices(const ExportMaps& m, const GridMesh& mesh) {
   return n;
 }
 
+Json GlbTextures(const ExportMaps& m) {
+  Json t = Json::array({"normal (OpenGL, 8-bit)"});
+  if (!m.grid.albedo.empty()) t.push_back("baseColor (sRGB, 8-bit)");
+  if (m.o.glb_occlusion) t.push_back("occlusion (ambient occlusion, linear 8-bit, R)");
+  return t;
+}
+
 Json GlbEntry(const ExportMaps& m, const GridMesh& mesh) {
   return {{"role", "mesh"},
           {"format", "glb"},
@@ -846,9 +853,8 @@ Json GlbEntry(const ExportMaps& m, const GridMesh& mesh) {
           {"filled_vertices", FilledVertices(m, mesh)},
           {"filled_attribute", "_FILLED: 1 at vertices on filled (not measured) samples"},
           {"budget_met", mesh.budget_met},
-          {"textures", m.grid.albedo.empty()
-                           ? Json{"normal (OpenGL, 8-bit)"}
-                           : Json{"normal (OpenGL, 8-bit)", "baseColor (sRGB, 8-bit)"}}};
+          {"textures", GlbTextures(m)},
+          {"roughness", m.o.glb_roughness >= 0 ? m.o.glb_roughness : 0.6}};
 }
 
 // <name>.glb: the mesh (built on this thread while its textures are encoded) with its
@@ -866,6 +872,11 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   if (!g.albedo.empty())
     texture_tasks.run(
         [&g, parts, tex] { parts->albedo_png = EncodePng8(QuantizeU8(g.albedo, true), tex); });
+  if (m.o.glb_occlusion)
+    texture_tasks.run([&m, parts, tex] {
+      parts->occlusion_png = EncodePng8(
+          QuantizeU8(AmbientOcclusion(m.heights.hole_fill.field, m.o.glb_ao, false)), tex);
+    });
   // The mesh (RTIN within the triangle budget) over the hole-filled field, so that viewers show
   // no gap where the scan has a hole; its filled vertices are flagged (_FILLED).
   const HeightField& surface = m.heights.hole_fill.field;
@@ -890,7 +901,10 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
   summary->max_height_error_m = mesh.max_height_error_m;
   // The file: listed, then written once its textures are ready.
   w->Add(f, GlbEntry(m, mesh),
-         "Blender: File > Import > glTF 2.0 '" + f + "' (metres; Z up after import)");
+         "Blender: File > Import > glTF 2.0 '" + f +
+             "' with Shading: Smooth in the importer's options (Debian's Blender needs it; "
+             "Python: bpy.ops.import_scene.gltf(filepath='" +
+             f + "', import_shading='SMOOTH')) (metres; Z up after import)");
   texture_tasks.wait();
   w->Run(f, [&g, &surface, &m, parts, n, f, extras = GlbExtras(m, mesh), dir = w->dir()] {
     GlbContent c;
@@ -902,6 +916,8 @@ void AddGlb(const ExportMaps& m, GlbParts* parts, ExportSummary* summary, Export
     c.extras = extras;
     c.normal_png = std::move(parts->normal_png);
     c.base_color_png = std::move(parts->albedo_png);
+    c.occlusion_png = std::move(parts->occlusion_png);
+    if (m.o.glb_roughness >= 0) c.roughness = m.o.glb_roughness;
     WriteGlb(dir / f, c);
   });
 }

@@ -28,6 +28,7 @@
 #include "core/json.h"
 #include "core/rect.h"
 #include "core/scan_folder.h"
+#include "maps/maps_derived.h"
 #include "maps/maps_fill.h"
 
 namespace mesoscan {
@@ -52,6 +53,13 @@ struct ExportOptions {
   PixelRect crop;
   // GLB: at most this many triangles, > 0 (see maps/export_mesh.h).
   int64_t max_triangles = 1'000'000;
+  // The GLB's material beyond its normal and base-colour textures, as the map set has them
+  // (export with map-set options): an ambient-occlusion texture on the export grid
+  // (occlusionTexture, maps_derived.h AmbientOcclusion with glb_ao) and the roughness
+  // (roughnessFactor, < 0: the default 0.6).
+  bool glb_occlusion = false;
+  AoOptions glb_ao;
+  double glb_roughness = -1.0;
   // GLB: triangles whose RTIN error is <= this are never split (metres, >= 0).
   double mesh_tolerance_m = 0.0;
   // File name prefix, non-empty, no path separators.

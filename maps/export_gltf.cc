@@ -2,6 +2,7 @@
 
 #include <tiny_gltf.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -168,11 +169,15 @@ void WriteGlb(const fs::path& path, const GlbContent& c) {
   tinygltf::Material material;
   material.name = c.name;
   material.pbrMetallicRoughness.metallicFactor = 0.0;
-  material.pbrMetallicRoughness.roughnessFactor = 0.6;
+  material.pbrMetallicRoughness.roughnessFactor = std::clamp(c.roughness, 0.0, 1.0);
   material.normalTexture.index = AddPngTexture(&model, c.normal_png, c.name + "_normal_gl");
   if (!c.base_color_png.empty())
     material.pbrMetallicRoughness.baseColorTexture.index =
         AddPngTexture(&model, c.base_color_png, c.name + "_albedo");
+  if (!c.occlusion_png.empty()) {
+    material.occlusionTexture.index = AddPngTexture(&model, c.occlusion_png, c.name + "_ao");
+    material.occlusionTexture.strength = 1.0;
+  }
   model.materials.push_back(material);
   prim.material = 0;
 

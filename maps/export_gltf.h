@@ -29,7 +29,11 @@ struct GlbContent {
   const ImageU8* filled = nullptr;
   std::vector<uint8_t> normal_png;      // encoded PNG of the OpenGL normal map (required)
   std::vector<uint8_t> base_color_png;  // encoded sRGB PNG of the albedo (may be empty)
-  Json extras = Json::object();         // node extras (Blender: object custom properties)
+  // Encoded linear 8-bit PNG of the ambient occlusion (occlusionTexture, read from R; may be
+  // empty).
+  std::vector<uint8_t> occlusion_png;
+  double roughness = 0.6;        // pbrMetallicRoughness.roughnessFactor, in [0, 1]
+  Json extras = Json::object();  // node extras (Blender: object custom properties)
 };
 
 // Writes the GLB atomically. Throws Error naming the file on failure.
