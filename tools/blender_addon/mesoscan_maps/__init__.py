@@ -7,8 +7,15 @@
 #  - on a new plane of the sample's physical size (one vertex per texel, up to a limit, so
 #    Cycles' true displacement has the map's resolution), repeated `repeat` times for a
 #    tileable set, or
-#  - on the selected object, with the maps projected from the object's X-Y coordinates at the
-#    tile's physical size (Repeat extension), so a 12 mm tile is 12 mm on the object.
+#  - on the selected object at the tile's physical size (Repeat extension), so a 12 mm tile is
+#    12 mm on the object, projected
+#      BOX   (default) from the object's coordinates along its X, Y and Z axes, each face taking
+#            the axis nearest its normal (blended over a narrow band): no smearing on a curved
+#            object (a sphere, a cylinder); the relief comes from the height (Cycles displaces
+#            and bumps, Eevee bumps), the tangent-space normal map is not linked (its tangents
+#            would not follow the box's faces);
+#      UV    through the object's own UV map, `repeat` tiles per UV unit, normal map linked;
+#      FLAT  along the object's Z (its X-Y coordinates), as for a flat object.
 # Installable as a zip (the build writes build/tools/mesoscan_maps.zip):
 #   blender --python-expr "import bpy; bpy.ops.preferences.addon_install(filepath='ZIP');
 #     bpy.ops.preferences.addon_enable(module='mesoscan_maps');
@@ -50,14 +57,18 @@ def pick(m, role, fmt=None):
 
 
 def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_map=True):
-    """The node tree. coords: "UV" (plane) or "OBJECT" (projected at the tile's size).
+    """The node tree. coords: "UV" (the mesh's UVs, `repeat` tiles per unit), "BOX" (box
+    projection of the object's coordinates at the tile's size) or "OBJECT" (its X-Y coordinates
+    at the tile's size).
     link_normal_map: False when the mesh has a vertex per texel, where the displaced geometry
     already carries the map's slopes (the normal map on top would tilt them twice); the node is
     still built for the user to connect."""
     name = m["name"]
     mat = bpy.data.materials.new("mesoscan " + name)
     mat.use_nodes = True
-    mat.cycles.displacement_method = "DISPLACEMENT"
+    # Box projection: the relief from the height alone, displaced where the mesh is dense and
+    # bumped at the texels' scale.
+    mat.cycles.displacement_method = "BOTH" if coords == "BOX" else "DISPLACEMENT"
     nt = mat.node_tree
     for n in list(nt.nodes):
         nt.nodes.remove(n)
@@ -74,6 +85,10 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
     if coords == "UV":
         nt.links.new(tc.outputs["UV"], mapping.inputs["Vector"])
         mapping.inputs["Scale"].default_value = (repeat, repeat, 1.0)
+    elif coords == "BOX":
+        # One scale on every axis (the box's faces share the tile's size).
+        nt.links.new(tc.outputs["Object"], mapping.inputs["Vector"])
+        mapping.inputs["Scale"].default_value = (1.0 / tile_m[0], 1.0 / tile_m[1], 1.0 / tile_m[0])
     else:
         nt.links.new(tc.outputs["Object"], mapping.inputs["Vector"])
         mapping.inputs["Scale"].default_value = (1.0 / tile_m[0], 1.0 / tile_m[1], 1.0)
@@ -86,6 +101,9 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
         node.image = img
         node.extension = extension
         node.interpolation = "Linear"
+        if coords == "BOX":
+            node.projection = "BOX"
+            node.projection_blend = 0.15
         node.location = (-400, y)
         node.name = node.label = label
         nt.links.new(mapping.outputs["Vector"], node.inputs["Vector"])
@@ -123,7 +141,7 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
         else:
             nt.links.new(tex.outputs["Color"], nm.inputs["Color"])
         nm.name = "mesoscan normal map"
-        if link_normal_map:
+        if link_normal_map and coords != "BOX":
             nt.links.new(nm.outputs["Normal"], bsdf.inputs["Normal"])
     albedo = pick(m, "albedo")
     ao = pick(m, "ao")
@@ -180,8 +198,9 @@ def make_plane(m, repeat=1, max_grid=MAX_GRID):
     return obj
 
 
-def load_map_set(manifest_path, target="PLANE", repeat=1, max_grid=MAX_GRID):
-    """Imports the map set; returns the object carrying its material."""
+def load_map_set(manifest_path, target="PLANE", repeat=1, max_grid=MAX_GRID, projection="BOX"):
+    """Imports the map set; returns the object carrying its material. projection (target
+    SELECTED): "BOX", "UV" or "FLAT" (see the header)."""
     m = read_manifest(manifest_path)
     folder = os.path.dirname(os.path.abspath(manifest_path))
     if target == "SELECTED":
@@ -189,8 +208,15 @@ def load_map_set(manifest_path, target="PLANE", repeat=1, max_grid=MAX_GRID):
         if obj is None or obj.type != "MESH":
             raise ValueError("mesoscan map set: select a mesh object to apply the material to")
         size = m["tile"]["size_m"] if m.get("tile") else m["grid"]["physical_size_m"][0]
-        mat = build_material(m, folder, coords="OBJECT",
-                             tile_m=(size, size * m["grid"]["height_px"] / m["grid"]["width_px"]))
+        tile_m = (size, size * m["grid"]["height_px"] / m["grid"]["width_px"])
+        if projection == "UV":
+            if not obj.data.uv_layers:
+                raise ValueError("mesoscan map set: %s has no UV map (use the Box projection)" % obj.name)
+            mat = build_material(m, folder, coords="UV", repeat=float(repeat))
+        elif projection == "FLAT":
+            mat = build_material(m, folder, coords="OBJECT", tile_m=tile_m)
+        else:
+            mat = build_material(m, folder, coords="BOX", tile_m=tile_m)
     else:
         obj = make_plane(m, repeat=repeat, max_grid=max_grid)
         full_res = int(m["grid"]["width_px"]) * repeat <= max_grid and int(m["grid"]["height_px"]) * repeat <= max_grid
@@ -212,11 +238,19 @@ class ImportMesoscanMaps(bpy.types.Operator, ImportHelper):
         items=[("PLANE", "New plane", "A plane of the sample's physical size"),
                ("SELECTED", "Selected object", "The active mesh, maps at the tile's physical size")],
         default="PLANE")
-    repeat: IntProperty(name="Repeat", description="Tiles per side on the new plane", default=1, min=1, max=16)
+    repeat: IntProperty(name="Repeat", description="Tiles per side on the new plane (per UV unit with "
+                        "the UV projection)", default=1, min=1, max=16)
+    projection: EnumProperty(
+        name="Projection",
+        description="How the maps are laid on the selected object",
+        items=[("BOX", "Box", "From the object's X, Y and Z at the tile's size: curved objects"),
+               ("UV", "UV", "The object's own UV map, Repeat tiles per UV unit"),
+               ("FLAT", "Flat (X-Y)", "Along the object's Z at the tile's size: flat objects")],
+        default="BOX")
 
     def execute(self, context):
         try:
-            obj = load_map_set(self.filepath, self.target, self.repeat)
+            obj = load_map_set(self.filepath, self.target, self.repeat, projection=self.projection)
         except (OSError, ValueError, KeyError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
