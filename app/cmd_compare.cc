@@ -99,7 +99,7 @@ void AddCompareCommand(CLI::App* app) {
                   "Coarse alignment's voxel (m); 0: 4 height-grid pixels")
       ->capture_default_str();
   cmd->add_option("--max-points", a->o.max_icp_points,
-                  "Fine registration: at most this many points of each scan")
+                  "Fine registration: at most this many points of B (four times as many of A)")
       ->capture_default_str();
   cmd->add_option("--seed", a->o.seed, "Random seed of the coarse alignment (RANSAC)")
       ->capture_default_str();

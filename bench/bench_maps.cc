@@ -20,6 +20,7 @@
 #include "core/log.h"
 #include "core/scan_folder.h"
 #include "maps/maps.h"
+#include "sim/synthetic_scan.h"
 
 namespace mesoscan {
 namespace {
@@ -28,27 +29,24 @@ constexpr double kPi = 3.14159265358979323846;
 
 const Scan& FullScan() {
   static const Scan scan = [] {
-    Scan s;
+    SyntheticScanOptions o;
+    o.seed = 5;
+    o.predicted_depth_rms_m = 0;
+    Scan s = SyntheticScan(
+        [](double x, double y) {
+          const double weave =
+              80e-6 * std::sin(2 * kPi * x / 0.8e-3) * std::sin(2 * kPi * y / 0.8e-3) +
+              40e-6 * std::cos(2 * kPi * (x + y) / 1.6e-3);
+          const double shape =
+              1e-3 + 0.01 * x - 0.005 * y - 0.4e-3 * (x * x + y * y) / (0.06 * 0.06);
+          return shape + weave;
+        },
+        o);
     HeightField& hf = s.height;
-    const int w = 2176, h = 1434;
-    hf.pixel_size = 55e-6;
-    hf.x0 = -(w - 1) / 2.0 * hf.pixel_size;
-    hf.y0 = (h - 1) / 2.0 * hf.pixel_size;
-    hf.z = ImageF(w, h, 1);
-    hf.confidence = ImageF(w, h, 1, 0.95f);
+    const int w = hf.width(), h = hf.height();
+    // Shadows: 3-6 px clusters in the thread gaps, ~0.5% of the pixels, and 1e-3 dropped samples.
     std::mt19937 rng(5);
     std::uniform_real_distribution<double> u(0, 1);
-    std::normal_distribution<double> noise(0.0, 1.0);
-    for (int j = 0; j < h; ++j)
-      for (int i = 0; i < w; ++i) {
-        const double x = hf.X(i), y = hf.Y(j);
-        const double weave =
-            80e-6 * std::sin(2 * kPi * x / 0.8e-3) * std::sin(2 * kPi * y / 0.8e-3) +
-            40e-6 * std::cos(2 * kPi * (x + y) / 1.6e-3);
-        const double shape = 1e-3 + 0.01 * x - 0.005 * y - 0.4e-3 * (x * x + y * y) / (0.06 * 0.06);
-        hf.z(i, j) = static_cast<float>(shape + weave + 1e-6 * noise(rng));
-      }
-    // Shadows: 3-6 px clusters in the thread gaps, ~0.5% of the pixels, and 1e-3 dropped samples.
     for (int k = 0; k < 3000; ++k) {
       const int cx = static_cast<int>(u(rng) * w), cy = static_cast<int>(u(rng) * h);
       const int r = 1 + static_cast<int>(u(rng) * 3);

@@ -8,6 +8,7 @@
 #include <sstream>
 #include <vector>
 
+#include "compare/planar_alignment.h"
 #include "compare/registration_module.h"
 #include "core/error.h"
 #include "core/fs.h"
@@ -55,6 +56,20 @@ size_t MakeCloud(const Scan& s, const CompareOptions& o, bool use_masks, int max
     normals->emplace_back(Vec3d(n(i, j, 0), n(i, j, 1), n(i, j, 2)).normalized());
   }
   return idx.size();
+}
+
+// The field's object pixels (in the region, confident; A's masks when use_masks): 1, else 0.
+ImageU8 ObjectPixels(const HeightField& hf, const CompareOptions& o, bool use_masks) {
+  ImageU8 in(hf.width(), hf.height(), 1, 0);
+  for (int j = 0; j < hf.height(); ++j)
+    for (int i = 0; i < hf.width(); ++i) {
+      if (!InRegion(hf, i, j, o)) continue;
+      if (!hf.confidence.empty() && !(hf.confidence(i, j) >= o.min_confidence)) continue;
+      if (use_masks && !o.mask.empty() && !(o.mask(i, j) != 0)) continue;
+      if (use_masks && !o.exclude.empty() && o.exclude(i, j) != 0) continue;
+      in(i, j) = 1;
+    }
+  return in;
 }
 
 double Percentile(std::vector<double> v, double q) {
@@ -134,7 +149,7 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
   // ---- clouds ----
   RegistrationInput in;
   const size_t a_count =
-      MakeCloud(an, o, /*use_masks=*/true, o.max_icp_points, &in.a_points, &in.a_normals);
+      MakeCloud(an, o, /*use_masks=*/true, 4 * o.max_icp_points, &in.a_points, &in.a_normals);
   MakeCloud(bn, o, /*use_masks=*/false, o.max_icp_points, &in.b_points, &in.b_normals);
   constexpr size_t kMinPoints = 500;
   if (in.a_points.size() < kMinPoints)
@@ -156,7 +171,12 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
           : std::max(4 * px, std::sqrt(static_cast<double>(a_count) * px * px / kCoarseVoxels));
   Json timings;
 
-  // ---- registration (Open3D, in its module) ----
+  // ---- coarse placement from the height images (OpenCV), then registration (Open3D) ----
+  const Stopwatch t_planar;
+  const std::vector<PlanarCandidate> planar = PlanarAlignment(
+      ha, ObjectPixels(ha, o, /*use_masks=*/true), hb, ObjectPixels(hb, o, /*use_masks=*/false));
+  for (const PlanarCandidate& c : planar) in.starts.push_back(c.b_to_a);
+  timings["planar"] = t_planar.Seconds();
   in.voxel_m = voxel;
   in.max_distance_m = 2 * px;
   in.seed = o.seed;
@@ -320,9 +340,15 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
   regj["points_b_inliers"] = reg.b_inliers;
   regj["inlier_rms_um"] = reg.inliers ? std::sqrt(reg.sum_squares / reg.inliers) * 1e6 : 0.0;
   regj["robust_sigma_um"] = reg.robust_sigma_m * 1e6;
+  regj["planar_candidates"] = Json::array();
+  for (const PlanarCandidate& c : planar)
+    regj["planar_candidates"].push_back(
+        {{"rotation_z_deg", c.angle_deg}, {"response", c.response}});
   regj["method"] =
-      "FPFH + RANSAC (Open3D), point-to-plane ICP with Tukey's kernel, points beyond 3 robust "
-      "sigmas excluded and refit";
+      "starts from phase correlation of the height images' relief over rotations about z "
+      "(OpenCV) and from FPFH + RANSAC (Open3D), each refined by point-to-plane ICP and scored; "
+      "then point-to-plane ICP with Tukey's kernel, points beyond 3 robust sigmas excluded and "
+      "refit";
   rep["registration"] = regj;
   rep["deviation_rms_um"] = rms * 1e6;
   Json dev;

@@ -13,11 +13,13 @@
 #include <filesystem>
 #include <vector>
 
+#include "compare/planar_alignment.h"
 #include "core/progress.h"
 #include "core/test_temp_dir.h"
 #include "heightfield/reconstruct.h"
 #include "session/session.h"
 #include "sim/object_change.h"
+#include "sim/synthetic_scan.h"
 #include "sim/virtual_rig.h"
 
 namespace mesoscan {
@@ -162,6 +164,48 @@ TEST_F(CompareSim, RecoversThePlacementAndTheChange) {
   EXPECT_TRUE(r.report["deviation_rms_um"].is_number());
   EXPECT_TRUE(r.report["changed_fraction"].is_number());
   EXPECT_TRUE(r.report["predicted_sigma_um"].is_number());
+}
+
+// The coarse placement from the height images finds any rotation about z of the near-symmetric
+// coin (sampled directly on a 400 x 400 grid of 55 um; the registration refines it).
+TEST(PlanarAlignment, FindsAnyRotationOfTheCoin) {
+  const SceneObject original = MakeCoin(20e-6);
+  auto coin_scan = [&](const ObjectChange& change, uint64_t seed) {
+    SceneObject coin = original;
+    ApplyObjectChange(change, &coin);
+    SyntheticScanOptions o;
+    o.width = o.height = 400;
+    o.seed = seed;
+    o.supersample = 2;
+    return SyntheticScan([&](double x, double y) { return coin.SurfaceZ(x, y); }, o);
+  };
+  auto object = [](const HeightField& hf) {
+    ImageU8 in(hf.width(), hf.height(), 1, 0);
+    for (int j = 0; j < hf.height(); ++j)
+      for (int i = 0; i < hf.width(); ++i) in(i, j) = hf.z(i, j) > 50e-6;
+    return in;
+  };
+  const Scan a = coin_scan(ObjectChange(), 1);
+  for (const double deg : {7.0, 100.0, -150.0}) {
+    ObjectChange c;
+    c.pose = {0, 0, deg, 0.8, -0.6, 0};
+    const Scan b = coin_scan(c, 2);
+    const std::vector<PlanarCandidate> cand =
+        PlanarAlignment(a.height, object(a.height), b.height, object(b.height));
+    ASSERT_FALSE(cand.empty());
+    const Mat4d truth = c.Pose().Inverse().Matrix();
+    // The best candidate's displacement from the truth at the coin's rim, in pixels.
+    double worst = 0;
+    for (int k = 0; k < 8; ++k) {
+      const Vec4d p(9e-3 * std::cos(k * 0.785), 9e-3 * std::sin(k * 0.785), 1.3e-3, 1);
+      worst = std::max(worst, ((cand[0].b_to_a - truth) * p).head<2>().norm() / 55e-6);
+    }
+    std::printf(
+        "rotation %.1f deg: found %.2f deg (response %.3f, next %.3f), rim off by %.2f px\n", deg,
+        cand[0].angle_deg, cand[0].response, cand.size() > 1 ? cand[1].response : 0.0, worst);
+    EXPECT_NEAR(cand[0].angle_deg, -deg, 0.5);
+    EXPECT_LE(worst, 3.0);
+  }
 }
 
 // Two scans of one placement (noise seeds 1 and 3): they agree as their predicted sigmas say.

@@ -82,16 +82,22 @@ class Module final : public RegistrationModule {
     auto db = cb->VoxelDownSample(voxel);
     da->NormalizeNormals();
     db->NormalizeNormals();
-    const open3d::geometry::KDTreeSearchParamHybrid feature_param(5 * voxel, 100);
-    const auto fa = reg::ComputeFPFHFeature(*da, feature_param);
-    const auto fb = reg::ComputeFPFHFeature(*db, feature_param);
-    // Hypotheses: RANSAC on FPFH matches (a few seeds: a near-symmetric object such as a coin
-    // leaves single runs unreliable), the identity, and rotations about z every 10 degrees about
-    // the clouds' centroids (a height field's re-placement is mostly that). Each is refined by
-    // point-to-plane ICP at the voxel scale and scored by B's voxels' truncated residual against
-    // A: the lowest wins.
+    // Hypotheses: RANSAC on FPFH matches, the identity, and the caller's starts or else
+    // rotations about z every 10 degrees about the clouds' centroids (a height field's
+    // re-placement is mostly that). Each is refined by point-to-plane ICP at the voxel scale and
+    // scored by B's voxels' truncated residual against A: the lowest wins. Without the caller's
+    // starts RANSAC runs with two seeds (a near-symmetric object such as a coin leaves single runs
+    // unreliable); with them, once on voxels twice as large (the generalist for a re-placement
+    // the starts miss, at a quarter of the cost).
+    const bool have_starts = !in.starts.empty();
+    const double fvoxel = have_starts ? 2 * voxel : voxel;
+    const auto fda = have_starts ? da->VoxelDownSample(fvoxel) : da;
+    const auto fdb = have_starts ? db->VoxelDownSample(fvoxel) : db;
+    const open3d::geometry::KDTreeSearchParamHybrid feature_param(5 * fvoxel, 100);
+    const auto fa = reg::ComputeFPFHFeature(*fda, feature_param);
+    const auto fb = reg::ComputeFPFHFeature(*fdb, feature_param);
     const reg::CorrespondenceCheckerBasedOnEdgeLength edge_check(0.9);
-    const reg::CorrespondenceCheckerBasedOnDistance dist_check(1.5 * voxel);
+    const reg::CorrespondenceCheckerBasedOnDistance dist_check(1.5 * fvoxel);
     const open3d::geometry::KDTreeFlann tree_da(*da);
     const double tau = 0.3 * voxel;
     auto score = [&](const Mat4d& t) {
@@ -103,16 +109,16 @@ class Module final : public RegistrationModule {
     auto refine = [&](const Mat4d& t0) {
       const reg::RegistrationResult wide =
           reg::RegistrationICP(*db, *da, 3 * voxel, t0, reg::TransformationEstimationPointToPlane(),
-                               reg::ICPConvergenceCriteria(1e-9, 1e-12, 30));
+                               reg::ICPConvergenceCriteria(1e-6, 1e-6, 30));
       return reg::RegistrationICP(*db, *da, voxel, wide.transformation_,
                                   reg::TransformationEstimationPointToPlane(),
-                                  reg::ICPConvergenceCriteria(1e-9, 1e-12, 30));
+                                  reg::ICPConvergenceCriteria(1e-6, 1e-6, 30));
     };
     std::vector<Mat4d> starts{Mat4d::Identity()};
-    for (int k = 0; k < 2; ++k) {
+    for (int k = 0; k < (have_starts ? 1 : 2); ++k) {
       open3d::utility::random::Seed(in.seed + k);
       const reg::RegistrationResult c = reg::RegistrationRANSACBasedOnFeatureMatching(
-          *db, *da, *fb, *fa, /*mutual_filter=*/true, 1.5 * voxel,
+          *fdb, *fda, *fb, *fa, /*mutual_filter=*/true, 1.5 * fvoxel,
           reg::TransformationEstimationPointToPoint(false), 3, {edge_check, dist_check},
           reg::RANSACConvergenceCriteria(20000, 0.999));
       if (k == 0) {
@@ -121,8 +127,9 @@ class Module final : public RegistrationModule {
       }
       starts.push_back(c.transformation_);
     }
+    for (const Mat4d& t0 : in.starts) starts.push_back(t0);
     const Vec3d ca_mean = da->GetCenter(), cb_mean = db->GetCenter();
-    for (int deg = 0; deg < 360; deg += 10) {
+    for (int deg = 0; in.starts.empty() && deg < 360; deg += 10) {
       Mat4d t = Mat4d::Identity();
       t.topLeftCorner<3, 3>() =
           Eigen::AngleAxisd(deg * 3.14159265358979323846 / 180.0, Vec3d::UnitZ()).matrix();
@@ -154,7 +161,7 @@ class Module final : public RegistrationModule {
     for (const double mult : {6.0, 4.685}) {
       auto kernel = std::make_shared<reg::TukeyLoss>(mult * scale);
       t = reg::RegistrationICP(*cb, *ca, dmax, t, reg::TransformationEstimationPointToPlane(kernel),
-                               reg::ICPConvergenceCriteria(1e-9, 1e-15, 30))
+                               reg::ICPConvergenceCriteria(1e-8, 1e-8, 30))
               .transformation_;
       res = PlaneResiduals(*cb, *ca, tree_a, t, dmax);
       scale = std::max(RobustSigma(res), 0.05e-6);
@@ -171,7 +178,7 @@ class Module final : public RegistrationModule {
       auto kernel = std::make_shared<reg::TukeyLoss>(4.685 * scale);
       t = reg::RegistrationICP(*cb_in, *ca, dmax, t,
                                reg::TransformationEstimationPointToPlane(kernel),
-                               reg::ICPConvergenceCriteria(1e-9, 1e-15, 50))
+                               reg::ICPConvergenceCriteria(1e-8, 1e-8, 50))
               .transformation_;
     }
     std::vector<int> nearest;

@@ -2,7 +2,8 @@
 // Open3D's registration behind a module loaded on first use (core/module.h:
 // libmesoscan_open3d.so, built from compare/registration_module.cc): Open3D links ~100 shared
 // libraries that no other command needs. Coarse alignment by FPFH features and RANSAC (with the
-// identity and a sweep of rotations about z as further starts, the best-fitting refinement kept),
+// identity and the caller's starts, or a sweep of rotations about z, as further starts; the
+// best-fitting refinement kept),
 // then robust point-to-plane ICP (Tukey's kernel), then the points beyond 3 robust sigmas excluded
 // and a refit (a changed area must not pull the registration).
 
@@ -19,6 +20,10 @@ struct RegistrationInput {
   double voxel_m = 0;         // coarse voxel (features, RANSAC), > 0
   double max_distance_m = 0;  // fine correspondences' largest distance, > 0
   int seed = 1;               // RANSAC's random seed
+  // Further starts for the coarse alignment (B's world to A's), e.g. from the height images
+  // (compare/planar_alignment.h): refined and scored with RANSAC's. When empty, rotations about
+  // z every 10 degrees are tried instead (slower).
+  std::vector<Mat4d> starts;
 };
 
 struct RegistrationOutput {

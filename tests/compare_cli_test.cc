@@ -12,6 +12,7 @@
 #include "core/image_io.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "sim/synthetic_scan.h"
 #include "tests/cli_util.h"
 
 namespace mesoscan {
@@ -19,7 +20,8 @@ namespace {
 namespace fs = std::filesystem;
 
 // A 12 x 12 mm plate 1 mm high with 60 bumps (10-25 um, 1-1.8 mm wide) in world frame
-// `world_from_object` (a rotation about z and a shift), sampled on a 55 um grid, with noise.
+// `world_from_object` (a rotation about z and a shift), sampled on a 300 x 300 grid of 55 um,
+// with noise.
 Scan Relief(double angle_deg, double tx, double ty, uint64_t seed, bool empty = false) {
   std::mt19937 rng(7);  // the same bumps in every scan
   std::uniform_real_distribution<double> u(0, 1);
@@ -30,40 +32,28 @@ Scan Relief(double angle_deg, double tx, double ty, uint64_t seed, bool empty = 
   for (int k = 0; k < 60; ++k)
     bumps.push_back({(u(rng) - 0.5) * 10e-3, (u(rng) - 0.5) * 10e-3, 0.5e-3 + 0.4e-3 * u(rng),
                      10e-6 + 15e-6 * u(rng)});
-  std::mt19937 noise_rng(seed);
-  std::normal_distribution<double> noise(0, 1e-6);
-  Scan s;
-  HeightField& hf = s.height;
-  hf.pixel_size = 55e-6;
-  const int n = 300;
-  hf.x0 = -(n - 1) / 2.0 * hf.pixel_size;
-  hf.y0 = (n - 1) / 2.0 * hf.pixel_size;
-  hf.z = ImageF(n, n, 1, 0.0f);
-  hf.confidence = ImageF(n, n, 1, 0.9f);
   const double a = angle_deg * 3.14159265358979323846 / 180.0;
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i) {
-      // Object coordinates of the world point (inverse of rotation a then shift).
-      const double wx = hf.X(i) - tx, wy = hf.Y(j) - ty;
-      const double x = std::cos(a) * wx + std::sin(a) * wy,
-                   y = -std::sin(a) * wx + std::cos(a) * wy;
-      // Off the plate: no sample (as a scan drops its steep sides), or the empty mount.
-      double z = empty ? 0.0 : std::nan("");
-      if (!empty && std::abs(x) < 6e-3 && std::abs(y) < 6e-3) {
-        z = 1e-3 + 15e-6 * std::sin(x / 0.7e-3) * std::cos(y / 0.9e-3);
+  SyntheticScanOptions o;
+  o.width = o.height = 300;
+  o.seed = seed;
+  o.confidence = 0.9f;
+  return SyntheticScan(
+      [&](double wx0, double wy0) {
+        // Object coordinates of the world point (inverse of rotation a then shift).
+        const double wx = wx0 - tx, wy = wy0 - ty;
+        const double x = std::cos(a) * wx + std::sin(a) * wy,
+                     y = -std::sin(a) * wx + std::cos(a) * wy;
+        // Off the plate: no sample (as a scan drops its steep sides), or the empty mount.
+        if (empty) return 0.0;
+        if (std::abs(x) >= 6e-3 || std::abs(y) >= 6e-3) return std::nan("");
+        double z = 1e-3 + 15e-6 * std::sin(x / 0.7e-3) * std::cos(y / 0.9e-3);
         for (const Bump& b : bumps) {
           const double q = (std::pow(x - b.x, 2) + std::pow(y - b.y, 2)) / (b.r * b.r);
           if (q < 1) z += b.h * (1 - q) * (1 - q);
         }
-      }
-      hf.z(i, j) = static_cast<float>(z + noise(noise_rng));
-    }
-  s.normals = hf.Normals();
-  s.points.xyz = ImageF(2, 2, 3, std::nanf(""));
-  s.points.confidence = ImageF(2, 2, 1, 0.0f);
-  s.points.projector_u = ImageF(2, 2, 1, std::nanf(""));
-  s.report["summary"]["predicted_depth_rms_m"] = 1e-6;
-  return s;
+        return z;
+      },
+      o);
 }
 
 class CompareCli : public ::testing::Test {
