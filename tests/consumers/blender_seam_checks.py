@@ -133,7 +133,11 @@ for engine in cfg.get("engines", ["BLENDER_EEVEE", "CYCLES"]):
     size = max(obj.dimensions[0], obj.dimensions[1])
     res = cfg.get("render_px", REPEAT * n_px)
     setup(engine, size, res)
-    img = render(os.path.join(cfg["tmp"], "seam_%s.exr" % engine.lower()))
+    try:
+        img = render(os.path.join(cfg["tmp"], "seam_%s.exr" % engine.lower()))
+    except RuntimeError as e:  # Eevee without an OpenGL context (no EGL/X display)
+        out[engine] = {"error": str(e)}
+        continue
     r = seams(img, n_px)
     r["seconds"] = time.time() - t0
     r["mean"] = float(img.mean())
