@@ -4,14 +4,19 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <random>
 #include <string>
 
 #include "core/image_io.h"
 #include "core/json.h"
 #include "core/scan_folder.h"
+#include "core/transform.h"
 #include "sim/synthetic_scan.h"
 #include "tests/cli_util.h"
 
@@ -93,6 +98,68 @@ TEST_F(CompareCli, WritesTheComparisonFolder) {
   // Run again onto its own earlier output: replaced.
   EXPECT_EQ(RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --out " + P("ab"), work_).code,
             0);
+}
+
+// CloudCompare (command line, the reference the field uses) on the pair as registered by compare:
+// the cloud-to-cloud distance of A's compared points to B moved by b_to_a (a local plane through
+// 8 neighbours, -MODEL LS KNN 8) has the median of our deviation's magnitude within 1 um.
+TEST_F(CompareCli, CloudCompareDistanceAgreesWithTheDeviation) {
+  ASSERT_EQ(std::system("command -v CloudCompare >/dev/null && command -v xvfb-run >/dev/null"), 0)
+      << "CloudCompare and xvfb-run are needed (scripts/install-deps: cloudcompare, xvfb)";
+  const CliRun r =
+      RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --out " + P("ab"), work_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Json rep = ReadJsonFile(work_ / "ab" / "report.json");
+  Mat4d t;
+  for (int k = 0; k < 16; ++k) t(k / 4, k % 4) = rep.at("b_to_a")[k / 4][k % 4].get<double>();
+  const ImageF dev = ReadImage(work_ / "ab" / "deviation.exr");
+  const Scan a = ReadScanFolder(work_ / "a.scan"), b = ReadScanFolder(work_ / "b.scan");
+  // A's compared points, and B's points in A's frame, as ASCII x y z.
+  std::vector<double> ours;
+  {
+    std::ofstream fa(work_ / "a.xyz"), fb(work_ / "b.xyz");
+    fa.precision(10);
+    fb.precision(10);
+    const HeightField& ha = a.height;
+    for (int j = 0; j < ha.height(); ++j)
+      for (int i = 0; i < ha.width(); ++i)
+        if (std::isfinite(dev(i, j, 0))) {
+          fa << ha.X(i) << " " << ha.Y(j) << " " << ha.z(i, j) << "\n";
+          ours.push_back(std::abs(dev(i, j, 0)));
+        }
+    const HeightField& hb = b.height;
+    for (int j = 0; j < hb.height(); ++j)
+      for (int i = 0; i < hb.width(); ++i)
+        if (std::isfinite(hb.z(i, j))) {
+          const Vec4d q = t * Vec4d(hb.X(i), hb.Y(j), hb.z(i, j), 1);
+          fb << q.x() << " " << q.y() << " " << q.z() << "\n";
+        }
+  }
+  ASSERT_GT(ours.size(), 20000u);
+  std::string cc = "cd ";
+  cc += P("");
+  cc +=
+      " && xvfb-run -a CloudCompare -SILENT -AUTO_SAVE OFF -C_EXPORT_FMT ASC -PREC 9 -O a.xyz "
+      "-O b.xyz -C2C_DIST -MODEL LS KNN 8 -SAVE_CLOUDS FILE 'a_c2c.asc b_c2c.asc' >cc.log 2>&1";
+  ASSERT_EQ(std::system(cc.c_str()), 0) << "CloudCompare failed: see " << (work_ / "cc.log");
+  std::vector<double> theirs;
+  {
+    std::ifstream in(work_ / "a_c2c.asc");
+    double x, y, z, d;
+    while (in >> x >> y >> z >> d) theirs.push_back(d);
+  }
+  ASSERT_EQ(theirs.size(), ours.size());
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  const double m_ours = median(ours), m_cc = median(theirs);
+  std::printf("median |deviation| %.3f um; CloudCompare C2C (LS, 8 neighbours) median %.3f um\n",
+              m_ours * 1e6, m_cc * 1e6);
+  // Both see the noise of two scans (1 um each): a median of a few tenths of a micrometre.
+  EXPECT_GT(m_cc, 0.1e-6);
+  EXPECT_LT(m_cc, 3e-6);
+  EXPECT_NEAR(m_ours, m_cc, 1e-6);
 }
 
 TEST_F(CompareCli, BadInputsSayOneLineWithTheirExitCode) {
