@@ -391,12 +391,18 @@ PixelTally TestPixels(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
   PixelTally total(nper);
   std::mutex mutex;
+  // The sums of squares per block of pixels, added in block order after the loop: the figures
+  // do not depend on how the blocks were shared among the threads.
+  std::vector<double> block_d2(static_cast<size_t>(blocks) * nper, 0.0);
+  std::vector<double> block_v2(static_cast<size_t>(blocks) * nper, 0.0);
   ParallelForRows(blocks, [&](int b0, int b1) {
     int64_t t_n = 0, i_n = 0, a_n = 0, s_n = 0;
     std::vector<int64_t> bad(nper, 0), worst(nper, 0), n_good(nper, 0);
-    std::vector<double> d2(nper, 0.0), v2(nper, 0.0), z(nper), var(nper);
+    std::vector<double> z(nper), var(nper), dp(nper);
     int64_t f_n = 0, x_n = 0;
     for (size_t i = static_cast<size_t>(b0) * kBlock; i < std::min(np, size_t(b1) * kBlock); ++i) {
+      double* d2 = &block_d2[(i / kBlock) * nper];
+      double* v2 = &block_v2[(i / kBlock) * nper];
       const double u = combined->u[i];
       if (state[i] == PixelState::kUnwrapFailed || state[i] == PixelState::kCombination) {
         // A contradiction, unless the noise explains it: a coarse column too uncertain to fix
@@ -429,8 +435,8 @@ PixelTally TestPixels(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
         var[p] = var_scale * (solvers[p].ThetaVariance(sigma, ps.modulation[p][i]) + sys2);
         var_max = std::max(var_max, var[p]);
         info += rate[p] * rate[p] / var[p];
-        const double d = WrapPi(ps.theta[p][i] - rate[p] * u);
-        z[p] = std::abs(d) / std::sqrt(var[p] + std::pow(rate[p] * su, 2));
+        dp[p] = WrapPi(ps.theta[p][i] - rate[p] * u);
+        z[p] = std::abs(dp[p]) / std::sqrt(var[p] + std::pow(rate[p] * su, 2));
         if (!(z[p] <= z_max)) z_max = z[p], p_max = p;  // NaN counts as the worst
       }
       const double coarse_sigma_px = 1.0 / std::sqrt(info);
@@ -440,7 +446,7 @@ PixelTally TestPixels(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
         for (int p = 0; p < nper; ++p) bad[p] += !(z[p] <= tz);
       } else {
         for (int p = 0; p < nper; ++p) {
-          d2[p] += std::pow(WrapPi(ps.theta[p][i] - rate[p] * u), 2);
+          d2[p] += std::pow(dp[p], 2);
           v2[p] += var[p] + std::pow(rate[p] * su, 2);
           ++n_good[p];
         }
@@ -476,9 +482,14 @@ PixelTally TestPixels(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
     total.explained_before += x_n;
     for (int p = 0; p < nper; ++p) {
       total.period_bad[p] += bad[p], total.period_worst[p] += worst[p];
-      total.period_d2[p] += d2[p], total.period_var[p] += v2[p], total.period_n[p] += n_good[p];
+      total.period_n[p] += n_good[p];
     }
   });
+  for (int b = 0; b < blocks; ++b)
+    for (int p = 0; p < nper; ++p) {
+      total.period_d2[p] += block_d2[static_cast<size_t>(b) * nper + p];
+      total.period_var[p] += block_v2[static_cast<size_t>(b) * nper + p];
+    }
   return total;
 }
 
