@@ -21,7 +21,7 @@ namespace fs = std::filesystem;
 namespace {
 
 struct CompareArgs {
-  std::string a, b, out, region = "object", exclude;
+  std::string a, b, reference, out, region = "object", exclude;
   CompareOptions o;
   bool force = false;
 };
@@ -43,19 +43,25 @@ void RunCompare(const CompareArgs& args) {
     mask_file = args.region;  // a mask: compared where nonzero, the mount included
   if (!mask_file.empty()) o.region = CompareOptions::Region::kAll;
   o.Check();
+  if (args.b.empty() == args.reference.empty())
+    MESOSCAN_THROW(ErrorKind::kUsage, "compare: give either scan folder B or --reference MESH, not "
+                                          << (args.b.empty() ? "neither" : "both"));
+  const std::string b_name = args.b.empty() ? args.reference : args.b;
   const OutputSpec spec{"compare",  "--out",
-                        args.out,   {args.a, args.b, mask_file, args.exclude},
+                        args.out,   {args.a, b_name, mask_file, args.exclude},
                         args.force, {"deviation.exr", "report.json"}};
   CheckOutputFolder(spec);
   if (!mask_file.empty()) o.mask = ReadMask(mask_file);
   if (!args.exclude.empty()) o.exclude = ReadMask(args.exclude);
   const Scan a = ReadScanFolder(args.a);
   CheckScanUsable(a, args.a);
-  const Scan b = ReadScanFolder(args.b);
-  CheckScanUsable(b, args.b);
-  CompareResult r = CompareScans(a, b, o, args.a, args.b);
+  // A reference mesh is seen on A's pixel size.
+  const Scan b =
+      args.b.empty() ? ScanFromMesh(args.reference, a.height.pixel_size) : ReadScanFolder(args.b);
+  if (!args.b.empty()) CheckScanUsable(b, args.b);
+  CompareResult r = CompareScans(a, b, o, args.a, b_name);
   r.report["a"] = fs::absolute(args.a).lexically_normal().string();
-  r.report["b"] = fs::absolute(args.b).lexically_normal().string();
+  r.report[args.b.empty() ? "reference" : "b"] = fs::absolute(b_name).lexically_normal().string();
   if (!mask_file.empty()) r.report["options"]["mask"] = mask_file;
   if (!args.exclude.empty()) r.report["options"]["exclude"] = args.exclude;
   WriteOutputFolder(spec, [&](const fs::path& tmp) { WriteComparison(tmp, r); });
@@ -76,7 +82,10 @@ void AddCompareCommand(CLI::App* app) {
   auto a = std::make_shared<CompareArgs>();
   cmd->add_option("A", a->a, "Reference scan folder (the deviation is on its height grid)")
       ->required();
-  cmd->add_option("B", a->b, "Scan folder compared with A")->required();
+  cmd->add_option("B", a->b, "Scan folder compared with A (or --reference)");
+  cmd->add_option("--reference", a->reference,
+                  "Another scanner's mesh instead of B: MESH.ply|.stl|.obj (metres, z up) or "
+                  ".glb (as export writes it); no change test (a mesh carries no noise)");
   cmd->add_option("--out", a->out, "Output folder (written atomically)")->required();
   cmd->add_option("--region", a->region,
                   "object (points above the mount plane; a re-placed object's mount does not "

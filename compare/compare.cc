@@ -113,6 +113,29 @@ std::optional<double> PredictedSigma(const Scan& scan) {
   return std::nullopt;
 }
 
+Scan ScanFromMesh(const std::filesystem::path& path, double pixel_size_m) {
+  MESOSCAN_CHECK(pixel_size_m > 0);
+  if (!std::filesystem::is_regular_file(path))
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "no such file");
+  const MeshRaster r = Registration().RasterMesh(path.string(), pixel_size_m);
+  Scan s;
+  HeightField& hf = s.height;
+  hf.x0 = r.x0;
+  hf.y0 = r.y0;
+  hf.pixel_size = r.pixel_size;
+  hf.z = ImageF(r.width, r.height, 1);
+  std::copy(r.z.begin(), r.z.end(), hf.z.data().begin());
+  hf.confidence = ImageF(r.width, r.height, 1, 0.0f);
+  for (size_t k = 0; k < r.z.size(); ++k)
+    if (std::isfinite(r.z[k])) hf.confidence.data()[k] = 1.0f;
+  s.normals = hf.Normals();
+  s.points.xyz = ImageF(2, 2, 3, kNaN);
+  s.points.confidence = ImageF(2, 2, 1, 0.0f);
+  s.points.projector_u = ImageF(2, 2, 1, kNaN);
+  s.report["mesh"] = {{"file", path.string()}, {"triangles", r.triangles}};
+  return s;
+}
+
 std::string CompareResult::BriefReport() const {
   std::ostringstream os;
   os << std::fixed << std::setprecision(2);

@@ -60,6 +60,12 @@ struct CompareResult {
 // carries no prediction.
 std::optional<double> PredictedSigma(const Scan& scan);
 
+// Another scanner's mesh (PLY, STL, OBJ in metres with z up; glTF/GLB as export writes it) as a
+// scan to compare: seen from above on a grid of `pixel_size_m` (the mean height in each
+// pixel of dense samples of its top surface, Open3D), confidence 1 where it has a surface, normals
+// from that grid, no predicted noise (so no change test). Throws Error(kBadInput) naming the file.
+Scan ScanFromMesh(const std::filesystem::path& path, double pixel_size_m);
+
 // Registers b onto a and measures the deviation. Throws Error(kBadInput) naming `a_name` or
 // `b_name` for a scan with too few valid points, and when the coarse alignment finds no
 // consistent transform.

@@ -5,6 +5,8 @@
 
 #include <open3d/geometry/KDTreeFlann.h>
 #include <open3d/geometry/PointCloud.h>
+#include <open3d/geometry/TriangleMesh.h>
+#include <open3d/io/TriangleMeshIO.h>
 #include <open3d/pipelines/registration/Feature.h>
 #include <open3d/pipelines/registration/Registration.h>
 #include <open3d/pipelines/registration/RobustKernel.h>
@@ -13,11 +15,15 @@
 #include <open3d/utility/Random.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <memory>
+#include <string>
 #include <vector>
 
+#include "core/error.h"
 #include "core/parallel.h"
 #include "core/robust_stats.h"
 #include "core/stage_timer.h"
@@ -199,6 +205,67 @@ class Module final : public RegistrationModule {
     out.b_to_a = t;
     out.seconds_fine = t_fine.Seconds();
     return out;
+  }
+
+  MeshRaster RasterMesh(const std::string& path, double pixel) const override {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    open3d::geometry::TriangleMesh mesh;
+    if (!open3d::io::ReadTriangleMesh(path, mesh))
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "cannot be read as a triangle mesh");
+    if (mesh.triangles_.empty() || mesh.vertices_.empty())
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "holds no triangles");
+    std::string ext = std::filesystem::path(path).extension().string();
+    for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (ext == ".glb" || ext == ".gltf")  // glTF's +Y up: (X, Y, Z) is the world (X, -Z, Y)
+      for (Eigen::Vector3d& v : mesh.vertices_) v = Vec3d(v.x(), -v.z(), v.y());
+    for (const Eigen::Vector3d& v : mesh.vertices_)
+      if (!v.allFinite()) MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "has a non-finite vertex");
+    const Eigen::Vector3d lo = mesh.GetMinBound(), hi = mesh.GetMaxBound();
+    MeshRaster r;
+    r.pixel_size = pixel;
+    const double w = std::floor((hi.x() - lo.x()) / pixel) + 1,
+                 h = std::floor((hi.y() - lo.y()) / pixel) + 1;
+    if (w * h > 50e6)
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(path), "spans " << (hi.x() - lo.x()) << " x "
+                                                            << (hi.y() - lo.y())
+                                                            << " m: more than 50 M pixels of "
+                                                            << pixel << " m (is it in metres?)");
+    r.width = static_cast<int>(w);
+    r.height = static_cast<int>(h);
+    r.x0 = lo.x();
+    r.y0 = hi.y();
+    r.triangles = static_cast<int64_t>(mesh.triangles_.size());
+    // Dense uniform samples of the surface (about 8 per pixel; Open3D's ray caster is not
+    // usable in every build), averaged per pixel over its top layer: the samples within 2
+    // pixels below the pixel's highest (a closed mesh's underside stays out).
+    const double area = mesh.GetSurfaceArea();
+    const size_t n = static_cast<size_t>(std::clamp(8 * area / (pixel * pixel), 1e4, 3e7));
+    const auto cloud = mesh.SamplePointsUniformly(n);
+    const size_t cells = static_cast<size_t>(r.width) * r.height;
+    std::vector<float> top(cells, -std::numeric_limits<float>::infinity());
+    std::vector<double> sum(cells, 0.0);
+    std::vector<int> count(cells, 0);
+    auto cell = [&](const Eigen::Vector3d& p) -> int64_t {
+      const int i = static_cast<int>(std::lround((p.x() - r.x0) / pixel));
+      const int j = static_cast<int>(std::lround((r.y0 - p.y()) / pixel));
+      if (i < 0 || j < 0 || i >= r.width || j >= r.height) return -1;
+      return static_cast<int64_t>(j) * r.width + i;
+    };
+    for (const Eigen::Vector3d& p : cloud->points_) {
+      const int64_t k = cell(p);
+      if (k >= 0) top[k] = std::max(top[k], static_cast<float>(p.z()));
+    }
+    for (const Eigen::Vector3d& p : cloud->points_) {
+      const int64_t k = cell(p);
+      if (k >= 0 && p.z() >= top[k] - 2 * pixel) {
+        sum[k] += p.z();
+        ++count[k];
+      }
+    }
+    r.z.assign(cells, std::numeric_limits<float>::quiet_NaN());
+    for (size_t k = 0; k < cells; ++k)
+      if (count[k] > 0) r.z[k] = static_cast<float>(sum[k] / count[k]);
+    return r;
   }
 };
 

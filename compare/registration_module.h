@@ -42,10 +42,23 @@ struct RegistrationOutput {
   double seconds_coarse = 0, seconds_fine = 0;
 };
 
+// A mesh seen from above on a regular x-y grid (the layout of core/height_field.h).
+struct MeshRaster {
+  int width = 0, height = 0;
+  double x0 = 0, y0 = 0, pixel_size = 0;
+  std::vector<float> z;  // row-major, metres; NaN where no triangle lies under the pixel
+  int64_t triangles = 0;
+};
+
 class RegistrationModule {
  public:
   virtual ~RegistrationModule() = default;
   virtual RegistrationOutput Register(const RegistrationInput& input) const = 0;
+  // Reads a triangle mesh (PLY, STL, OBJ: metres, z up; glTF/GLB: metres, +Y up, as export
+  // writes it) and sees it from above on a grid of `pixel_size_m` covering its x-y extent: the
+  // mean height of dense uniform samples of its top layer in each pixel. Throws Error(kBadInput)
+  // naming the file if it cannot be read, has no triangles, or would need more than 50 M pixels.
+  virtual MeshRaster RasterMesh(const std::string& path, double pixel_size_m) const = 0;
 };
 
 // The module, loaded on the first call. Throws Error(kInternal) if it cannot be loaded.

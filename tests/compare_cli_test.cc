@@ -162,6 +162,42 @@ TEST_F(CompareCli, CloudCompareDistanceAgreesWithTheDeviation) {
   EXPECT_NEAR(m_ours, m_cc, 1e-6);
 }
 
+// Another scanner's mesh instead of B: B re-placed, exported by `mesoscan export` as a GLB (the
+// hole-filled surface as triangles, glTF +Y up), registered onto A and compared on A's grid.
+TEST_F(CompareCli, ComparesWithAReferenceMesh) {
+  CliRun r = RunCli("export " + P("b.scan") + " --format glb --out " + P("bexp"), work_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  fs::path glb;
+  for (const auto& e : fs::directory_iterator(work_ / "bexp"))
+    if (e.path().extension() == ".glb") glb = e.path();
+  ASSERT_FALSE(glb.empty());
+  r = RunCli("compare " + P("a.scan") + " --reference '" + glb.string() + "' --out " + P("am"),
+             work_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Json rep = ReadJsonFile(work_ / "am" / "report.json");
+  std::printf("reference mesh: rotation %.4f deg (true 5), deviation RMS %.3f um\n",
+              rep.at("b_to_a_rotation_deg").get<double>(),
+              rep.at("deviation_rms_um").get<double>());
+  EXPECT_NEAR(rep.at("b_to_a_rotation_deg").get<double>(), 5.0, 0.02);
+  // B's 1 um noise on its vertices and A's: as the scan pair's.
+  EXPECT_LT(rep.at("deviation_rms_um").get<double>(), 2.0);
+  EXPECT_TRUE(rep.at("changed_fraction").is_null());  // a mesh carries no predicted noise
+  const ImageF dev = ReadImage(work_ / "am" / "deviation.exr");
+  EXPECT_EQ(dev.width(), 300);
+  // Both B and --reference, or neither: usage.
+  r = RunCli("compare " + P("a.scan") + " " + P("b.scan") + " --reference '" + glb.string() +
+                 "' --out " + P("x"),
+             work_);
+  EXPECT_EQ(r.code, 2) << r.err;
+  // A file that is not a mesh: bad input naming it.
+  r = RunCli(
+      "compare " + P("a.scan") + " --reference " + P("a.scan/report.json") + " --out " + P("x"),
+      work_);
+  EXPECT_EQ(r.code, 3) << r.err;
+  EXPECT_NE(r.err.find("report.json"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(work_ / "x"));
+}
+
 TEST_F(CompareCli, BadInputsSayOneLineWithTheirExitCode) {
   // A missing scan folder: bad input naming it, nothing written.
   CliRun r = RunCli("compare " + P("a.scan") + " " + P("nope.scan") + " --out " + P("x"), work_);
