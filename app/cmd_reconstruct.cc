@@ -31,7 +31,7 @@ namespace mesoscan {
 namespace {
 
 struct ReconstructArgs {
-  std::string session, out, roi, mask, rig, fitter = "fast";
+  std::string session, out, roi, mask, rig, fitter = "fast", phase_harmonics = "auto";
   std::string export_formats, export_dir;  // --export: formats for `mesoscan export`
   bool no_lens_shift = false, box_filter = false, no_normalize = false, force = false;
   int threads = 0;
@@ -51,6 +51,9 @@ void Run(const ReconstructArgs& a) {
   opt.num_threads = a.threads;
   opt.lens_shift.box_filter = a.box_filter;
   opt.gains.normalize_luminance = !a.no_normalize;
+  opt.phase_shift.harmonics.mode = a.phase_harmonics == "on"    ? HarmonicsMode::kOn
+                                   : a.phase_harmonics == "off" ? HarmonicsMode::kOff
+                                                                : HarmonicsMode::kAuto;
   opt.resample.pixel_size = a.pixel_size_um * 1e-6;
   opt.Check();
   ExportOptions export_options;
@@ -230,6 +233,11 @@ void AddReconstructCommand(CLI::App* app) {
   cmd->add_flag("--box-filter", args->box_filter,
                 "5-sample box filter along each lens-shift profile (paper Sec. 5.1)");
   cmd->add_flag("--no-normalize", args->no_normalize, "No per-frame luminance normalisation");
+  cmd->add_option("--phase-harmonics", args->phase_harmonics,
+                  "Projector response (harmonics) estimated from the sine phases and undone: auto "
+                  "(where clearly non-linear), on, or off (the plain decode)")
+      ->check(CLI::IsMember({"auto", "on", "off"}))
+      ->capture_default_str();
   cmd->add_option("--pixel-size-um", args->pixel_size_um,
                   "Height-field grid pixel (um); 0 = camera footprint")
       ->check(CLI::Range(0.0, 1e6));

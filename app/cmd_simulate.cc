@@ -138,7 +138,9 @@ void AddSimulateCommand(CLI::App* app) {
                   "grid attributes) added to the object's surface in object coordinates");
   cmd->add_option(
          "--patterns", args->patterns,
-         "sine (the --ps-periods sets) | graycode (a Gray code of the projector's columns "
+         "sine (the --ps-periods sets) | heterodyne (three-frequency set: --ps-periods default "
+         "42,45,48, 3 steps each, no lens shift; with --proj-gamma the projector's harmonics) | "
+         "graycode (a Gray code of the projector's columns "
          "with inverse frames, white, black; no sines, no lens shift) | sine+graycode (one "
          "--ps-periods period with a complementary Gray code of half its width)")
       ->capture_default_str();
@@ -185,7 +187,13 @@ void AddSimulateCommand(CLI::App* app) {
       opt.change.scratches.push_back(ParseScratch(s, "ObjectChange.scratches"));
     for (const std::string& s : args->erosions)
       opt.change.erosions.push_back(ParseErosion(s, "ObjectChange.erosions"));
-    if (args->patterns != "sine") {
+    if (args->patterns == "heterodyne") {
+      // Three-frequency heterodyne set: three close periods, three steps each (sine patterns;
+      // decoded by the periods' temporal unwrapping), no lens shift unless asked.
+      if (cmd->count("--ps-periods") == 0) opt.ps_periods_px = {42, 45, 48};
+      if (cmd->count("--ps-phases") == 0) opt.ps_phases = 3;
+      if (cmd->count("--ls-frames") == 0) opt.ls_frames = 0;
+    } else if (args->patterns != "sine") {
       const Rig rig = ResolveRig(opt);
       const int extent = args->axis == "y" ? rig.projector.height : rig.projector.width;
       if (args->patterns == "graycode") {
@@ -200,9 +208,9 @@ void AddSimulateCommand(CLI::App* app) {
         if (!(opt.graycode_block_px >= 1))
           MESOSCAN_THROW(ErrorKind::kUsage, "--patterns sine+graycode: the period must be >= 2 px");
       } else {
-        MESOSCAN_THROW(
-            ErrorKind::kUsage,
-            "--patterns: expected sine, graycode or sine+graycode, got " << args->patterns);
+        MESOSCAN_THROW(ErrorKind::kUsage,
+                       "--patterns: expected sine, heterodyne, graycode or sine+graycode, got "
+                           << args->patterns);
       }
       opt.graycode_bits = static_cast<int>(std::ceil(std::log2(extent / opt.graycode_block_px)));
       if (cmd->count("--ls-frames") == 0) opt.ls_frames = 0;

@@ -107,6 +107,9 @@ struct PhaseShiftPixels {
   // The column unwrapped from these phases alone (stage_phase_shift.h UnwrapPhaseShift); empty
   // if not made (the combine stage then searches the fringe orders).
   ColumnHints u_unwrapped;
+  // The projector response the phases were checked for (heightfield/phase_harmonics.h
+  // ProjectorHarmonics::ToJson); null where not estimated.
+  Json projector_response;
 };
 
 // Lens-shift stage: the fitted profile (heightfield/lens_shift_fit.h) per pixel; empty arrays

@@ -97,6 +97,7 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   consistency.four_parameter_fit = ls.fit_parameters == 4;
   sum->consistency = CheckPhaseConsistency(plan, session, ps, ls, consistency, &combined, &state);
   sum->pixels_lit = ps.pixels_lit;
+  sum->projector_response = ps.projector_response;
   sum->pixels_fitted = plan.use_lens_shift() ? ls.pixels_fitted : ps.pixels_lit;
   SummarizeFrames(plan, gains, ls.frame_corrections, combined.ls_offset_px, sum);
   if (classes.white_level.empty())  // the stream moved it to ps.level (a white frame)

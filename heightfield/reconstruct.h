@@ -144,6 +144,9 @@ struct ReconstructSummary {
   int lens_shift_frames = 0, phase_shift_frames = 0;
   std::vector<double> frame_gains;  // per session frame, 1 where not estimated
   Json frame_corrections;  // lens-shift frames: FrameCorrections::ToJson() (null if not run)
+  // The projector response estimated from the sine phases (heightfield/phase_harmonics.h
+  // ProjectorHarmonics::ToJson: harmonics, nearest gamma, applied or why not); null if not run.
+  Json projector_response;
   std::string unwrapping;  // "temporal", "hierarchical" or "single"
   // Decoded projector axis: "x" (projector_u holds columns) or "y" (rows; horizontal fringes).
   std::string axis = "x";

@@ -41,6 +41,9 @@ Json ReconstructOptions::ToJson() const {
   j["confidence_t"] = combine.confidence_t;
   j["min_confidence"] = combine.min_confidence;
   j["systematic_phase_noise"] = phase_shift.systematic_phase_noise;
+  j["phase_harmonics"] = phase_shift.harmonics.mode == HarmonicsMode::kAuto ? "auto"
+                         : phase_shift.harmonics.mode == HarmonicsMode::kOn ? "on"
+                                                                            : "off";
   j["check_consistency"] = consistency.enabled;
   j["max_depth_sigma_m"] = consistency.max_depth_sigma_m;
   j["max_depth_sigma_per_footprint"] = consistency.max_depth_sigma_per_footprint;

@@ -52,6 +52,7 @@ Json ReconstructSummary::ToJson() const {
   j["frames"] = {{"lens_shift", lens_shift_frames}, {"phase_shift", phase_shift_frames}};
   j["frame_gains"] = frame_gains;
   j["frame_corrections"] = frame_corrections;
+  if (!projector_response.is_null()) j["projector_response"] = projector_response;
   j["unwrapping"] = unwrapping;
   j["axis"] = axis;
   j["used_lens_shift"] = used_lens_shift;

@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <sstream>
 
 #include "core/error.h"
 #include "core/log.h"
 #include "core/numbers.h"
 #include "core/parallel.h"
+#include "heightfield/phase_harmonics.h"
 
 namespace mesoscan {
 
@@ -18,11 +20,17 @@ void PhaseShiftStageOptions::Check() const {
     MESOSCAN_BAD_INPUT("max_unwrap_residual: expected > 0, got " << max_unwrap_residual);
   if (!(systematic_phase_noise >= 0))
     MESOSCAN_BAD_INPUT("systematic_phase_noise: expected >= 0, got " << systematic_phase_noise);
+  harmonics.Check();
 }
 
-PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan& plan,
-                                  const FrameGains& gains, const PixelClasses& classes,
-                                  const PhaseShiftStageOptions& options, PixelStates* state_out) {
+namespace {
+
+// One decoding pass over every period: the least-squares phases, modulations, residuals and
+// level; `linearize_gamma`: plan.projector_gamma undone per sample (white/black frames).
+PhaseShiftPixels DecodePass(const FrameStack& stack, const ReconstructPlan& plan,
+                            const FrameGains& gains, const PixelClasses& classes,
+                            const PhaseShiftStageOptions& options, bool linearize_gamma,
+                            PixelStates* state_out) {
   constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
   PixelStates& state = *state_out;
   const RoiGrid grid = RoiGrid::Of(stack);
@@ -32,11 +40,6 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
   const int nper = static_cast<int>(periods.size());
   const bool has_white = plan.has_white();
   const double proj_gamma = plan.projector_gamma;
-  const bool linearize_gamma = std::abs(proj_gamma - 1.0) > 1e-9 && has_white;
-  if (std::abs(proj_gamma - 1.0) > 1e-9 && !has_white)
-    MESOSCAN_LOG(kWarning) << plan.label
-                           << ": projector gamma without white/black frames: sine patterns are "
-                              "decoded as if linear (phase bias from harmonics)";
   std::vector<WrappedPhaseSolver> solvers;
   for (const auto& p : periods) solvers.emplace_back(p.deltas);
   const std::vector<float>& white_level = classes.white_level;
@@ -106,6 +109,62 @@ PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan
     }
   });
   for (size_t i = 0; i < np; ++i) out.pixels_lit += state[i] == PixelState::kActive;
+  return out;
+}
+
+}  // namespace
+
+PhaseShiftPixels DecodePhaseShift(const FrameStack& stack, const ReconstructPlan& plan,
+                                  const FrameGains& gains, const PixelClasses& classes,
+                                  const PhaseShiftStageOptions& options, PixelStates* state) {
+  const bool gamma_known = std::abs(plan.projector_gamma - 1.0) > 1e-9;
+  const bool linearize_gamma = gamma_known && plan.has_white();
+  const bool estimate = options.harmonics.mode != HarmonicsMode::kOff && plan.periods.size() >= 2 &&
+                        plan.periods_unwrap;
+  if (!estimate) {
+    if (gamma_known && !plan.has_white())
+      MESOSCAN_LOG(kWarning) << plan.label
+                             << ": projector gamma without white/black frames: sine patterns are "
+                                "decoded as if linear (phase bias from harmonics)";
+    return DecodePass(stack, plan, gains, classes, options, linearize_gamma, state);
+  }
+  // The phases as measured; the projector's harmonics estimated from them and undone where the
+  // response is clearly non-linear; else the session's gamma (if any) undone per sample, as
+  // without the estimate.
+  const PixelStates before = linearize_gamma ? *state : PixelStates();
+  PhaseShiftPixels out = DecodePass(stack, plan, gains, classes, options, false, state);
+  ProjectorHarmonics harmonics = EstimateProjectorHarmonics(plan, out, *state, options.harmonics);
+  const bool apply = harmonics.fitted && harmonics.reason.empty() &&
+                     CorrectPhaseHarmonics(plan, *state, &harmonics, &out);
+  if (harmonics.fitted) {
+    std::ostringstream h;
+    for (size_t n = 0; n < harmonics.harmonics.size(); ++n)
+      h << (n ? ", " : "") << "h" << n + 2 << " " << harmonics.harmonics[n];
+    std::ostringstream m;
+    m << plan.label << ": projector response from " << harmonics.pixels << " pixels: nearest gamma "
+      << harmonics.gamma << " (misfit " << harmonics.gamma_misfit_rad << " rad), harmonics "
+      << h.str() << ", blur " << harmonics.blur_px << " px; plain phase error up to "
+      << *std::max_element(harmonics.phase_error_rms_rad.begin(),
+                           harmonics.phase_error_rms_rad.end())
+      << " rad RMS, fit residual " << harmonics.residual_rms_rad
+      << " rad: " << (apply ? "phases corrected" : harmonics.reason);
+    if (apply)
+      MESOSCAN_LOG(kInfo) << m.str();
+    else
+      MESOSCAN_LOG(kDebug) << m.str();
+  }
+  if (!apply && linearize_gamma) {
+    *state = before;
+    const Json response = harmonics.ToJson();
+    out = DecodePass(stack, plan, gains, classes, options, true, state);
+    out.projector_response = response;
+    return out;
+  }
+  if (!apply && gamma_known)
+    MESOSCAN_LOG(kWarning) << plan.label
+                           << ": projector gamma without white/black frames: sine patterns are "
+                              "decoded as if linear (phase bias from harmonics)";
+  out.projector_response = harmonics.ToJson();
   return out;
 }
 

@@ -13,6 +13,7 @@
 
 #include "heightfield/codec.h"
 #include "heightfield/frames.h"
+#include "heightfield/phase_harmonics.h"
 #include "heightfield/phase_shift.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_gains.h"
@@ -32,6 +33,9 @@ struct PhaseShiftStageOptions {
   // variance before unwrapping: model errors that noise does not explain (projector harmonics,
   // defocus, residual brightness jitter), >= 0.
   double systematic_phase_noise = 0.02;
+  // The projector's response estimated from the phases and undone (heightfield/phase_harmonics.h)
+  // where it is clearly non-linear (kAuto).
+  HarmonicsOptions harmonics;
   void Check() const;
 };
 
