@@ -75,8 +75,7 @@ void AddDoctorCommand(CLI::App* app) {
     });
     Probe(out, "  LibRaw", [&] {
       const std::string libraw = LibRawVersion();
-      out << "  LibRaw " << (libraw.empty() ? "missing: OpenImageIO has no raw plugin" : libraw)
-          << " (runtime, through OpenImageIO's raw plugin; camera raw frames)\n";
+      out << "  LibRaw " << libraw << " (camera raw frames)\n";
     });
     Probe(out, "  libgphoto2",
           [&] { out << "  libgphoto2 " << Gphoto2Version() << " (runtime)\n"; });

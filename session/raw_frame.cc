@@ -1,14 +1,15 @@
 #include "session/raw_frame.h"
 
+#include <libraw/libraw.h>
 #include <tiffio.h>
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <set>
 
 #include "core/error.h"
 #include "core/fs.h"
-#include "core/oiio_module.h"
 
 namespace mesoscan {
 namespace {
@@ -30,44 +31,61 @@ struct TiffCloser {
   }
 };
 
-bool IsRawIfd(TIFF* tif) {
-  uint32_t subfile = 0;
-  uint16_t photometric = 0;
-  TIFFGetFieldDefaulted(tif, TIFFTAG_SUBFILETYPE, &subfile);
-  if (!TIFFGetField(tif, TIFFTAG_PHOTOMETRIC, &photometric)) return false;
-  return subfile == 0 && photometric == kPhotometricCfa;
+// A LibRaw handle with the file opened and unpacked; throws Error(kBadInput) naming `who`.
+std::unique_ptr<LibRaw> OpenRaw(const std::filesystem::path& path, const std::string& who) {
+  auto raw = std::make_unique<LibRaw>();
+  int rc = raw->open_file(path.c_str());
+  if (rc == LIBRAW_SUCCESS) rc = raw->unpack();
+  if (rc != LIBRAW_SUCCESS)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who), "cannot read camera raw (LibRaw: "
+                                                    << OneLine(libraw_strerror(rc)) << ")");
+  if (!raw->imgdata.rawdata.raw_image)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who),
+                          "cannot read camera raw (not a one-channel sensor mosaic: LibRaw found "
+                              << raw->imgdata.idata.colors << " colours per pixel)");
+  if (raw->imgdata.sizes.width < 2 || raw->imgdata.sizes.height < 2)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who), "cannot read camera raw (empty visible area)");
+  return raw;
 }
 
-RawLevels LevelsOfIfd(TIFF* tif) {
+// Black level of the visible pixel (x, y), in sensor codes, as LibRaw documents it: the common
+// black, the per-colour black and the repeating black pattern (cblack[4] rows x cblack[5] columns
+// from cblack[6]).
+double BlackAt(LibRaw& raw, int x, int y) {
+  const libraw_colordata_t& c = raw.imgdata.color;
+  double b = c.black + c.cblack[raw.COLOR(y, x) & 3];
+  const unsigned rows = c.cblack[4], cols = c.cblack[5];
+  if (rows > 0 && cols > 0 && rows * cols <= 4096)
+    b += c.cblack[6 + (static_cast<unsigned>(y) % rows) * cols + static_cast<unsigned>(x) % cols];
+  return b;
+}
+
+RawLevels LevelsOf(LibRaw& raw) {
   RawLevels levels;
-  uint16_t* repeat = nullptr;  // BlackLevelRepeatDim: rows, columns
-  int rows = 1, cols = 1;
-  if (TIFFGetField(tif, TIFFTAG_BLACKLEVELREPEATDIM, &repeat) && repeat) {
-    rows = std::max<int>(1, repeat[0]);
-    cols = std::max<int>(1, repeat[1]);
-  }
-  uint16_t n = 0;
-  float* black = nullptr;
-  if (TIFFGetField(tif, TIFFTAG_BLACKLEVEL, &n, &black) && black && n > 0) {
-    // Black level of cell position (x, y): the repeat pattern's entry (y % rows, x % cols); a
-    // single value applies everywhere.
-    for (int y = 0; y < 2; ++y)
-      for (int x = 0; x < 2; ++x) {
-        const int i = (y % rows) * cols + (x % cols);
-        levels.black[y * 2 + x] = black[i < n ? i : 0];
-      }
-    levels.from_file = true;
-  }
-  uint32_t* white = nullptr;
-  if (TIFFGetField(tif, TIFFTAG_WHITELEVEL, &n, &white) && white && n > 0) {
-    levels.white = white[0];
-    levels.from_file = true;
-  } else {
-    uint16_t bits = 16;
-    TIFFGetFieldDefaulted(tif, TIFFTAG_BITSPERSAMPLE, &bits);
-    levels.white = std::ldexp(1.0, bits) - 1.0;
-  }
+  for (int y = 0; y < 2; ++y)
+    for (int x = 0; x < 2; ++x) levels.black[y * 2 + x] = BlackAt(raw, x, y);
+  levels.white = raw.imgdata.color.maximum;
+  levels.from_file = true;
   return levels;
+}
+
+ImageU16 MosaicOf(LibRaw& raw) {
+  const libraw_image_sizes_t& sz = raw.imgdata.sizes;
+  ImageU16 mosaic(sz.width, sz.height);
+  const size_t pitch = sz.raw_pitch / sizeof(uint16_t);
+  for (int y = 0; y < sz.height; ++y) {
+    const uint16_t* src =
+        raw.imgdata.rawdata.raw_image + (y + sz.top_margin) * pitch + sz.left_margin;
+    std::copy(src, src + sz.width, mosaic.row(y));
+  }
+  return mosaic;
+}
+
+void CheckLevels(const RawLevels& levels, const std::string& who) {
+  const double max_black = *std::max_element(levels.black.begin(), levels.black.end());
+  if (!(levels.white > max_black))
+    MESOSCAN_BAD_INPUT(who << ": camera raw white level " << levels.white
+                           << " is not above the black level " << max_black);
 }
 
 }  // namespace
@@ -81,62 +99,27 @@ bool IsCameraRawPath(const std::filesystem::path& path) {
   return kRaw.count(ext) > 0;
 }
 
-RawLevels ReadRawLevels(const std::filesystem::path& path) {
-  TIFFSetErrorHandler(SilentTiffHandler);
-  TIFFSetWarningHandler(SilentTiffHandler);
-  std::unique_ptr<TIFF, TiffCloser> tif(TIFFOpen(path.c_str(), "r"));
-  if (!tif) return {};  // not TIFF-based (e.g. .cr3, .raf): levels unknown here
-  uint8_t* dng_version = nullptr;
-  if (!TIFFGetField(tif.get(), TIFFTAG_DNGVERSION, &dng_version)) return {};
-  if (IsRawIfd(tif.get())) return LevelsOfIfd(tif.get());
-  // The raw image of a DNG with a preview in IFD 0 lives in a SubIFD.
-  uint16_t count = 0;
-  uint64_t* offsets = nullptr;
-  if (!TIFFGetField(tif.get(), TIFFTAG_SUBIFD, &count, &offsets) || !offsets) return {};
-  const std::vector<uint64_t> subifds(offsets, offsets + count);
-  for (uint64_t off : subifds) {
-    if (!TIFFSetSubDirectory(tif.get(), off)) continue;
-    if (IsRawIfd(tif.get())) return LevelsOfIfd(tif.get());
-  }
-  return {};
+RawLevels ReadRawLevels(const std::filesystem::path& path, const std::string& label) {
+  const std::string who = label.empty() ? path.string() : label;
+  auto raw = OpenRaw(path, who);
+  return LevelsOf(*raw);
 }
 
 ImageU16 ReadRawMosaic(const std::filesystem::path& path, const std::string& label) {
   const std::string who = label.empty() ? path.string() : label;
-  // The raw plugin explicitly: a DNG is also a valid TIFF, and OIIO's TIFF reader would claim it.
-  std::string err;
-  bool no_reader = false;
-  auto in = Oiio().Open(path.string(), "raw", {ImageAttribute::String("raw:Demosaic", "none")},
-                        &err, &no_reader);
-  if (no_reader)
-    MESOSCAN_BAD_INPUT_AT(
-        ErrorSite::File(who),
-        "cannot read camera raw (OpenImageIO has no raw plugin: " << OneLine(err) << ")");
-  if (!in)
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who), "cannot read camera raw (" << OneLine(err) << ")");
-  const ImageHeader& spec = in->header();
-  if (spec.channels != 1)
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who),
-                          "cannot read camera raw (LibRaw returned "
-                              << spec.channels
-                              << " channels, expected the 1-channel sensor mosaic)");
-  ImageU16 mosaic(spec.width, spec.height);
-  if (!in->ReadWhole(PixelType::kUInt16, mosaic.data().data()))
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who),
-                          "cannot read camera raw (" << OneLine(in->error()) << ")");
-  return mosaic;
+  auto raw = OpenRaw(path, who);
+  return MosaicOf(*raw);
 }
 
 ImageU16 ReadRawGrey(const std::filesystem::path& path, const std::string& label) {
-  const ImageU16 mosaic = ReadRawMosaic(path, label);
-  const RawLevels levels = ReadRawLevels(path);
+  const std::string who = label.empty() ? path.string() : label;
+  auto raw = OpenRaw(path, who);
+  const ImageU16 mosaic = MosaicOf(*raw);
+  const RawLevels levels = LevelsOf(*raw);
+  raw.reset();
+  CheckLevels(levels, who);
   const double black =
       (levels.black[0] + levels.black[1] + levels.black[2] + levels.black[3]) / 4.0;
-  const double max_black = *std::max_element(levels.black.begin(), levels.black.end());
-  if (!(levels.white > max_black))
-    MESOSCAN_BAD_INPUT((label.empty() ? path.string() : label)
-                       << ": camera raw white level " << levels.white
-                       << " is not above the black level " << max_black);
   const double scale = 65535.0 / (levels.white - black);
   const int w = mosaic.width() / 2, h = mosaic.height() / 2;
   ImageU16 grey(w, h);
@@ -153,6 +136,44 @@ ImageU16 ReadRawGrey(const std::filesystem::path& path, const std::string& label
     }
   }
   return grey;
+}
+
+ImageF ReadRawColour(const std::filesystem::path& path, const std::string& label) {
+  const std::string who = label.empty() ? path.string() : label;
+  auto raw = OpenRaw(path, who);
+  if (raw->imgdata.idata.colors != 3)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who), "cannot demosaic camera raw ("
+                                                    << raw->imgdata.idata.colors
+                                                    << " colour filters, expected R, G, B)");
+  const ImageU16 mosaic = MosaicOf(*raw);
+  const RawLevels levels = LevelsOf(*raw);
+  CheckLevels(levels, who);
+  // Colour (0 R, 1 G, 2 B; LibRaw's 3 is the second green) and black of each cell position.
+  std::array<int, 4> colour{};
+  std::array<int, 3> count{};
+  for (int i = 0; i < 4; ++i) {
+    const int c = raw->COLOR(i / 2, i % 2) & 3;
+    colour[i] = c == 3 ? 1 : c;
+    ++count[colour[i]];
+  }
+  raw.reset();
+  if (count[0] == 0 || count[1] == 0 || count[2] == 0)
+    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(who),
+                          "cannot demosaic camera raw (its 2x2 cell lacks one of R, G, B)");
+  const double black =
+      (levels.black[0] + levels.black[1] + levels.black[2] + levels.black[3]) / 4.0;
+  const double scale = 1.0 / (levels.white - black);
+  const int w = mosaic.width() / 2, h = mosaic.height() / 2;
+  ImageF rgb(w, h, 3, 0.0f);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      std::array<double, 3> sum{};
+      for (int i = 0; i < 4; ++i)
+        sum[colour[i]] += mosaic(2 * x + i % 2, 2 * y + i / 2) - levels.black[i];
+      for (int c = 0; c < 3; ++c)
+        rgb(x, y, c) = static_cast<float>(std::max(0.0, sum[c] / count[c] * scale));
+    }
+  return rgb;
 }
 
 void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic, const RawLevels& levels,
@@ -212,22 +233,6 @@ void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic, cons
       min_bytes, nullptr);
 }
 
-std::string LibRawVersion() {
-  // OIIO lists it as "raw:libraw 0.20.2-Release".
-  const std::string list = Oiio().GlobalAttribute("library_list");
-  // "name:version;name:version ..."; the raw plugin's entry is "raw:LibRaw 0.20.2".
-  for (size_t start = 0; start < list.size();) {
-    size_t end = list.find(';', start);
-    if (end == std::string::npos) end = list.size();
-    const std::string entry = list.substr(start, end - start);
-    if (entry.rfind("raw:", 0) == 0) {
-      const std::string v = entry.substr(4);
-      const size_t space = v.find(' ');
-      return space == std::string::npos ? v : v.substr(space + 1);
-    }
-    start = end + 1;
-  }
-  return "";
-}
+std::string LibRawVersion() { return libraw_version(); }
 
 }  // namespace mesoscan

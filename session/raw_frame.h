@@ -1,14 +1,12 @@
 #pragma once
-// Camera raw frames (.nef .cr2 .dng ...), decoded as session-format.md "Conventions" asks: no
-// demosaicing, each 2x2 Bayer cell averaged into one grey pixel (the image is half the sensor
-// size), the black level the file declares subtracted, linear.
+// Camera raw frames (.nef .cr2 .dng ...), decoded with LibRaw as session-format.md "Conventions"
+// asks: for reconstruction no demosaicing, each 2x2 Bayer cell averaged into one grey pixel (the
+// image is half the sensor size), the black level subtracted, linear; for the colour texture the
+// same half-size grid with each cell's R, mean G and B (LibRaw's half-size demosaic).
 //
-// The mosaic comes from OpenImageIO's LibRaw plugin with "raw:Demosaic" = "none" (the sensor
-// values of LibRaw's visible area, unscaled, black not subtracted). OIIO does not report LibRaw's
-// black and white levels, so they are read from the DNG tags (BlackLevel with
-// BlackLevelRepeatDim, WhiteLevel) of the raw IFD through libtiff. For other raw formats the
-// file's levels are not accessible here: black 0 and white 65535 are assumed, and the session's
-// `camera.black_level` is then the only black subtraction (frames.cc applies it after this).
+// LibRaw reads the black and white levels of every raw format it knows from the file itself
+// (DNG BlackLevel/WhiteLevel tags, the maker notes and masked border of CR2, NEF, ARW ...): the
+// common black, the per-colour black and the repeating black pattern are summed per position.
 
 #include <array>
 #include <filesystem>
@@ -26,12 +24,11 @@ bool IsCameraRawPath(const std::filesystem::path& path);
 struct RawLevels {
   std::array<double, 4> black{0, 0, 0, 0};  // per position in the 2x2 cell: (0,0) (1,0) (0,1) (1,1)
   double white = 65535.0;                   // saturation code, > max(black)
-  bool from_file = false;                   // read from DNG tags (else the defaults above)
+  bool from_file = false;                   // read from the file (LibRaw)
 };
 
-// Levels declared by a DNG (TIFF-based) raw file's raw IFD (NewSubFileType 0, in IFD 0 or a
-// SubIFD); the defaults for other formats or when the tags are absent.
-RawLevels ReadRawLevels(const std::filesystem::path& path);
+// The levels LibRaw reads from a raw file of any format it knows. Throws as ReadRawMosaic.
+RawLevels ReadRawLevels(const std::filesystem::path& path, const std::string& label = "");
 
 // The sensor mosaic as LibRaw sees it (visible area, one channel, codes as stored).
 // Throws Error(kBadInput) "<label>: cannot read camera raw (<why>)".
@@ -44,6 +41,12 @@ ImageU16 ReadRawMosaic(const std::filesystem::path& path, const std::string& lab
 // (default: the path).
 ImageU16 ReadRawGrey(const std::filesystem::path& path, const std::string& label = "");
 
+// The colour texture on the grid of ReadRawGrey: channels R, G, B = (mean of the cell's sensor
+// codes of that colour minus their black levels) / (white - mean black), linear, >= 0, in the
+// camera's own RGB (no white balance, no colour matrix). Throws as ReadRawMosaic, and for a
+// sensor whose 2x2 cell is not made of R, G and B filters (e.g. CMYG).
+ImageF ReadRawColour(const std::filesystem::path& path, const std::string& label = "");
+
 // Writes a minimal uncompressed 16-bit CFA DNG (DNG 1.4, one IFD, Bayer RGGB unless `cfa` says
 // otherwise: the colours of cell positions (0,0) (1,0) (0,1) (1,1), 0 = R, 1 = G, 2 = B) that
 // LibRaw reads: for tests and the simulated camera. `levels.black` per cell position, white as
@@ -51,8 +54,7 @@ ImageU16 ReadRawGrey(const std::filesystem::path& path, const std::string& label
 void WriteCfaDng(const std::filesystem::path& path, const ImageU16& mosaic,
                  const RawLevels& levels = {}, std::array<uint8_t, 4> cfa = {0, 1, 1, 2});
 
-// LibRaw's version, e.g. "0.20.2-Release", as OIIO's raw plugin reports it ("" if OIIO has no raw
-// plugin).
+// LibRaw's version, e.g. "0.20.2-Release" (the library linked).
 std::string LibRawVersion();
 
 }  // namespace mesoscan

@@ -97,6 +97,59 @@ TEST_F(RawFrameTest, WhiteLevelSaturatesAndBlackClampsAtZero) {
   EXPECT_EQ(grey(1, 0), 0);
 }
 
+// LibRaw reads the levels from the file: a DNG whose BlackLevel differs per cell position and
+// whose WhiteLevel is a 12-bit sensor's (as a CR2 or NEF declares them in its maker notes and
+// masked border, which LibRaw reads for those formats the same way).
+TEST_F(RawFrameTest, LevelsComeFromTheFileThroughLibRaw) {
+  RawLevels levels;
+  levels.black = {128, 131, 127, 130};
+  levels.white = 4000;
+  WriteCfaDng(dir_ / "levels.dng", TestMosaic(24, 22, levels, 3), levels);
+  const RawLevels read = ReadRawLevels(dir_ / "levels.dng");
+  EXPECT_TRUE(read.from_file);
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(read.black[i], levels.black[i]) << i;
+  EXPECT_EQ(read.white, 4000);
+  // Another white level, another file: nothing is assumed.
+  levels.white = 15000;
+  WriteCfaDng(dir_ / "levels2.dng", TestMosaic(24, 22, levels, 4), levels);
+  EXPECT_EQ(ReadRawLevels(dir_ / "levels2.dng").white, 15000);
+}
+
+// The colour texture: each cell's R, mean of its two G and B, black-subtracted and scaled by the
+// white level, on the grey frame's half-size grid; for an RGGB and a GRBG sensor.
+TEST_F(RawFrameTest, ColourTextureFromADng) {
+  RawLevels levels;
+  levels.black = {200, 210, 190, 205};
+  levels.white = 16383;
+  for (const std::array<uint8_t, 4> cfa :
+       {std::array<uint8_t, 4>{0, 1, 1, 2}, std::array<uint8_t, 4>{1, 0, 2, 1}}) {
+    const ImageU16 mosaic = TestMosaic(28, 24, levels, 11);
+    const fs::path file = dir_ / "colour.dng";
+    WriteCfaDng(file, mosaic, levels, cfa);
+    const ImageF rgb = ReadRawColour(file);
+    ASSERT_EQ(rgb.width(), 14);
+    ASSERT_EQ(rgb.height(), 12);
+    ASSERT_EQ(rgb.channels(), 3);
+    const double black = (200 + 210 + 190 + 205) / 4.0;
+    for (int y = 0; y < 12; ++y)
+      for (int x = 0; x < 14; ++x) {
+        double sum[3] = {0, 0, 0};
+        int n[3] = {0, 0, 0};
+        for (int i = 0; i < 4; ++i) {
+          const int c = cfa[i];
+          sum[c] += mosaic(2 * x + i % 2, 2 * y + i / 2) - levels.black[i];
+          ++n[c];
+        }
+        for (int c = 0; c < 3; ++c)
+          EXPECT_NEAR(rgb(x, y, c), std::max(0.0, sum[c] / n[c] / (16383.0 - black)), 1e-6)
+              << x << "," << y << " channel " << c;
+      }
+    // Its luminance-free check: the grey frame is the mean of the same four codes.
+    const ImageU16 grey = ReadRawGrey(file);
+    EXPECT_NEAR(grey(3, 4) / 65535.0, (rgb(3, 4, 0) + 2 * rgb(3, 4, 1) + rgb(3, 4, 2)) / 4.0, 1e-4);
+  }
+}
+
 TEST_F(RawFrameTest, UnreadableRawNamesTheFrame) {
   { std::ofstream(dir_ / "junk.nef") << "not a raw file"; }
   try {
