@@ -124,10 +124,17 @@ void MarkAtLeast(const uint16_t* src, size_t n, uint16_t code, Mark&& mark) {
   }
 }
 
-// Colour channels averaged (an alpha channel, 2nd of 2 or 4th of 4, ignored).
+// Colour channels (an alpha channel, 2nd of 2 or 4th of 4, ignored).
 int ColourChannels(int channels) {
   return (channels == 2 || channels == 4) ? channels - 1 : channels;
 }
+
+// Weights of the colour channels in the grey value decoded: an RGB frame's luminance (ITU-R
+// BT.709 / sRGB primaries: 0.2126 R + 0.7152 G + 0.0722 B), the mean of any other channel count.
+// kLumaQ16: the same weights in 1/65536 (summing to 65536) for integer frames.
+constexpr float kLuma[3] = {0.2126f, 0.7152f, 0.0722f};
+constexpr uint32_t kLumaQ16[3] = {13933, 46872, 4731};
+static_assert(kLumaQ16[0] + kLumaQ16[1] + kLumaQ16[2] == 65536);
 
 }  // namespace
 
@@ -282,16 +289,17 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
             for (int c = 0; c < ncc; ++c) {
               const float sample = d.is_float ? d.f32[src + c] : d.u16[src + c] / 65535.0f;
               if (!d.is_float && d.u16[src + c] >= sat_code) saturated_sample = true;
-              v += sample;
+              v += ncc == 3 ? kLuma[c] * sample : sample;
             }
-            s.raw_float_[k][dst_row + x] = v / ncc;
+            s.raw_float_[k][dst_row + x] = ncc == 3 ? v : v / ncc;
           } else {
             uint32_t v = 0;
             for (int c = 0; c < ncc; ++c) {
-              v += d.u16[src + c];
+              v += ncc == 3 ? kLumaQ16[c] * d.u16[src + c] : d.u16[src + c];
               if (d.u16[src + c] >= sat_code) saturated_sample = true;
             }
-            s.raw_[k][dst_row + x] = static_cast<uint16_t>((v + ncc / 2) / ncc);
+            s.raw_[k][dst_row + x] =
+                static_cast<uint16_t>(ncc == 3 ? (v + 32768u) >> 16 : (v + ncc / 2) / ncc);
           }
           if (saturated_sample) mark_saturated(dst_row + x);
         }

@@ -134,12 +134,13 @@ class FrameStack {
 };
 
 // Decodes frames `frame_indices` of `session` in parallel (TBB, a progress bar "decode frames"),
-// grey (colour averaged), cropped to the ROI. Throws Error naming the frame on an unreadable file
-// or a size other than camera.width x camera.height. Float (EXR) frames are kept as float; a
-// session mixing float and integer frames is converted to float throughout. decode_only (if given,
-// one entry per frame_indices entry): only frames with a non-zero entry are decoded, the others are
-// left empty (as Release does) and do not count for saturated(); Merge then joins two such stacks
-// (the driver decodes the lens-shift frames while it works on the others).
+// grey (an RGB frame's BT.709 luminance, other channel counts averaged), cropped to the ROI. Throws
+// Error naming the frame on an unreadable file or a size other than camera.width x camera.height.
+// Float (EXR) frames are kept as float; a session mixing float and integer frames is converted to
+// float throughout. decode_only (if given, one entry per frame_indices entry): only frames with a
+// non-zero entry are decoded, the others are left empty (as Release does) and do not count for
+// saturated(); Merge then joins two such stacks (the driver decodes the lens-shift frames while it
+// works on the others).
 FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indices,
                       const FrameLoadOptions& options,
                       const std::vector<uint8_t>* decode_only = nullptr);
