@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -36,6 +37,8 @@ void AddSimulateCommand(CLI::App* app) {
     std::string object_pose;
     std::vector<std::string> scratches, erosions;
     std::string patterns = "sine";
+    bool grey = false;
+    std::string grey_card;  // X,Y,SIZE:REFLECTANCE, mm
   };
   auto args = std::make_shared<Args>();
   SimulateOptions& o = args->o;
@@ -144,6 +147,14 @@ void AddSimulateCommand(CLI::App* app) {
          "with inverse frames, white, black; no sines, no lens shift) | sine+graycode (one "
          "--ps-periods period with a complementary Gray code of half its width)")
       ->capture_default_str();
+  cmd->add_flag("--grey", args->grey,
+                "Grey object and frames (the fabric and the coin are coloured by default)");
+  cmd->add_option("--grey-card", args->grey_card,
+                  "A neutral grey card on the mount: X,Y,SIDE:REFLECTANCE (centre and side in mm, "
+                  "e.g. -10,8,4:0.18); its camera rectangle goes into session.json");
+  cmd->add_option("--projector-falloff", o.projector_falloff,
+                  "Projector vignetting f: relative irradiance 1 - f*(un^2 + vn^2), [0, 0.5)")
+      ->capture_default_str();
   cmd->add_option("--shift-position-error", o.shift_position_error_px,
                   "Lens-shifter position error per frame, RMS in projector px")
       ->capture_default_str();
@@ -235,6 +246,20 @@ void AddSimulateCommand(CLI::App* app) {
     opt.white = !args->no_white;
     opt.black = !args->no_black;
     opt.shadows = !args->no_shadows;
+    opt.colour = !args->grey;
+    if (!args->grey_card.empty()) {
+      double x = 0, y = 0, side = 0, rho = 0;
+      char c1 = 0, c2 = 0, c3 = 0;
+      std::istringstream in(args->grey_card);
+      if (!(in >> x >> c1 >> y >> c2 >> side >> c3 >> rho) || c1 != ',' || c2 != ',' || c3 != ':' ||
+          !(in >> std::ws).eof() || !(side > 0))
+        MESOSCAN_THROW(ErrorKind::kUsage, "--grey-card: expected X,Y,SIDE:REFLECTANCE (mm), got '"
+                                              << args->grey_card << "'");
+      opt.grey_card_x = x * 1e-3;
+      opt.grey_card_y = y * 1e-3;
+      opt.grey_card_size = side * 1e-3;
+      opt.grey_card_reflectance = rho;
+    }
     // A FILE.exr object and a RIG.json are inputs: --out must not be, contain or lie in them.
     const auto is_file = [](const std::string& v) { return std::filesystem::exists(v); };
     const OutputSpec out_spec{"simulate",

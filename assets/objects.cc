@@ -138,12 +138,82 @@ double MountAlbedo(double x, double y) {
 
 double SceneObject::Albedo(double x, double y) const {
   const double i = height.I(x), j = height.J(y);
-  if (i < 0 || j < 0 || i > height.width() - 1 || j > height.height() - 1) return MountAlbedo(x, y);
+  if (i < 0 || j < 0 || i > height.width() - 1 || j > height.height() - 1) {
+    if (card && x >= card->x0 && x <= card->x1 && y >= card->y0 && y <= card->y1)
+      return card->reflectance;
+    return MountAlbedo(x, y);
+  }
   const int i0 = std::min(static_cast<int>(i), height.width() - 2);
   const int j0 = std::min(static_cast<int>(j), height.height() - 2);
   const double a = i - i0, b = j - j0;
   return (1 - a) * (1 - b) * albedo(i0, j0) + a * (1 - b) * albedo(i0 + 1, j0) +
          (1 - a) * b * albedo(i0, j0 + 1) + a * b * albedo(i0 + 1, j0 + 1);
+}
+
+std::array<double, 3> SceneObject::ColourAlbedo(double x, double y) const {
+  const double i = height.I(x), j = height.J(y);
+  const bool inside = !(i < 0 || j < 0 || i > height.width() - 1 || j > height.height() - 1);
+  if (!inside || colour.empty()) {
+    const double a = Albedo(x, y);
+    return {a, a, a};
+  }
+  const int i0 = std::min(static_cast<int>(i), height.width() - 2);
+  const int j0 = std::min(static_cast<int>(j), height.height() - 2);
+  const double a = i - i0, b = j - j0;
+  std::array<double, 3> rgb{};
+  for (int c = 0; c < 3; ++c)
+    rgb[c] = (1 - a) * (1 - b) * colour(i0, j0, c) + a * (1 - b) * colour(i0 + 1, j0, c) +
+             (1 - a) * b * colour(i0, j0 + 1, c) + a * b * colour(i0 + 1, j0 + 1, c);
+  return rgb;
+}
+
+double Luminance(const std::array<double, 3>& rgb) {
+  return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+}
+
+bool ColourObject(SceneObject* o) {
+  const bool fabric = o->name == "fabric", coin = o->name == "coin";
+  if (!fabric && !coin) return false;
+  const HeightField& hf = o->height;
+  o->colour = ImageF(hf.width(), hf.height(), 3);
+  ParallelForRows(hf.height(), [&](int j0, int j1) {
+    for (int j = j0; j < j1; ++j)
+      for (int i = 0; i < hf.width(); ++i) {
+        const double x = hf.X(i), y = hf.Y(j);
+        const double a = o->albedo(i, j);
+        std::array<double, 3> rgb{a, a, a};
+        if (hf.z(i, j) > 0) {
+          // The dye's colour scaled to the grey albedo's luminance, so that the object decodes
+          // as before (reconstruction sees luminance) while its texture has colour.
+          std::array<double, 3> dye;
+          if (fabric) {
+            // Madder-dyed threads (a dusty rose red), the dye a little uneven: a slow mottle of
+            // +-6 % in green and blue.
+            const double mottle =
+                1.0 + 0.06 * std::sin(2 * kPi * x / 7.3e-3) * std::cos(2 * kPi * y / 5.9e-3);
+            dye = {0.80, 0.45 * mottle, 0.40 * mottle};
+          } else {
+            // Patinated copper: warm brown, green verdigris where a smooth field is high.
+            const double v =
+                0.5 + 0.25 * std::sin(2 * kPi * x / 3.1e-3 + 1.3) * std::cos(2 * kPi * y / 2.3e-3) +
+                0.25 * std::sin(2 * kPi * (x - 0.6 * y) / 4.7e-3);
+            const double g = std::clamp((v - 0.55) / 0.2, 0.0, 1.0);  // verdigris fraction
+            const std::array<double, 3> copper{0.80, 0.52, 0.38}, verdigris{0.38, 0.60, 0.50};
+            for (int c = 0; c < 3; ++c) dye[c] = (1 - g) * copper[c] + g * verdigris[c];
+          }
+          const double k = a / Luminance(dye);
+          for (int c = 0; c < 3; ++c) rgb[c] = k * dye[c];
+        }
+        bool clipped = false;
+        for (int c = 0; c < 3; ++c) {
+          clipped |= rgb[c] > 1.0;
+          rgb[c] = std::clamp(rgb[c], 0.0, 1.0);
+          o->colour(i, j, c) = static_cast<float>(rgb[c]);
+        }
+        if (clipped) o->albedo(i, j) = static_cast<float>(Luminance(rgb));
+      }
+  });
+  return true;
 }
 
 double SceneObject::SurfaceZ(double x, double y) const {

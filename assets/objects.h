@@ -7,7 +7,9 @@
 // Every generated grid has a margin of zero-height cells around the object, so the height field
 // meets the mount plane without a gap and the object's sides appear as steep one-cell slopes.
 
+#include <array>
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include "core/height_field.h"
@@ -17,10 +19,24 @@ namespace mesoscan {
 struct SceneObject {
   std::string name;    // "coin", "ramp", "plane", "leaf" or the EXR file name
   HeightField height;  // metres above the mount; NaN = hole (rays pass to the mount below)
-  ImageF albedo;       // same grid as height, Lambert albedo in [0, 1]
+  ImageF albedo;       // same grid as height, Lambert albedo in [0, 1] (a coloured object: the
+                       // BT.709 luminance of `colour`)
+  // Optional: the same grid, 3 channels, the Lambert albedo (reflectance) per channel R, G, B in
+  // [0, 1]; empty for a grey object (every channel = albedo).
+  ImageF colour;
+  // Optional: a neutral grey card of known reflectance lying on the mount (under the object where
+  // they overlap: the object's grid wins).
+  struct Card {
+    double x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // world rectangle, metres
+    double reflectance = 0.18;
+  };
+  std::optional<Card> card;
 
-  // Lambert albedo at world (x, y): bilinear in the object's grid, MountAlbedo outside it.
+  // Lambert albedo at world (x, y): bilinear in the object's grid, the card or MountAlbedo outside
+  // it.
   double Albedo(double x, double y) const;
+  // Per channel R, G, B (a grey object, the card and the mount: the same value thrice).
+  std::array<double, 3> ColourAlbedo(double x, double y) const;
   // True surface height at world (x, y): height.Sample inside the grid where finite, else 0 (the
   // mount, also seen through holes).
   double SurfaceZ(double x, double y) const;
@@ -68,6 +84,15 @@ SceneObject MakeHammeredMetal(double pixel_size_m = 20e-6);
 // A height EXR in the scan-outputs.md layout (channel Z, grid attributes), placed as given; a
 // smooth albedo 0.5 +- 0.1 is made up. Throws Error naming the file if unreadable.
 SceneObject LoadHeightExrObject(const std::filesystem::path& path);
+
+// BT.709 luminance of a linear R, G, B triple: 0.2126 R + 0.7152 G + 0.0722 B.
+double Luminance(const std::array<double, 3>& rgb);
+
+// Gives the object its natural colour (`colour`, and `albedo` its luminance) if it has one: the
+// fabric is dyed (a madder red, the thread's own brightness variations kept), the coin is a
+// patinated copper (a warm brown with patches of green verdigris). Returns false (the object
+// unchanged) for the grey objects.
+bool ColourObject(SceneObject* object);
 
 // "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | "mount" (the empty mount) | a path
 // ending in .exr. pixel_size_m <= 0: the object's default grid spacing. Throws Error(kBadInput)

@@ -609,6 +609,14 @@ Session ParseSession(const Json& j, const fs::path& root, const std::string& fil
   const Json& proj = p.RequireObject(rig, "rig", "projector", "an object");
   s.rig.projector = p.Device(proj, "rig.projector", &s.rig.uncalibrated);
   s.rig.projector_response = p.ReadResponse(proj, "rig.projector", /*allow_srgb=*/false);
+  if (const Json* v = Parser::Find(proj, "falloff")) {
+    const std::string expected = "an object {\"radial\": f} with f a number in [0, 0.5)";
+    if (!v->is_object()) p.Expected("rig.projector.falloff", expected, *v);
+    s.rig.projector_falloff = p.Number(p.Require(*v, "rig.projector.falloff", "radial", expected),
+                                       "rig.projector.falloff.radial", expected);
+    if (!(s.rig.projector_falloff >= 0 && s.rig.projector_falloff < 0.5))
+      p.Expected("rig.projector.falloff.radial", expected, (*v)["radial"]);
+  }
   if (const Json* ls = Parser::Find(rig, "lens_shifter")) {
     const std::string ls_expected = "an object with axis, steps_per_px and range_steps";
     if (!ls->is_object()) p.Expected("rig.lens_shifter", ls_expected, *ls);
@@ -935,6 +943,13 @@ Session ReadSession(const fs::path& dir, bool check_frames) {
   return s;
 }
 
+double ProjectorFalloff(const Rig& rig, double u, double v) {
+  if (rig.projector_falloff == 0) return 1.0;
+  const PinholeCamera& p = rig.projector;
+  const double un = (u - p.K(0, 2)) / (0.5 * p.width), vn = (v - p.K(1, 2)) / (0.5 * p.height);
+  return 1.0 - rig.projector_falloff * (un * un + vn * vn);
+}
+
 Json SessionToJson(const Session& s) {
   Json j;
   j["format"] = kSessionFormat;
@@ -948,6 +963,7 @@ Json SessionToJson(const Session& s) {
     for (Json* d : {&cam, &proj})
       for (const char* k : {"K", "distortion", "world_from_device"}) d->erase(k);
   proj["response"] = ResponseToJson(s.rig.projector_response);
+  if (s.rig.projector_falloff != 0) proj["falloff"] = {{"radial", s.rig.projector_falloff}};
   j["rig"] = {{"camera", cam}, {"projector", proj}};
   if (s.rig.lens_shifter) {
     const LensShifter& ls = *s.rig.lens_shifter;

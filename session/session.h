@@ -68,12 +68,19 @@ struct Rig {
   double black_level = 0.0;  // in the frame's units normalised to [0, 1]
   PinholeCamera projector;
   Response projector_response;  // kLinear or kGamma only
+  // Optional `projector.falloff` {"radial": f}: the projector's relative irradiance at pixel
+  // (u, v) (at shift 0) is 1 - f * (un^2 + vn^2), un = (u - cx) / (W/2), vn = (v - cy) / (H/2),
+  // on top of cos(incidence) / r^2; 0 (the default) = none. f in [0, 0.5).
+  double projector_falloff = 0.0;
   std::optional<LensShifter> lens_shifter;
   // A calibration session's rig (spec "Calibration sessions"): a device lacks K, distortion or
   // world_from_device; camera and projector then hold the sizes (and any initial guess) only.
   // `check` says so; `reconstruct` refuses it.
   bool uncalibrated = false;
 };
+
+// The relative irradiance of rig.projector_falloff at projector pixel (u, v).
+double ProjectorFalloff(const Rig& rig, double u, double v);
 
 struct GroundTruth {
   std::string points;  // relative path of gt_points.exr (channels X, Y, Z)

@@ -206,12 +206,14 @@ struct RigView {
   double focus_z = 0;  // world height of the projector's focus plane, m
   Rigid3d prj_from_world;
   Vec3d cam_centre, prj_centre;
-  double r0 = 0;  // reference distance: projector centre to the world origin
+  double r0 = 0;        // reference distance: projector centre to the world origin
+  bool colour = false;  // the object has a colour (RGB frames)
 };
 
 RigView MakeRigView(const Rig& rig, const EmbreeScene& scene, const SceneObject& object,
                     const SimulateOptions& options, double focus_z) {
-  RigView v{rig.camera, rig.projector, scene, object, options, focus_z, {}, {}, {}, 0};
+  RigView v{rig.camera, rig.projector, scene, object, options, focus_z, {}, {}, {}, 0, false};
+  v.colour = !object.colour.empty();
   v.prj_from_world = rig.projector.world_from_device.Inverse();
   v.cam_centre = rig.camera.CentreInWorld();
   v.prj_centre = rig.projector.CentreInWorld();
@@ -236,6 +238,7 @@ struct Sample {
   bool hit = false, lit = false;
   Vec3d point;
   double albedo = 0, u = 0, v = 0, sigma = 0, shading = 0;
+  std::array<double, 3> rgb{};  // per-channel albedo (coloured objects only)
 };
 
 Sample Shade(const RigView& view, const Vec2d& uv) {
@@ -246,6 +249,7 @@ Sample Shade(const RigView& view, const Vec2d& uv) {
   s.hit = true;
   s.point = hit->point;
   s.albedo = view.object.Albedo(s.point.x(), s.point.y());
+  if (view.colour) s.rgb = view.object.ColourAlbedo(s.point.x(), s.point.y());
   const Vec3d p_dev = view.prj_from_world * s.point;
   double uvp[2];
   if (!view.prj.ProjectDevice(p_dev.data(), uvp)) return s;
@@ -261,6 +265,11 @@ Sample Shade(const RigView& view, const Vec2d& uv) {
   const SimulateOptions& o = view.options;
   s.sigma = o.blur_sigma_px + o.defocus_px_per_m * std::abs(s.point.z() - view.focus_z);
   s.shading = s.albedo * cos_i * (view.r0 / r) * (view.r0 / r);
+  if (o.projector_falloff != 0) {
+    const double un = (s.u - view.prj.K(0, 2)) / (0.5 * view.prj.width),
+                 vn = (s.v - view.prj.K(1, 2)) / (0.5 * view.prj.height);
+    s.shading *= std::max(0.0, 1.0 - o.projector_falloff * (un * un + vn * vn));
+  }
   s.lit = s.u >= -0.5 && s.u <= view.prj.width - 0.5 && s.v >= -0.5 && s.v <= view.prj.height - 0.5;
   return s;
 }
@@ -271,6 +280,10 @@ struct RayCastResult {
   SubsampleCache cache;               // x and shading set; gain and level by PrepareSubsamples
   std::vector<float> v, sigma;        // per subsample: projector v, blur sigma (px)
   std::vector<float> ambient_albedo;  // per pixel: mean albedo of its subsamples
+  // Coloured objects, 3 per pixel (channel-major: c * W * H + pixel): the pixel's colour over its
+  // luminance, weighted by the subsamples' shading (the lit light's colour), and the mean albedo
+  // per channel (the ambient light's colour). Empty for grey objects.
+  std::vector<float> tint, ambient_colour;
   ImageF gt_points;        // per pixel: X, Y, Z of the centre ray's hit, lit_fraction, relief
   int64_t lit_pixels = 0;  // pixels whose centre sees a lit surface
   int64_t rays = 0;        // camera rays cast
@@ -285,6 +298,11 @@ RayCastResult RayCast(const RigView& view, int S) {
   rc.v.assign(n_sub, 0.0f);
   rc.sigma.assign(n_sub, 0.0f);
   rc.ambient_albedo.assign(static_cast<size_t>(W) * H, 0.0f);
+  if (view.colour) {
+    rc.tint.assign(3 * static_cast<size_t>(W) * H, 1.0f);
+    rc.ambient_colour.assign(3 * static_cast<size_t>(W) * H, 0.0f);
+  }
+  const size_t plane = static_cast<size_t>(W) * H;
   rc.gt_points = ImageF(W, H, 5, std::numeric_limits<float>::quiet_NaN());
   std::atomic<int64_t> lit_pixels{0};
   Progress progress("simulate: ray cast", H);
@@ -292,7 +310,8 @@ RayCastResult RayCast(const RigView& view, int S) {
     for (int py = y0; py < y1; ++py) {
       for (int px = 0; px < W; ++px) {
         const size_t pix = static_cast<size_t>(py) * W + px;
-        double albedo_sum = 0;
+        double albedo_sum = 0, shading_sum = 0;
+        std::array<double, 3> rgb_sum{}, tint_sum{};
         Sample centre;
         int lit_subsamples = 0;
         std::vector<Vec3d> hits;
@@ -303,6 +322,12 @@ RayCastResult RayCast(const RigView& view, int S) {
             const Sample s = Shade(view, Vec2d(px + (a + 0.5) / S - 0.5, py + (b + 0.5) / S - 0.5));
             if (2 * a + 1 == S && 2 * b + 1 == S) centre = s;
             albedo_sum += s.albedo;
+            if (view.colour)
+              for (int c = 0; c < 3; ++c) {
+                rgb_sum[c] += s.rgb[c];
+                if (s.shading > 0 && s.albedo > 0) tint_sum[c] += s.shading * s.rgb[c] / s.albedo;
+              }
+            if (s.shading > 0) shading_sum += s.shading;
             lit_subsamples += s.lit;
             if (s.hit) hits.push_back(s.point);
             if (s.shading > 0) {
@@ -316,6 +341,14 @@ RayCastResult RayCast(const RigView& view, int S) {
             }
           }
         rc.ambient_albedo[pix] = static_cast<float>(albedo_sum / (S * S));
+        if (view.colour)
+          for (int c = 0; c < 3; ++c) {
+            rc.ambient_colour[c * plane + pix] = static_cast<float>(rgb_sum[c] / (S * S));
+            rc.tint[c * plane + pix] =
+                shading_sum > 0  ? static_cast<float>(tint_sum[c] / shading_sum)
+                : albedo_sum > 0 ? static_cast<float>(rgb_sum[c] / albedo_sum)
+                                 : 1.0f;
+          }
         // The pixel centre is a subsample when S is odd.
         const Sample c = S % 2 == 1 ? centre : Shade(view, Vec2d(px, py));
         ImageF& gt = rc.gt_points;
@@ -467,9 +500,14 @@ ImageU16 RenderFrame(const Frame& frame, size_t f, const LightTables& tab, const
       draws.position_errors[f];
   const bool dark = frame.pattern.type == PatternType::kBlack;
   Rng rng(MixSeed(options.seed, 2 * f + 2));
-  ImageU16 image(W, H, 1);
+  // A coloured object's texture frames (white, black) are RGB; its pattern frames are their
+  // luminance, which is what reconstruction decodes (grey frames: a third of the data).
+  const bool colour = !rc.tint.empty() && (frame.pattern.type == PatternType::kWhite ||
+                                           frame.pattern.type == PatternType::kBlack);
+  const size_t plane = static_cast<size_t>(W) * H;
+  ImageU16 image(W, H, colour ? 3 : 1);
   uint16_t* out = image.channel(0);
-  for (size_t pix = 0; pix < static_cast<size_t>(W) * H; ++pix) {
+  for (size_t pix = 0; pix < plane; ++pix) {
     double acc = 0.0;
     if (!dark) {
       const size_t k0 = pix * S * S;
@@ -480,6 +518,20 @@ ImageU16 RenderFrame(const Frame& frame, size_t f, const LightTables& tab, const
         acc += sh * tab.Lookup(cache.x[k] - shift_px * cache.gain[k], cache.level[k]);
       }
     }
+    if (colour) {
+      // Each channel: the lit light tinted by the pixel's colour, the ambient by its albedo;
+      // independent noise per channel.
+      for (int c = 0; c < 3; ++c) {
+        const size_t i = c * plane + pix;
+        const double m =
+            options.exposure * (acc * inv_ss * rc.tint[i] + options.ambient * rc.ambient_colour[i]);
+        double value = m * draws.gains[f];
+        if (options.noise > 0) value += noise.Sigma(m) * rng.Normal();
+        const int dn = static_cast<int>(std::lround(std::clamp(value, 0.0, 1.0) * dn_max));
+        image.channel(c)[pix] = ToPng16(dn, options.adc_bits);
+      }
+      continue;
+    }
     const double mean =
         options.exposure * (acc * inv_ss + options.ambient * rc.ambient_albedo[pix]);
     double value = mean * draws.gains[f];
@@ -488,6 +540,49 @@ ImageU16 RenderFrame(const Frame& frame, size_t f, const LightTables& tab, const
     out[pix] = ToPng16(dn, options.adc_bits);
   }
   return image;
+}
+
+// The true reflectance per channel R, G, B on the grid of the true height field (the object's
+// colour, the card, the mount), with its grid attributes.
+void WriteGroundTruthAlbedo(const fs::path& path, const HeightField& grid,
+                            const SceneObject& object) {
+  ImageF a(grid.width(), grid.height(), 3);
+  ParallelForRows(grid.height(), [&](int j0, int j1) {
+    for (int j = j0; j < j1; ++j)
+      for (int i = 0; i < grid.width(); ++i) {
+        const std::array<double, 3> rgb = object.ColourAlbedo(grid.X(i), grid.Y(j));
+        for (int c = 0; c < 3; ++c) a(i, j, c) = static_cast<float>(rgb[c]);
+      }
+  });
+  WriteExr(path, a, {"R", "G", "B"},
+           {{"mesoscan:x0", grid.x0},
+            {"mesoscan:y0", grid.y0},
+            {"mesoscan:pixel_size", grid.pixel_size}});
+}
+
+// The grey card's world square and the camera pixels wholly inside it (the rectangle of pixel
+// centres whose footprint lies on the card, 2 px in from its projected edges).
+Json GreyCardRecord(const SceneObject::Card& card, const PinholeCamera& cam) {
+  double u0 = 1e30, v0 = 1e30, u1 = -1e30, v1 = -1e30;
+  for (const double x : {card.x0, card.x1})
+    for (const double y : {card.y0, card.y1}) {
+      Vec2d uv;
+      if (!cam.Project(Vec3d(x, y, 0.0), &uv)) continue;
+      u0 = std::min(u0, uv.x()), u1 = std::max(u1, uv.x());
+      v0 = std::min(v0, uv.y()), v1 = std::max(v1, uv.y());
+    }
+  // Inside the projected corners' box, less a margin (the box of a slightly rotated square is a
+  // little larger than the square's image).
+  const int x0 = std::max(0, static_cast<int>(std::ceil(u0)) + 2),
+            y0 = std::max(0, static_cast<int>(std::ceil(v0)) + 2),
+            x1 = std::min(cam.width - 1, static_cast<int>(std::floor(u1)) - 2),
+            y1 = std::min(cam.height - 1, static_cast<int>(std::floor(v1)) - 2);
+  Json j = {{"world_m", {card.x0, card.y0, card.x1, card.y1}}, {"reflectance", card.reflectance}};
+  if (x1 >= x0 && y1 >= y0)
+    j["camera_px"] = {x0, y0, x1 - x0 + 1, y1 - y0 + 1};
+  else
+    j["camera_px"] = nullptr;  // not in view
+  return j;
 }
 
 // The true height field on the camera's footprint on z = 0 (the rays through the image
@@ -554,12 +649,19 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
                               {"gx", options.shift_gain_x},
                               {"gy", options.shift_gain_y},
                               {"gr", options.shift_gain_r}};
-  sim["radiometry"] = {{"formula",
-                        "value = exposure * gain_f * (mean over subsamples of albedo * cos_i * "
-                        "(r0/r)^2 * L(u - s*g) * R(v) + ambient * albedo)"},
-                       {"exposure", options.exposure},
-                       {"ambient", options.ambient},
-                       {"reference_distance_m", r0}};
+  sim["radiometry"] = {
+      {"formula",
+       "value = exposure * gain_f * (mean over subsamples of albedo * cos_i * "
+       "(r0/r)^2 * L(u - s*g) * R(v) + ambient * albedo)"},
+      {"exposure", options.exposure},
+      {"ambient", options.ambient},
+      {"projector_falloff", "(albedo * cos_i * (r0/r)^2) times 1 - f*(un^2 + vn^2), f = " +
+                                std::to_string(options.projector_falloff)},
+      {"colour", object.colour.empty() ? "grey (one channel)"
+                                       : "white and black frames RGB (each channel with its own "
+                                         "albedo, noise per channel); pattern frames grey, the "
+                                         "BT.709 luminance"},
+      {"reference_distance_m", r0}};
   sim["noise"] = {{"scale", options.noise},
                   {"full_well_e", options.full_well_e},
                   {"read_noise_e", options.read_noise_e},
@@ -583,6 +685,13 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
 
 void SimulateOptions::Check() const {
   if (object.empty()) SIM_OPTION("object", "expected coin, plane, ramp, leaf or FILE.exr");
+  if (!(projector_falloff >= 0 && projector_falloff < 0.5))
+    SIM_OPTION("projector_falloff", "expected [0, 0.5), got " << projector_falloff);
+  if (!(grey_card_size >= 0 && grey_card_size < 1) || !std::isfinite(grey_card_x) ||
+      !std::isfinite(grey_card_y))
+    SIM_OPTION("grey_card_size", "expected a finite centre and a side in [0, 1) m");
+  if (!(grey_card_reflectance > 0 && grey_card_reflectance <= 1))
+    SIM_OPTION("grey_card_reflectance", "expected (0, 1], got " << grey_card_reflectance);
   if (object_pixel_size_m < 0 || !(object_pixel_size_m < 1e-3))
     SIM_OPTION("object_pixel_size_m", "expected 0 (default) or a spacing in (0, 1e-3) m");
   if (rig.empty()) SIM_OPTION("rig", "expected 'paper' or a RIG.json file");
@@ -777,7 +886,8 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   const Stopwatch total;
   options.Check();
   SimulateSummary summary;
-  const Rig rig = ResolveRig(options);
+  Rig rig = ResolveRig(options);
+  rig.projector_falloff = options.projector_falloff;
   if (rig.lens_shifter && rig.lens_shifter->axis != options.axis && options.ls_frames > 0)
     SIM_OPTION("rig", "the lens shifter moves along axis \""
                           << rig.lens_shifter->axis << "\", expected \"" << options.axis << "\" as "
@@ -788,6 +898,13 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
   SceneObject object =
       MakeObject(options.object, options.object_pixel_size_m, "SimulateOptions.object");
   ApplyObjectChange(options.change, &object);
+  if (options.colour) ColourObject(&object);
+  if (options.grey_card_size > 0) {
+    const double h = 0.5 * options.grey_card_size;
+    object.card =
+        SceneObject::Card{options.grey_card_x - h, options.grey_card_y - h, options.grey_card_x + h,
+                          options.grey_card_y + h, options.grey_card_reflectance};
+  }
   EmbreeScene scene;
   scene.AddHeightField(object.height);
   const double focus_z = FocusHeight(object, options.focus_height_m);
@@ -825,7 +942,10 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     });
     progress.Finish();
     WriteExr(dir / "gt_points.exr", rc.gt_points, {"X", "Y", "Z", "lit_fraction", "relief"});
-    WriteHeightExr(dir / "gt_height.exr", GroundTruthHeight(rig.camera, object));
+    const HeightField gt_height = GroundTruthHeight(rig.camera, object);
+    WriteHeightExr(dir / "gt_height.exr", gt_height);
+    const bool gt_albedo = !object.colour.empty() || object.card;
+    if (gt_albedo) WriteGroundTruthAlbedo(dir / "gt_albedo.exr", gt_height, object);
     Session session;
     session.root = dir;
     session.created = SessionTimeNow();
@@ -835,6 +955,9 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
     session.ground_truth = GroundTruth{"gt_points.exr", "gt_height.exr"};
     session.extra["simulation"] =
         SimulationRecord(options, object, focus_z, levels, view.r0, draws);
+    if (gt_albedo) session.extra["simulation"]["ground_truth_albedo"] = "gt_albedo.exr";
+    if (object.card)
+      session.extra["simulation"]["grey_card"] = GreyCardRecord(*object.card, rig.camera);
     WriteSessionJson(session);
   });
   summary.seconds_frames = t_frames.Seconds();

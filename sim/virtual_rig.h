@@ -34,6 +34,14 @@ struct SimulateOptions {
   // Camera crop in pixels of the rig's camera: the output camera is w x h with cx -= x,
   // cy -= y (a valid camera of its own). Must lie inside the rig's camera.
   std::optional<PixelRect> crop;
+  // The object's natural colour (assets/objects.h ColourObject: a dyed fabric, a patinated coin):
+  // RGB frames and gt_albedo.exr. false (or an object without one): grey frames, as before.
+  bool colour = true;
+  // A neutral grey card on the mount (world metres: centre x, y and side), under the object where
+  // they overlap; size 0 = none. Its camera pixel rectangle is recorded in session.json
+  // ("simulation"."grey_card") for reconstruction's reference.
+  double grey_card_x = 0, grey_card_y = 0, grey_card_size = 0;
+  double grey_card_reflectance = 0.18;  // in (0, 1]
   // The session's "object" text; empty: the object's name.
   std::string object_label;
   // The object's pose on the mount and a known change to its surface (scratches, erosion, a
@@ -82,6 +90,10 @@ struct SimulateOptions {
   // Projector response: displayed value v emits light v^gamma. 1 = linear (no response key
   // written); otherwise projector.response = {"gamma": g}. In (0, 5].
   double projector_gamma = 1.0;
+
+  // Projector falloff (vignetting) recorded as rig.projector.falloff: relative irradiance
+  // 1 - f * (un^2 + vn^2) (session/session.h ProjectorFalloff), f in [0, 0.5); 0 = none.
+  double projector_falloff = 0.0;
 
   // ---- radiometry (frame values normalised to [0, 1] = ADC full scale) ----
   // Frame value of a white, fully lit, albedo-1 surface facing the projector at the reference

@@ -362,6 +362,7 @@ TEST(RobustReconstruct, LowSignalGuessedFringeOrdersAreRejected) {
                         Case{3, 0.02, false}, Case{10, 0.02, false}}) {
     SimulateOptions so;
     so.object = "coin";
+    so.colour = false;  // frames rewritten as grey below
     so.crop = PixelRect{1100, 650, 160, 120};
     so.adc_bits = 8;
     so.ambient = k.ambient;
@@ -423,6 +424,7 @@ TEST(RobustReconstruct, StressEightBitLowAmplitudeSaturation) {
   Progress::SetEnabled(false);
   SimulateOptions so;
   so.object = "coin";
+  so.colour = false;  // frames rewritten as grey below
   so.crop = PixelRect{1100, 650, 160, 120};
   so.adc_bits = 8;
   so.ambient = 1.0;
