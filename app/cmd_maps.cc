@@ -60,11 +60,17 @@ void AddMapOptions(CLI::App* cmd, MapArgs* a, bool standalone) {
   cmd->add_option("--maps", a->maps,
                   "Maps to write: any of height,normal,albedo,confidence,ao,curvature" + g);
   cmd->add_option("--ao-radius-mm", a->ao_radius_mm, "Ambient occlusion search radius, mm");
+  cmd->add_option("--grey-card", a->grey_card,
+                  "X,Y,W,H:R: camera pixels (of the session's white frame) wholly on a neutral "
+                  "card of reflectance R on the mount; the albedo is then reflectance per channel "
+                  "(else relative brightness)" +
+                      g);
 }
 
 bool MapArgs::any() const {
   return !fill.empty() || !flatten.empty() || tile_mm > 0 || !maps.empty() ||
-         !tile_method.empty() || !tile_at.empty() || size_px != 0 || roughness != -1.0;
+         !tile_method.empty() || !tile_at.empty() || size_px != 0 || roughness != -1.0 ||
+         !grey_card.empty();
 }
 
 MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop) const {
@@ -94,6 +100,7 @@ MapsOptions MapArgs::ToOptions(const std::string& name, const std::string& crop)
   }
   o.size_px = size_px;
   o.roughness = roughness;
+  if (!grey_card.empty()) o.grey_card = ParseGreyCard(grey_card, "MapsOptions.grey_card");
   if (!maps.empty()) ParseMapSelection(maps, &o);
   if (ao_radius_mm > 0) o.ao.radius_m = ao_radius_mm * 1e-3;
   if (!crop.empty()) o.crop = ParsePixelRect(crop, "MapsOptions.crop");

@@ -10,7 +10,7 @@
 namespace mesoscan {
 
 struct MapArgs {
-  std::string fill, flatten, tile_method, tile_at, maps;
+  std::string fill, flatten, tile_method, tile_at, maps, grey_card;
   double fill_max_radius_mm = 0.0, tile_mm = 0.0, ao_radius_mm = 0.0;
   int size_px = 0;
   double roughness = -1.0;  // < 0: not given

@@ -20,6 +20,7 @@
 #include "core/stage_timer.h"
 #include "maps/export_gltf.h"
 #include "maps/export_mesh.h"
+#include "session/raw_frame.h"
 #include "session/session.h"
 
 namespace mesoscan {
@@ -380,20 +381,28 @@ int EvenPhaseSet(const Session& s, const FramePlan& plan) {
 
 }  // namespace
 
-ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std::string* source) {
-  const Session s = ReadSession(session_dir, /*check_frames=*/false);
+ImageF SessionTexture(const Session& s, std::string* source) {
   int white = -1, black = -1;
   for (size_t i = 0; i < s.frames.size(); ++i) {
     if (s.frames[i].pattern.type == PatternType::kWhite && white < 0) white = static_cast<int>(i);
     if (s.frames[i].pattern.type == PatternType::kBlack && black < 0) black = static_cast<int>(i);
   }
+  // A frame in linear radiance, all its colour channels; a camera raw frame on the half-size grid
+  // reconstruction sees, its cells' R, G, B (session/raw_frame.h).
   auto linear = [&](int index) {
-    ImageF im = ReadImage(s.FramePath(index));
+    const fs::path path = s.FramePath(index);
+    ImageF im = IsCameraRawPath(path) ? ReadRawColour(path) : ReadImage(path);
+    if (im.channels() == 2 || im.channels() == 4) {  // an alpha channel: dropped
+      ImageF c(im.width(), im.height(), im.channels() - 1);
+      std::copy(im.data().begin(), im.data().begin() + c.data().size(), c.data().begin());
+      im = std::move(c);
+    }
     for (float& v : im.data())
       v = static_cast<float>(s.rig.camera_response.ToLinear(std::max(0.0, v - s.rig.black_level)));
     return im;
   };
   ImageF wf;
+  const fs::path manifest = s.root / "session.json";
   if (white >= 0) {
     wf = linear(white);
     if (source) *source = "white frame";
@@ -402,7 +411,7 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std
     const FramePlan plan = MakeFramePlan(s.frames);
     const int set = EvenPhaseSet(s, plan);
     if (set < 0)
-      MESOSCAN_BAD_INPUT((session_dir / "session.json").string()
+      MESOSCAN_BAD_INPUT(manifest.string()
                          << ": frames: no white frame and no sine set with >= 3 evenly spread "
                             "phases for the albedo");
     int n = 0;
@@ -424,9 +433,32 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std
       *source = os.str();
     }
   }
-  const ImageF bf = black >= 0 ? linear(black) : ImageF();
-  if (!bf.empty() && (bf.width() != wf.width() || bf.height() != wf.height()))
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::File(s.FramePath(black)), "size differs from the white frame");
+  if (black >= 0) {
+    const ImageF bf = linear(black);
+    if (bf.width() != wf.width() || bf.height() != wf.height())
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::File(s.FramePath(black)),
+                            "size differs from the white frame");
+    const float k = white >= 0 ? 1.0f : 2.0f;  // 2 mean - 2 black
+    const int nc = wf.channels();
+    for (int c = 0; c < nc; ++c) {
+      const float* b = bf.channel(bf.channels() == 1 ? 0 : std::min(c, bf.channels() - 1));
+      float* w = wf.channel(c);
+      for (size_t i = 0; i < wf.pixels(); ++i) w[i] = std::max(0.0f, w[i] - k * b[i]);
+    }
+  } else {
+    for (float& v : wf.data()) v = std::max(0.0f, v);
+  }
+  if (wf.channels() > 3) {  // keep R, G, B
+    ImageF c(wf.width(), wf.height(), 3);
+    std::copy(wf.data().begin(), wf.data().begin() + c.data().size(), c.data().begin());
+    wf = std::move(c);
+  }
+  return wf;
+}
+
+ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std::string* source) {
+  const Session s = ReadSession(session_dir, /*check_frames=*/false);
+  const ImageF wf = SessionTexture(s, source);
   const int nc = wf.channels() >= 3 ? 3 : 1;
   ImageF out(hf.width(), hf.height(), nc, kNan);
   ParallelForRows(hf.height(), [&](int r0, int r1) {
@@ -442,21 +474,95 @@ ImageF AlbedoFromSession(const HeightField& hf, const fs::path& session_dir, std
         if (u0 < 0 || v0 < 0 || u0 + 1 >= wf.width() || v0 + 1 >= wf.height()) continue;
         const double a = uv.x() - u0, b = uv.y() - v0;
         for (int k = 0; k < nc; ++k) {
-          auto at = [&](const ImageF& im, int x, int y) {
-            return static_cast<double>(im(x, y, im.channels() == 1 ? 0 : k));
-          };
-          auto bil = [&](const ImageF& im) {
-            return (1 - a) * (1 - b) * at(im, u0, v0) + a * (1 - b) * at(im, u0 + 1, v0) +
-                   (1 - a) * b * at(im, u0, v0 + 1) + a * b * at(im, u0 + 1, v0 + 1);
-          };
-          double v = bil(wf);
-          if (!bf.empty()) v -= (white >= 0 ? 1.0 : 2.0) * bil(bf);  // 2 mean - 2 black
+          auto at = [&](int x, int y) { return static_cast<double>(wf(x, y, k)); };
+          const double v = (1 - a) * (1 - b) * at(u0, v0) + a * (1 - b) * at(u0 + 1, v0) +
+                           (1 - a) * b * at(u0, v0 + 1) + a * b * at(u0 + 1, v0 + 1);
           out(i, j, k) = static_cast<float>(std::max(0.0, v));
         }
       }
     }
   });
   return out;
+}
+
+double ProjectorIrradianceAt(const Rig& rig, const Vec3d& p, const Vec3d& n) {
+  const Vec3d c = rig.projector.CentreInWorld();
+  const Vec3d d = c - p;
+  const double r = d.norm(), r0 = c.norm();
+  const double cosi = n.dot(d) / (r * n.norm());
+  if (!(cosi > 1e-3)) return kNan;
+  Vec2d uv;
+  if (!rig.projector.Project(p, &uv)) return kNan;
+  const double f = ProjectorFalloff(rig, uv.x(), uv.y());
+  if (!(f > 0)) return kNan;
+  return cosi * (r0 / r) * (r0 / r) * f;
+}
+
+GreyCard ParseGreyCard(const std::string& text, const std::string& option) {
+  GreyCard card;
+  const size_t colon = text.find(':');
+  bool ok = colon != std::string::npos;
+  if (ok) {
+    try {
+      card.camera_px = ParsePixelRect(text.substr(0, colon), option);
+      size_t used = 0;
+      const std::string r = text.substr(colon + 1);
+      card.reflectance = std::stod(r, &used);
+      ok = used == r.size();
+    } catch (const std::exception&) {
+      ok = false;
+    }
+  }
+  if (!ok || !(card.reflectance > 0 && card.reflectance <= 1) || card.camera_px.w <= 0 ||
+      card.camera_px.h <= 0)
+    MESOSCAN_THROW_AT(ErrorKind::kUsage, ErrorSite::Option(option),
+                      "expected X,Y,W,H:REFLECTANCE (camera pixels of a neutral card on the "
+                      "mount, its reflectance in (0, 1]), got '"
+                          << text << "'");
+  return card;
+}
+
+CardLevel MeasureGreyCard(const Session& s, const ImageF& texture, const GreyCard& card) {
+  const PixelRect& r = card.camera_px;
+  if (r.x < 0 || r.y < 0 || r.x + r.w > texture.width() || r.y + r.h > texture.height())
+    MESOSCAN_BAD_INPUT("grey card " << r.x << "," << r.y << "," << r.w << "," << r.h
+                                    << ": outside the " << texture.width() << "x"
+                                    << texture.height() << " white frame of "
+                                    << (s.root / "session.json").string());
+  CardLevel level;
+  const Vec3d centre = s.rig.camera.CentreInWorld(), up(0, 0, 1);
+  const int nc = texture.channels();
+  std::vector<std::vector<double>> ratios(nc);
+  for (int y = r.y; y < r.y + r.h; ++y)
+    for (int x = r.x; x < r.x + r.w; ++x) {
+      // The card lies on the mount plane z = 0.
+      const Vec3d d = s.rig.camera.RayDirectionInWorld(Vec2d(x, y));
+      if (!(d.z() < 0)) continue;
+      const Vec3d p = centre + (-centre.z() / d.z()) * d;
+      const double e = ProjectorIrradianceAt(s.rig, p, up);
+      if (!(e > 0)) continue;
+      for (int c = 0; c < nc; ++c) ratios[c].push_back(texture(x, y, c) / e);
+    }
+  for (int c = 0; c < nc; ++c) {
+    std::vector<double>& v = ratios[c];
+    if (v.size() < 16)
+      MESOSCAN_BAD_INPUT("grey card " << r.x << "," << r.y << "," << r.w << "," << r.h
+                                      << ": fewer than 16 pixels lit by the projector");
+    auto q = [&](double f) {
+      std::vector<double> w = v;
+      const size_t k = std::min(w.size() - 1, static_cast<size_t>(f * (w.size() - 1) + 0.5));
+      std::nth_element(w.begin(), w.begin() + k, w.end());
+      return w[k];
+    };
+    const double med = q(0.5);
+    if (!(med > 0))
+      MESOSCAN_BAD_INPUT("grey card " << r.x << "," << r.y << "," << r.w << "," << r.h
+                                      << ": no light in the white frame");
+    level.level.push_back(med);
+    level.spread = std::max(level.spread, (q(0.9) - q(0.1)) / med);
+  }
+  level.pixels = static_cast<int>(ratios[0].size());
+  return level;
 }
 
 ImageF EncodeNormalMap(const ImageF& n, NormalConvention convention) {

@@ -30,6 +30,7 @@
 #include "core/scan_folder.h"
 #include "maps/maps_derived.h"
 #include "maps/maps_fill.h"
+#include "session/session.h"
 
 namespace mesoscan {
 
@@ -114,6 +115,39 @@ ImageF CropAndResampleImage(const ImageF& image, const HeightField& hf, const Pi
 // frame. `source` (optional) receives which frames were used. Throws Error if neither exists.
 ImageF AlbedoFromSession(const HeightField& hf, const std::filesystem::path& session_dir,
                          std::string* source = nullptr);
+
+// The texture of a session on its camera grid: the white frame minus the black frame (or the
+// stand-in above), linear, >= 0, its colour channels (1 or 3; a camera raw frame's R, G, B on the
+// half-size grid, session/raw_frame.h).
+ImageF SessionTexture(const Session& session, std::string* source = nullptr);
+
+// The projector's irradiance on a surface point p with normal n, relative to a surface facing it
+// at the reference distance r0 = |projector centre| (the world origin's distance): cos(i) *
+// (r0 / r)^2 times the rig's falloff at p's projector pixel (rig.projector.falloff). NaN where the
+// surface faces away or lies outside the projector's model.
+double ProjectorIrradianceAt(const Rig& rig, const Vec3d& p, const Vec3d& n);
+
+// A reference of known reflectance: a neutral grey card on the mount, a rectangle of camera
+// pixels wholly on it.
+struct GreyCard {
+  PixelRect camera_px;  // w = 0: none
+  double reflectance = 0;
+  bool given() const { return camera_px.w > 0 && camera_px.h > 0; }
+};
+// "X,Y,W,H:REFLECTANCE"; Error(kUsage) at `option` otherwise.
+GreyCard ParseGreyCard(const std::string& text, const std::string& option);
+
+// The card's texture per channel divided by the projector's irradiance on the mount plane
+// (ProjectorIrradianceAt with n = +z): its median per channel is the level of reflectance 1 is
+// `level / reflectance`; `spread` the largest (p90 - p10) / median over the channels (a card
+// that is not uniformly lit or not where it was said shows a large spread). Throws Error
+// (kBadInput) if the rectangle leaves the frame or holds fewer than 16 lit pixels.
+struct CardLevel {
+  std::vector<double> level;  // per channel of the texture
+  double spread = 0;
+  int pixels = 0;
+};
+CardLevel MeasureGreyCard(const Session& session, const ImageF& texture, const GreyCard& card);
 
 // The tangent-space normal map of world normals `n` (3 channels, NaN in holes -> flat), encoded
 // rgb = 0.5 + 0.5 * n, with the convention's sign of green.

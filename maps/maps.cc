@@ -237,7 +237,70 @@ ImageU8 FlattenFitMask(const FillResult& fill, double clearance_m, std::string* 
 struct MapAlbedo {
   ImageF image;  // empty: no albedo
   std::string source = "none";
+  bool reflectance = false;  // scaled by a reference of known reflectance (else relative)
+  Json info = nullptr;       // the manifest's "albedo": units, reference, figures
 };
+
+// The rig's projector falloff (rig.projector.falloff) at each height sample's projector pixel;
+// empty if the rig has none. NaN where the sample does not project.
+ImageF ProjectorFalloffOnGrid(const HeightField& hf, const Rig& rig) {
+  if (rig.projector_falloff == 0) return ImageF();
+  ImageF f(hf.width(), hf.height(), 1, kNan);
+  for (int j = 0; j < hf.height(); ++j)
+    for (int i = 0; i < hf.width(); ++i) {
+      const double z = hf.z(i, j);
+      Vec2d uv;
+      if (std::isfinite(z) && rig.projector.Project(Vec3d(hf.X(i), hf.Y(j), z), &uv))
+        f(i, j) = static_cast<float>(ProjectorFalloff(rig, uv.x(), uv.y()));
+    }
+  return f;
+}
+
+// The session's albedo divided by the projector's absolute irradiance (cos(i) (r0/r)^2 times the
+// rig's falloff) and scaled per channel so that the grey card has its stated reflectance.
+void ScaleToReflectance(const Session& s, const HeightField& field, const FillResult& fill,
+                        const GreyCard& card_ref, MapAlbedo* a) {
+  const ImageF texture = SessionTexture(s);
+  const CardLevel card = MeasureGreyCard(s, texture, card_ref);
+  const ImageF n = NormalsOf(field, false);
+  const int nc = a->image.channels();
+  MESOSCAN_CHECK(static_cast<int>(card.level.size()) >= nc);
+  ParallelForRows(field.height(), [&](int r0, int r1) {
+    for (int j = r0; j < r1; ++j)
+      for (int i = 0; i < field.width(); ++i) {
+        const size_t p = static_cast<size_t>(j) * field.width() + i;
+        const double e =
+            fill.filled.data()[p] || !std::isfinite(n(i, j, 0))
+                ? kNan
+                : ProjectorIrradianceAt(s.rig, Vec3d(field.X(i), field.Y(j), field.z(i, j)),
+                                        Vec3d(n(i, j, 0), n(i, j, 1), n(i, j, 2)));
+        for (int c = 0; c < nc; ++c) {
+          float& v = a->image.channel(c)[p];
+          // Grazing light (irradiance below 5% of the reference) is too uncertain: left to the
+          // fill, as in the relative map.
+          v = e > 0.05 ? static_cast<float>(v / e / card.level[c] * card_ref.reflectance) : kNan;
+        }
+      }
+  });
+  const PixelRect& r = card_ref.camera_px;
+  std::ostringstream ref;
+  ref << "grey card at camera pixels " << r.x << "," << r.y << "," << r.w << "," << r.h
+      << " of reflectance " << card_ref.reflectance;
+  a->reflectance = true;
+  a->info = {{"units", "reflectance in [0, 1] per channel"},
+             {"reference", ref.str()},
+             {"card_pixels", card.pixels},
+             {"card_spread", card.spread},
+             {"card_level", card.level},
+             {"falloff", s.rig.projector_falloff != 0
+                             ? "cos(i) (r0/r)^2 and rig.projector.falloff divided out"
+                             : "cos(i) (r0/r)^2 divided out (no rig.projector.falloff)"}};
+  if (card.spread > 0.10)
+    MESOSCAN_LOG(kWarning) << "maps: the grey card's light varies by "
+                           << std::lround(100 * card.spread)
+                           << "% (p10..p90) after the falloff model: is the rectangle wholly on "
+                              "the card, and the falloff calibrated? The reflectance is doubtful";
+}
 
 // The given albedo, or the session's white frame with the projector's falloff divided out.
 MapAlbedo ReadAlbedo(const Scan& scan, const MapsOptions& o, const FillResult& fill) {
@@ -252,21 +315,36 @@ MapAlbedo ReadAlbedo(const Scan& scan, const MapsOptions& o, const FillResult& f
     const HeightField& filled_field = fill.field;
     const std::string session = SessionPathFromReport(scan.report);
     if (!session.empty() && fs::is_directory(session)) {
+      Session s;
       try {
-        const Session s = ReadSession(session, /*check_frames=*/false);
+        s = ReadSession(session, /*check_frames=*/false);
         a.image = AlbedoFromSession(filled_field, session);
-        const ImageF e = ProjectorIrradiance(filled_field, NormalsOf(filled_field, false),
-                                             s.rig.projector.CentreInWorld());
-        for (int c = 0; c < a.image.channels(); ++c)
-          for (size_t p = 0; p < a.image.pixels(); ++p) {
-            float& v = a.image.channel(c)[p];
-            v = fill.filled.data()[p] || !(e.data()[p] > 0.05f) ? kNan : v / e.data()[p];
-          }
-        a.source = "white frame of session " + session +
-                   " divided by the projector's falloff cos(i)/r^2 (median 1)";
       } catch (const Error& e) {
         MESOSCAN_LOG(kWarning) << "maps: no albedo (" << e.what() << ")";
         a.image = ImageF();
+      }
+      if (!a.image.empty() && o.grey_card.given()) {
+        ScaleToReflectance(s, filled_field, fill, o.grey_card, &a);  // a bad card is an error
+        a.source = "white frame of session " + session +
+                   " divided by the projector's irradiance, scaled by the grey card";
+      } else if (!a.image.empty()) {
+        const ImageF e = ProjectorIrradiance(filled_field, NormalsOf(filled_field, false),
+                                             s.rig.projector.CentreInWorld());
+        const ImageF f = ProjectorFalloffOnGrid(filled_field, s.rig);  // empty: none
+        for (int c = 0; c < a.image.channels(); ++c)
+          for (size_t p = 0; p < a.image.pixels(); ++p) {
+            float& v = a.image.channel(c)[p];
+            const float ep = f.empty() ? e.data()[p] : e.data()[p] * f.data()[p];
+            v = fill.filled.data()[p] || !(ep > 0.05f) ? kNan : v / ep;
+          }
+        a.source = "white frame of session " + session +
+                   (f.empty() ? " divided by the projector's falloff cos(i)/r^2 (median 1)"
+                              : " divided by the projector's falloff cos(i)/r^2 (median 1) and "
+                                "rig.projector.falloff");
+        a.info = {{"units", "relative (99th percentile = 1)"},
+                  {"reference",
+                   "none: no reference of known reflectance (maps --grey-card X,Y,W,H:R), so "
+                   "the albedo is relative brightness, not reflectance"}};
       }
     }
   }
@@ -276,7 +354,8 @@ MapAlbedo ReadAlbedo(const Scan& scan, const MapsOptions& o, const FillResult& f
 // The albedo wherever the height is known (measured or filled: FillImageWhere), then scaled
 // so that its 99th percentile is 1.
 void FillAndNormalizeAlbedo(const MapsOptions& o, const HeightField& cropped,
-                            const FillResult& fill, ImageF* albedo) {
+                            const FillResult& fill, MapAlbedo* map_albedo) {
+  ImageF* albedo = &map_albedo->image;
   ImageU8 want(cropped.width(), cropped.height(), 1, 0);
   for (size_t p = 0; p < want.pixels(); ++p)
     want.data()[p] = std::isfinite(cropped.z.data()[p]) || fill.filled.data()[p] != 0;
@@ -284,6 +363,23 @@ void FillAndNormalizeAlbedo(const MapsOptions& o, const HeightField& cropped,
   for (int c = 0; c < albedo->channels(); ++c)
     for (size_t p = 0; p < want.pixels(); ++p)
       if (!want.data()[p]) albedo->channel(c)[p] = kNan;
+  if (map_albedo->reflectance) {
+    // Reflectance: kept as measured, clipped to [0, 1]; the clipped fraction is said.
+    int64_t n = 0, above = 0;
+    for (float& v : albedo->data()) {
+      if (!std::isfinite(v)) continue;
+      ++n;
+      above += v > 1.0f;
+      v = std::clamp(v, 0.0f, 1.0f);
+    }
+    const double frac = n > 0 ? static_cast<double>(above) / n : 0.0;
+    map_albedo->info["clipped_above_1"] = frac;
+    if (frac > 0.01)
+      MESOSCAN_LOG(kWarning) << "maps: " << std::lround(100 * frac)
+                             << "% of the albedo samples exceed reflectance 1 (clipped): "
+                                "specular highlights, or a wrong grey card";
+    return;
+  }
   const double q99 = Quantile(*albedo, 0.99);
   const float scale = q99 > 0 ? static_cast<float>(1.0 / q99) : 1.0f;
   for (float& v : albedo->data()) v = std::isfinite(v) ? std::max(0.0f, v * scale) : kNan;
@@ -465,7 +561,7 @@ DerivedMaps Derive(const MapsOptions& o, const HeightField& field, bool periodic
 struct MapSet {
   MapSet(const MapsOptions& o, const HeightField& cropped, const FlattenResult& flat,
          const FinalSurface& surface, const HeightOut& height, const DerivedMaps& derived,
-         std::string albedo_source)
+         std::string albedo_source, bool albedo_reflectance)
       : o(o),
         cropped(cropped),
         flat(flat),
@@ -473,6 +569,7 @@ struct MapSet {
         height(height),
         derived(derived),
         albedo_source(std::move(albedo_source)),
+        albedo_reflectance(albedo_reflectance),
         periodic(o.tile),
         conv(o.normals == NormalConvention::kOpenGl ? "gl" : "dx"),
         grid_attrs({{kAttrX0, surface.field.x0},
@@ -488,6 +585,7 @@ struct MapSet {
   const HeightOut& height;
   const DerivedMaps& derived;
   std::string albedo_source;
+  bool albedo_reflectance;
   bool periodic;     // a tile
   std::string conv;  // "gl" or "dx"
   std::map<std::string, double> grid_attrs;
@@ -600,15 +698,32 @@ void AddNormalFiles(const MapSet& m, MapFiles* files) {
 
 void AddAlbedoFile(const MapSet& m, MapFiles* files) {
   const std::string n = m.o.name;
-  files->Add(n + "_albedo.png", {{"role", "albedo"},
-                                 {"format", "png"},
-                                 {"colour_space", "sRGB"},
-                                 {"source", m.albedo_source},
-                                 {"meaning", "relative albedo, 99th percentile = 1"}});
+  files->Add(n + "_albedo.png",
+             {{"role", "albedo"},
+              {"format", "png"},
+              {"colour_space", "sRGB"},
+              {"source", m.albedo_source},
+              {"channels", m.surface.albedo.channels() == 3 ? "RGB" : "grey"},
+              {"meaning", m.albedo_reflectance ? "reflectance per channel in [0, 1]"
+                                               : "relative albedo, 99th percentile = 1"}});
   files->writers.push_back([&m, f = n + "_albedo.png"](const fs::path& d) {
     ImageF a = m.surface.albedo;
     for (float& v : a.data()) v = std::isfinite(v) ? v : 0.0f;
     WritePng8(d / f, QuantizeU8(a, true));
+  });
+  // The same values linear in float (the reflectance itself, not 8-bit sRGB).
+  const bool rgb = m.surface.albedo.channels() == 3;
+  files->Add(n + "_albedo.exr",
+             {{"role", "albedo_linear"},
+              {"format", "exr"},
+              {"colour_space", "linear"},
+              {"channels", rgb ? "R, G, B" : "Y"},
+              {"meaning", m.albedo_reflectance ? "reflectance per channel in [0, 1]"
+                                               : "relative albedo, 99th percentile = 1"}});
+  files->writers.push_back([&m, rgb, f = n + "_albedo.exr"](const fs::path& d) {
+    WriteExr(d / f, m.surface.albedo,
+             rgb ? std::vector<std::string>{"R", "G", "B"} : std::vector<std::string>{"Y"},
+             m.grid_attrs);
   });
 }
 
@@ -871,7 +986,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   MapAlbedo albedo;
   if (o.maps.albedo) {
     albedo = ReadAlbedo(scan, o, fill);
-    if (!albedo.image.empty()) FillAndNormalizeAlbedo(o, cropped, fill, &albedo.image);
+    if (!albedo.image.empty()) FillAndNormalizeAlbedo(o, cropped, fill, &albedo);
   }
   timer.Stage("albedo");
   // 4. Flatten (filled pixels are left out of the fit).
@@ -903,7 +1018,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   timer.Stage("derived");
   // 7. Files, in parallel, into a temporary folder; the manifest last.
   timer.Skip();
-  const MapSet set(o, cropped, flat, surface, height, derived, albedo.source);
+  const MapSet set(o, cropped, flat, surface, height, derived, albedo.source, albedo.reflectance);
   MapFiles files;
   if (o.maps.height) AddHeightFiles(set, &files);
   if (o.maps.normal) AddNormalFiles(set, &files);
@@ -914,6 +1029,7 @@ MapsSummary BuildMapSet(const Scan& scan, const MapsOptions& o, const fs::path& 
   if (o.maps.curvature) AddCurvatureFiles(set, &files);
   if (o.contact_sheet) AddContactSheet(set, &files);
   Json manifest = MapsManifest(scan, set, fill, files.entries);
+  if (!surface.albedo.empty()) manifest["albedo"] = albedo.info;
   if (o.flatten.method != FlattenMethod::kNone) manifest["flatten"]["fit_region"] = fit_region;
   manifest["size"] = o.size_px > 0
                          ? Json{{"size_px", o.size_px},

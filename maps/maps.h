@@ -21,7 +21,10 @@
 //   NAME_height.png/.json      16-bit with midlevel/scale, as export writes it
 //   NAME_height_removed.exr    the removed low-frequency part on the (cropped) source grid
 //   NAME_normal_gl|dx.png/.exr tangent-space normal map from the final height
-//   NAME_albedo.png            sRGB, relative albedo (falloff divided out; 99th percentile 1)
+//   NAME_albedo.png            sRGB, RGB if the frames are: reflectance with a grey card (the
+//                              projector's irradiance divided out), else relative (falloff
+//                              divided out; 99th percentile 1)
+//   NAME_albedo.exr            the same, linear float (channels R, G, B or Y)
 //   NAME_confidence.png        8-bit, 0 at filled and hole pixels
 //   NAME_mask.png              8-bit: 255 measured, 128 filled, 0 hole (value = hole_value_m)
 //   NAME_ao.png                8-bit linear ambient occlusion (1 = open)
@@ -73,6 +76,9 @@ struct MapsOptions {
   // session's white frame (report.json "session") when readable.
   ImageF albedo;
   bool albedo_from_session = true;
+  // A reference of known reflectance for the session's albedo (maps/export.h): given, the albedo
+  // is reflectance per channel in [0, 1]; else relative (99th percentile 1), as the manifest says.
+  GreyCard grey_card;
   bool contact_sheet = true;
   void Check() const;
 };
