@@ -27,7 +27,7 @@ extern "C" void OnSigint(int) { g_interrupt.store(true); }
 
 struct Args {
   std::string out, rig, camera = "gphoto2", camera_ext = "nef", shifter, display, object;
-  std::string plan = "scan", periods = "7,11,13", periods_y;
+  std::string plan = "scan", periods = "7,11,13", periods_y, patterns = "sine";
   int phases = 3, ls_frames = 50, projector_x = 0, projector_y = 0, baud = 115200;
   bool no_white = false, no_black = false, rehearse = false;
   bool periods_given = false, periods_y_given = false, ls_frames_given = false;
@@ -36,7 +36,10 @@ struct Args {
 
 // The frames to capture (session/patterns.h, the generator `simulate` uses too): a scan (sines
 // along the shifter's axis, lens shift over its range, white, black) or a calibration plan (sines
-// along both projector axes, white, black; no lens shift).
+// along both projector axes, white, black; no lens shift). --patterns graycode | sine+graycode
+// turns the sines of each axis into a Gray code (each bit and its inverse) or one period ordered
+// by a complementary Gray code (ApplyPatternSet); a scan then takes lens-shift frames only if
+// --ls-frames asks for them (as `simulate --patterns`).
 FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
   if (a.phases < 3) MESOSCAN_THROW(ErrorKind::kUsage, "--phases: expected >= 3, got " << a.phases);
   FramePlanOptions plan;
@@ -71,6 +74,9 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
   } else {
     MESOSCAN_THROW(ErrorKind::kUsage, "--plan: '" << a.plan << "': expected scan or calibration");
   }
+  ApplyPatternSet(a.patterns, rig.projector.width, rig.projector.height, &plan,
+                  "FramePlanOptions.patterns");
+  if (a.patterns != "sine" && !a.ls_frames_given) plan.lens_shift_frames = 0;
   plan.phases = a.phases;
   plan.white = !a.no_white;
   plan.black = !a.no_black;
@@ -187,6 +193,12 @@ void AddCaptureCommand(CLI::App* app) {
   cmd->add_option("--plan", a.plan,
                   "scan (sines, lens shift, white, black) | calibration (sines along projector x "
                   "and y, white, black: a board for `mesoscan calibrate`)")
+      ->capture_default_str();
+  cmd->add_option("--patterns", a.patterns,
+                  "sine (the --periods sets) | graycode (a Gray code of the projector's columns, "
+                  "and rows for a calibration plan, each bit with its inverse; no sines) | "
+                  "sine+graycode (one --periods period, and one --periods-y period for a "
+                  "calibration plan, each ordered by a complementary Gray code of half its width)")
       ->capture_default_str();
   cmd->add_option("--periods", a.periods,
                   "Sine periods, projector px, comma-separated, or 'none' (calibration plan: "

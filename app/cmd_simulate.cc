@@ -145,7 +145,9 @@ void AddSimulateCommand(CLI::App* app) {
          "42,45,48, 3 steps each, no lens shift; with --proj-gamma the projector's harmonics) | "
          "graycode (a Gray code of the projector's columns "
          "with inverse frames, white, black; no sines, no lens shift) | sine+graycode (one "
-         "--ps-periods period with a complementary Gray code of half its width)")
+         "--ps-periods period with a complementary Gray code of half its width); a board "
+         "(--object board:...) takes them along both projector axes (sine+graycode: one "
+         "--ps-periods and one --ps-periods-y period)")
       ->capture_default_str();
   cmd->add_flag("--grey", args->grey,
                 "Grey object and frames (the fabric and the coin are coloured by default)");
@@ -179,6 +181,19 @@ void AddSimulateCommand(CLI::App* app) {
           cmd->count("--ps-periods-y") == 0
               ? plan.cross_periods_px
               : ParsePeriodList(args->periods_y, "BoardSimOptions.ps_periods_y_px");
+      // --patterns graycode | sine+graycode: the calibration plan's pattern family along both
+      // axes (as `capture --plan calibration --patterns`).
+      FramePlanOptions set = plan;
+      set.periods_px = opt.ps_periods_px;
+      set.cross_periods_px = bo.ps_periods_y_px;
+      ApplyPatternSet(args->patterns, rig.projector.width, rig.projector.height, &set,
+                      "FramePlanOptions.patterns");
+      opt.ps_periods_px = set.periods_px;
+      bo.ps_periods_y_px = set.cross_periods_px;
+      opt.graycode_bits = set.graycode_bits;
+      opt.graycode_block_px = set.graycode_block_px;
+      bo.graycode_y_bits = set.cross_graycode_bits;
+      bo.graycode_y_block_px = set.cross_graycode_block_px;
       opt.white = !args->no_white;
       opt.black = !args->no_black;
       const OutputSpec board_spec{"simulate",  "--out",

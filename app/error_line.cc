@@ -19,6 +19,7 @@ constexpr OptionFlag kOptionFlags[] = {
     // capture
     {"FramePlanOptions.periods_px", "", "--periods"},
     {"FramePlanOptions.cross_periods_px", "", "--periods-y"},
+    {"FramePlanOptions.patterns", "", "--patterns"},
     {"SequencerOptions.settle_s", "", "--settle"},
     {"SequencerOptions.max_new_frames", "", "--max-frames"},
     {"SequencerOptions.force", "", "--force"},
@@ -57,6 +58,8 @@ constexpr OptionFlag kOptionFlags[] = {
     {"BoardSimOptions.board", "", "--object"},
     {"BoardSimOptions.pose", "", "--pose"},
     {"BoardSimOptions.ps_periods_y_px", "", "--ps-periods-y"},
+    {"BoardSimOptions.graycode_y_bits", "", "--patterns"},
+    {"BoardSimOptions.graycode_y_block_px", "", "--patterns"},
     {"BoardSimOptions.frame_format", "", "--frame-format"},
     // calibrate
     {"CalibrateOptions.board", "", "--board"},

@@ -18,6 +18,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "calibration/calibrate_codecs.h"
 #include "core/camera.h"
 #include "core/error.h"
 #include "core/fs.h"
@@ -367,6 +368,8 @@ void CalibrateOptions::Check() const {
     MESOSCAN_THROW(ErrorKind::kUsage, "min window fraction: expected (0, 1]");
   if (!(min_modulation >= 0 && min_modulation < 1))
     MESOSCAN_THROW(ErrorKind::kUsage, "min modulation: expected [0, 1)");
+  if (!(min_code_confidence >= 0 && min_code_confidence <= 1))
+    MESOSCAN_THROW(ErrorKind::kUsage, "min code confidence: expected [0, 1]");
   if (!(frame_sigma > 0)) MESOSCAN_THROW(ErrorKind::kUsage, "frame sigma: expected > 0");
   if (!(outlier_view_factor > 1))
     MESOSCAN_THROW(ErrorKind::kUsage, "outlier view factor: expected > 1");
@@ -415,9 +418,15 @@ void CalibrateOptions::ParseModel(const std::string& text) {
 ProjectorCoordinates DecodeProjectorCoordinates(const Session& session,
                                                 const std::vector<uint32_t>& pixels,
                                                 const CalibrateOptions& options) {
+  ProjectorCoordinates pc;
+  if (HasCodedFrames(session)) {
+    const CodedBoardFrames coded(session);
+    coded.Decode(pixels, options.min_code_confidence, &pc.u, &pc.v);
+    pc.eight_bit_frames = coded.eight_bit_frames();
+    return pc;
+  }
   const ViewFrames vf = PlanView(session);
   const FrameStack stack = LoadFrames(session, vf.session_frames, FrameLoadOptions());
-  ProjectorCoordinates pc;
   DecodeAt(stack, vf, pixels, options, &pc.u, &pc.v);
   pc.eight_bit_frames = stack.eight_bit_frames();
   return pc;
@@ -433,12 +442,26 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
   view.height = H;
   view.projector_width = session.rig.projector.width;
   view.projector_height = session.rig.projector.height;
-  const ViewFrames vf = PlanView(session);
-  const FrameStack stack = LoadFrames(session, vf.session_frames, FrameLoadOptions());
+  // The projector's patterns: sines along both axes (decoded here), or a Gray code alone or
+  // ordering a sine period (the reconstruction's codecs, calibration/calibrate_codecs.h).
+  std::optional<CodedBoardFrames> coded;
+  ViewFrames vf;
+  FrameStack stack;
+  if (HasCodedFrames(session)) {
+    coded.emplace(session);
+    view.codec = coded->codec();
+  } else {
+    vf = PlanView(session);
+    stack = LoadFrames(session, vf.session_frames, FrameLoadOptions());
+    view.codec = "sine";
+  }
 
   // 1. Texture: the white frame, else the mean of a full phase set.
   cv::Mat texture(H, W, CV_32F);
-  {
+  if (coded) {
+    const std::vector<float> t = coded->Texture();
+    std::copy(t.begin(), t.end(), texture.ptr<float>());
+  } else {
     float* t = texture.ptr<float>();
     ParallelForRows(H, [&](int y0, int y1) {
       for (size_t i = static_cast<size_t>(y0) * W; i < static_cast<size_t>(y1) * W; ++i) {
@@ -544,7 +567,10 @@ CalibrationView DetectView(const Session& session, const CalibrateOptions& optio
       pixels.push_back(static_cast<uint32_t>(i));
     }
   std::vector<float> u, v;
-  DecodeAt(stack, vf, pixels, options, &u, &v);
+  if (coded)
+    coded->Decode(pixels, options.min_code_confidence, &u, &v);
+  else
+    DecodeAt(stack, vf, pixels, options, &u, &v);
   view.projector_px.assign(nc, Vec2d(kNaN, kNaN));
   view.projector_inliers.assign(nc, 0);
   ParallelFor(nc, [&](int64_t k) {
@@ -1437,6 +1463,7 @@ Json CalibrationResult::ToJson() const {
   Json vs = Json::array();
   for (const auto& v : views) {
     Json vj = {{"session", v.name}, {"found", v.found}};
+    if (!v.codec.empty()) vj["codec"] = v.codec;
     if (!v.problem.empty()) vj["problem"] = v.problem;
     if (v.found && !v.camera_residual_px.empty()) {
       int np = 0;

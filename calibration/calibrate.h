@@ -7,7 +7,10 @@
 // markers and interpolateCornersCharuco) refined with cornerSubPix; the sine frames' gains
 // estimated jointly with the pixels' phases; the
 // projector (u, v) of every camera pixel in a window around each corner is decoded from the sine
-// frames of both axes (heightfield/phase_shift.h), and each corner is taken into the projector by
+// frames of both axes (heightfield/phase_shift.h), or, for a session with Gray-code frames (a
+// Gray code alone, OpenCV structured_light style, or a sine period it orders), by the
+// reconstruction's codecs (calibration/calibrate_codecs.h: integer codes whose corners come
+// sub-pixel only through the local fit), and each corner is taken into the projector by
 // a local homography fitted robustly (LMEDS) over that window (Moreno & Taubin, "Simple, accurate,
 // and robust projector-camera calibration", 3DIMPVT 2012, Sec. 3). Camera and projector are
 // initialised by OpenCV (calibrateCamera, stereoCalibrate: also the plain baseline the report
@@ -72,6 +75,10 @@ struct CalibrateOptions {
   double min_window_fraction = 0.25;
   // Decoding: pixels with a sine modulation below this (frame units in [0, 1]) are not used.
   double min_modulation = 0.01;
+  // Coded sessions (Gray code): pixels whose codec confidence is below this are not used, [0, 1]
+  // (a Gray-code pixel with every bit read at its minimum signal-to-noise has 0.5, one on a
+  // code edge between two neighbouring columns half of that).
+  double min_code_confidence = 0.25;
   // Noise sigma of one frame sample (frame units) assumed when weighing periods, > 0.
   double frame_sigma = 0.01;
   CalibrationGainMethod gain_method = CalibrationGainMethod::kJoint;
@@ -97,6 +104,7 @@ struct CalibrationView {
   std::string name;           // the session folder
   bool found = false;         // the board was found
   std::string problem;        // why not, or why the view was dropped (one line)
+  std::string codec;          // what decoded the projector: "sine", "graycode", "sine+graycode"
   int width = 0, height = 0;  // camera image size
   int projector_width = 0, projector_height = 0;
   // Every board corner, board order (k = j*cols+i); NaN where not seen (a ChArUco board partly
@@ -162,8 +170,9 @@ void WriteCalibrationReport(const CalibrationResult& result, const std::filesyst
                             const Json& extra);
 
 // The projector coordinates (u, v) decoded at camera pixels `pixels` (index y * width + x) of a
-// session (every sine frame of both axes). NaN where a pixel does not decode (low modulation,
-// inconsistent periods, an ambiguous edge column). Exposed for tests.
+// session (every sine frame of both axes, or the codecs of a session with Gray-code frames). NaN
+// where a pixel does not decode (low modulation, inconsistent periods, an ambiguous edge column).
+// Exposed for tests.
 struct ProjectorCoordinates {
   std::vector<float> u, v;  // per requested pixel
   int eight_bit_frames = 0;

@@ -1,5 +1,6 @@
 #include "session/patterns.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <iomanip>
@@ -51,6 +52,8 @@ void FramePlanOptions::Check() const {
   MESOSCAN_CHECK(axis == 'x' || axis == 'y');
   MESOSCAN_CHECK(lens_shift_frames == 0 || lens_shift_frames >= 4);
   MESOSCAN_CHECK(graycode_bits >= 0 && graycode_bits <= 30 && graycode_block_px >= 1);
+  MESOSCAN_CHECK(cross_graycode_bits >= 0 && cross_graycode_bits <= 30 &&
+                 cross_graycode_block_px >= 1);
   MESOSCAN_CHECK_LT(range_steps[0], range_steps[1]);
   // Distinct positions: at most one frame per step.
   MESOSCAN_CHECK(lens_shift_frames <= int64_t{range_steps[1]} - range_steps[0] + 1);
@@ -64,6 +67,34 @@ FramePlanOptions CalibrationPlan(int projector_width, int projector_height) {
   o.cross_periods_px = {double(projector_height), projector_height / 16.0};
   o.lens_shift_frames = 0;
   return o;
+}
+
+void ApplyPatternSet(const std::string& patterns, int width, int height, FramePlanOptions* plan,
+                     const std::string& option) {
+  if (patterns == "sine") return;
+  if (patterns != "graycode" && patterns != "sine+graycode")
+    MESOSCAN_BAD_OPTION(option, "'" << patterns << "': expected sine, graycode or sine+graycode");
+  const char cross = plan->axis == 'x' ? 'y' : 'x';
+  for (const char axis : {plan->axis, cross}) {
+    std::vector<double>& periods = axis == plan->axis ? plan->periods_px : plan->cross_periods_px;
+    if (axis != plan->axis && periods.empty()) continue;  // nothing along the other axis
+    int& bits = axis == plan->axis ? plan->graycode_bits : plan->cross_graycode_bits;
+    double& block = axis == plan->axis ? plan->graycode_block_px : plan->cross_graycode_block_px;
+    if (patterns == "graycode") {
+      periods.clear();
+      block = 1.0;
+    } else {
+      if (periods.size() != 1)
+        MESOSCAN_BAD_OPTION(option, "sine+graycode: expected one sine period along "
+                                        << axis << ", got " << periods.size());
+      block = 0.5 * periods[0];
+      if (!(block >= 1))
+        MESOSCAN_BAD_OPTION(option,
+                            "sine+graycode: the period along " << axis << " must be >= 2 px");
+    }
+    const int extent = axis == 'x' ? width : height;
+    bits = std::max(1, static_cast<int>(std::ceil(std::log2(extent / block) - 1e-9)));
+  }
 }
 
 std::string PeriodName(double period) {
@@ -117,19 +148,23 @@ std::vector<Frame> MakeStandardFrames(const FramePlanOptions& o) {
         f.pattern.phase = 2 * kPi * k / o.phases;
         frames.push_back(f);
       }
-  for (int k = 0; k < o.graycode_bits; ++k)
-    for (bool inverted : {false, true}) {
-      if (inverted && !o.graycode_inverse) continue;
-      Frame f;
-      f.file = dir + (inverted ? "gci" : "gc") + std::to_string(k) + o.extension;
-      f.pattern.type = PatternType::kGrayCode;
-      f.pattern.axis = o.axis;
-      f.pattern.bits = o.graycode_bits;
-      f.pattern.bit = k;
-      f.pattern.block_px = o.graycode_block_px;
-      f.pattern.inverted = inverted;
-      frames.push_back(f);
-    }
+  for (const char axis : {o.axis, cross}) {
+    const int bits = axis == o.axis ? o.graycode_bits : o.cross_graycode_bits;
+    for (int k = 0; k < bits; ++k)
+      for (bool inverted : {false, true}) {
+        if (inverted && !o.graycode_inverse) continue;
+        Frame f;
+        f.file = dir + (inverted ? "gci" : "gc") + (axis == 'y' ? "y" : "") + std::to_string(k) +
+                 o.extension;
+        f.pattern.type = PatternType::kGrayCode;
+        f.pattern.axis = axis;
+        f.pattern.bits = bits;
+        f.pattern.bit = k;
+        f.pattern.block_px = axis == o.axis ? o.graycode_block_px : o.cross_graycode_block_px;
+        f.pattern.inverted = inverted;
+        frames.push_back(f);
+      }
+  }
   const auto& r = o.range_steps;
   for (int i = 0; i < o.lens_shift_frames; ++i) {
     Frame f;

@@ -51,10 +51,13 @@ struct FramePlanOptions {
   char axis = 'x';                            // axis of the first sines and of the stripes
   // Lens-shift (stripes) frames: 0 or >= 4, shift_steps evenly over range_steps including both
   // ends (the shifter accepts both), rounded to integers.
-  // Gray code along `axis` (graycode frames gc<k>, and gci<k> with the inverse): 0 bits = none;
-  // blocks of graycode_block_px (>= 1) projector px, block_px * 2^bits must cover the projector.
+  // Gray code along `axis` (graycode frames gc<k>, and gci<k> with the inverse; axis y: gcy<k>,
+  // gciy<k>): 0 bits = none; blocks of graycode_block_px (>= 1) projector px, block_px * 2^bits
+  // must cover the projector. cross_graycode_*: the same along the other axis.
   int graycode_bits = 0;
   double graycode_block_px = 1.0;
+  int cross_graycode_bits = 0;
+  double cross_graycode_block_px = 1.0;
   bool graycode_inverse = true;
   int lens_shift_frames = 50;
   std::array<int, 2> range_steps{-2048, 2048};  // shifter range [min, max], steps
@@ -69,6 +72,16 @@ struct FramePlanOptions {
 // projector plus 1/16 of it (16 periods), along x and along y; white and black; no lens shift.
 FramePlanOptions CalibrationPlan(int projector_width, int projector_height);
 
+// The pattern family of a plan's axes (`simulate --patterns`, `capture --patterns`): "sine"
+// leaves the plan as it is; "graycode" replaces the sines of every axis that has some (the plan's
+// `axis` always) by a Gray code of the projector's columns (rows for y), W = 1, with inverse
+// frames; "sine+graycode" keeps the one sine period of each such axis and adds a complementary
+// Gray code of half its width that orders it. `width`, `height`: the projector's. Throws
+// Error(kUsage) at the options field `option` for another name, or for sine+graycode with other
+// than one period along an axis.
+void ApplyPatternSet(const std::string& patterns, int width, int height, FramePlanOptions* plan,
+                     const std::string& option);
+
 // "7" -> "07", "37.5" -> "37.5": the period in frame names (docs/formats.md's
 // example names frames/ps07_0.png).
 std::string PeriodName(double period_px);
@@ -79,7 +92,8 @@ std::string PeriodName(double period_px);
 std::vector<double> ParsePeriodList(const std::string& text, const std::string& option);
 
 // Frames of the plan, in this order: sines along `axis` (ps<period>_<k>, e.g. ps07_0.png; axis y:
-// psy<period>_<k>), sines along the other axis (likewise), lens shift ls_<nnn> (shift_steps
+// psy<period>_<k>), sines along the other axis (likewise), Gray code along `axis` then along the
+// other axis (each bit, then its inverse), lens shift ls_<nnn> (shift_steps
 // round(min + i * (max - min) / (n - 1))), white, black.
 std::vector<Frame> MakeStandardFrames(const FramePlanOptions& options);
 

@@ -112,6 +112,11 @@ void BoardSimOptions::Check() const {
   for (double p : ps_periods_y_px)
     if (!(p > 2.0) || !std::isfinite(p))
       BOARD_OPTION("BoardSimOptions.ps_periods_y_px", "expected periods > 2 px, got " << p);
+  if (graycode_y_bits < 0 || graycode_y_bits > 30)
+    BOARD_OPTION("BoardSimOptions.graycode_y_bits", "expected 0..30, got " << graycode_y_bits);
+  if (!(graycode_y_block_px >= 1))
+    BOARD_OPTION("BoardSimOptions.graycode_y_block_px",
+                 "expected >= 1, got " << graycode_y_block_px);
   if (frame_format != "png16" && frame_format != "png8" && frame_format != "bmp" &&
       frame_format != "tif8")
     BOARD_OPTION("BoardSimOptions.frame_format",
@@ -197,15 +202,18 @@ SimulateOptions BoardSimulateOptions(const SimulateOptions& options, const Board
   o.ls_frames = 0;
   o.object = "plane";  // Check() wants a known object; the board replaces it
   o.Check();
-  if (o.ps_periods_px.empty() || bo.ps_periods_y_px.empty())
-    BOARD_USAGE("board: expected sine periods along both axes ("
+  if ((o.ps_periods_px.empty() && o.graycode_bits == 0) ||
+      (bo.ps_periods_y_px.empty() && bo.graycode_y_bits == 0))
+    BOARD_USAGE("board: expected sine periods or a Gray code along both axes ("
                 << OptionRef{"SimulateOptions.ps_periods_px"} << ", "
                 << OptionRef{"BoardSimOptions.ps_periods_y_px"} << ")");
+  if (o.axis != 'x') BOARD_OPTION("SimulateOptions.axis", "a board session's first axis is x");
   return o;
 }
 
 // The frame plan (session/patterns.h, as `capture --plan calibration`): sines along x then y
-// (every period, phases 2 pi k / N), white, black; per frame its sine set and phase.
+// (every period, phases 2 pi k / N), Gray code along x then y, white, black; per frame its sine
+// set and phase.
 struct BoardFrames {
   struct SineSet {
     char axis;
@@ -213,17 +221,27 @@ struct BoardFrames {
   };
   std::vector<Frame> frames;
   std::vector<SineSet> sets;
-  std::vector<int> frame_set;  // per frame: set index (-1 white, -2 black)
+  // Per frame: set index (-1 white, -2 black, -3 a Gray-code bit: frames[f].pattern).
+  std::vector<int> frame_set;
   std::vector<double> cos_phase, sin_phase;
   std::vector<double> rate;  // per set: 2 pi / period
+  bool coded = false;        // some frame is a Gray-code bit
+  // Per frame: a Gray-code bit's value at each projector column (row for axis y); else empty.
+  std::vector<std::vector<uint8_t>> coded_line;
 };
 
-BoardFrames PlanBoardFrames(const SimulateOptions& o, const BoardSimOptions& bo) {
+BoardFrames PlanBoardFrames(const SimulateOptions& o, const BoardSimOptions& bo, const Rig& rig) {
+  const int sc_width = rig.projector.width, sc_height = rig.projector.height;
   BoardFrames bf;
   FramePlanOptions plan;
   plan.periods_px = o.ps_periods_px;
   plan.cross_periods_px = bo.ps_periods_y_px;
   plan.phases = o.ps_phases;
+  plan.graycode_bits = o.graycode_bits;
+  plan.graycode_block_px = o.graycode_block_px;
+  plan.cross_graycode_bits = bo.graycode_y_bits;
+  plan.cross_graycode_block_px = bo.graycode_y_block_px;
+  plan.graycode_inverse = o.graycode_inverse;
   plan.lens_shift_frames = 0;
   plan.white = o.white;
   plan.black = o.black;
@@ -232,13 +250,23 @@ BoardFrames PlanBoardFrames(const SimulateOptions& o, const BoardSimOptions& bo)
   for (double p : o.ps_periods_px) bf.sets.push_back({'x', p});
   for (double p : bo.ps_periods_y_px) bf.sets.push_back({'y', p});
   for (const Frame& f : bf.frames) {
-    int si = f.pattern.type == PatternType::kWhite ? -1 : -2;
+    int si = f.pattern.type == PatternType::kWhite      ? -1
+             : f.pattern.type == PatternType::kGrayCode ? -3
+                                                        : -2;
     for (size_t k = 0; k < bf.sets.size() && f.pattern.type == PatternType::kSine; ++k)
       if (bf.sets[k].axis == f.pattern.axis && bf.sets[k].period == f.pattern.period_px) {
         si = static_cast<int>(k);
         break;
       }
     bf.frame_set.push_back(si);
+    bf.coded = bf.coded || si == -3;
+    std::vector<uint8_t> line;
+    if (si == -3) {
+      const int extent = f.pattern.axis == 'y' ? sc_height : sc_width;
+      line.resize(extent);
+      for (int c = 0; c < extent; ++c) line[c] = f.pattern.Value(c, c) > 0.5 ? 1 : 0;
+    }
+    bf.coded_line.push_back(std::move(line));
   }
   const int nf = static_cast<int>(bf.frames.size());
   bf.cos_phase.resize(nf);
@@ -370,13 +398,46 @@ bool AddProjectedLight(const BoardScene& sc, const BoardFrames& bf, const Vec3d&
     (*set_cos)[si] = sh * 0.5 * att * std::cos(bf.rate[si] * x);
     (*set_sin)[si] = sh * 0.5 * att * std::sin(bf.rate[si] * x);
   }
+  // Binary (Gray-code) patterns: each projector pixel's value spread over its pitch, blurred by
+  // the Gaussian and the fill factor's box (taken as a Gaussian of the same variance): the
+  // weight of pixel c at x is Phi((x - c + 1/2) / s) - Phi((x - c - 1/2) / s), the same weights
+  // for every frame along an axis.
+  const double s_box = std::sqrt(sigma * sigma + o.fill_factor * o.fill_factor / 12.0);
+  // +-6 sigma, at most +-31 px (a blur beyond ~5 px leaves no bit of a fine code readable).
+  const int reach = std::min(31, static_cast<int>(std::ceil(6.0 * s_box)) + 1);
+  double weights[2][64];
+  int first[2] = {0, 0}, count[2] = {0, 0};
+  if (bf.coded)
+    for (int a = 0; a < 2; ++a) {
+      const double x = uv[a];
+      const int c0 = static_cast<int>(std::floor(x)) - reach, n = 2 * reach + 2;
+      first[a] = c0;
+      count[a] = n;
+      double lo = 0.5 * std::erfc(-(x - (c0 - 0.5)) / (s_box * std::numbers::sqrt2));
+      for (int j = 0; j < n; ++j) {
+        const double hi = 0.5 * std::erfc(-(x - (c0 + j + 0.5)) / (s_box * std::numbers::sqrt2));
+        weights[a][j] = lo - hi;
+        lo = hi;
+      }
+    }
   const int nf = static_cast<int>(bf.frames.size());
   for (int f = 0; f < nf; ++f) {
     const int si = bf.frame_set[f];
-    if (si >= 0)
+    if (si >= 0) {
       (*acc)[f] += 0.5 * sh + (*set_cos)[si] * bf.cos_phase[f] - (*set_sin)[si] * bf.sin_phase[f];
-    else if (si == -1)
+    } else if (si == -1) {
       (*acc)[f] += sh;
+    } else if (si == -3) {
+      const std::vector<uint8_t>& line = bf.coded_line[f];
+      const int a = bf.frames[f].pattern.axis == 'y' ? 1 : 0;
+      const int extent = static_cast<int>(line.size());
+      double light = 0.0;
+      for (int j = 0; j < count[a]; ++j) {
+        const int c = first[a] + j;
+        if (c >= 0 && c < extent && line[c]) light += weights[a][j];  // beyond: dark
+      }
+      (*acc)[f] += sh * light;
+    }
   }
   return true;
 }
@@ -514,7 +575,7 @@ SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOpti
   const BoardScene scene(o, bo, rig);
   if (scene.n_world.dot(scene.cam_centre - scene.b0) <= 0)
     BOARD_OPTION("BoardSimOptions.pose", "the camera sees the back of the board at this pose");
-  const BoardFrames frames = PlanBoardFrames(o, bo);
+  const BoardFrames frames = PlanBoardFrames(o, bo, rig);
 
   SimulateSummary summary;
   summary.width = rig.camera.width;

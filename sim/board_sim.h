@@ -1,8 +1,9 @@
 #pragma once
 // The virtual rig looking at a calibration board: a printed checkerboard or ChArUco board
 // (heightfield/ calibrate_board.h) at any pose in front of the rig, rendered analytically
-// (ray-plane intersection, no Embree: the board is one plane), with sine patterns along both
-// projector axes, distortion on both devices (the rig's), sensor noise as sim/README.md, frames as
+// (ray-plane intersection, no Embree: the board is one plane), with sine patterns and/or Gray
+// codes (each bit and its inverse, OpenCV structured_light style) along both projector axes,
+// distortion on both devices (the rig's), sensor noise as sim/README.md, frames as
 // 16-bit PNG or 8-bit PNG/BMP/TIFF. Writes a calibration session (spec "Calibration sessions": the
 // rig holds only device sizes); the true rig and the board pose are kept under the session's
 // "simulation" key for tests.
@@ -30,6 +31,10 @@ struct BoardSimOptions {
   double background_albedo = 0.25;  // beyond the paper (the mount, far away)
   // Sine periods along projector y (the x periods are SimulateOptions::ps_periods_px).
   std::vector<double> ps_periods_y_px;
+  // Gray code along projector y (the x code is SimulateOptions::graycode_*, inverse frames as
+  // SimulateOptions::graycode_inverse): 0 bits = none; block_px * 2^bits covers the height.
+  int graycode_y_bits = 0;
+  double graycode_y_block_px = 1.0;
   // "png16" (default), "png8", "bmp" (8-bit), "tif8".
   std::string frame_format = "png16";
   void Check() const;
@@ -45,8 +50,9 @@ std::array<double, 6> ParseBoardPose(const std::string& text,
 Rigid3d BoardPoseToRigid(const std::array<double, 6>& pose);
 
 // Simulates the board session into out_dir (atomically). Uses from `options`: rig, crop,
-// ps_periods_px (axis x), ps_phases, white, black, supersample, fill_factor, blur_sigma_px,
-// defocus_px_per_m, focus_height_m, projector_gamma, exposure, ambient, noise parameters, seed.
+// ps_periods_px and graycode_* (axis x), ps_phases, white, black, supersample, fill_factor,
+// blur_sigma_px, defocus_px_per_m, focus_height_m, projector_gamma, exposure, ambient, noise
+// parameters, seed.
 SimulateSummary SimulateBoard(const SimulateOptions& options, const BoardSimOptions& board,
                               const std::filesystem::path& out_dir);
 

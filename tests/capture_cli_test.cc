@@ -278,6 +278,85 @@ TEST_F(CaptureCommand, CalibrationPlanCapturesBothAxesAndMatchesTheBoardSimulati
   }
 }
 
+// `capture --plan calibration --patterns graycode` shows a Gray code of the projector's columns
+// and rows, each bit and its inverse, white and black (OpenCV's GrayCodePattern frames): the
+// camera (reading the window back at half its size) sees each bit as the pattern says; the board
+// simulation of the same plan lists the same frames. sine+graycode: one period per axis, each with
+// a complementary code of half its width.
+TEST_F(CaptureCommand, GrayCodeCalibrationPlansShowTheCodeAlongBothAxes) {
+  Session sized;
+  sized.rig = SmallTestRig(32, 24, 64, 48, false);
+  Json rig = SessionToJson(sized)["rig"];
+  for (const char* device : {"camera", "projector"})
+    for (const char* key : {"K", "distortion", "world_from_device"}) rig[device].erase(key);
+  std::ofstream(dir_ / "sizes.json") << Json{{"rig", rig}}.dump(2);
+  const fs::path out = dir_ / "gray";
+  const CliResult r = RunMesoscan("-q capture --plan calibration --patterns graycode --out " +
+                                  out.string() + " --rig " + (dir_ / "sizes.json").string() +
+                                  " --camera screen --display " + display() + " --settle 0");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const Session s = ReadSession(out);
+  // 6 bits along x (64 columns) and along y (48 rows), each with its inverse; white, black.
+  ASSERT_EQ(s.frames.size(), 26u);
+  int coded[2] = {0, 0};
+  for (size_t i = 0; i < s.frames.size(); ++i) {
+    const Pattern& p = s.frames[i].pattern;
+    if (p.type != PatternType::kGrayCode) continue;
+    EXPECT_EQ(p.bits, 6) << s.frames[i].file;
+    EXPECT_EQ(p.block_px, 1.0) << s.frames[i].file;
+    ++coded[p.axis == 'y'];
+    if (p.bit == 5) continue;  // the finest stripes are 2 projector px: mixed in a camera pixel
+    // Camera pixel (x, y) sees projector pixels 2x..2x+1, 2y..2y+1: one bit value.
+    const ImageF f = ReadImageGrey(s.FramePath(i));
+    for (int y = 0; y < f.height(); ++y)
+      for (int x = 0; x < f.width(); ++x)
+        ASSERT_NEAR(f(x, y), p.Value(2 * x, 2 * y), 1e-3)
+            << s.frames[i].file << " " << x << "," << y;
+  }
+  EXPECT_EQ(coded[0], 12);
+  EXPECT_EQ(coded[1], 12);
+  const CliResult check = RunMesoscan("check " + out.string());
+  EXPECT_EQ(check.code, 0) << check.output;
+  const fs::path board = dir_ / "gray_board";
+  const CliResult sim =
+      RunMesoscan("-q simulate --object board:checker:5x4:10 --patterns graycode --rig " +
+                  (dir_ / "rig.json").string() + " --out " + board.string());
+  ASSERT_EQ(sim.code, 0) << sim.output;
+  const Session b = ReadSession(board);
+  ASSERT_EQ(b.frames.size(), s.frames.size());
+  for (size_t i = 0; i < s.frames.size(); ++i) {
+    EXPECT_EQ(b.frames[i].file, s.frames[i].file);
+    EXPECT_EQ(b.frames[i].pattern.type, s.frames[i].pattern.type) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].pattern.axis, s.frames[i].pattern.axis) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].pattern.bit, s.frames[i].pattern.bit) << s.frames[i].file;
+    EXPECT_EQ(b.frames[i].pattern.inverted, s.frames[i].pattern.inverted) << s.frames[i].file;
+  }
+  // sine+graycode: period 16 along x (blocks of 8: 3 bits), 12 along y (blocks of 6: 3 bits).
+  const CliResult both = RunMesoscan(
+      "-q capture --plan calibration --patterns sine+graycode --periods 16 --periods-y 12 --out " +
+      (dir_ / "both").string() + " --rig " + (dir_ / "sizes.json").string() +
+      " --camera screen --display " + display() + " --settle 0");
+  ASSERT_EQ(both.code, 0) << both.output;
+  const Session sb = ReadSession(dir_ / "both");
+  const FramePlan plan = MakeFramePlan(sb.frames);
+  EXPECT_EQ(plan.Periods('x'), (std::vector<double>{16}));
+  EXPECT_EQ(plan.Periods('y'), (std::vector<double>{12}));
+  int bits[2] = {0, 0};
+  for (const Frame& f : sb.frames)
+    if (f.pattern.type == PatternType::kGrayCode) {
+      EXPECT_EQ(f.pattern.block_px, f.pattern.axis == 'x' ? 8.0 : 6.0);
+      ++bits[f.pattern.axis == 'y'];
+    }
+  EXPECT_EQ(bits[0], 6);
+  EXPECT_EQ(bits[1], 6);
+  // Two periods cannot be ordered by one code: a usage error naming --patterns.
+  const CliResult bad = RunMesoscan(
+      "-q capture --plan calibration --patterns sine+graycode --out " + (dir_ / "bad").string() +
+      " --rig " + (dir_ / "sizes.json").string() + " --camera screen --display " + display());
+  EXPECT_EQ(bad.code, 2) << bad.output;
+  EXPECT_NE(bad.output.find("--patterns"), std::string::npos) << bad.output;
+}
+
 TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
   struct Case {
     std::string args, mentions;
