@@ -87,14 +87,40 @@ std::vector<double> Window(int n, int shift) {
   return w;
 }
 
+// Correlation of channel c's gradient (the steps to the right and lower neighbours) with the
+// gradient of the copy shifted by s along x (axis 0) or y (axis 1), over their overlap. The
+// blend's copies are taken in phase with a periodic texture, so they are correlated: a blend
+// normalised as if they were independent inflates the gradients where the copies mix (the
+// tile's interior) against the seams, where one copy dominates.
+double GradientCorrelation(const ImageF& t, int c, int s, int axis) {
+  const int n = t.width();
+  double ab = 0, aa = 0, bb = 0;
+  for (int y = 0; y + 1 < n; ++y)
+    for (int x = 0; x + 1 < n; ++x) {
+      const int x2 = axis == 0 ? x + s : x, y2 = axis == 0 ? y : y + s;
+      if (x2 + 1 >= n || y2 + 1 >= n) continue;
+      const double ax = t(x + 1, y, c) - t(x, y, c), ay = t(x, y + 1, c) - t(x, y, c);
+      const double bx = t(x2 + 1, y2, c) - t(x2, y2, c), by = t(x2, y2 + 1, c) - t(x2, y2, c);
+      if (!std::isfinite(ax + ay + bx + by)) continue;
+      ab += ax * bx + ay * by, aa += ax * ax + ay * ay, bb += bx * bx + by * by;
+    }
+  const double rho = aa > 0 && bb > 0 ? ab / std::sqrt(aa * bb) : 0.0;
+  return std::clamp(rho, -0.5, 0.95);
+}
+
 // Offset-and-blend of a square image (all channels) with matched variance (see the header);
-// shifts from the height channel (the same for every map of the set).
+// shifts from the height channel (the same for every map of the set). The normalisation is the
+// standard deviation of the weighted sum of the copies given their gradient correlation along
+// each axis (separable: rho_xy = rho_x rho_y), so that the gradient statistics, not only the
+// value's, are the same where the copies mix as at the seams.
 ImageF BlendPeriodic(const ImageF& t, bool preserve_variance, int shift_x, int shift_y) {
   const int n = t.width();
   ImageF out(n, n, t.channels());
   const std::vector<double> wxs = Window(n, shift_x), wys = Window(n, shift_y);
   for (int c = 0; c < t.channels(); ++c) {
     const double mu = preserve_variance ? MeanOf(t, c) : 0.0;
+    const double rho_x = preserve_variance ? GradientCorrelation(t, c, shift_x, 0) : 0.0;
+    const double rho_y = preserve_variance ? GradientCorrelation(t, c, shift_y, 1) : 0.0;
     ParallelForRows(n, [&](int r0, int r1) {
       for (int y = r0; y < r1; ++y) {
         const int ys = (y + shift_y) % n;
@@ -104,13 +130,53 @@ ImageF BlendPeriodic(const ImageF& t, bool preserve_variance, int shift_x, int s
           const double wx = wxs[x];
           const double w[4] = {wx * wy, (1 - wx) * wy, wx * (1 - wy), (1 - wx) * (1 - wy)};
           const double v[4] = {t(x, y, c), t(xs, y, c), t(x, ys, c), t(xs, ys, c)};
-          double s = 0, s2 = 0;
-          for (int k = 0; k < 4; ++k) s += w[k] * (v[k] - mu), s2 += w[k] * w[k];
-          out(x, y, c) = static_cast<float>(mu + (preserve_variance ? s / std::sqrt(s2) : s));
+          double s = 0;
+          for (int k = 0; k < 4; ++k) s += w[k] * (v[k] - mu);
+          const double vx = wx * wx + (1 - wx) * (1 - wx) + 2 * wx * (1 - wx) * rho_x;
+          const double vy = wy * wy + (1 - wy) * (1 - wy) + 2 * wy * (1 - wy) * rho_y;
+          out(x, y, c) = static_cast<float>(mu + (preserve_variance ? s / std::sqrt(vx * vy) : s));
         }
       }
     });
   }
+  return out;
+}
+
+// The cyclic roll (columns, rows) that puts the wrap-around seam of the periodic height z where
+// the column (row) gradient RMS is nearest the mean over all columns (rows). A periodic texture
+// (a weave) has crests whose columns change little and flanks that change much; the blend takes
+// its copies in phase with the weave, which can put the wrap seam on a crest, a column much
+// smoother than the average one. Rolling a periodic tile moves its seam without changing it.
+std::array<int, 2> SeamRoll(const ImageF& z) {
+  const int n = z.width();
+  std::array<int, 2> roll = {0, 0};
+  for (int axis = 0; axis < 2; ++axis) {
+    std::vector<double> g(n, 0.0);
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x) {
+        const double d = axis == 0 ? z((x + 1) % n, y) - z(x, y) : z(x, (y + 1) % n) - z(x, y);
+        if (std::isfinite(d)) g[axis == 0 ? x : y] += d * d;
+      }
+    double mean = 0;
+    for (double& v : g) mean += (v = std::sqrt(v / n)) / n;
+    // After rolling by r the seam is between the input's columns r - 1 and r.
+    double best = std::numeric_limits<double>::max();
+    for (int r = 0; r < n; ++r) {
+      const double e = std::abs(g[(r + n - 1) % n] - mean);
+      if (e < best - 1e-12 * mean) best = e, roll[axis] = r;
+    }
+  }
+  return roll;
+}
+
+// out(x, y) = in((x + rx) mod n, (y + ry) mod n), every channel.
+template <typename Image>
+Image Roll(const Image& in, int rx, int ry) {
+  const int n = in.width();
+  Image out = in;
+  for (int c = 0; c < in.channels(); ++c)
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x) out(x, y, c) = in((x + rx) % n, (y + ry) % n, c);
   return out;
 }
 
@@ -349,6 +415,16 @@ TileResult MakeTile(const HeightField& hf, const ImageF& albedo, const ImageU8& 
     const ImageF fb = periodic(fsq, false);
     r.filled = ImageU8(r.size_px, r.size_px, 1, 0);
     for (size_t p = 0; p < fb.pixels(); ++p) r.filled.data()[p] = fb.data()[p] > 0.05f ? 1 : 0;
+  }
+  if (blend) {
+    // The wrap seam away from the texture's crests (see SeamRoll); the blend lines, at N - shift
+    // in the rolled tile, move with it.
+    const auto [rx, ry] = SeamRoll(r.field.z);
+    r.field.z = Roll(r.field.z, rx, ry);
+    if (!r.field.confidence.empty()) r.field.confidence = Roll(r.field.confidence, rx, ry);
+    if (!r.albedo.empty()) r.albedo = Roll(r.albedo, rx, ry);
+    if (!r.filled.empty()) r.filled = Roll(r.filled, rx, ry);
+    r.shift_x = (shift_x + rx) % r.size_px, r.shift_y = (shift_y + ry) % r.size_px;
   }
   r.seams_after = MeasureSeams(r.field.z);
   return r;

@@ -7,10 +7,14 @@
 //           s is half the tile unless a shift in [N/3, 2N/3] correlates clearly better with T
 //           (a periodic weave: the copies then blend in phase); the blend's deviation from the
 //           mean is divided by
-//           sqrt(sum of squared weights) so the height variance (hence the gradient statistics)
-//           is the same at the seams as inside (variance-preserving blending, as in Heitz and
-//           Neyret, "High-Performance By-Example Noise using a Histogram-Preserving Blending
-//           Operator", HPG 2018, Eq. 2);
+//           the standard deviation of the weighted sum given the copies' gradient correlation
+//           (sqrt(sum of squared weights) for independent copies) so the height variance and
+//           the gradient statistics are the same at the seams as inside (variance-preserving
+//           blending, as in Heitz and Neyret, "High-Performance By-Example Noise using a
+//           Histogram-Preserving Blending Operator", HPG 2018, Eq. 2); the periodic result is
+//           then rolled cyclically so the wrap seam lies on a column (row) whose gradient RMS
+//           is the mean one (on a weave the in-phase copies can put it on a crest, smoother
+//           than the average column);
 //   mirror  the square of half the size mirrored into four quadrants: values continuous, but the
 //           slope reverses at the seams (a visible crease on directional textures).
 // Albedo and confidence follow the same blend; normals and derived maps are computed afterwards
@@ -85,12 +89,14 @@ struct TileResult {
   // Shares of the source square's pixels: on the sample (measured or filled), measured and on
   // the sample, filled (interpolated) by the hole fill.
   double on_sample_fraction = 0, measured_on_sample_fraction = 0, filled_fraction = 0;
-  double texture_rms_m = 0;      // RMS height step between measured neighbours in the square, m
-  int size_px = 0;               // output tile edge in pixels
-  int shift_x = 0, shift_y = 0;  // blend: offsets of the shifted copies (pixels)
-  HeightField field;             // periodic height; x0/y0 of the source square
-  ImageF albedo;                 // same blend (if given)
-  ImageU8 filled;                // 1 where a filled pixel contributes
+  double texture_rms_m = 0;  // RMS height step between measured neighbours in the square, m
+  int size_px = 0;           // output tile edge in pixels
+  // blend: offsets of the shifted copies (pixels), counted in the rolled tile: the lines where
+  // the copies meet lie at N - shift.
+  int shift_x = 0, shift_y = 0;
+  HeightField field;                    // periodic height; x0/y0 of the source square
+  ImageF albedo;                        // same blend (if given)
+  ImageU8 filled;                       // 1 where a filled pixel contributes
   SeamStats seams_before, seams_after;  // the raw square's seams, the tile's
   std::string BriefReport() const;
 };
