@@ -112,11 +112,10 @@ double Wrap(double deg) {
 }  // namespace
 
 void PlanarAlignmentOptions::Check() const {
-  if (size < 32 || size > 4096 || (size & (size - 1)) != 0)
-    MESOSCAN_BAD_OPTION("PlanarAlignmentOptions.size", "expected a power of two in 32..4096");
-  if (!(step_deg > 0 && step_deg <= 30))
-    MESOSCAN_BAD_OPTION("PlanarAlignmentOptions.step_deg", "expected (0, 30] degrees");
-  if (candidates < 1) MESOSCAN_BAD_OPTION("PlanarAlignmentOptions.candidates", "expected >= 1");
+  // No flag sets these: invariants of the callers.
+  MESOSCAN_CHECK(size >= 32 && size <= 4096 && (size & (size - 1)) == 0);
+  MESOSCAN_CHECK(step_deg > 0 && step_deg <= 30);
+  MESOSCAN_CHECK(candidates >= 1);
 }
 
 std::vector<PlanarCandidate> PlanarAlignment(const HeightField& a, const ImageU8& in_a,
