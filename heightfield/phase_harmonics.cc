@@ -240,6 +240,10 @@ double HarmonicPhase(const ProjectorHarmonics& h, double period, const std::vect
   return t < 0 ? t + 2 * kPi : t;
 }
 
+// kAuto: the predicted plain phase error (worst period) must be at least this many times the
+// fit's robust residual for the correction to be applied.
+constexpr double kMinExplained = 4.0;
+
 ProjectorHarmonics EstimateProjectorHarmonics(const ReconstructPlan& plan,
                                               const PhaseShiftPixels& ps, const PixelStates& state,
                                               const HarmonicsOptions& options) {
@@ -368,6 +372,16 @@ ProjectorHarmonics EstimateProjectorHarmonics(const ReconstructPlan& plan,
     std::ostringstream why;
     why << "the response is linear within the noise (phase error " << worst << " rad, limit "
         << std::max(options.min_phase_error_rad, options.min_significance * standard_error) << ")";
+    out.reason = why.str();
+  } else if (options.mode == HarmonicsMode::kAuto && !(worst >= kMinExplained * sigma_r)) {
+    // A projector response is shared by every period and pixel: corrected, the phases agree to
+    // within a small fraction of the error it predicts (a gamma of 2.2: 0.011 against 0.20 rad).
+    // Phases that disagree by about as much as the fitted "response" predicts are frames that
+    // contradict each other (swapped, copied, of another capture): the consistency test must
+    // see them as they are.
+    std::ostringstream why;
+    why << "the fitted response does not explain the phases (residual " << sigma_r
+        << " rad against a predicted phase error of " << worst << " rad)";
     out.reason = why.str();
   }
   return out;
