@@ -28,6 +28,9 @@ constexpr OptionFlag kOptionFlags[] = {
     {"SimulateOptions.object_pixel_size_m", "", "--object-pixel-size"},
     {"SimulateOptions.rig", "", "--rig"},
     {"SimulateOptions.crop", "", "--crop"},
+    {"SimulateOptions.grey_card_size", "", "--grey-card"},
+    {"SimulateOptions.grey_card_reflectance", "", "--grey-card"},
+    {"SimulateOptions.projector_falloff", "", "--projector-falloff"},
     {"SimulateOptions.axis", "", "--axis"},
     {"SimulateOptions.graycode_bits", "", "--patterns"},
     {"SimulateOptions.graycode_block_px", "", "--patterns"},
@@ -89,6 +92,7 @@ constexpr OptionFlag kOptionFlags[] = {
     {"TileOptions.at_px", "", "--tile-at"},
     {"MapsOptions.size_px", "", "--size"},
     {"MapsOptions.roughness", "", "--roughness"},
+    {"MapsOptions.grey_card", "", "--grey-card"},
     // compare
     {"CompareOptions.mount_clearance_m", "", "--mount-clearance"},
     {"CompareOptions.min_confidence", "", "--min-confidence"},
