@@ -40,26 +40,19 @@ const CalibrationBoard& Board() {
 }
 
 // Camera 480 x 384 0.4 m above the mount, projector 512 x 384 (9 bits per axis) at 15 degrees,
-// 0.42 m away: about 0.9 camera pixels per projector pixel on the mount (the held-back captures'
-// 1280 x 1024 camera sees about 1.2 per projector pixel). Radial distortion on both.
+// 0.42 m away (RealShapeRig's poses): about 0.9 camera pixels per projector pixel on the mount
+// (the held-back captures' 1280 x 1024 camera sees about 1.2 per projector pixel). Radial
+// distortion on both.
 Rig GrayRig() {
-  Rig rig;
+  Rig rig = RealShapeRig();
   rig.camera.width = 480;
   rig.camera.height = 384;
   rig.camera.K << 1125, 0, 239.5, 0, 1125, 191.5, 0, 0, 1;
   rig.camera.distortion = {-0.08, 0.1, 0, 0, 0};
-  Mat4d m;
-  m << 1, 0, 0, 0, 0, -1, 0, 0, 0, 0, -1, 0.4, 0, 0, 0, 1;
-  rig.camera.world_from_device = Rigid3d::FromMatrix(m);
   rig.projector.width = 512;
   rig.projector.height = 384;
   rig.projector.K << 1250, 0, 255.5, 0, 1250, 191.5, 0, 0, 1;
   rig.projector.distortion = {0.04, 0, 0, 0, 0};
-  const double a = 15.0 * std::numbers::pi / 180.0, dist = 0.42;
-  rig.projector.world_from_device.rotation.col(0) = Vec3d(std::cos(a), 0, -std::sin(a));
-  rig.projector.world_from_device.rotation.col(1) = Vec3d(0, -1, 0);
-  rig.projector.world_from_device.rotation.col(2) = Vec3d(-std::sin(a), 0, -std::cos(a));
-  rig.projector.world_from_device.translation = Vec3d(dist * std::sin(a), 0, dist * std::cos(a));
   return rig;
 }
 
