@@ -5,10 +5,7 @@
 // truth, OpenCV's calibration on the same corners beside ours; sessions that mix codecs or lack
 // inverse frames are refused with one line naming session.json's key.
 
-#include <fcntl.h>
 #include <gtest/gtest.h>
-#include <sys/file.h>
-#include <unistd.h>
 
 #include <cmath>
 #include <cstdio>
@@ -26,6 +23,7 @@
 #include "sim/board_sim.h"
 #include "sim/virtual_rig.h"
 #include "tests/cli_util.h"
+#include "tests/view_cache.h"
 
 namespace fs = std::filesystem;
 
@@ -68,33 +66,6 @@ const std::vector<std::array<double, 6>>& Poses() {
 
 fs::path Dir(const std::string& name) { return CliTempDir("calibrate_graycode", name); }
 
-// The five views are simulated once per build of this test binary and kept in the build tree
-// (ctest runs each test in its own process), keyed on the binary's size and time; a lock file
-// serialises parallel test processes, and the first one to build a new key removes older caches.
-fs::path ViewCache() {
-  const fs::path exe = fs::read_symlink("/proc/self/exe");
-  const std::string key = std::to_string(fs::file_size(exe)) + "_" +
-                          std::to_string(fs::last_write_time(exe).time_since_epoch().count());
-  return fs::path(MESOSCAN_BINARY_DIR) / "test-cache" / ("calibrate_graycode_views_" + key);
-}
-
-class FileLock {
- public:
-  explicit FileLock(const fs::path& path) : fd_(open(path.c_str(), O_CREAT | O_RDWR, 0644)) {
-    if (fd_ < 0 || flock(fd_, LOCK_EX) != 0)
-      throw std::runtime_error("cannot lock " + path.string());
-  }
-  ~FileLock() {
-    flock(fd_, LOCK_UN);
-    close(fd_);
-  }
-  FileLock(const FileLock&) = delete;
-  FileLock& operator=(const FileLock&) = delete;
-
- private:
-  int fd_;
-};
-
 struct GrayCodeBoards : public ::testing::Test {
   static void SetUpTestSuite() {
     Progress::SetEnabled(false);
@@ -114,20 +85,15 @@ struct GrayCodeBoards : public ::testing::Test {
     bo.graycode_y_bits = 9;  // 384 rows
     bo.frame_format = "png8";
     sessions_ = new std::vector<fs::path>;
-    const fs::path cache = ViewCache();
-    fs::create_directories(cache.parent_path());
-    const FileLock lock(cache.parent_path() / "calibrate_graycode.lock");
-    if (!fs::exists(cache / "complete")) {
-      for (const auto& e : fs::directory_iterator(cache.parent_path()))
-        if (e.path().filename().string().rfind("calibrate_graycode_views_", 0) == 0)
-          fs::remove_all(e.path());
-      for (size_t i = 0; i < Poses().size(); ++i) {
-        bo.pose = Poses()[i];
-        so.seed = 300 + i;
-        SimulateBoard(so, bo, cache / ("view" + std::to_string(i)));
-      }
-      WriteTextFile(cache / "complete", "5 views\n");
-    }
+    // The five views are simulated once per build of this test binary (tests/view_cache.h).
+    const fs::path cache =
+        testing_support::BuiltOnce("calibrate_graycode_views", [&](const fs::path& c) {
+          for (size_t i = 0; i < Poses().size(); ++i) {
+            bo.pose = Poses()[i];
+            so.seed = 300 + i;
+            SimulateBoard(so, bo, c / ("view" + std::to_string(i)));
+          }
+        });
     for (size_t i = 0; i < Poses().size(); ++i)
       sessions_->push_back(cache / ("view" + std::to_string(i)));
   }
