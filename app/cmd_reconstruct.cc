@@ -19,6 +19,7 @@
 #include "core/log.h"
 #include "core/malloc_tuning.h"
 #include "core/output_dir.h"
+#include "core/parallel.h"
 #include "core/scan_folder.h"
 #include "core/stage_timer.h"
 #include "heightfield/reconstruct.h"
@@ -41,6 +42,7 @@ struct ReconstructArgs {
 
 void Run(const ReconstructArgs& a) {
   TuneAllocatorForReconstruction();  // core/malloc_tuning.h: large blocks reused across stages
+  const ThreadLimit thread_limit(a.threads);  // --threads: every stage and write below
   const Stopwatch t0;
   const double cpu0 = ProcessCpuSeconds();
   ReconstructOptions opt;
@@ -48,7 +50,6 @@ void Run(const ReconstructArgs& a) {
   opt.classify.mask_path = a.mask;
   opt.lens_shift.fitter = ParseLensShiftFitter(a.fitter, "LensShiftStageOptions.fitter");
   opt.plan.use_lens_shift = !a.no_lens_shift;
-  opt.num_threads = a.threads;
   opt.lens_shift.box_filter = a.box_filter;
   opt.gains.normalize_luminance = !a.no_normalize;
   opt.phase_shift.harmonics.mode = a.phase_harmonics == "on"    ? HarmonicsMode::kOn
@@ -105,6 +106,7 @@ void Run(const ReconstructArgs& a) {
                                              "choose a larger --roi");
   scan.report["session"] = std::filesystem::absolute(a.session).lexically_normal().string();
   scan.report["object"] = session.object;
+  scan.report["options"]["threads"] = a.threads;
   if (rig_file) {
     // Which rig made the points, and how many of them lie where the calibration saw no corner.
     Json r = rig_file->ToJson();

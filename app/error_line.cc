@@ -70,7 +70,6 @@ constexpr OptionFlag kOptionFlags[] = {
     {"CalibrateOptions.model", "", "--model"},
     // reconstruct
     {"FrameLoadOptions.roi", "", "--roi"},
-    {"ReconstructOptions.num_threads", "", "--threads"},
     {"LensShiftStageOptions.fitter", "", "--fitter"},
     // export, maps, reconstruct --export
     {"ExportOptions.formats", "reconstruct", "--export"},

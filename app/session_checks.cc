@@ -153,7 +153,6 @@ void CheckSessionLikeReconstruct(const Session& session) {
     for (const PixelRect& roi : windows) {
       ReconstructOptions o;
       o.load.roi = roi;
-      o.num_threads = 0;
       // A refusal of the session itself (its periods, its frames' contradictions) is final; a
       // window without points tries the next.
       ReconstructSummary summary;

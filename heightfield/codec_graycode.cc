@@ -1,5 +1,7 @@
 #include "heightfield/codec_graycode.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -7,7 +9,6 @@
 #include <utility>
 
 #include "core/error.h"
-#include "core/parallel.h"
 #include "heightfield/pixel_buffers.h"
 #include "heightfield/stage_plan.h"
 
@@ -97,7 +98,7 @@ void GrayCodeCodec::DecodeFrames(const CodecInputs& in, const PixelStates& state
   // distance from the middle of the white and black frames (each with its own noise), or from
   // half the phase-shift level (a fit of many frames: its noise left out).
   const double d_noise = paired ? std::sqrt(2.0) : has_white_ ? std::sqrt(6.0) : 2.0;
-  ParallelFor(static_cast<int64_t>((np + 4095) / 4096), [&](int64_t b) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>((np + 4095) / 4096), [&](int64_t b) {
     const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * 4096);
     std::vector<double> d(bits_), r(bits_);
     for (size_t i = static_cast<size_t>(b) * 4096; i < i_end; ++i) {

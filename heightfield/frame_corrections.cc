@@ -1,5 +1,7 @@
 #include "heightfield/frame_corrections.h"
 
+#include <tbb/parallel_for.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -7,7 +9,6 @@
 #include <numeric>
 
 #include "core/numbers.h"
-#include "core/parallel.h"
 #include "core/robust_stats.h"
 #include "heightfield/frames.h"
 
@@ -191,7 +192,7 @@ std::vector<float> ZeroPositionTrig(const Problem& p) {
   const int nk = p.nk;
   std::vector<float> trig0(p.freq.size() * 2 * nk, 0.0f);
   const std::vector<double> zero(nk, 0.0);
-  ParallelFor(static_cast<int64_t>(p.pix.size()), [&](int64_t q) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>(p.pix.size()), [&](int64_t q) {
     const int j = p.pix[q];
     std::vector<double> ct(nk), st(nk);
     PixelTrig(p, j, zero, ct.data(), st.data());
@@ -222,7 +223,7 @@ bool WeighPixelsByFirstFit(Problem* p, const std::vector<double>& g_start,
   // Per pixel on the pool (NaN: not kept), then collected in pixel order.
   const int n_cand = static_cast<int>(p->pix.size());
   std::vector<double> rel_of(n_cand, kNaN), s2_of(n_cand, kNaN);
-  ParallelFor((n_cand + kBlockPixels - 1) / kBlockPixels, [&](int64_t blk) {
+  tbb::parallel_for<int64_t>(0, (n_cand + kBlockPixels - 1) / kBlockPixels, [&](int64_t blk) {
     std::vector<double> ct(nk), st(nk);
     const int q_end = std::min(n_cand, static_cast<int>(blk + 1) * kBlockPixels);
     for (int q = static_cast<int>(blk) * kBlockPixels; q < q_end; ++q) {
@@ -272,7 +273,7 @@ double Objective(const Fit& fit, const std::vector<double>& gg, const std::vecto
   const int nk = p.nk;
   const bool dz = AllZero(dd);
   std::vector<double> partial(fit.n_blocks, 0.0);
-  ParallelFor(fit.n_blocks, [&](int64_t blk) {
+  tbb::parallel_for<int64_t>(0, fit.n_blocks, [&](int64_t blk) {
     std::vector<double> ct(nk), st(nk);
     double total = 0;
     const int q_end = std::min(fit.n_pix, static_cast<int>(blk + 1) * kBlockPixels);
@@ -321,7 +322,7 @@ void ReducedNormalEquations(const Fit& fit, const FreeParameters& free,
   };
   std::vector<Partial> partials(fit.n_blocks);
   const bool dz = AllZero(delta);
-  ParallelFor(fit.n_blocks, [&](int64_t blk) {
+  tbb::parallel_for<int64_t>(0, fit.n_blocks, [&](int64_t blk) {
     Partial& part = partials[blk];
     part.S.setZero(P, P);
     part.rhs.setZero(P);
@@ -566,7 +567,7 @@ std::vector<ReferenceRow> ReferenceRows(const Fit& fit, const Reference& ref,
   std::vector<ReferenceRow> rows(fit.n_pix,
                                  ReferenceRow{std::numeric_limits<double>::quiet_NaN(), 0, 0, 0});
   const bool dz = AllZero(dd);
-  ParallelFor(fit.n_blocks, [&](int64_t blk) {
+  tbb::parallel_for<int64_t>(0, fit.n_blocks, [&](int64_t blk) {
     std::vector<double> ct(nk), st(nk);
     const int q_end = std::min(fit.n_pix, static_cast<int>(blk + 1) * kBlockPixels);
     for (int q = static_cast<int>(blk) * kBlockPixels; q < q_end; ++q) {
@@ -894,7 +895,7 @@ FrameCorrections EstimateFrameCorrections(const FrameStack& stack, const std::ve
   // increasing pixels, not one cache miss per sample), then transposed.
   const size_t n = used.size();
   std::vector<float> by_frame(n * static_cast<size_t>(nk));
-  ParallelFor(nk, [&](int64_t k) {
+  tbb::parallel_for<int64_t>(0, nk, [&](int64_t k) {
     float* dst = by_frame.data() + static_cast<size_t>(k) * n;
     if (gathered) {
       const std::vector<uint16_t>& codes = gathered->codes[frames[k]];

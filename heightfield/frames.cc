@@ -1,5 +1,7 @@
 #include "heightfield/frames.h"
 
+#include <tbb/parallel_for.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <atomic>
@@ -11,7 +13,6 @@
 #include "core/error.h"
 #include "core/image_input.h"
 #include "core/log.h"
-#include "core/parallel.h"
 #include "core/png_gray16.h"
 #include "core/progress.h"
 #include "core/robust_stats.h"
@@ -247,7 +248,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
     int n_decoded = 0;
     for (int k = 0; k < nf; ++k) n_decoded += decoded(k);
     Progress progress("decode frames", n_decoded);
-    ParallelFor(nf, [&](int64_t k) {
+    tbb::parallel_for<int64_t>(0, nf, [&](int64_t k) {
       if (!decoded(k)) return;
       const int f = frame_indices[k];
       const auto path = session.FramePath(f);
@@ -322,7 +323,7 @@ FrameStack LoadFrames(const Session& session, const std::vector<int>& frame_indi
   if (s.is_float_) {
     // Float frames are linear radiance as stored; a non-linear response is applied in place.
     if (resp.kind != Response::Kind::kLinear) {
-      ParallelFor(nf, [&](int64_t k) {
+      tbb::parallel_for<int64_t>(0, nf, [&](int64_t k) {
         for (float& v : s.raw_float_[k]) v = static_cast<float>(resp.ToLinear(v));
       });
     }
@@ -375,7 +376,7 @@ std::vector<double> EstimateFrameGains(const FrameStack& stack, const GainModel&
   // Gathered frame by frame in parallel (a frame's samples at increasing pixels).
   const size_t n = pixels.size();
   std::vector<float> by_frame(static_cast<size_t>(nk) * n);
-  ParallelFor(nk, [&](int64_t k) {
+  tbb::parallel_for<int64_t>(0, nk, [&](int64_t k) {
     float* dst = by_frame.data() + static_cast<size_t>(k) * n;
     for (size_t j = 0; j < n; ++j) dst[j] = stack.Value(model.frames[k], pixels[j]);
   });
@@ -412,7 +413,7 @@ std::vector<double> EstimateFrameGains(const std::vector<float>& by_frame, size_
     Eigen::MatrixXd model_val(nk, static_cast<Eigen::Index>(n));
     std::vector<double> rel(n);
     constexpr size_t kBlock = 2048;
-    ParallelFor(static_cast<int64_t>((n + kBlock - 1) / kBlock), [&](int64_t b) {
+    tbb::parallel_for<int64_t>(0, static_cast<int64_t>((n + kBlock - 1) / kBlock), [&](int64_t b) {
       const size_t j0 = static_cast<size_t>(b) * kBlock, m = std::min(kBlock, n - j0);
       const auto cols = [&](auto& a) {
         return a.middleCols(static_cast<Eigen::Index>(j0), static_cast<Eigen::Index>(m));

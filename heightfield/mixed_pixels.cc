@@ -1,5 +1,8 @@
 #include "heightfield/mixed_pixels.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -7,7 +10,6 @@
 #include <limits>
 
 #include "core/error.h"
-#include "core/parallel.h"
 
 namespace mesoscan {
 
@@ -135,7 +137,8 @@ double NearLimit2(const MixedPixelInput& in, const MixedPixelOptions& options) {
 // test then needs the other terms to be known.
 std::vector<double> SquaredSigmas(const MixedPixelInput& in) {
   std::vector<double> s2(static_cast<size_t>(in.width) * in.height);
-  ParallelForRows(in.height, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, in.height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (size_t i = static_cast<size_t>(y0) * in.width; i < static_cast<size_t>(y1) * in.width;
          ++i) {
       const float s = in.sigma_z[i];
@@ -169,7 +172,7 @@ std::vector<size_t> RejectedPixels(const std::vector<uint8_t>& reject, int w, in
   constexpr int kRows = 64;
   const int bands = (h + kRows - 1) / kRows;
   std::vector<std::vector<size_t>> per_band(std::max(bands, 0));
-  ParallelFor(bands, [&](int64_t b) {
+  tbb::parallel_for<int64_t>(0, bands, [&](int64_t b) {
     const size_t end = static_cast<size_t>(std::min(h, static_cast<int>(b + 1) * kRows)) * w;
     for (size_t i = static_cast<size_t>(b) * kRows * w; i < end; ++i)
       if (reject[i]) per_band[b].push_back(i);
@@ -188,7 +191,8 @@ std::vector<uint8_t> FindMixedPixelsOnce(const MixedPixelInput& in,
   if (w <= 0 || h <= 0) return reject;
   MESOSCAN_CHECK(in.z != nullptr && in.sigma_z != nullptr);
   const MixedPixelJudge judge = MakeJudge(in, options, s2);
-  ParallelForRows(h, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y) {
       const bool interior_row = y >= 2 && y + 2 < h;
       for (int x = 0; x < w; ++x) {
@@ -242,12 +246,11 @@ std::vector<uint8_t> FindMixedPixels(const MixedPixelInput& in, const MixedPixel
     std::sort(todo.begin(), todo.end());
     for (size_t i : todo) marked[i] = 0;
     verdict.assign(todo.size(), 0);
-    ParallelForRows(
-        static_cast<int>(todo.size()),
-        [&](int q0, int q1) {
-          for (int q = q0; q < q1; ++q) verdict[q] = Judge(judge, todo[q], w, h);
-        },
-        1024);
+    tbb::parallel_for(tbb::blocked_range<int>(0, static_cast<int>(todo.size()), 1024),
+                      [&](const auto& range) {
+                        const int q0 = range.begin(), q1 = range.end();
+                        for (int q = q0; q < q1; ++q) verdict[q] = Judge(judge, todo[q], w, h);
+                      });
     fresh.clear();
     for (size_t q = 0; q < todo.size(); ++q)
       if (verdict[q] && !reject[todo[q]]) {

@@ -1,9 +1,10 @@
 // Reconstruct(): the driver that chains and times the stages (see reconstruct.h).
 #include "heightfield/reconstruct.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 
-#include "core/parallel.h"
 #include "heightfield/stage_height_field.h"
 #include "heightfield/stage_mixed_pixels.h"
 #include "heightfield/stage_stream.h"
@@ -56,7 +57,6 @@ void SummarizePixels(const Rig& rig, const PixelClasses& classes, const RoiGrid&
 ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructOptions& options,
                                       StageTimer* timer, ReconstructSummary* sum) {
   options.Check();
-  ThreadLimit thread_limit(options.num_threads);
   const Rig& rig = session.rig;
   CheckCalibrated(session);
   ReconstructedPoints out;
@@ -83,7 +83,8 @@ ReconstructedPoints ReconstructPoints(const Session& session, const ReconstructO
   // Lens shift: the refinement, with the frame corrections.
   LensShiftPixels& ls = out.ls = FitLensShift(stack, plan, &gains, lens_shift, &state);
   // The frames' pages go back to the kernel a frame per task (~300 MB at full resolution).
-  ParallelFor(stack.num_frames(), [&](int64_t k) { stack.Release(static_cast<int>(k)); });
+  tbb::parallel_for<int64_t>(0, stack.num_frames(),
+                             [&](int64_t k) { stack.Release(static_cast<int>(k)); });
   stack = FrameStack();
   if (options.on_frames_released) options.on_frames_released();
   timer->Stage("lens_shift");
@@ -131,7 +132,6 @@ Scan Reconstruct(const Session& session, const ReconstructOptions& options,
   sum = ReconstructSummary();
   const double cpu0 = ProcessCpuSeconds();
   StageTimer timer(&sum.timings_s, &sum.cpu_s);
-  ThreadLimit thread_limit(options.num_threads);
   ReconstructedPoints r = ReconstructPoints(session, options, &timer, &sum);
   Scan scan;
   scan.points = std::move(r.tri.points);

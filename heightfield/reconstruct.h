@@ -87,8 +87,6 @@ struct ReconstructOptions {
   MixedPixelOptions mixed_pixels;
   // Stage 9: the height-field grid.
   ResampleOptions resample;
-  // Worker threads, >= 0; 0 = all cores.
-  int num_threads = 0;
   // Keep per-pixel intermediate images in the summary (tests, benchmarks, CRLB); also keeps the
   // stages' optional outputs (CombineOptions::keep_coarse, LensShiftStageOptions::
   // keep_offset_frequency, whatever those fields say).

@@ -13,9 +13,6 @@ void ReconstructOptions::Check() const {
   consistency.Check();
   mixed_pixels.Check();
   resample.Check();
-  if (num_threads < 0)
-    MESOSCAN_BAD_INPUT_AT(ErrorSite::Option("ReconstructOptions.num_threads"),
-                          "expected >= 0, got " << num_threads);
 }
 
 Json ReconstructOptions::ToJson() const {
@@ -25,7 +22,6 @@ Json ReconstructOptions::ToJson() const {
   j["mask"] = classify.mask_path;
   j["fitter"] = LensShiftFitterName(lens_shift.fitter);
   j["use_lens_shift"] = plan.use_lens_shift;
-  j["threads"] = num_threads;
   j["normalize_luminance"] = gains.normalize_luminance;
   j["lens_shift_box_filter"] = lens_shift.box_filter;
   j["fit_frequency"] = lens_shift.fit_frequency;

@@ -1,5 +1,8 @@
 #include "heightfield/resample.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -11,7 +14,6 @@
 
 #include "core/budget.h"
 #include "core/error.h"
-#include "core/parallel.h"
 
 namespace mesoscan {
 namespace {
@@ -63,7 +65,7 @@ float MedianOfNonNegative(const std::vector<std::vector<float>>& parts) {
   auto chunk_parts = [&](int64_t c) {
     return std::pair<size_t, size_t>(parts.size() * c / chunks, parts.size() * (c + 1) / chunks);
   };
-  ParallelFor(chunks, [&](int64_t c) {
+  tbb::parallel_for<int64_t>(0, chunks, [&](int64_t c) {
     const auto [p0, p1] = chunk_parts(c);
     for (size_t p = p0; p < p1; ++p)
       for (float v : parts[p]) ++hist[c][bucket(v)];
@@ -80,7 +82,7 @@ float MedianOfNonNegative(const std::vector<std::vector<float>>& parts) {
     below += count;
   }
   std::vector<std::vector<float>> in_bucket(chunks);
-  ParallelFor(chunks, [&](int64_t c) {
+  tbb::parallel_for<int64_t>(0, chunks, [&](int64_t c) {
     const auto [p0, p1] = chunk_parts(c);
     for (size_t p = p0; p < p1; ++p)
       for (float v : parts[p])
@@ -99,7 +101,8 @@ double CameraFootprint(const ImageF& xyz) {
   // order).
   const int rows = (h + stride - 1) / stride;
   std::vector<std::vector<float>> per_row(std::max(rows, 0));
-  ParallelForRows(rows, [&](int r0, int r1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, rows, 8), [&](const auto& range) {
+    const int r0 = range.begin(), r1 = range.end();
     for (int r = r0; r < r1; ++r) {
       const int y = r * stride;
       for (int x = 0; x + 1 < w; ++x) {
@@ -122,7 +125,8 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   HeightField hf;
   // The points' bounds, per row in parallel (min and max do not depend on the order).
   std::vector<std::array<double, 4>> row_bounds(std::max(h, 0));
-  ParallelForRows(h, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y) {
       double b[4] = {
           std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
@@ -172,12 +176,13 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   }
   const int gw = static_cast<int>(gw_d);
   const int gh = static_cast<int>(gh_d);
-  ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
-    if (a == 0)
-      hf.z = ImageF(gw, gh, 1, kNaN);
-    else
-      hf.confidence = ImageF(gw, gh, 1, 0.0f);
-  });
+  tbb::parallel_for<int64_t>(0, 2,
+                             [&](int64_t a) {  // one array per task (their page faults and fills)
+                               if (a == 0)
+                                 hf.z = ImageF(gw, gh, 1, kNaN);
+                               else
+                                 hf.confidence = ImageF(gw, gh, 1, 0.0f);
+                             });
   const double max_edge2 = std::pow(options.max_edge_footprints * footprint, 2);
 
   auto vertex = [&](int x, int y, GridVertex* v) {
@@ -239,7 +244,7 @@ HeightField ResampleToGrid(const ImageF& xyz, const ImageF& confidence,
   // then columns), the parts of the triangles that fall into it. A grid cell belongs to one
   // band, so it sees the same writes in the same order as a serial pass: identical output.
   constexpr int kBandRows = 32;
-  ParallelFor((gh + kBandRows - 1) / kBandRows, [&](int64_t band) {
+  tbb::parallel_for<int64_t>(0, (gh + kBandRows - 1) / kBandRows, [&](int64_t band) {
     const int band_j0 = static_cast<int>(band) * kBandRows;
     const int band_j1 = std::min(gh - 1, band_j0 + kBandRows - 1);
     GridVertex v00, v10, v01, v11;

@@ -1,12 +1,13 @@
 #include "heightfield/stage_classify.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <atomic>
 #include <limits>
 
 #include "core/error.h"
 #include "core/image_io.h"
-#include "core/parallel.h"
 
 namespace mesoscan {
 
@@ -62,7 +63,7 @@ int64_t ClassifyLateSaturation(const FrameStack& stack, PixelStates* classified_
   constexpr size_t kBlock = 1 << 16;
   const size_t np = state.size();
   std::atomic<size_t> saturated{0};
-  ParallelFor(static_cast<int64_t>((np + kBlock - 1) / kBlock), [&](int64_t b) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>((np + kBlock - 1) / kBlock), [&](int64_t b) {
     size_t n_sat = 0;
     const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
     for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i) {

@@ -1,5 +1,8 @@
 #include "heightfield/stage_combine.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -10,7 +13,6 @@
 
 #include "core/error.h"
 #include "core/numbers.h"
-#include "core/parallel.h"
 
 namespace mesoscan {
 
@@ -59,7 +61,7 @@ CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
   const bool coarse = options.keep_coarse || reference_positions;
   // One array per task (12.5 MB each at 3 Mpx: their page faults and fills were ~65 MB on
   // one core while the other waited).
-  ParallelFor(6, [&](int64_t a) {
+  tbb::parallel_for<int64_t>(0, 6, [&](int64_t a) {
     switch (a) {
       case 0:
         out.u.assign(np, kNaN);
@@ -85,7 +87,8 @@ CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
   // Rows of the ROI do not matter here: blocks of 4096 pixels.
   constexpr int kBlock = 4096;
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
-  ParallelForRows(blocks, [&](int b0, int b1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, blocks, 8), [&](const auto& range) {
+    const int b0 = range.begin(), b1 = range.end();
     // Per block: the active pixels' per-sample noise, then each codec's record of all of them at
     // once (one call per codec), then the combination per pixel; the absolute codec's own sigma
     // and confidence where it decides alone.
@@ -173,7 +176,7 @@ CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
       return out.source[i] == 0 && std::isfinite(out.u[i]) && std::isfinite(out.u_coarse[i]);
     };
     std::vector<size_t> count(static_cast<size_t>(blocks) + 1, 0);
-    ParallelFor(blocks, [&](int64_t b) {
+    tbb::parallel_for<int64_t>(0, blocks, [&](int64_t b) {
       const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
       size_t n = 0;
       for (size_t i = static_cast<size_t>(b) * kBlock; i < i_end; ++i) n += use(i);
@@ -181,7 +184,7 @@ CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
     });
     for (int b = 0; b < blocks; ++b) count[b + 1] += count[b];
     std::vector<float> d(count[blocks]);
-    ParallelFor(blocks, [&](int64_t b) {
+    tbb::parallel_for<int64_t>(0, blocks, [&](int64_t b) {
       const size_t i_end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
       size_t k = count[b];
       for (size_t i = static_cast<size_t>(b) * kBlock; i < i_end; ++i)
@@ -190,7 +193,8 @@ CombinedPixels CombineCodecs(const Codec& absolute, const Codec* refinement,
     if (d.size() >= 1000) {
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
       out.ls_offset_px = d[d.size() / 2];
-      ParallelForRows(blocks, [&](int b0, int b1) {
+      tbb::parallel_for(tbb::blocked_range<int>(0, blocks, 8), [&](const auto& range) {
+        const int b0 = range.begin(), b1 = range.end();
         const size_t i_end = std::min(np, static_cast<size_t>(b1) * kBlock);
         for (size_t i = static_cast<size_t>(b0) * kBlock; i < i_end; ++i)
           if (out.source[i] == 0 && std::isfinite(out.u[i]))
@@ -228,7 +232,8 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
   // filterSpeckles takes 16-bit signed values: u in fixed point, as many fractional bits as the
   // projector's range allows (16ths of a pixel up to 2000 px).
   std::vector<float> row_max(grid.height, 0.0f);
-  ParallelForRows(grid.height, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, grid.height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y) {
       float m = 0.0f;
       const float* row = u.data() + static_cast<size_t>(y) * grid.width;
@@ -241,7 +246,8 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
   const double scale = std::min(16.0, 32000.0 / std::max(1.0f, u_max));
   constexpr int16_t kNone = std::numeric_limits<int16_t>::min();
   cv::Mat fixed(grid.height, grid.width, CV_16SC1);
-  ParallelForRows(grid.height, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, grid.height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y) {
       int16_t* row = fixed.ptr<int16_t>(y);
       for (int x = 0; x < grid.width; ++x) {
@@ -259,7 +265,7 @@ void RejectIsolatedColumns(const RoiGrid& grid, const CombineOptions& options,
   const int margin = max_region + 1;
   const int band_rows = std::max(256, 8 * margin);
   const int bands = (grid.height + band_rows - 1) / band_rows;
-  ParallelFor(bands, [&](int64_t band) {
+  tbb::parallel_for<int64_t>(0, bands, [&](int64_t band) {
     const int y0 = static_cast<int>(band) * band_rows;
     const int y1 = std::min(grid.height, y0 + band_rows);
     const int m0 = std::max(0, y0 - margin), m1 = std::min(grid.height, y1 + margin);

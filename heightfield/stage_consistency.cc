@@ -1,5 +1,8 @@
 #include "heightfield/stage_consistency.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -10,7 +13,6 @@
 #include "core/error.h"
 #include "core/log.h"
 #include "core/numbers.h"
-#include "core/parallel.h"
 #include "heightfield/phase_shift.h"
 
 namespace mesoscan {
@@ -395,7 +397,8 @@ PixelTally TestPixels(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
   // do not depend on how the blocks were shared among the threads.
   std::vector<double> block_d2(static_cast<size_t>(blocks) * nper, 0.0);
   std::vector<double> block_v2(static_cast<size_t>(blocks) * nper, 0.0);
-  ParallelForRows(blocks, [&](int b0, int b1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, blocks, 8), [&](const auto& range) {
+    const int b0 = range.begin(), b1 = range.end();
     int64_t t_n = 0, i_n = 0, a_n = 0, s_n = 0;
     std::vector<int64_t> bad(nper, 0), worst(nper, 0), n_good(nper, 0);
     std::vector<double> z(nper), var(nper), dp(nper);
@@ -621,7 +624,8 @@ int64_t RejectUncertainPoints(const RoiGrid& grid, const std::vector<float>& sig
   PixelStates& state = *state_out;
   const int w = grid.width;
   std::atomic<int64_t> n{0};
-  ParallelForRows(grid.height, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, grid.height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     int64_t rows_n = 0;
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < w; ++x) {

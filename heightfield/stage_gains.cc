@@ -1,6 +1,7 @@
 #include "heightfield/stage_gains.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 #include <tbb/parallel_reduce.h>
 
@@ -11,7 +12,6 @@
 
 #include "core/error.h"
 #include "core/numbers.h"
-#include "core/parallel.h"
 #include "heightfield/phase_shift.h"
 
 namespace mesoscan {
@@ -76,7 +76,7 @@ PhaseReference MakePhaseReference(const ReconstructPlan& plan, const PhaseShiftP
   constexpr size_t kChunk = 1 << 16;
   const size_t n_chunks = (np + kChunk - 1) / kChunk;
   std::vector<std::vector<uint32_t>> chunk_pixels(n_chunks);
-  ParallelFor(static_cast<int64_t>(n_chunks), [&](int64_t c) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>(n_chunks), [&](int64_t c) {
     const size_t end = std::min(np, (static_cast<size_t>(c) + 1) * kChunk);
     for (size_t i = static_cast<size_t>(c) * kChunk; i < end; ++i)
       if ((static_cast<uint64_t>(i) * 2654435761ull >> 7) % stride == 0 && usable(i))
@@ -150,7 +150,7 @@ std::vector<uint32_t> GainSample(const PixelStates& state) {
   constexpr size_t kBlock = 1 << 16;
   const size_t blocks = (np + kBlock - 1) / kBlock;
   std::vector<size_t> active_before(blocks + 1, 0);
-  ParallelFor(static_cast<int64_t>(blocks), [&](int64_t b) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>(blocks), [&](int64_t b) {
     const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
     size_t n = 0;
     for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i)
@@ -160,7 +160,7 @@ std::vector<uint32_t> GainSample(const PixelStates& state) {
   for (size_t b = 0; b < blocks; ++b) active_before[b + 1] += active_before[b];
   const size_t stride = std::max<size_t>(1, active_before[blocks] / 20000);
   std::vector<std::vector<uint32_t>> picks(blocks);
-  ParallelFor(static_cast<int64_t>(blocks), [&](int64_t b) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>(blocks), [&](int64_t b) {
     const size_t end = std::min(np, static_cast<size_t>(b + 1) * kBlock);
     size_t left = (stride - active_before[b] % stride) % stride;  // actives until the next pick
     for (size_t i = static_cast<size_t>(b) * kBlock; i < end; ++i) {
@@ -227,7 +227,7 @@ void EstimateGainsOfGroup(const FrameStack& stack, const ReconstructPlan& plan,
       // The samples gathered while the frames decoded, in the stack's units.
       const size_t n = gathered->pixels.size();
       std::vector<float> by_frame(ls.frames.size() * n);
-      ParallelFor(static_cast<int64_t>(ls.frames.size()), [&](int64_t k) {
+      tbb::parallel_for<int64_t>(0, static_cast<int64_t>(ls.frames.size()), [&](int64_t k) {
         const std::vector<uint16_t>& codes = gathered->codes[ls.frames[k]];
         float* dst = by_frame.data() + static_cast<size_t>(k) * n;
         for (size_t j = 0; j < n; ++j) dst[j] = stack.Linear(codes[j]);

@@ -1,6 +1,8 @@
 #include "heightfield/stage_lens_shift.h"
 
 #include <sys/resource.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include <Eigen/Dense>
 #include <algorithm>
@@ -11,7 +13,6 @@
 #include <utility>
 
 #include "core/numbers.h"
-#include "core/parallel.h"
 #include "core/progress.h"
 #include "core/robust_stats.h"
 #include "core/stage_timer.h"
@@ -79,7 +80,8 @@ float QuadraticMap::At(size_t i) const {
 
 std::vector<float> QuadraticMap::Evaluate() const {
   std::vector<float> out(static_cast<size_t>(width) * height);
-  ParallelForRows(height, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y) Row(y, 0, width, out.data() + static_cast<size_t>(y) * width);
   });
   return out;
@@ -108,13 +110,11 @@ bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride
   // the pool.
   const size_t ns = sample.size();
   std::vector<double> terms(ns * 6);
-  ParallelForRows(
-      static_cast<int>(ns),
-      [&](int k0, int k1) {
-        for (int k = k0; k < k1; ++k)
-          map->Terms(sample[k] % w * stride, sample[k] / w * stride, terms.data() + 6 * k);
-      },
-      4096);
+  tbb::parallel_for(tbb::blocked_range<int>(0, static_cast<int>(ns), 4096), [&](const auto& range) {
+    const int k0 = range.begin(), k1 = range.end();
+    for (int k = k0; k < k1; ++k)
+      map->Terms(sample[k] % w * stride, sample[k] / w * stride, terms.data() + 6 * k);
+  });
   std::vector<uint8_t> use(ns, 1);
   std::vector<double> r(ns);
   Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
@@ -132,15 +132,14 @@ bool FitSmoothFrequencyMap(const std::vector<float>& f, int w, int h, int stride
     }
     c = A.ldlt().solve(b);
     if (!c.allFinite()) return false;
-    ParallelForRows(
-        static_cast<int>(ns),
-        [&](int k0, int k1) {
+    tbb::parallel_for(
+        tbb::blocked_range<int>(0, static_cast<int>(ns), 4096), [&](const auto& range) {
+          const int k0 = range.begin(), k1 = range.end();
           for (int k = k0; k < k1; ++k) {
             const Eigen::Map<const Eigen::Matrix<double, 6, 1>> t(terms.data() + 6 * k);
             r[k] = std::abs(f[sample[k]] - t.dot(c));
           }
-        },
-        4096);
+        });
     std::vector<double> sorted = r;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double mad = kMadToSigma * sorted[sorted.size() / 2];
@@ -247,7 +246,8 @@ void FitPass(const LensShiftData& d, const LensShiftBatchFitter& fitter,
   // Without the box filter and a fixed frequency, the row's pixels of the subset are fitted
   // together (FitMany: four profiles per vector, Fit's results to rounding).
   const bool many = !box && !f_map;
-  ParallelForRows(h, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     const size_t n = static_cast<size_t>(w);
     // (Sized where first needed: the sparse pass with FitMany reads no full rows, and these
     // were ~80 MB of zero fills over the pass's tasks.)
@@ -337,7 +337,8 @@ void FitPassRows(const LensShiftData& d, const LensShiftRowFitter& fitter,
   std::vector<float> gain(static_cast<size_t>(nls));
   for (int k = 0; k < nls; ++k) gain[k] = d.inv_gain[d.ls_stack[k]];
   Progress progress("fit lens shift", h);
-  ParallelForRows(h, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     constexpr int kTile = 512;
     std::vector<float> buf(static_cast<size_t>(nls) * kTile);
     std::vector<uint8_t> use(kTile);
@@ -426,7 +427,7 @@ void SpreadToFullGrid(LensShiftPixels* first, int w, int h, size_t np, int sub, 
     arrays.emplace_back(&first->frequency, &out->frequency);
     arrays.emplace_back(&first->offset, &out->offset);
   }
-  ParallelFor(static_cast<int64_t>(arrays.size()), [&](int64_t a) {
+  tbb::parallel_for<int64_t>(0, static_cast<int64_t>(arrays.size()), [&](int64_t a) {
     const std::vector<float>& from = *arrays[a].first;
     std::vector<float>& to = *arrays[a].second;
     to.assign(np, kNaNf);

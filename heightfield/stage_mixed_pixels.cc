@@ -1,9 +1,11 @@
 #include "heightfield/stage_mixed_pixels.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <atomic>
 #include <limits>
 
-#include "core/parallel.h"
 #include "heightfield/resample.h"
 
 namespace mesoscan {
@@ -18,13 +20,15 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
   const PixelRect& roi = grid.roi;
   std::vector<float> z;
   std::vector<uint8_t> unlit;
-  ParallelFor(2, [&](int64_t a) {  // one array per task (their page faults and fills)
-    if (a == 0)
-      z.assign(np, kNaN);
-    else
-      unlit.assign(np, 0);
-  });
-  ParallelForRows(grid.height, [&](int y0, int y1) {
+  tbb::parallel_for<int64_t>(0, 2,
+                             [&](int64_t a) {  // one array per task (their page faults and fills)
+                               if (a == 0)
+                                 z.assign(np, kNaN);
+                               else
+                                 unlit.assign(np, 0);
+                             });
+  tbb::parallel_for(tbb::blocked_range<int>(0, grid.height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < w; ++x) {
         const size_t i = static_cast<size_t>(y) * w + x;
@@ -42,7 +46,8 @@ int64_t RejectMixedPixels(const RoiGrid& grid, const std::vector<float>& white_l
   in.footprint_m = CameraFootprint(points->xyz);
   const std::vector<uint8_t> reject = FindMixedPixels(in, options);
   std::atomic<int64_t> n{0};
-  ParallelForRows(grid.height, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, grid.height, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     int64_t rows_n = 0;
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < w; ++x) {

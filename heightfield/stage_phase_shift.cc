@@ -1,5 +1,8 @@
 #include "heightfield/stage_phase_shift.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -8,7 +11,6 @@
 #include "core/error.h"
 #include "core/log.h"
 #include "core/numbers.h"
-#include "core/parallel.h"
 #include "heightfield/phase_harmonics.h"
 
 namespace mesoscan {
@@ -56,7 +58,8 @@ PhaseShiftPixels DecodePass(const FrameStack& stack, const ReconstructPlan& plan
   auto& theta = out.theta;
   auto& modulation = out.modulation;
   auto& level = out.level;
-  ParallelForRows(h, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     std::vector<float> buf;
     std::vector<WrappedPhaseSolver::Result> solved;  // SolveMany's (without gamma)
     const size_t i0 = static_cast<size_t>(y0) * w, n = static_cast<size_t>(y1 - y0) * w;
@@ -323,7 +326,8 @@ ColumnHints UnwrapPhaseShift(const ReconstructPlan& plan, const PhaseShiftPixels
   if (u.size() != np) return {};
   constexpr int kBlock = 4096;
   const int blocks = static_cast<int>((np + kBlock - 1) / kBlock);
-  ParallelForRows(blocks, [&](int b0, int b1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, blocks, 8), [&](const auto& range) {
+    const int b0 = range.begin(), b1 = range.end();
     std::vector<double> sigmas;
     std::vector<size_t> active;
     CodecRecord record;

@@ -1,5 +1,6 @@
 #include "heightfield/stage_stream.h"
 
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
@@ -7,8 +8,6 @@
 #include <mutex>
 #include <utility>
 #include <vector>
-
-#include "core/parallel.h"
 
 namespace mesoscan {
 namespace {
@@ -40,8 +39,9 @@ class LateGatherer {
   // was not called).
   void Finish(const FrameStack& stack) {
     if (!ready_ || stack.is_float()) return;
-    ParallelFor(static_cast<int64_t>(pending_.size()),
-                [&](int64_t q) { out_->Gather(pending_[q], stack.Samples16(pending_[q])); });
+    tbb::parallel_for<int64_t>(0, static_cast<int64_t>(pending_.size()), [&](int64_t q) {
+      out_->Gather(pending_[q], stack.Samples16(pending_[q]));
+    });
     pending_.clear();
   }
 

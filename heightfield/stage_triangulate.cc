@@ -1,9 +1,11 @@
 #include "heightfield/stage_triangulate.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <cmath>
 #include <limits>
 
-#include "core/parallel.h"
 #include "heightfield/triangulate.h"
 
 namespace mesoscan {
@@ -21,7 +23,7 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
   TriangulatedPoints out;
   ScanPoints& points = out.points;
   // One array per task (~90 MB at 3 Mpx: their page faults and fills were serial).
-  ParallelFor(6, [&](int64_t a) {
+  tbb::parallel_for<int64_t>(0, 6, [&](int64_t a) {
     switch (a) {
       case 0:
         points.xyz = ImageF(cam_w, cam_h, 3, kNaN);
@@ -72,7 +74,8 @@ TriangulatedPoints TriangulatePoints(const Rig& rig, const RoiGrid& grid,
     *p = centre + t * ray;
     return true;
   };
-  ParallelForRows(h, [&](int y0, int y1) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const auto& range) {
+    const int y0 = range.begin(), y1 = range.end();
     for (int y = y0; y < y1; ++y) {
       const int cy = y + roi.y;
       const double yd = (static_cast<double>(cy) - K(1, 2)) / K(1, 1);
