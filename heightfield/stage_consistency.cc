@@ -326,6 +326,49 @@ double PhaseVarianceScale(const ReconstructPlan& plan, const PhaseShiftPixels& p
   return var_scale;
 }
 
+// The median of a chi-square variable of k degrees of freedom (exact for 1 and 2, else the
+// Wilson-Hilferty approximation, within 0.5 % from 3 on).
+double ChiSquareMedian(int k) {
+  if (k == 1) return 0.4549;
+  if (k == 2) return 2 * std::log(2.0);
+  const double a = 2.0 / (9.0 * k);
+  return k * std::pow(1 - a, 3);
+}
+
+// As PhaseVarianceScale, without lens shift: the column of a phase-shift pixel is the weighted
+// mean of its own periods' phases (the unwrapping), so sum over periods of d^2 / var is
+// chi-square with nper - 1 degrees of freedom where the predicted variances are honest. Where
+// the prediction is too large (the median of that sum over pixels below chi-square's), every
+// predicted variance is scaled down to match; never up. The predicted noise (1% of the level
+// without residuals of its own, plus the systematic term) is an upper bound that a three-step
+// set cannot check per pixel; its own phases can, on every pixel at once.
+double PhaseOnlyVarianceScale(const ReconstructPlan& plan, const PhaseShiftPixels& ps,
+                              const LensShiftPixels& ls, const LevelNoise& noise, int params,
+                              const PhaseTests& t, const CombinedPixels& combined,
+                              const PixelStates& state) {
+  const int nper = t.nper;
+  if (nper < 2 || !plan.periods_unwrap) return 1.0;
+  const size_t np = state.size();
+  const size_t stride = std::max<size_t>(1, np / 20000);
+  std::vector<float> q;
+  for (size_t i = 0; i < np; i += stride) {
+    const double u = combined.u[i];
+    if (state[i] != PixelState::kActive || !std::isfinite(u)) continue;
+    const double sigma =
+        std::max(CombineSigma(plan, ps, ls, false, params, i), noise.At(ps.level[i]));
+    double chi2 = 0;
+    for (int p = 0; p < nper; ++p) {
+      const double v = t.solvers[p].ThetaVariance(sigma, ps.modulation[p][i]) + t.sys2;
+      chi2 += std::pow(WrapPi(ps.theta[p][i] - t.rate[p] * u), 2) / v;
+    }
+    if (std::isfinite(chi2)) q.push_back(static_cast<float>(chi2));
+  }
+  if (q.size() < 200) return 1.0;
+  std::nth_element(q.begin(), q.begin() + q.size() / 2, q.end());
+  const double r = q[q.size() / 2] / ChiSquareMedian(nper - 1);
+  return r < 1 ? std::max(r, 1.0 / 256) : 1.0;
+}
+
 // The nearest wrong fringe order of a pixel at column u, in its own phase noise (var per
 // period, var_max their largest): unsure unless at least twice the margin away (a wrong order
 // needs an error of half that distance). Only offsets that stay within the projector count: up
@@ -595,7 +638,7 @@ ConsistencyReport CheckPhaseConsistency(const ReconstructPlan& plan, const Sessi
   report.noise_model = !noise.empty();
   const PhaseTests tests(plan, options);
   const double var_scale =
-      ls.empty() ? 1.0
+      ls.empty() ? PhaseOnlyVarianceScale(plan, ps, ls, noise, params, tests, *combined, *state_out)
                  : PhaseVarianceScale(plan, ps, ls, noise, params, tests, *combined, *state_out);
   report.noise_scale = std::sqrt(var_scale);
   const PixelTally tally =
