@@ -38,11 +38,14 @@ struct Args {
 // along the shifter's axis, lens shift over its range, white, black) or a calibration plan (sines
 // along both projector axes, white, black; no lens shift). --patterns graycode | sine+graycode
 // turns the sines of each axis into a Gray code (each bit and its inverse) or one period ordered
-// by a complementary Gray code (ApplyPatternSet); a scan then takes lens-shift frames only if
-// --ls-frames asks for them (as `simulate --patterns`).
+// by a complementary Gray code (ApplyPatternSet); --patterns heterodyne makes the sines of each
+// axis the three-frequency set (HeterodynePeriods, --phases steps each) unless --periods
+// (--periods-y) names them. A scan then takes lens-shift frames only if --ls-frames asks for them
+// (as `simulate --patterns`).
 FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
   if (a.phases < 3) MESOSCAN_THROW(ErrorKind::kUsage, "--phases: expected >= 3, got " << a.phases);
   FramePlanOptions plan;
+  const bool heterodyne = a.patterns == "heterodyne";
   if (a.plan == "calibration") {
     if (a.ls_frames_given && a.ls_frames != 0)
       MESOSCAN_THROW(ErrorKind::kUsage,
@@ -52,6 +55,8 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
       plan.periods_px = ParsePeriodList(a.periods, "FramePlanOptions.periods_px");
     if (a.periods_y_given)
       plan.cross_periods_px = ParsePeriodList(a.periods_y, "FramePlanOptions.cross_periods_px");
+    if (heterodyne && !a.periods_given) plan.periods_px = HeterodynePeriods();
+    if (heterodyne && !a.periods_y_given) plan.cross_periods_px = HeterodynePeriods();
     if (plan.periods_px.empty() || plan.cross_periods_px.empty())
       MESOSCAN_THROW(ErrorKind::kUsage,
                      "--plan calibration: expected sine periods along both "
@@ -59,7 +64,9 @@ FramePlanOptions CapturePlan(const Args& a, const Rig& rig) {
   } else if (a.plan == "scan") {
     if (a.periods_y_given)
       MESOSCAN_THROW(ErrorKind::kUsage, "--periods-y: only with --plan calibration");
-    plan.periods_px = ParsePeriodList(a.periods, "FramePlanOptions.periods_px");
+    plan.periods_px = heterodyne && !a.periods_given
+                          ? HeterodynePeriods()
+                          : ParsePeriodList(a.periods, "FramePlanOptions.periods_px");
     plan.lens_shift_frames = rig.lens_shifter ? a.ls_frames : 0;
     if (rig.lens_shifter) {
       plan.axis = rig.lens_shifter->axis;
@@ -198,7 +205,10 @@ void AddCaptureCommand(CLI::App* app) {
                   "sine (the --periods sets) | graycode (a Gray code of the projector's columns, "
                   "and rows for a calibration plan, each bit with its inverse; no sines) | "
                   "sine+graycode (one --periods period, and one --periods-y period for a "
-                  "calibration plan, each ordered by a complementary Gray code of half its width)")
+                  "calibration plan, each ordered by a complementary Gray code of half its width) "
+                  "| heterodyne (sines of periods 42, 45, 48 px unless --periods / --periods-y "
+                  "name others, --phases steps each, decoded by temporal unwrapping; no lens "
+                  "shift unless --ls-frames)")
       ->capture_default_str();
   cmd->add_option("--periods", a.periods,
                   "Sine periods, projector px, comma-separated, or 'none' (calibration plan: "

@@ -69,11 +69,14 @@ FramePlanOptions CalibrationPlan(int projector_width, int projector_height) {
   return o;
 }
 
+std::vector<double> HeterodynePeriods() { return {42, 45, 48}; }
+
 void ApplyPatternSet(const std::string& patterns, int width, int height, FramePlanOptions* plan,
                      const std::string& option) {
-  if (patterns == "sine") return;
+  if (patterns == "sine" || patterns == "heterodyne") return;
   if (patterns != "graycode" && patterns != "sine+graycode")
-    MESOSCAN_BAD_OPTION(option, "'" << patterns << "': expected sine, graycode or sine+graycode");
+    MESOSCAN_BAD_OPTION(
+        option, "'" << patterns << "': expected sine, heterodyne, graycode or sine+graycode");
   const char cross = plan->axis == 'x' ? 'y' : 'x';
   for (const char axis : {plan->axis, cross}) {
     std::vector<double>& periods = axis == plan->axis ? plan->periods_px : plan->cross_periods_px;

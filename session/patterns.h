@@ -72,13 +72,19 @@ struct FramePlanOptions {
 // projector plus 1/16 of it (16 periods), along x and along y; white and black; no lens shift.
 FramePlanOptions CalibrationPlan(int projector_width, int projector_height);
 
+// The three-frequency heterodyne set's periods, projector px: 42, 45 and 48 (three steps each
+// by default): close periods whose phases the temporal unwrapping orders over the projector
+// (`simulate --patterns heterodyne`, `capture --patterns heterodyne`).
+std::vector<double> HeterodynePeriods();
+
 // The pattern family of a plan's axes (`simulate --patterns`, `capture --patterns`): "sine"
-// leaves the plan as it is; "graycode" replaces the sines of every axis that has some (the plan's
-// `axis` always) by a Gray code of the projector's columns (rows for y), W = 1, with inverse
-// frames; "sine+graycode" keeps the one sine period of each such axis and adds a complementary
-// Gray code of half its width that orders it. `width`, `height`: the projector's. Throws
-// Error(kUsage) at the options field `option` for another name, or for sine+graycode with other
-// than one period along an axis.
+// and "heterodyne" leave the plan as it is (the caller sets the heterodyne periods where none
+// were asked for: HeterodynePeriods); "graycode" replaces the sines of every axis that has some
+// (the plan's `axis` always) by a Gray code of the projector's columns (rows for y), W = 1, with
+// inverse frames; "sine+graycode" keeps the one sine period of each such axis and adds a
+// complementary Gray code of half its width that orders it. `width`, `height`: the projector's.
+// Throws Error(kUsage) at the options field `option` for another name, or for sine+graycode with
+// other than one period along an axis.
 void ApplyPatternSet(const std::string& patterns, int width, int height, FramePlanOptions* plan,
                      const std::string& option);
 

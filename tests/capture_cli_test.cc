@@ -357,6 +357,44 @@ TEST_F(CaptureCommand, GrayCodeCalibrationPlansShowTheCodeAlongBothAxes) {
   EXPECT_NE(bad.output.find("--patterns"), std::string::npos) << bad.output;
 }
 
+// `capture --patterns heterodyne`: a scan of the three-frequency set (42, 45, 48 px, three
+// steps each), white and black, no lens-shift frames although the rig has a shifter; the camera
+// (the window read back at half its size) sees each sine as the pattern says. --periods and
+// --phases name another set.
+TEST_F(CaptureCommand, HeterodyneScanPlanShowsTheThreePeriods) {
+  const std::string common = " --rig " + (dir_ / "rig.json").string() +
+                             " --camera screen --shifter " + sim_.Port() + " --display " +
+                             display() + " --settle 0 --patterns heterodyne";
+  const fs::path out = dir_ / "het";
+  const CliResult r = RunMesoscan("-q capture --out " + out.string() + common);
+  ASSERT_EQ(r.code, 0) << r.output;
+  const Session s = ReadSession(out);
+  const FramePlan plan = MakeFramePlan(s.frames);
+  EXPECT_EQ(plan.Periods('x'), HeterodynePeriods());
+  EXPECT_TRUE(plan.lens_shift.empty());
+  ASSERT_EQ(s.frames.size(), 11u);  // 3 x 3 sines, white, black
+  int sines = 0;
+  for (size_t i = 0; i < s.frames.size(); ++i) {
+    const Pattern& p = s.frames[i].pattern;
+    if (p.type != PatternType::kSine) continue;
+    ++sines;
+    EXPECT_EQ(p.axis, 'x') << s.frames[i].file;
+    // Camera pixel (x, y) sees projector pixels 2x..2x+1 (8-bit screen).
+    const ImageF f = ReadImageGrey(s.FramePath(i));
+    for (int y = 0; y < f.height(); ++y)
+      for (int x = 0; x < f.width(); ++x)
+        ASSERT_NEAR(f(x, y), 0.5 * (p.Value(2 * x, 2 * y) + p.Value(2 * x + 1, 2 * y)), 0.02)
+            << s.frames[i].file << " " << x << "," << y;
+  }
+  EXPECT_EQ(sines, 9);
+  const CliResult other = RunMesoscan("-q capture --out " + (dir_ / "het4").string() + common +
+                                      " --periods 20,24 --phases 4");
+  ASSERT_EQ(other.code, 0) << other.output;
+  const Session s4 = ReadSession(dir_ / "het4");
+  EXPECT_EQ(MakeFramePlan(s4.frames).Periods('x'), (std::vector<double>{20, 24}));
+  EXPECT_EQ(s4.frames.size(), 10u);
+}
+
 TEST_F(CaptureCommand, DeviceErrorsExitFourWithOneLineNamingTheDevice) {
   struct Case {
     std::string args, mentions;
