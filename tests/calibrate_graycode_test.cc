@@ -84,18 +84,9 @@ struct GrayCodeBoards : public ::testing::Test {
     bo.board = Board();
     bo.graycode_y_bits = 9;  // 384 rows
     bo.frame_format = "png8";
-    sessions_ = new std::vector<fs::path>;
     // The five views are simulated once per build of this test binary (tests/view_cache.h).
-    const fs::path cache =
-        testing_support::BuiltOnce("calibrate_graycode_views", [&](const fs::path& c) {
-          for (size_t i = 0; i < Poses().size(); ++i) {
-            bo.pose = Poses()[i];
-            so.seed = 300 + i;
-            SimulateBoard(so, bo, c / ("view" + std::to_string(i)));
-          }
-        });
-    for (size_t i = 0; i < Poses().size(); ++i)
-      sessions_->push_back(cache / ("view" + std::to_string(i)));
+    sessions_ = new std::vector<fs::path>(
+        testing_support::BoardViewsOnce("calibrate_graycode_views", so, bo, Poses(), 300));
   }
   static void TearDownTestSuite() {
     delete sessions_;

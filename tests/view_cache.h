@@ -10,7 +10,9 @@
 #include <sys/file.h>
 #include <unistd.h>
 
+#include <array>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <functional>
 #include <limits>
@@ -22,6 +24,7 @@
 #include "core/fs.h"
 #include "core/json.h"
 #include "session/session.h"
+#include "sim/board_sim.h"
 
 namespace mesoscan::testing_support {
 
@@ -67,6 +70,25 @@ inline fs::path BuiltOnce(const std::string& name,
     WriteTextFile(cache / "complete", name + "\n");
   }
   return cache;
+}
+
+// One board session per pose (seeds seed0, seed0 + 1, ...), simulated once into the cache folder
+// `name`: the sessions' folders, view0, view1, ...
+inline std::vector<fs::path> BoardViewsOnce(const std::string& name, SimulateOptions so,
+                                            BoardSimOptions bo,
+                                            const std::vector<std::array<double, 6>>& poses,
+                                            uint64_t seed0) {
+  const fs::path cache = BuiltOnce(name, [&](const fs::path& c) {
+    for (size_t i = 0; i < poses.size(); ++i) {
+      bo.pose = poses[i];
+      so.seed = seed0 + i;
+      SimulateBoard(so, bo, c / ("view" + std::to_string(i)));
+    }
+  });
+  std::vector<fs::path> sessions;
+  for (size_t i = 0; i < poses.size(); ++i)
+    sessions.push_back(cache / ("view" + std::to_string(i)));
+  return sessions;
 }
 
 namespace view_json {
