@@ -100,6 +100,10 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--projector-gamma,--proj-gamma", o.projector_gamma,
                   "Projector response v^g (1 = linear; else written as projector.response)")
       ->capture_default_str();
+  cmd->add_option("--projector-curve,--proj-curve", o.projector_curve,
+                  "s-curve: a projector response that is no power law (a black offset, crushed "
+                  "shadows, soft highlights; sim/README.md), unknown to session.json (written "
+                  "linear): the decoder must find it from the frames");
   cmd->add_option("--exposure", o.exposure,
                   "Frame value of a white-lit albedo-1 surface facing the projector")
       ->capture_default_str();
@@ -163,6 +167,9 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->callback([args, cmd] {
     SimulateOptions opt = args->o;
     if (IsBoardObject(opt.object)) {
+      if (!opt.projector_curve.empty())
+        MESOSCAN_THROW(ErrorKind::kUsage,
+                       "--projector-curve: scan sessions only (not with --object board:...)");
       BoardSimOptions bo;
       bo.board = CalibrationBoard::Parse(opt.object.substr(6), "BoardSimOptions.board");
       bo.pose = ParseBoardPose(args->pose);
@@ -216,7 +223,7 @@ void AddSimulateCommand(CLI::App* app) {
     if (args->patterns == "heterodyne") {
       // Three-frequency heterodyne set: three close periods, three steps each (sine patterns;
       // decoded by the periods' temporal unwrapping), no lens shift unless asked.
-      if (cmd->count("--ps-periods") == 0) opt.ps_periods_px = {42, 45, 48};
+      if (cmd->count("--ps-periods") == 0) opt.ps_periods_px = HeterodynePeriods();
       if (cmd->count("--ps-phases") == 0) opt.ps_phases = 3;
       if (cmd->count("--ls-frames") == 0) opt.ls_frames = 0;
     } else if (args->patterns != "sine") {

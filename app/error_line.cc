@@ -47,6 +47,7 @@ constexpr OptionFlag kOptionFlags[] = {
     {"SimulateOptions.shift_gain_r", "", "--shift-gain-r"},
     {"SimulateOptions.shift_position_error_px", "", "--shift-position-error"},
     {"SimulateOptions.projector_gamma", "", "--projector-gamma"},
+    {"SimulateOptions.projector_curve", "", "--projector-curve"},
     {"SimulateOptions.exposure", "", "--exposure"},
     {"SimulateOptions.ambient", "", "--ambient"},
     {"SimulateOptions.noise", "", "--noise"},

@@ -428,9 +428,22 @@ struct PatternTables {
   std::vector<int> frame_table;  // per frame: index into tables
 };
 
-PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& rig, char axis,
-                                 const BlurLevels& levels,
+// The light a displayed value v in [0, 1] emits: the rig's response, or the options' named curve
+// (SimulateOptions::projector_curve).
+double ProjectorLight(const SimulateOptions& o, const Rig& rig, double v) {
+  if (o.projector_curve == "s-curve") {
+    constexpr double kSlope = 7.0, kCentre = 0.6, kBlack = 0.03;
+    const auto logistic = [](double x) { return 1.0 / (1.0 + std::exp(-x)); };
+    const double lo = logistic(-kSlope * kCentre), hi = logistic(kSlope * (1 - kCentre));
+    return kBlack + (1 - kBlack) * (logistic(kSlope * (v - kCentre)) - lo) / (hi - lo);
+  }
+  return rig.projector_response.ToLinear(v);
+}
+
+PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& rig,
+                                 const SimulateOptions& options, const BlurLevels& levels,
                                  const std::vector<std::vector<float>>& kernels) {
+  const char axis = options.axis;
   PatternTables out;
   out.frame_table.resize(frames.size());
   std::map<std::tuple<int, double, double, int, int, double, bool>, int> pattern_index;
@@ -452,8 +465,9 @@ PatternTables BuildPatternTables(const std::vector<Frame>& frames, const Rig& ri
     const bool along_y = axis == 'y';  // the cache's coordinate (RayCast)
     std::vector<double> p(along_y ? prj.height : prj.width);
     for (int u = 0; u < static_cast<int>(p.size()); ++u)
-      p[u] = rig.projector_response.ToLinear(along_y ? table_patterns[t]->Value(0.0, u)
-                                                     : table_patterns[t]->Value(u, 0.0));
+      p[u] = ProjectorLight(
+          options, rig,
+          along_y ? table_patterns[t]->Value(0.0, u) : table_patterns[t]->Value(u, 0.0));
     out.tables[t] = BuildTables(p, levels, kernels);
   }
   return out;
@@ -637,12 +651,14 @@ Json SimulationRecord(const SimulateOptions& options, const SceneObject& object,
   sim["supersample"] = options.supersample;
   sim["axis"] = std::string(1, options.axis);
   sim["shadows"] = options.shadows;
-  sim["projector"] = {{"fill_factor", options.fill_factor},
-                      {"blur_sigma_px", options.blur_sigma_px},
-                      {"defocus_px_per_m", options.defocus_px_per_m},
-                      {"focus_height_m", focus_z},
-                      {"gamma", options.projector_gamma},
-                      {"blur_sigma_range_px", {levels.sigma_min, levels.Sigma(levels.count - 1)}}};
+  sim["projector"] = {
+      {"fill_factor", options.fill_factor},
+      {"blur_sigma_px", options.blur_sigma_px},
+      {"defocus_px_per_m", options.defocus_px_per_m},
+      {"focus_height_m", focus_z},
+      {"gamma", options.projector_gamma},
+      {"curve", options.projector_curve.empty() ? "power law (gamma)" : options.projector_curve},
+      {"blur_sigma_range_px", {levels.sigma_min, levels.Sigma(levels.count - 1)}}};
   sim["lens_shifter_gain"] = {{"formula",
                                "g = 1 + gx*un + gy*vn + gr*(un^2 + vn^2), un = (u - cx)/(W/2), "
                                "vn = (v - cy)/(H/2), (u, v) projector pixel at shift 0"},
@@ -726,6 +742,10 @@ void SimulateOptions::Check() const {
               << ": expected |gx| + |gy| + 2|gr| < 0.5");
   if (!(projector_gamma > 0 && projector_gamma <= 5))
     SIM_OPTION("projector_gamma", "expected (0, 5], got " << projector_gamma);
+  if (!projector_curve.empty() && projector_curve != "s-curve")
+    SIM_OPTION("projector_curve", "expected s-curve, got '" << projector_curve << "'");
+  if (!projector_curve.empty() && projector_gamma != 1.0)
+    SIM_OPTION("projector_curve", "a named curve replaces the gamma: not with --projector-gamma");
   if (!(exposure > 0 && exposure <= 100))
     SIM_OPTION("exposure", "expected (0, 100], got " << exposure);
   if (!(ambient >= 0 && ambient <= 100))
@@ -929,7 +949,7 @@ SimulateSummary Simulate(const SimulateOptions& options, const fs::path& out_dir
 
   // Stage 3: light tables per distinct pattern, then every frame, ground truth and session.json.
   const Stopwatch t_frames;
-  const PatternTables tables = BuildPatternTables(frames, rig, options.axis, levels, kernels);
+  const PatternTables tables = BuildPatternTables(frames, rig, options, levels, kernels);
   const FrameDraws draws = DrawFrames(frames, options);
   WriteFolderAtomically(out_dir, [&](const fs::path& dir) {
     fs::create_directories(dir / "frames");

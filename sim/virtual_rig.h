@@ -90,6 +90,12 @@ struct SimulateOptions {
   // Projector response: displayed value v emits light v^gamma. 1 = linear (no response key
   // written); otherwise projector.response = {"gamma": g}. In (0, 5].
   double projector_gamma = 1.0;
+  // A projector response that is no power law (scans; not written to session.json, which
+  // describes linear or gamma only: the decoder must find it from the frames): "" = none (the
+  // gamma above), or "s-curve": light 0.03 + 0.97 L(v), L a logistic step of slope 7 centred at
+  // 0.6 scaled to [0, 1] (a black offset, crushed shadows and a soft clip of the highlights).
+  // Not with projector_gamma != 1.
+  std::string projector_curve;
 
   // Projector falloff (vignetting) recorded as rig.projector.falloff: relative irradiance
   // 1 - f * (un^2 + vn^2) (session/session.h ProjectorFalloff), f in [0, 0.5); 0 = none.

@@ -2,7 +2,8 @@
 // coarse rig (a 640x480 camera, 250 um footprint) through the virtual rig, with ground truth: a
 // projector of gamma 2.2 whose response the session does not give (as a real capture) is
 // estimated from the phases and undone (heightfield/phase_harmonics.h), against the same capture
-// without gamma (the floor) and the plain decoder on the same frames.
+// without gamma (the floor) and the plain decoder on the same frames; then a projector whose
+// response is no power law (SimulateOptions::projector_curve "s-curve").
 
 #include <gtest/gtest.h>
 
@@ -108,7 +109,7 @@ void Print(const char* what, const Figures& f) {
               f.phase_rmse_rad);
 }
 
-TEST(HeterodyneSim, GammaEstimatedFromThePhasesAndUndoneAtTheFloorOfAGammaFreeCapture) {
+TEST(HeterodyneSim, ProjectorResponseEstimatedFromThePhasesAndUndoneAtTheFloorOfALinearCapture) {
   Progress::SetEnabled(false);
   const fs::path dir = TestTempPath("heterodyne_sim", "gamma");
   Rig rig = PaperRig();
@@ -164,6 +165,33 @@ TEST(HeterodyneSim, GammaEstimatedFromThePhasesAndUndoneAtTheFloorOfAGammaFreeCa
   // The plain decoder on the same frames is what the estimate is for.
   if (!plain.refused) {
     EXPECT_GT(plain.phase_rmse_rad, 2 * ours.phase_rmse_rad);
+  }
+
+  // A response that is no power law (black offset, crushed shadows, soft highlights; session.json
+  // says linear): the harmonics are free, so it is found and undone as well as a gamma.
+  so.projector_gamma = 1.0;
+  so.projector_curve = "s-curve";
+  Simulate(so, dir / "scurve");
+  const Session scurve = ReadSession(dir / "scurve");
+  const Figures s_ours = Evaluate(scurve, HarmonicsMode::kAuto);
+  const Figures s_plain = Evaluate(scurve, HarmonicsMode::kOff);
+  Print("s-curve, harmonics-aware:", s_ours);
+  Print("s-curve, plain decoder:", s_plain);
+  std::printf("column RMS over the floor: %.3f; estimated response: %s\n",
+              s_ours.column_rms_px / floor.column_rms_px, s_ours.response.dump().c_str());
+  ASSERT_TRUE(s_ours.response.is_object());
+  EXPECT_TRUE(s_ours.response.at("applied").get<bool>()) << s_ours.response.dump();
+  // No gamma explains it: the nearest power law's phase errors are off by more than the fit's
+  // residual.
+  EXPECT_GT(s_ours.response.at("gamma_misfit_rad").get<double>(),
+            s_ours.response.at("residual_rms_rad").get<double>())
+      << s_ours.response.dump();
+  EXPECT_GE(s_ours.Coverage(), 0.98);
+  EXPECT_LE(s_ours.column_rms_px, 1.10 * floor.column_rms_px);
+  EXPECT_LE(s_ours.jumps, floor.jumps + s_ours.scored / 1000);
+  EXPECT_LE(s_ours.phase_rmse_rad, 1.10 * floor.phase_rmse_rad);
+  if (!s_plain.refused) {
+    EXPECT_GT(s_plain.phase_rmse_rad, 2 * s_ours.phase_rmse_rad);
   }
   fs::remove_all(dir);
 }
