@@ -498,6 +498,36 @@ double ProjectorIrradianceAt(const Rig& rig, const Vec3d& p, const Vec3d& n) {
   return cosi * (r0 / r) * (r0 / r) * f;
 }
 
+double ProjectorIrradianceOverFacets(const Rig& rig, const HeightField& hf, const ImageU8& usable,
+                                     int i, int j) {
+  const int w = hf.width(), h = hf.height();
+  if (i < 0 || j < 0 || i >= w || j >= h || !usable(i, j)) return kNan;
+  const Vec3d p(hf.X(i), hf.Y(j), hf.z(i, j));
+  const Vec3d c = rig.projector.CentreInWorld();
+  const Vec3d d = c - p;
+  const double r = d.norm(), r0 = c.norm();
+  Vec2d uv;
+  if (!rig.projector.Project(p, &uv)) return kNan;
+  const double f = ProjectorFalloff(rig, uv.x(), uv.y());
+  if (!(f > 0)) return kNan;
+  double sum = 0;
+  int facets = 0;
+  for (int sx : {-1, 1})
+    for (int sy : {-1, 1}) {
+      const int ii = i + sx, jj = j + sy;
+      if (ii < 0 || jj < 0 || ii >= w || jj >= h || !usable(ii, j) || !usable(i, jj)) continue;
+      // World x = column, world y = -row.
+      const double gx = (hf.z(ii, j) - p.z()) / (sx * hf.pixel_size);
+      const double gy = (hf.z(i, jj) - p.z()) / (-sy * hf.pixel_size);
+      const double cosi =
+          (d.z() - gx * d.x() - gy * d.y()) / (r * std::sqrt(1 + gx * gx + gy * gy));
+      sum += std::max(0.0, cosi);
+      ++facets;
+    }
+  if (facets == 0) return kNan;
+  return sum / facets * (r0 / r) * (r0 / r) * f;
+}
+
 GreyCard ParseGreyCard(const std::string& text, const std::string& option) {
   GreyCard card;
   const size_t colon = text.find(':');

@@ -127,6 +127,16 @@ ImageF SessionTexture(const Session& session, std::string* source = nullptr);
 // surface faces away or lies outside the projector's model.
 double ProjectorIrradianceAt(const Rig& rig, const Vec3d& p, const Vec3d& n);
 
+// The projector's irradiance over the footprint of height sample (i, j) of `hf`: the mean over its
+// four quadrant facets (the plane through the sample and its horizontal and vertical neighbour on
+// that side) of ProjectorIrradianceAt at the sample, a facet facing away counting 0. A facet needs
+// both neighbours usable (`usable`: hf's grid, != 0 for a measured sample); NaN if none is, or if
+// the sample lies outside the projector's model. cos(i) is concave in the slope, so the
+// central-difference normal (the facets' mean slope) overstates the light on relief that changes
+// within two samples; the facets keep the slopes the samples hold.
+double ProjectorIrradianceOverFacets(const Rig& rig, const HeightField& hf, const ImageU8& usable,
+                                     int i, int j);
+
 // A reference of known reflectance: a neutral grey card on the mount, a rectangle of camera
 // pixels wholly on it.
 struct GreyCard {

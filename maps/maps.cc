@@ -262,18 +262,19 @@ void ScaleToReflectance(const Session& s, const HeightField& field, const FillRe
                         const GreyCard& card_ref, MapAlbedo* a) {
   const ImageF texture = SessionTexture(s);
   const CardLevel card = MeasureGreyCard(s, texture, card_ref);
-  const ImageF n = NormalsOf(field, false);
+  // The irradiance over each measured sample's footprint on the measured surface (its facets to
+  // measured neighbours; the fill's interpolated heights would flatten the steep flanks around
+  // the holes it fills).
+  ImageU8 measured(field.width(), field.height(), 1, 0);
+  for (size_t p = 0; p < measured.pixels(); ++p)
+    measured.data()[p] = !fill.filled.data()[p] && std::isfinite(field.z.data()[p]);
   const int nc = a->image.channels();
   MESOSCAN_CHECK(static_cast<int>(card.level.size()) >= nc);
   ParallelForRows(field.height(), [&](int r0, int r1) {
     for (int j = r0; j < r1; ++j)
       for (int i = 0; i < field.width(); ++i) {
         const size_t p = static_cast<size_t>(j) * field.width() + i;
-        const double e =
-            fill.filled.data()[p] || !std::isfinite(n(i, j, 0))
-                ? kNan
-                : ProjectorIrradianceAt(s.rig, Vec3d(field.X(i), field.Y(j), field.z(i, j)),
-                                        Vec3d(n(i, j, 0), n(i, j, 1), n(i, j, 2)));
+        const double e = ProjectorIrradianceOverFacets(s.rig, field, measured, i, j);
         for (int c = 0; c < nc; ++c) {
           float& v = a->image.channel(c)[p];
           // Grazing light (irradiance below 5% of the reference) is too uncertain: left to the
@@ -287,14 +288,16 @@ void ScaleToReflectance(const Session& s, const HeightField& field, const FillRe
   ref << "grey card at camera pixels " << r.x << "," << r.y << "," << r.w << "," << r.h
       << " of reflectance " << card_ref.reflectance;
   a->reflectance = true;
-  a->info = {{"units", "reflectance in [0, 1] per channel"},
-             {"reference", ref.str()},
-             {"card_pixels", card.pixels},
-             {"card_spread", card.spread},
-             {"card_level", card.level},
-             {"falloff", s.rig.projector_falloff != 0
-                             ? "cos(i) (r0/r)^2 and rig.projector.falloff divided out"
-                             : "cos(i) (r0/r)^2 divided out (no rig.projector.falloff)"}};
+  a->info = {
+      {"units", "reflectance in [0, 1] per channel"},
+      {"reference", ref.str()},
+      {"card_pixels", card.pixels},
+      {"card_spread", card.spread},
+      {"card_level", card.level},
+      {"falloff", s.rig.projector_falloff != 0
+                      ? "cos(i) (r0/r)^2 and rig.projector.falloff divided out"
+                      : "cos(i) (r0/r)^2 divided out (no rig.projector.falloff)"},
+      {"irradiance", "mean over each measured sample's four facets to its measured neighbours"}};
   if (card.spread > 0.10)
     MESOSCAN_LOG(kWarning) << "maps: the grey card's light varies by "
                            << std::lround(100 * card.spread)

@@ -5,8 +5,10 @@
 //    mount beside the fabric; `reconstruct` decodes the frames' luminance;
 //  - `maps --grey-card X,Y,W,H:0.18` (the card's camera pixels, as simulate recorded them): the
 //    albedo is reflectance per channel: on the flat mount within 2% of the truth per channel; on
-//    the fabric its median within 5% (the weave's relief below a pixel leaves it 3.5% low), the
-//    same in both halves along the projector's falloff and in every channel; the plain map (no
+//    the fabric its median within 4% (measured 2.8% low: the fibre twist's 6 um ridges, 0.12 mm
+//    apart, are near the camera's sampling limit and the measured heights keep only part of
+//    their slopes, so the light on them is overstated), the same in both halves along the
+//    projector's falloff and in every channel; the plain map (no
 //    reference: relative albedo, 99th percentile 1) is measured beside it and its manifest says
 //    it is relative;
 //  - Blender 3.4 imports the map set through the add-on: the Principled BSDF's Base Color comes
@@ -165,11 +167,12 @@ TEST_F(MaterialsCli, DyedFabricAlbedoIsReflectancePerChannel) {
               << Median(plain.mount[c]) << "\n";
     // The radiometric chain (falloff, card, response, colour) on the flat mount: 2%.
     EXPECT_NEAR(Median(ours.mount[c]), 1.0, 0.02) << names[c];
-    // The fabric: its weave's relief below a pixel and the estimated normals leave it a few
-    // percent low (measured 3.5%, the same in every channel and both halves): 5% here, the
+    // The fabric: relief near the sampling limit, whose slopes the measured heights only partly
+    // keep, leaves it a few percent low (measured 2.8%, the same in every channel and both
+    // halves; the irradiance of the central-difference normals left it 3.5% low): 4% here, the
     // colour balance (each channel against the others) and the falloff (left against right)
     // within 1%.
-    EXPECT_NEAR(m, 1.0, 0.05) << names[c];
+    EXPECT_NEAR(m, 1.0, 0.04) << names[c];
     EXPECT_NEAR(ml / mr, 1.0, 0.01) << names[c];
     // The plain map is relative brightness: off by its arbitrary scale.
     EXPECT_GT(std::abs(pm - 1.0), 0.1) << names[c];
