@@ -58,9 +58,88 @@ double Autocorrelation(const ImageF& t, int s, int axis) {
   return v > 0 ? c / (v * overlap) : 0.0;
 }
 
+// How much the shading changes across each line of a map along one axis: for line i (between
+// column i and i + 1 for axis 0, rows for axis 1) the mean over the other axis of the change of
+// the central-difference gradient vector, |G(i + 1) - G(i)|, which is what a renderer's normals
+// (displaced or bumped) see change from one column to the next under any light. Periodic: the
+// map is read cyclically; otherwise the lines within 2 pixels of the border are left NaN.
+std::vector<double> ShadingChange(const ImageF& z, int axis, bool periodic) {
+  const int n = z.width();
+  const auto at = [&](int x, int y) { return z((x + n) % n, (y + n) % n); };
+  const auto grad = [&](int x, int y, double* g) {
+    g[0] = 0.5 * (at(x + 1, y) - at(x - 1, y)), g[1] = 0.5 * (at(x, y + 1) - at(x, y - 1));
+  };
+  std::vector<double> c(n, std::numeric_limits<double>::quiet_NaN());
+  for (int i = 0; i < n; ++i) {
+    if (!periodic && (i < 2 || i > n - 4)) continue;
+    double s = 0;
+    int64_t k = 0;
+    for (int j = periodic ? 0 : 1; j < (periodic ? n : n - 1); ++j) {
+      double a[2], b[2];
+      if (axis == 0)
+        grad(i, j, a), grad(i + 1, j, b);
+      else
+        grad(j, i, a), grad(j, i + 1, b);
+      const double d = std::hypot(b[0] - a[0], b[1] - a[1]);
+      if (std::isfinite(d)) s += d, ++k;
+    }
+    if (k) c[i] = s / k;
+  }
+  return c;
+}
+
+// Per line i of a map along one axis (as ShadingChange): the RMS over the other axis of the
+// height step across it, z(i + 1) - z(i) (the seam statistic of MeasureSeams).
+std::vector<double> StepRms(const ImageF& z, int axis, bool periodic) {
+  const int n = z.width();
+  std::vector<double> g(n, std::numeric_limits<double>::quiet_NaN());
+  for (int i = 0; i < (periodic ? n : n - 1); ++i) {
+    double s = 0;
+    int64_t k = 0;
+    for (int j = 0; j < n; ++j) {
+      const double d = axis == 0 ? z((i + 1) % n, j) - z(i, j) : z(j, (i + 1) % n) - z(j, i);
+      if (std::isfinite(d)) s += d * d, ++k;
+    }
+    if (k) g[i] = std::sqrt(s / k);
+  }
+  return g;
+}
+
+// (v - mean) / standard deviation of the finite values of a profile (NaN stays NaN).
+std::vector<double> Standardised(std::vector<double> v) {
+  double m = 0, m2 = 0;
+  int k = 0;
+  for (const double x : v)
+    if (std::isfinite(x)) m += x, m2 += x * x, ++k;
+  m = k ? m / k : 0.0;
+  const double sd = k ? std::sqrt(std::max(0.0, m2 / k - m * m)) : 0.0;
+  for (double& x : v) x = sd > 0 ? (x - m) / sd : 0.0 * x;
+  return v;
+}
+
+// How far line i is from the typical line of its map, given the standardised profiles of the
+// shading change (ShadingChange) and of the height step (StepRms): the RMS of the shading
+// change's deviation on the line and its neighbours either side (a renderer may place the line
+// a pixel off, and filters over a pixel) and of the step's deviation on the line. A seam placed
+// where this is small lies where both the slope and the shading change as on an average line:
+// on a weave, neither on a flank's steepest column nor on a crest, and not on the step to one.
+double LineAtypicality(const std::vector<double>& change, const std::vector<double>& step, int i) {
+  const int n = static_cast<int>(change.size());
+  double e = 0;
+  for (int d = -1; d <= 1; ++d) {
+    const double v = change[((i + d) % n + n) % n];
+    e += std::isfinite(v) ? v * v : 1e6;
+  }
+  e += std::isfinite(step[i]) ? step[i] * step[i] : 1e6;
+  return std::sqrt(e / 4);
+}
+
 // The offset of the shifted copies along one axis: half the tile, unless a shift in
 // [n/3, 2n/3] correlates clearly better with the square (a periodic texture such as a weave:
-// the copies then stay in phase with it instead of cancelling it in the blend).
+// the copies then stay in phase with it instead of cancelling it in the blend). Of the shifts
+// within 2 pixels of that one whose correlation is within 0.05 of it (the same phase of a weave
+// to a few degrees), the one whose blend line (at n - s: the square's own columns, the copy's
+// weight 0 there) lies where the square's shading and slope are most typical (LineAtypicality).
 int BestShift(const ImageF& t, int axis) {
   const int n = t.width();
   int best = n / 2;
@@ -70,7 +149,17 @@ int BestShift(const ImageF& t, int axis) {
     const double c = Autocorrelation(t, s, axis);
     if (c > best_c) best_c = c, best = s;
   }
-  return best;
+  const double ref = Autocorrelation(t, best, axis);
+  const std::vector<double> change = Standardised(ShadingChange(t, axis, false));
+  const std::vector<double> step = Standardised(StepRms(t, axis, false));
+  int pick = best;
+  double pick_e = LineAtypicality(change, step, n - best - 1);
+  for (int s = std::max(n / 3, best - 2); s <= std::min(2 * n / 3, best + 2); ++s) {
+    if (s == best || Autocorrelation(t, s, axis) < ref - 0.05) continue;
+    const double e = LineAtypicality(change, step, n - s - 1);
+    if (e < pick_e - 1e-9) pick_e = e, pick = s;
+  }
+  return pick;
 }
 
 // Weight of the square itself along one axis: 0 at the tile's edges (its seam), 1 at c = n - s
@@ -142,28 +231,22 @@ ImageF BlendPeriodic(const ImageF& t, bool preserve_variance, int shift_x, int s
   return out;
 }
 
-// The cyclic roll (columns, rows) that puts the wrap-around seam of the periodic height z where
-// the column (row) gradient RMS is nearest the mean over all columns (rows). A periodic texture
-// (a weave) has crests whose columns change little and flanks that change much; the blend takes
-// its copies in phase with the weave, which can put the wrap seam on a crest, a column much
-// smoother than the average one. Rolling a periodic tile moves its seam without changing it.
+// The cyclic roll (columns, rows) that puts the wrap-around seam of the periodic height z on
+// the line whose slope and shading change are the most typical (LineAtypicality). A periodic
+// texture (a weave) has crests (little slope), flanks (much) and the steps between them, where
+// the shading changes fast; a seam on any of them stands out in a render as a darker or brighter
+// line repeated with the tile. Rolling a periodic tile moves its seam without changing it.
 std::array<int, 2> SeamRoll(const ImageF& z) {
   const int n = z.width();
   std::array<int, 2> roll = {0, 0};
   for (int axis = 0; axis < 2; ++axis) {
-    std::vector<double> g(n, 0.0);
-    for (int y = 0; y < n; ++y)
-      for (int x = 0; x < n; ++x) {
-        const double d = axis == 0 ? z((x + 1) % n, y) - z(x, y) : z(x, (y + 1) % n) - z(x, y);
-        if (std::isfinite(d)) g[axis == 0 ? x : y] += d * d;
-      }
-    double mean = 0;
-    for (double& v : g) mean += (v = std::sqrt(v / n)) / n;
+    const std::vector<double> change = Standardised(ShadingChange(z, axis, true));
+    const std::vector<double> step = Standardised(StepRms(z, axis, true));
     // After rolling by r the seam is between the input's columns r - 1 and r.
     double best = std::numeric_limits<double>::max();
     for (int r = 0; r < n; ++r) {
-      const double e = std::abs(g[(r + n - 1) % n] - mean);
-      if (e < best - 1e-12 * mean) best = e, roll[axis] = r;
+      const double e = LineAtypicality(change, step, (r + n - 1) % n);
+      if (e < best - 1e-9) best = e, roll[axis] = r;
     }
   }
   return roll;

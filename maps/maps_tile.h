@@ -5,16 +5,19 @@
 //           along x, y and both (whose own seams then lie inside the tile, at N - s) are blended
 //           with weights w_x(i) w_y(j), w a sin^2 ramp from 0 at the tile's edges to 1 at N - s;
 //           s is half the tile unless a shift in [N/3, 2N/3] correlates clearly better with T
-//           (a periodic weave: the copies then blend in phase); the blend's deviation from the
-//           mean is divided by
-//           the standard deviation of the weighted sum given the copies' gradient correlation
-//           (sqrt(sum of squared weights) for independent copies) so the height variance and
+//           (a periodic weave: the copies then blend in phase), moved by up to 2 pixels (as
+//           well correlated) to put the blend line where the shading changes typically (see
+//           below); the blend's deviation from the mean is divided by the standard deviation
+//           of the weighted sum given the copies' gradient correlation (sqrt(sum of squared
+//           weights) for independent copies) so the height variance and
 //           the gradient statistics are the same at the seams as inside (variance-preserving
 //           blending, as in Heitz and Neyret, "High-Performance By-Example Noise using a
 //           Histogram-Preserving Blending Operator", HPG 2018, Eq. 2); the periodic result is
-//           then rolled cyclically so the wrap seam lies on a column (row) whose gradient RMS
-//           is the mean one (on a weave the in-phase copies can put it on a crest, smoother
-//           than the average column);
+//           then rolled cyclically so the wrap seam lies on a column (row) whose height step
+//           (RMS) and shading change (the mean change of the gradient vector across the line,
+//           what a renderer's normals see; on the line and its neighbours) are nearest their
+//           means over all lines: on a weave, neither on a crest nor on a flank's steepest
+//           column, nor on the step between them;
 //   mirror  the square of half the size mirrored into four quadrants: values continuous, but the
 //           slope reverses at the seams (a visible crease on directional textures).
 // Albedo and confidence follow the same blend; normals and derived maps are computed afterwards

@@ -561,11 +561,13 @@ TEST_F(MapsTileCli, TileAtOverridesAndATileOnTheMountIsWarnedAbout) {
 // by Blender in Eevee and Cycles (tests/consumers/blender_seam_checks.py: top-down, about one
 // pixel per texel, raking light): the mean change across each seam (where the repeats meet, or
 // where the blend's shifted copies met inside the tile) against the interior columns' (rows')
-// mean, in units of their own standard deviation. Asserted: |z| < 3 (a crop forced to repeat has
-// a seam several times the interior's change). Measured: repeats Eevee -0.57..+0.06, Cycles
-// +0.46..+1.59; blend lines Eevee -1.19..-0.01, Cycles -0.43..-0.06 (the weave's crests and
-// flanks make single columns scatter; the tile's wrap seam is rolled off a crest). Also the
-// selected-object import on a sphere: box projection, the normal map unlinked.
+// mean, in units of their own standard deviation. Asserted: |z| <= 1, no seam differs from the
+// interior by more than the interior's own scatter (a crop forced to repeat has a seam several
+// times the interior's change). Measured: repeats Eevee -0.72..-0.53, Cycles -0.69..-0.13;
+// blend lines Eevee -0.92..+0.86, Cycles -0.58..-0.10 (the weave's flanks make single columns
+// scatter; the wrap seam and the blend lines lie where the slope and the shading change are
+// typical; Eevee shades with the normal map, Cycles displaces). Also the selected-object import
+// on a sphere: box projection, the normal map unlinked.
 TEST_F(MapsTileCli, BlenderRendersAThreeByThreeRepeatWithoutSeams) {
   const std::string blender = FindOnPath("blender");
   if (blender.empty()) GTEST_SKIP() << "blender missing: " << kInstall;
@@ -611,7 +613,7 @@ TEST_F(MapsTileCli, BlenderRendersAThreeByThreeRepeatWithoutSeams) {
                 << sj.at("interior_mean").get<double>() << " +- "
                 << sj.at("interior_std").get<double>() << ")\n";
       for (const auto& z : sj.at("z"))
-        EXPECT_LT(std::abs(z.get<double>()), 3.0) << engine << " " << seam;
+        EXPECT_LE(std::abs(z.get<double>()), 1.0) << engine << " " << seam;
     }
   }
   const Json& sphere = r.at("sphere");

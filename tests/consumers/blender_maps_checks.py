@@ -19,60 +19,11 @@ import sys
 import bpy
 import numpy
 
-cfg = json.load(open(sys.argv[sys.argv.index("--") + 1]))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from blender_scene import clear_scene, install_addon, read_config, render, setup_render  # noqa: E402
+
+cfg = read_config()
 out = {"blender_version": bpy.app.version_string}
-
-
-def clear_scene():
-    for o in list(bpy.data.objects):
-        bpy.data.objects.remove(o, do_unlink=True)
-
-
-def setup_render(size_m, res):
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = cfg.get("samples", 8)
-    scene.cycles.seed = 1
-    scene.cycles.use_denoising = False
-    scene.cycles.max_bounces = 1
-    scene.render.resolution_x = res
-    scene.render.resolution_y = res
-    scene.render.resolution_percentage = 100
-    scene.render.film_transparent = False
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.view_settings.view_transform = "Standard"
-    world = bpy.data.worlds.new("w")
-    world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
-    scene.world = world
-    cam_data = bpy.data.cameras.new("cam")
-    cam_data.type = "ORTHO"
-    cam_data.ortho_scale = size_m
-    cam_data.clip_start = 1e-4
-    cam_data.clip_end = 10.0
-    cam = bpy.data.objects.new("cam", cam_data)
-    cam.location = (0.0, 0.0, 0.5)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    sun_data = bpy.data.lights.new("sun", "SUN")
-    sun_data.energy = 3.0
-    sun_data.angle = 0.0
-    sun = bpy.data.objects.new("sun", sun_data)
-    # Raking light from the (+x, +y) diagonal at 20 degrees elevation: both seams are lit across.
-    import math
-    sun.rotation_euler = (0.0, math.radians(70.0), math.radians(45.0))
-    scene.collection.objects.link(sun)
-
-
-def render(path):
-    bpy.context.scene.render.filepath = path
-    bpy.ops.render.render(write_still=True)
-    img = bpy.data.images.load(path, check_existing=False)
-    w, h = img.size
-    px = numpy.array(img.pixels[:], dtype=numpy.float64).reshape(h, w, 4)[:, :, :3].mean(axis=2)
-    bpy.data.images.remove(img)
-    return px[::-1]  # row 0 at the top
 
 
 def image_array(img):
@@ -81,8 +32,7 @@ def image_array(img):
 
 
 # 1. Install the zip and import.
-bpy.ops.preferences.addon_install(filepath=cfg["addon_zip"], overwrite=True)
-bpy.ops.preferences.addon_enable(module="mesoscan_maps")
+install_addon(cfg["addon_zip"])
 clear_scene()
 res = bpy.ops.import_scene.mesoscan_maps(filepath=cfg["manifest"], target="PLANE", repeat=1)
 out["import_result"] = list(res)
@@ -102,7 +52,7 @@ out["images"] = {n.name: {"file": os.path.basename(n.image.filepath), "colorspac
 
 # 2. Render the add-on's displacement against the EXR-displaced reference and a flat plane.
 size = max(obj.dimensions[0], obj.dimensions[1])
-setup_render(size, cfg.get("render_px", 160))
+setup_render(size, cfg.get("render_px", 160), samples=cfg.get("samples", 8))
 tmp = cfg["tmp"]
 a = render(os.path.join(tmp, "addon.exr"))
 # The reference: the same mesh, vertices moved by the EXR (bilinear at each vertex's UV, as
@@ -160,7 +110,7 @@ def seam_score(manifest, force_repeat):
         if n.type == "TEX_IMAGE" and force_repeat:
             n.extension = "REPEAT"
     w_px = int(json.load(open(manifest))["grid"]["width_px"]) * 2
-    setup_render(max(o.dimensions[0], o.dimensions[1]), w_px)
+    setup_render(max(o.dimensions[0], o.dimensions[1]), w_px, samples=cfg.get("samples", 8))
     img = render(os.path.join(tmp, "seam_%d.exr" % force_repeat))
     # Column-to-column (x) and row-to-row (y) mean change; the seam lies between columns
     # (rows) s and s + 1. It is compared with every other interior column (row): its ratio to
@@ -180,4 +130,5 @@ out["seam_tiled"] = seam_score(cfg["manifest"], False)
 if cfg.get("manifest_untiled"):
     out["seam_untiled"] = seam_score(cfg["manifest_untiled"], True)
 
-json.dump(out, open(cfg["out"], "w"), indent=1)
+with open(cfg["out"], "w") as f:
+    json.dump(out, f, indent=1)

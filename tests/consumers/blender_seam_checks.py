@@ -12,7 +12,6 @@
 # border and within 2 pixels of no seam. Reported per seam: its value, the interior's mean and
 # standard deviation (its own scatter) and the z-score; the C++ test asserts.
 import json
-import math
 import os
 import sys
 import time
@@ -20,83 +19,31 @@ import time
 import bpy
 import numpy
 
-cfg = json.load(open(sys.argv[sys.argv.index("--") + 1]))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from blender_scene import clear_scene, install_addon, read_config, render, setup_render  # noqa: E402
+
+cfg = read_config()
 out = {"blender_version": bpy.app.version_string}
-manifest = json.load(open(cfg["manifest"]))
+with open(cfg["manifest"]) as f:
+    manifest = json.load(f)
 REPEAT = 3
-
-
-def clear_scene():
-    for o in list(bpy.data.objects):
-        bpy.data.objects.remove(o, do_unlink=True)
-
-
-def setup(engine, size_m, res):
-    scene = bpy.context.scene
-    scene.render.engine = engine
-    if engine == "CYCLES":
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = cfg.get("cycles_samples", 4)
-        scene.cycles.seed = 1
-        scene.cycles.use_denoising = False
-        scene.cycles.max_bounces = 1
-        scene.cycles.pixel_filter_type = "BOX"
-    else:
-        scene.eevee.taa_render_samples = cfg.get("eevee_samples", 4)
-        scene.eevee.use_gtao = False
-        scene.eevee.use_ssr = False
-        scene.eevee.use_soft_shadows = False
-        scene.eevee.shadow_cascade_size = "1024"
-    scene.render.resolution_x = res
-    scene.render.resolution_y = res
-    scene.render.resolution_percentage = 100
-    scene.render.filter_size = 0.5 if engine == "BLENDER_EEVEE" else 1.0
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.view_settings.view_transform = "Standard"
-    world = bpy.data.worlds.new("w")
-    world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.05
-    scene.world = world
-    cam_data = bpy.data.cameras.new("cam")
-    cam_data.type = "ORTHO"
-    cam_data.ortho_scale = size_m
-    cam_data.clip_start = 1e-4
-    cam_data.clip_end = 10.0
-    cam = bpy.data.objects.new("cam", cam_data)
-    cam.location = (0.0, 0.0, 0.5)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    sun_data = bpy.data.lights.new("sun", "SUN")
-    sun_data.energy = 3.0
-    sun_data.angle = 0.0
-    sun = bpy.data.objects.new("sun", sun_data)
-    sun.rotation_euler = (0.0, math.radians(60.0), math.radians(45.0))
-    scene.collection.objects.link(sun)
-
-
-def render(path):
-    bpy.context.scene.render.filepath = path
-    bpy.ops.render.render(write_still=True)
-    img = bpy.data.images.load(path, check_existing=False)
-    w, h = img.size
-    px = numpy.array(img.pixels[:], dtype=numpy.float64).reshape(h, w, 4)[:, :, :3].mean(axis=2)
-    bpy.data.images.remove(img)
-    return px[::-1]  # row 0 at the top
 
 
 def seams(img, n_px):
     """Per axis: the mean |change| per column (row); the seams' values against the interior."""
     tile = img.shape[0] / REPEAT  # pixels per repeat
     shift = manifest.get("tile", {}).get("blend_shift_px", [0, 0])
+    # The shift counts in the tile's own pixels, before any resampling to the set's size.
+    n_tile = manifest.get("resampled", {}).get("from_px", [n_px, n_px])
     res = {}
     for axis, name in ((1, "x"), (0, "y")):
         d = numpy.abs(numpy.diff(img, axis=axis)).mean(axis=1 - axis)  # d[i]: between i and i+1
         n = len(d)
         # The change across a line at position p (pixels) is d[round(p) - 1].
         lines = {"repeat": [k * tile for k in range(1, REPEAT)]}
-        s = shift[0 if name == "x" else 1]
+        s, nt = shift[0 if name == "x" else 1], n_tile[0 if name == "x" else 1]
         if s:
-            lines["blend"] = [(k + (n_px - s) / n_px) * tile for k in range(REPEAT)]
+            lines["blend"] = [(k + (nt - s) / nt) * tile for k in range(REPEAT)]
         idx = {kind: [int(round(p)) - 1 for p in ps] for kind, ps in lines.items()}
         near = set()
         for ps in idx.values():
@@ -122,8 +69,7 @@ def seams(img, n_px):
     return res
 
 
-bpy.ops.preferences.addon_install(filepath=cfg["addon_zip"], overwrite=True)
-bpy.ops.preferences.addon_enable(module="mesoscan_maps")
+install_addon(cfg["addon_zip"])
 n_px = int(manifest["grid"]["width_px"])
 for engine in cfg.get("engines", ["BLENDER_EEVEE", "CYCLES"]):
     t0 = time.time()
@@ -132,7 +78,9 @@ for engine in cfg.get("engines", ["BLENDER_EEVEE", "CYCLES"]):
     obj = [o for o in bpy.context.scene.objects if o.type == "MESH"][0]
     size = max(obj.dimensions[0], obj.dimensions[1])
     res = cfg.get("render_px", REPEAT * n_px)
-    setup(engine, size, res)
+    samples = cfg.get("cycles_samples", 4) if engine == "CYCLES" else cfg.get("eevee_samples", 4)
+    setup_render(size, res, engine=engine, samples=samples, world_strength=0.05, sun_tilt_deg=60.0,
+                 box_filter=True)
     try:
         img = render(os.path.join(cfg["tmp"], "seam_%s.exr" % engine.lower()))
     except RuntimeError as e:  # Eevee without an OpenGL context (no EGL/X display)
@@ -159,4 +107,5 @@ out["sphere"] = {
     "normal_linked": any(l.from_node.name == "mesoscan normal map" for l in snt.links),
     "coords": [l.from_socket.name for l in snt.links if l.to_node.name == "mesoscan mapping"]}
 
-json.dump(out, open(cfg["out"], "w"), indent=1)
+with open(cfg["out"], "w") as f:
+    json.dump(out, f, indent=1)

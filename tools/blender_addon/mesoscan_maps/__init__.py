@@ -5,8 +5,8 @@
 # world metres), the tangent-space normal map, albedo multiplied by ambient occlusion, the
 # roughness map (when the set has one) into the Principled BSDF's Roughness, either
 #  - on a new plane of the sample's physical size (one vertex per texel, up to a limit, so
-#    Cycles' true displacement has the map's resolution), repeated `repeat` times for a
-#    tileable set, or
+#    Cycles' true displacement has the map's resolution; Eevee, which does not displace, gets
+#    its own output with the normal map), repeated `repeat` times for a tileable set, or
 #  - on the selected object at the tile's physical size (Repeat extension), so a 12 mm tile is
 #    12 mm on the object, projected
 #      BOX   (default) from the object's coordinates along its X, Y and Z axes, each face taking
@@ -60,9 +60,9 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
     """The node tree. coords: "UV" (the mesh's UVs, `repeat` tiles per unit), "BOX" (box
     projection of the object's coordinates at the tile's size) or "OBJECT" (its X-Y coordinates
     at the tile's size).
-    link_normal_map: False when the mesh has a vertex per texel, where the displaced geometry
-    already carries the map's slopes (the normal map on top would tilt them twice); the node is
-    still built for the user to connect."""
+    link_normal_map: False when the mesh has a vertex per texel, where Cycles' displaced
+    geometry already carries the map's slopes (the normal map on top would tilt them twice);
+    Eevee, which does not displace, then gets an output of its own with the normal map."""
     name = m["name"]
     mat = bpy.data.materials.new("mesoscan " + name)
     mat.use_nodes = True
@@ -167,6 +167,24 @@ def build_material(m, folder, coords="UV", repeat=1.0, tile_m=None, link_normal_
     if roughness:
         tex = image_node(roughness, "Non-Color", -800, "roughness")
         nt.links.new(tex.outputs["Color"], bsdf.inputs["Roughness"])
+    if normal and coords == "UV" and not link_normal_map:
+        # Eevee cannot displace: it would bump the flat mesh with the height's screen-space
+        # derivatives, taken per 2 x 2 pixel block (blocky, and different on each repeat of a
+        # tile whose size in pixels is odd). It gets an output of its own, the same BSDF with the
+        # tangent-space normal map; Cycles keeps the true displacement.
+        out.target = "CYCLES"
+        eevee = nt.nodes.new("ShaderNodeBsdfPrincipled")
+        eevee.name = eevee.label = "mesoscan BSDF (Eevee)"
+        eevee.location = (500, -700)
+        for i, socket in enumerate(bsdf.inputs):
+            for link in socket.links:
+                nt.links.new(link.from_socket, eevee.inputs[i])
+        nt.links.new(nm.outputs["Normal"], eevee.inputs["Normal"])
+        eevee_out = nt.nodes.new("ShaderNodeOutputMaterial")
+        eevee_out.name = eevee_out.label = "mesoscan output (Eevee)"
+        eevee_out.target = "EEVEE"
+        eevee_out.location = (800, -700)
+        nt.links.new(eevee.outputs["BSDF"], eevee_out.inputs["Surface"])
     mat["mesoscan_manifest"] = json.dumps({"name": name, "grid": m["grid"], "tileable": m.get("tileable")})
     return mat
 
