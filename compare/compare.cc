@@ -1,5 +1,8 @@
 #include "compare/compare.h"
 
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
 #include <algorithm>
 #include <cmath>
 #include <iomanip>
@@ -70,6 +73,88 @@ ImageU8 ObjectPixels(const HeightField& hf, const CompareOptions& o, bool use_ma
       in(i, j) = 1;
     }
   return in;
+}
+
+// The deviation of B from A at one of A's points, for the refinement on the height fields: B's
+// height (bilinear) under the point moved by a correction w (rotation vector), tau (applied in A's
+// frame) and then a_to_b, minus the point's height, along A's normal; 0 where B has no surface.
+struct HeightResidual {
+  HeightResidual(const HeightField& b, const Mat4d& a_to_b, const Vec3d& p, double nz)
+      : b(b), a_to_b(a_to_b), p(p), nz(nz) {}
+  template <typename T>
+  bool operator()(const T* const w, const T* const tau, T* r) const {
+    const T pa[3] = {T(p.x()), T(p.y()), T(p.z())};
+    T pr[3];
+    ceres::AngleAxisRotatePoint(w, pa, pr);
+    for (int k = 0; k < 3; ++k) pr[k] += tau[k];
+    T q[3];
+    for (int k = 0; k < 3; ++k)
+      q[k] = T(a_to_b(k, 0)) * pr[0] + T(a_to_b(k, 1)) * pr[1] + T(a_to_b(k, 2)) * pr[2] +
+             T(a_to_b(k, 3));
+    const T fi = (q[0] - T(b.x0)) / T(b.pixel_size), fj = (T(b.y0) - q[1]) / T(b.pixel_size);
+    const int i0 = static_cast<int>(std::floor(ceres::internal::AsScalar(fi)));
+    const int j0 = static_cast<int>(std::floor(ceres::internal::AsScalar(fj)));
+    r[0] = T(0);
+    if (i0 < 0 || j0 < 0 || i0 + 1 >= b.width() || j0 + 1 >= b.height()) return true;
+    const double z00 = b.z(i0, j0), z10 = b.z(i0 + 1, j0), z01 = b.z(i0, j0 + 1),
+                 z11 = b.z(i0 + 1, j0 + 1);
+    if (!std::isfinite(z00 + z10 + z01 + z11)) return true;
+    const T a = fi - T(i0), c = fj - T(j0);
+    const T zb =
+        (T(1) - a) * (T(1) - c) * z00 + a * (T(1) - c) * z10 + (T(1) - a) * c * z01 + a * c * z11;
+    r[0] = T(nz) * (zb - q[2]);
+    return true;
+  }
+  const HeightField& b;
+  const Mat4d& a_to_b;
+  Vec3d p;
+  double nz;
+};
+
+// Refines b_to_a on the height fields themselves: the deviation at A's points (at most
+// max_points, an even stride) minimised with Tukey's kernel at 4.685 `scale` (Ceres). Unlike
+// the nearest-neighbour pairs of ICP, B is a continuous surface here and only A's points count,
+// so B's surface where A has none (holes A did not see, a filled mesh) pulls nothing, and the
+// optimum is the one the deviation map measures.
+Mat4d RefineOnHeights(const HeightField& ha, const ImageF& na, const ImageU8& a_object,
+                      const HeightField& hb, const Mat4d& b_to_a, double scale, int max_points) {
+  std::vector<int> idx;
+  for (int j = 0; j < ha.height(); ++j)
+    for (int i = 0; i < ha.width(); ++i)
+      if (a_object(i, j) && std::isfinite(na(i, j, 2))) idx.push_back(j * ha.width() + i);
+  const size_t stride =
+      std::max<size_t>(1, (idx.size() + static_cast<size_t>(max_points) - 1) / max_points);
+  const Mat4d a_to_b = b_to_a.inverse();
+  double w[3] = {0, 0, 0}, tau[3] = {0, 0, 0};
+  ceres::Problem::Options po;
+  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  ceres::TukeyLoss loss(4.685 * scale);
+  for (size_t k = 0; k < idx.size(); k += stride) {
+    const int i = idx[k] % ha.width(), j = idx[k] / ha.width();
+    problem.AddResidualBlock(
+        new ceres::AutoDiffCostFunction<HeightResidual, 1, 3, 3>(new HeightResidual(
+            hb, a_to_b, Vec3d(ha.X(i), ha.Y(j), ha.z(i, j)), static_cast<double>(na(i, j, 2)))),
+        &loss, w, tau);
+  }
+  if (problem.NumResidualBlocks() < 6) return b_to_a;
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = 30;
+  so.num_threads = 2;
+  so.logging_type = ceres::SILENT;
+  so.function_tolerance = 1e-12;
+  so.gradient_tolerance = 1e-16;
+  so.parameter_tolerance = 1e-12;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  // a_to_b' = a_to_b * C with C = (R(w), tau); b_to_a' = C^-1 * b_to_a.
+  Mat4d c = Mat4d::Identity();
+  const Vec3d wv(w[0], w[1], w[2]);
+  if (wv.norm() > 0)
+    c.topLeftCorner<3, 3>() = Eigen::AngleAxisd(wv.norm(), wv.normalized()).matrix();
+  c.topRightCorner<3, 1>() = Vec3d(tau[0], tau[1], tau[2]);
+  return c.inverse() * b_to_a;
 }
 
 double Percentile(std::vector<double> v, double q) {
@@ -196,13 +281,26 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
 
   // ---- coarse placement from the height images (OpenCV), then registration (Open3D) ----
   const Stopwatch t_planar;
-  const std::vector<PlanarCandidate> planar = PlanarAlignment(
-      ha, ObjectPixels(ha, o, /*use_masks=*/true), hb, ObjectPixels(hb, o, /*use_masks=*/false));
+  const ImageU8 a_object = ObjectPixels(ha, o, /*use_masks=*/true);
+  const std::vector<PlanarCandidate> planar =
+      PlanarAlignment(ha, a_object, hb, ObjectPixels(hb, o, /*use_masks=*/false));
   for (const PlanarCandidate& c : planar) in.starts.push_back(c.b_to_a);
   timings["planar"] = t_planar.Seconds();
   in.voxel_m = voxel;
   in.max_distance_m = 2 * px;
   in.seed = o.seed;
+  // B a mesh (ScanFromMesh): its coverage differs from A's (a mesh is often filled where A has
+  // holes, its outline differs), so only B's points over A's surface pair, and the transform is
+  // then refined on the deviation itself (RefineOnHeights). A surface under a point: the four
+  // pixels around it are A's confident object pixels.
+  const bool b_is_mesh = b.report.contains("mesh");
+  if (b_is_mesh)
+    in.a_has_surface = [&ha, &a_object](const Vec3d& q) {
+      const int i = static_cast<int>(std::floor(ha.I(q.x())));
+      const int j = static_cast<int>(std::floor(ha.J(q.y())));
+      if (i < 0 || j < 0 || i + 1 >= ha.width() || j + 1 >= ha.height()) return false;
+      return a_object(i, j) && a_object(i + 1, j) && a_object(i, j + 1) && a_object(i + 1, j + 1);
+    };
   const RegistrationOutput reg = Registration().Register(in);
   timings["coarse"] = reg.seconds_coarse;
   timings["fine"] = reg.seconds_fine;
@@ -210,7 +308,12 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
     MESOSCAN_BAD_INPUT(
         a_name << ", " << b_name << ": the coarse alignment found no consistent transform (overlap "
                << reg.coarse_icp_fitness << " of B's points); are they scans of the same object?");
-  const Mat4d t = reg.b_to_a;
+  const Stopwatch t_heights;
+  const Mat4d t = b_is_mesh
+                      ? RefineOnHeights(ha, an.normals, a_object, hb, reg.b_to_a,
+                                        std::max(reg.robust_sigma_m, 0.2e-6), o.max_icp_points)
+                      : reg.b_to_a;
+  if (b_is_mesh) timings["heights"] = t_heights.Seconds();
   Eigen::Matrix<double, 6, 6> cov = Eigen::Matrix<double, 6, 6>::Zero();
   if (reg.inliers > 6) cov = (reg.sum_squares / (reg.inliers - 6)) * reg.jtj.inverse();
 
@@ -360,6 +463,7 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
   regj["coarse_voxel_m"] = voxel;
   regj["points_a"] = in.a_points.size();
   regj["points_b"] = in.b_points.size();
+  regj["points_b_on_a"] = reg.b_on_a;
   regj["points_b_inliers"] = reg.b_inliers;
   regj["inlier_rms_um"] = reg.inliers ? std::sqrt(reg.sum_squares / reg.inliers) * 1e6 : 0.0;
   regj["robust_sigma_um"] = reg.robust_sigma_m * 1e6;
@@ -372,6 +476,10 @@ CompareResult CompareScans(const Scan& a, const Scan& b, const CompareOptions& o
       "(OpenCV) and from FPFH + RANSAC (Open3D), each refined by point-to-plane ICP and scored; "
       "then point-to-plane ICP with Tukey's kernel, points beyond 3 robust sigmas excluded and "
       "refit";
+  if (b_is_mesh)
+    regj["mesh_steps"] =
+        "B a mesh: only B's points over A's surface pair (coarse and fine), then the deviation at "
+        "A's points minimised on the height fields (Ceres, Tukey's kernel)";
   rep["registration"] = regj;
   rep["deviation_rms_um"] = rms * 1e6;
   Json dev;

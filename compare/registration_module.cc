@@ -18,6 +18,7 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -72,6 +73,22 @@ std::shared_ptr<PointCloud> MakeCloud(const std::vector<Vec3d>& p, const std::ve
   return c;
 }
 
+// The points of `c` that `on_surface` accepts once moved by t (all of `c` when it is empty or
+// accepts fewer than 6).
+std::shared_ptr<PointCloud> OnSurface(const std::shared_ptr<PointCloud>& c, const Mat4d& t,
+                                      const std::function<bool(const Vec3d&)>& on_surface) {
+  if (!on_surface) return c;
+  auto out = std::make_shared<PointCloud>();
+  const Mat3d R = t.topLeftCorner<3, 3>();
+  const Vec3d tr = t.topRightCorner<3, 1>();
+  for (size_t k = 0; k < c->points_.size(); ++k)
+    if (on_surface(R * c->points_[k] + tr)) {
+      out->points_.push_back(c->points_[k]);
+      out->normals_.push_back(c->normals_[k]);
+    }
+  return out->points_.size() >= 6 ? out : c;
+}
+
 class Module final : public RegistrationModule {
  public:
   RegistrationOutput Register(const RegistrationInput& in) const override {
@@ -112,13 +129,14 @@ class Module final : public RegistrationModule {
       for (double v : r) sum += std::isfinite(v) ? std::min(std::abs(v), tau) : tau;
       return r.empty() ? tau : sum / r.size();
     };
+    // Each refinement pairs only B's voxels that land on A's surface (in.a_has_surface).
     auto refine = [&](const Mat4d& t0) {
-      const reg::RegistrationResult wide =
-          reg::RegistrationICP(*db, *da, 3 * voxel, t0, reg::TransformationEstimationPointToPlane(),
-                               reg::ICPConvergenceCriteria(1e-6, 1e-6, 30));
-      return reg::RegistrationICP(*db, *da, voxel, wide.transformation_,
-                                  reg::TransformationEstimationPointToPlane(),
-                                  reg::ICPConvergenceCriteria(1e-6, 1e-6, 30));
+      const reg::RegistrationResult wide = reg::RegistrationICP(
+          *OnSurface(db, t0, in.a_has_surface), *da, 3 * voxel, t0,
+          reg::TransformationEstimationPointToPlane(), reg::ICPConvergenceCriteria(1e-6, 1e-6, 30));
+      return reg::RegistrationICP(
+          *OnSurface(db, wide.transformation_, in.a_has_surface), *da, voxel, wide.transformation_,
+          reg::TransformationEstimationPointToPlane(), reg::ICPConvergenceCriteria(1e-6, 1e-6, 30));
     };
     std::vector<Mat4d> starts{Mat4d::Identity()};
     for (int k = 0; k < (have_starts ? 1 : 2); ++k) {
@@ -162,22 +180,27 @@ class Module final : public RegistrationModule {
     // scale (a changed area does not inflate it): 6 sigmas, then 4.685 (95% efficiency).
     const Stopwatch t_fine;
     const open3d::geometry::KDTreeFlann tree_a(*ca);
-    std::vector<double> res = PlaneResiduals(*cb, *ca, tree_a, t, dmax);
+    auto over_a = [&](const Mat4d& tt) { return OnSurface(cb, tt, in.a_has_surface); };
+    auto cb_on = over_a(t);
+    std::vector<double> res = PlaneResiduals(*cb_on, *ca, tree_a, t, dmax);
     double scale = std::max(RobustSigma(res), 0.05e-6);
     for (const double mult : {6.0, 4.685}) {
       auto kernel = std::make_shared<reg::TukeyLoss>(mult * scale);
-      t = reg::RegistrationICP(*cb, *ca, dmax, t, reg::TransformationEstimationPointToPlane(kernel),
+      t = reg::RegistrationICP(*cb_on, *ca, dmax, t,
+                               reg::TransformationEstimationPointToPlane(kernel),
                                reg::ICPConvergenceCriteria(1e-8, 1e-8, 30))
               .transformation_;
-      res = PlaneResiduals(*cb, *ca, tree_a, t, dmax);
+      cb_on = over_a(t);
+      res = PlaneResiduals(*cb_on, *ca, tree_a, t, dmax);
       scale = std::max(RobustSigma(res), 0.05e-6);
     }
+    out.b_on_a = static_cast<int64_t>(cb_on->points_.size());
     // Reweighting: B's points beyond 3 robust sigmas (a changed area) leave; the rest refit.
     auto cb_in = std::make_shared<PointCloud>();
     for (size_t k = 0; k < res.size(); ++k)
       if (std::isfinite(res[k]) && std::abs(res[k]) <= 3 * scale) {
-        cb_in->points_.push_back(cb->points_[k]);
-        cb_in->normals_.push_back(cb->normals_[k]);
+        cb_in->points_.push_back(cb_on->points_[k]);
+        cb_in->normals_.push_back(cb_on->normals_[k]);
       }
     out.b_inliers = static_cast<int64_t>(cb_in->points_.size());
     if (cb_in->points_.size() >= 6) {

@@ -8,6 +8,7 @@
 // and a refit (a changed area must not pull the registration).
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "core/transform.h"
@@ -24,6 +25,11 @@ struct RegistrationInput {
   // (compare/planar_alignment.h): refined and scored with RANSAC's. When empty, rotations about
   // z every 10 degrees are tried instead (slower).
   std::vector<Mat4d> starts;
+  // Optional: whether A has a measured surface under a point (A's world metres). When given, the
+  // fine registration uses only B's points that land on A's surface (re-checked as the transform
+  // moves): B's points over A's holes (shadows A did not see, and that B saw or filled) would
+  // pair with A's points at the holes' edges, one-sided pairs that pull the transform.
+  std::function<bool(const Vec3d&)> a_has_surface;
 };
 
 struct RegistrationOutput {
@@ -32,7 +38,8 @@ struct RegistrationOutput {
   double coarse_icp_fitness = 0;                 // after the coarse point-to-plane refinement
   int coarse_hypotheses = 0;  // starts refined and scored (RANSAC seeds, identity, rotations)
   double robust_sigma_m = 0;  // 1.4826 MAD of the point-to-plane residuals at the solution
-  int64_t b_inliers = 0;      // B's points within 3 robust sigmas (the final fit's)
+  int64_t b_on_a = 0;         // B's points on A's surface (a_has_surface; all without it)
+  int64_t b_inliers = 0;      // of those, within 3 robust sigmas (the final fit's)
   // The final fit's normal equations at the solution, for the uncertainty: J^T J of the
   // residuals' derivatives by a correction (rx, ry, rz, tx, ty, tz) applied after b_to_a, the sum
   // of squared inlier residuals and their count.
