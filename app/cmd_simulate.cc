@@ -34,7 +34,7 @@ void AddSimulateCommand(CLI::App* app) {
     bool low_contrast = false;
     std::string axis = "x";
     // The object's pose and a known change (sim/object_change.h).
-    std::string object_pose;
+    std::string object_pose, field_offset;
     std::vector<std::string> scratches, erosions;
     std::string patterns = "sine";
     bool grey = false;
@@ -44,7 +44,8 @@ void AddSimulateCommand(CLI::App* app) {
   SimulateOptions& o = args->o;
   cmd->add_option(
          "--object", o.object,
-         "coin | plane | ramp | leaf | fabric | metal | mount (empty) | FILE.exr (a height EXR in "
+         "coin | plane | ramp | leaf | fabric | metal | impasto[:WxH] (a painting, W x H mm) | "
+         "mount (empty) | FILE.exr (a height EXR in "
          "the "
          "scan-outputs layout) | board:checker:COLSxROWS:SQUARE_MM (a calibration session)")
       ->capture_default_str();
@@ -134,6 +135,9 @@ void AddSimulateCommand(CLI::App* app) {
   cmd->add_option("--object-pose", args->object_pose,
                   "The object's pose on the mount: rx,ry,rz,tx,ty,tz (rotation vector in degrees "
                   "about the world origin, then mm), e.g. a re-placed object to compare");
+  cmd->add_option("--field-offset", args->field_offset,
+                  "X,Y (mm): the camera field's centre over object point X,Y (the object moved "
+                  "by -X,-Y before --object-pose): one tile of a mosaic of a large object");
   cmd->add_option("--scratch", args->scratches,
                   "A known change: a groove X0,Y0,X1,Y1,WIDTH,DEPTH (object mm, mm, mm, mm, um, "
                   "um; flat bottom, 60 um walls); repeatable");
@@ -216,6 +220,8 @@ void AddSimulateCommand(CLI::App* app) {
     opt.ps_periods_px = ParsePeriodList(args->periods, "SimulateOptions.ps_periods_px");
     if (!args->object_pose.empty())
       opt.change.pose = ParseBoardPose(args->object_pose, "ObjectChange.pose");
+    if (!args->field_offset.empty())
+      opt.change.field_offset = ParseFieldOffset(args->field_offset, "ObjectChange.field_offset");
     for (const std::string& s : args->scratches)
       opt.change.scratches.push_back(ParseScratch(s, "ObjectChange.scratches"));
     for (const std::string& s : args->erosions)

@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <map>
 
 #include "core/error.h"
@@ -363,6 +364,51 @@ SceneObject MakeFabric(double h) {
       });
 }
 
+SceneObject MakeImpasto(double h, double half_x, double half_y) {
+  constexpr int kMargin = 3;
+  HeightField grid = MakeGrid(-half_x, half_x, -half_y, half_y, h, kMargin);
+  constexpr double kCell = 7e-3, kGround = 0.4e-3;
+  return Generate(
+      "impasto", std::move(grid), kMargin, [&](double x, double y, double* z, double* a) {
+        if (std::abs(x) > half_x || std::abs(y) > half_y) return;
+        // Ground: a slow undulation and the canvas weave showing through.
+        double height = kGround +
+                        20e-6 * std::sin(2 * kPi * x / 47e-3) * std::cos(2 * kPi * y / 61e-3) +
+                        20e-6 * std::sin(2 * kPi * (x + 0.6 * y) / 83e-3) +
+                        4e-6 * (std::sin(2 * kPi * x / 0.6e-3) + std::sin(2 * kPi * y / 0.6e-3));
+        double albedo = 0.78;
+        // Strokes: one per cell of a jittered grid and layer; the cells around (x, y) can reach it.
+        const int ci = static_cast<int>(std::floor(x / kCell)),
+                  cj = static_cast<int>(std::floor(y / kCell));
+        for (int layer = 0; layer < 2; ++layer)
+          for (int dj = -2; dj <= 2; ++dj)
+            for (int di = -2; di <= 2; ++di) {
+              const int i = ci + di, j = cj + dj, seed = 11 + 7 * layer;
+              const double sx = (i + Hash01(i, j, seed)) * kCell,
+                           sy = (j + Hash01(i, j, seed + 1)) * kCell;
+              const double angle = kPi * Hash01(i, j, seed + 2);
+              const double half_len = 0.5 * (6e-3 + 8e-3 * Hash01(i, j, seed + 3));
+              const double half_w = 0.5 * (1.6e-3 + 1.6e-3 * Hash01(i, j, seed + 4));
+              const double peak = 80e-6 + 340e-6 * Hash01(i, j, seed + 5);
+              const double c = std::cos(angle), s = std::sin(angle);
+              const double u = (x - sx) * c + (y - sy) * s, v = -(x - sx) * s + (y - sy) * c;
+              if (std::abs(u) >= half_len || std::abs(v) >= half_w) continue;
+              // Across: a smooth bump; along: tapering ends (more paint where the brush landed).
+              const double across = std::cos(0.5 * kPi * v / half_w);
+              const double t = u / half_len;
+              const double along = SmoothStep(1.0, 0.55, std::abs(t)) * (1.0 - 0.3 * t);
+              const double ridges =
+                  12e-6 * std::sin(2 * kPi * v / 0.9e-3 + 6 * Hash01(i, j, seed + 6));
+              const double wgt = across * across * along;
+              height += wgt * (peak + ridges);
+              const double paint = 0.15 + 0.7 * Hash01(i, j, seed + 7);
+              albedo = albedo * (1 - wgt) + paint * wgt;
+            }
+        *z = height;
+        *a = albedo;
+      });
+}
+
 SceneObject MakeHammeredMetal(double h) {
   constexpr int kMargin = 3;
   HeightField grid =
@@ -427,6 +473,16 @@ SceneObject MakeObject(const std::string& spec, double h, const std::string& opt
   }
   if (spec == "fabric") return MakeFabric(h > 0 ? h : 20e-6);
   if (spec == "metal") return MakeHammeredMetal(h > 0 ? h : 20e-6);
+  if (spec == "impasto") return MakeImpasto(h > 0 ? h : 100e-6);
+  if (spec.rfind("impasto:", 0) == 0) {
+    double w = 0, ht = 0;
+    char x = 0, extra = 0;
+    const int n = std::sscanf(spec.c_str() + 8, "%lf%c%lf%c", &w, &x, &ht, &extra);
+    if (n != 3 || x != 'x' || !(w >= 5 && w <= 2000) || !(ht >= 5 && ht <= 2000))
+      MESOSCAN_BAD_INPUT_AT(ErrorSite::Option(option),
+                            "'" << spec << "': expected impasto:WxH, the canvas in mm (5..2000)");
+    return MakeImpasto(h > 0 ? h : 100e-6, 0.5e-3 * w, 0.5e-3 * ht);
+  }
   const std::filesystem::path p(spec);
   std::string ext = p.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(),
@@ -435,7 +491,7 @@ SceneObject MakeObject(const std::string& spec, double h, const std::string& opt
   MESOSCAN_BAD_INPUT_AT(ErrorSite::Option(option),
                         "unknown object '" << spec
                                            << "'; expected coin, plane, ramp, leaf, fabric, metal, "
-                                              "mount or a height .exr file");
+                                              "impasto[:WxH], mount or a height .exr file");
 }
 
 }  // namespace mesoscan

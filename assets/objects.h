@@ -81,6 +81,17 @@ SceneObject MakeFabric(double pixel_size_m = 20e-6);
 inline constexpr double kHammerCellM = 1.6e-3;
 SceneObject MakeHammeredMetal(double pixel_size_m = 20e-6);
 
+// Impasto painting: a canvas of 2 * half_x_m by 2 * half_y_m (default 200 x 150 mm) on a 0.4 mm
+// stretcher-flat ground with a slow 40 um undulation and a fine canvas weave (8 um, 0.6 mm
+// pitch), covered by overlapping brush strokes on a jittered 7 mm grid (two layers): each 6-14
+// mm long and 1.6-3.2 mm wide, 80-420 um high at its spine, tapering at both ends, with bristle
+// ridges (+-12 um, 0.9 mm apart) along it; each stroke has its own paint albedo (0.15-0.85).
+// Larger than one camera field: the ground truth of a stitched mosaic (`simulate
+// --field-offset`).
+inline constexpr double kImpastoHalfXM = 100e-3, kImpastoHalfYM = 75e-3;
+SceneObject MakeImpasto(double pixel_size_m = 100e-6, double half_x_m = kImpastoHalfXM,
+                        double half_y_m = kImpastoHalfYM);
+
 // A height EXR in the scan-outputs.md layout (channel Z, grid attributes), placed as given; a
 // smooth albedo 0.5 +- 0.1 is made up. Throws Error naming the file if unreadable.
 SceneObject LoadHeightExrObject(const std::filesystem::path& path);
@@ -94,9 +105,10 @@ double Luminance(const std::array<double, 3>& rgb);
 // unchanged) for the grey objects.
 bool ColourObject(SceneObject* object);
 
-// "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | "mount" (the empty mount) | a path
-// ending in .exr. pixel_size_m <= 0: the object's default grid spacing. Throws Error(kBadInput)
-// for anything else, at the options field `option` (the caller's, e.g. "SimulateOptions.object").
+// "coin" | "plane" | "ramp" | "leaf" | "fabric" | "metal" | "impasto" | "impasto:WxH" (the
+// canvas W x H mm) | "mount" (the empty mount) | a path ending in .exr. pixel_size_m <= 0: the
+// object's default grid spacing. Throws Error(kBadInput) for anything else, at the options field
+// `option` (the caller's, e.g. "SimulateOptions.object").
 SceneObject MakeObject(const std::string& spec, double pixel_size_m = 0.0,
                        const std::string& option = "");
 

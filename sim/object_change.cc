@@ -49,7 +49,8 @@ double SegmentDistance(const Scratch& s, double x, double y) {
 
 bool ObjectChange::empty() const {
   return scratches.empty() && erosions.empty() && wear_file.empty() &&
-         std::all_of(pose.begin(), pose.end(), [](double v) { return v == 0.0; });
+         std::all_of(pose.begin(), pose.end(), [](double v) { return v == 0.0; }) &&
+         field_offset[0] == 0.0 && field_offset[1] == 0.0;
 }
 
 Rigid3d ObjectChange::Pose() const {
@@ -57,7 +58,8 @@ Rigid3d ObjectChange::Pose() const {
   const double angle = r.norm() * kPi / 180.0;
   Rigid3d t;
   if (angle > 0) t.rotation = Eigen::AngleAxisd(angle, r.normalized()).toRotationMatrix();
-  t.translation = Vec3d(pose[3], pose[4], pose[5]) * 1e-3;
+  t.translation = Vec3d(pose[3], pose[4], pose[5]) * 1e-3 -
+                  t.rotation * Vec3d(field_offset[0], field_offset[1], 0.0);
   return t;
 }
 
@@ -66,6 +68,11 @@ Scratch ParseScratch(const std::string& text, const std::string& option) {
   if (!(v[4] > 0) || !(v[5] >= 0))
     MESOSCAN_BAD_OPTION(option, "'" << text << "': expected WIDTH > 0 and DEPTH >= 0 (um)");
   return {v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, v[3] * 1e-3, v[4] * 1e-6, v[5] * 1e-6};
+}
+
+std::array<double, 2> ParseFieldOffset(const std::string& text, const std::string& option) {
+  const auto v = ParseNumbers(text, 2, option, "X,Y (mm)");
+  return {v[0] * 1e-3, v[1] * 1e-3};
 }
 
 ErosionPatch ParseErosion(const std::string& text, const std::string& option) {
@@ -168,6 +175,8 @@ Json ObjectChangeRecord(const ObjectChange& change) {
   j["pose"] = change.pose;
   j["world_from_object"] = MatrixToJson(change.Pose().Matrix());
   j["pose_units"] = "rotation vector in degrees, translation in mm";
+  if (change.field_offset[0] != 0.0 || change.field_offset[1] != 0.0)
+    j["field_offset_m"] = change.field_offset;
   Json s = Json::array(), e = Json::array();
   for (const Scratch& c : change.scratches)
     s.push_back({{"from_m", {c.x0, c.y0}},

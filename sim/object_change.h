@@ -33,6 +33,11 @@ struct ObjectChange {
   // Rotation vector in degrees (about the world origin), then translation in mm: the pose of
   // `simulate --object-pose` and of the boards' --pose. All zero: the object as generated.
   std::array<double, 6> pose{};
+  // The camera field's offset over the object (metres, object x, y): the object is moved by
+  // (-x, -y) before the pose, so the field's centre (the world origin) lies over object point
+  // (x, y): the tiles of a mosaic of a large object (`simulate --field-offset`), each re-placed
+  // by its pose about the field's centre.
+  std::array<double, 2> field_offset{};
   std::vector<Scratch> scratches;
   std::vector<ErosionPatch> erosions;
   // A height-change EXR (channel Z, signed metres, the scan-outputs grid attributes) added to
@@ -40,11 +45,13 @@ struct ObjectChange {
   std::string wear_file;
 
   bool empty() const;
-  Rigid3d Pose() const;  // world_from_object
+  Rigid3d Pose() const;  // world_from_object: the pose after the field offset
 };
 
 // "X0,Y0,X1,Y1,WIDTH_UM,DEPTH_UM" (mm, mm, mm, mm, um, um); throws Error(kUsage) at `option`.
 Scratch ParseScratch(const std::string& text, const std::string& option);
+// "X,Y" (mm) -> metres.
+std::array<double, 2> ParseFieldOffset(const std::string& text, const std::string& option);
 // "CX,CY,RADIUS,DEPTH_UM" (mm, mm, mm, um).
 ErosionPatch ParseErosion(const std::string& text, const std::string& option);
 

@@ -768,6 +768,8 @@ void SimulateOptions::Check() const {
                                << kWearWallM << " m and a depth >= 0");
   for (double v : change.pose)
     if (!std::isfinite(v)) SIM_OPTION("change", "the object pose must be finite");
+  for (double v : change.field_offset)
+    if (!(std::abs(v) < 10.0)) SIM_OPTION("change", "the field offset must be finite, |x| < 10 m");
   if (crop && (crop->w < 1 || crop->h < 1 || crop->x < 0 || crop->y < 0))
     SIM_OPTION("crop", "expected X,Y,W,H (or WxH+X+Y) with W, H >= 1 and X, Y >= 0");
 }
