@@ -18,5 +18,6 @@ void AddCaptureCommand(CLI::App* app);      // cmd_capture.cc
 void AddMapsCommand(CLI::App* app);         // cmd_maps.cc
 void AddCalibrateCommand(CLI::App* app);    // cmd_calibrate.cc
 void AddCompareCommand(CLI::App* app);      // cmd_compare.cc
+void AddStitchCommand(CLI::App* app);       // cmd_stitch.cc
 
 }  // namespace mesoscan

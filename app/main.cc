@@ -51,6 +51,7 @@ int main(int argc, char** argv) {
   AddExportCommand(&app);
   AddMapsCommand(&app);
   AddCompareCommand(&app);
+  AddStitchCommand(&app);
   AddCheckCommand(&app);
   AddBrdfCommand(&app);
   AddRenderCommand(&app);
