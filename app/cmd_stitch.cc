@@ -83,6 +83,21 @@ void AddStitchCommand(CLI::App* app) {
   cmd->add_option("--min-confidence", a->o.min_confidence,
                   "Registration uses points with at least this confidence")
       ->capture_default_str();
+  cmd->add_option("--min-overlap", a->o.min_overlap,
+                  "Pairs whose nominal footprints overlap by at least this fraction of the smaller "
+                  "one are registered")
+      ->capture_default_str();
+  cmd->add_option("--max-correction-deg", a->o.max_correction_deg,
+                  "Largest plausible rotation of a pair's registration from the nominal placement "
+                  "(degrees); beyond it the pair is refused")
+      ->capture_default_str();
+  cmd->add_option("--max-correction", a->o.max_correction_fraction,
+                  "Largest plausible displacement of a pair's registration from the nominal "
+                  "placement, fraction of the scan's smaller side; beyond it the pair is refused")
+      ->capture_default_str();
+  cmd->add_option("--max-points", a->o.max_icp_points,
+                  "Registration points per scan and pair (evenly subsampled)")
+      ->capture_default_str();
   cmd->add_flag("--no-register", a->no_register,
                 "Place the scans at their nominal offsets only (the plain mosaic)");
   cmd->add_flag("--force", a->force,

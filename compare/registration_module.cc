@@ -163,8 +163,12 @@ class Module final : public RegistrationModule {
     }
     double best_score = std::numeric_limits<double>::infinity();
     reg::RegistrationResult coarse_icp;
+    const double max_rad = in.max_rotation_deg * 3.14159265358979323846 / 180.0;
     for (const Mat4d& t0 : starts) {
       const reg::RegistrationResult r = refine(t0);
+      if (in.max_rotation_deg < 180 &&
+          Eigen::AngleAxisd(Mat3d(r.transformation_.topLeftCorner<3, 3>())).angle() > max_rad)
+        continue;
       const double sc = score(r.transformation_);
       if (sc < best_score) {
         best_score = sc;
@@ -188,7 +192,7 @@ class Module final : public RegistrationModule {
       auto kernel = std::make_shared<reg::TukeyLoss>(mult * scale);
       t = reg::RegistrationICP(*cb_on, *ca, dmax, t,
                                reg::TransformationEstimationPointToPlane(kernel),
-                               reg::ICPConvergenceCriteria(1e-8, 1e-8, 30))
+                               reg::ICPConvergenceCriteria(1e-8, 1e-8, in.fine_iterations))
               .transformation_;
       cb_on = over_a(t);
       res = PlaneResiduals(*cb_on, *ca, tree_a, t, dmax);
@@ -205,9 +209,9 @@ class Module final : public RegistrationModule {
     out.b_inliers = static_cast<int64_t>(cb_in->points_.size());
     if (cb_in->points_.size() >= 6) {
       auto kernel = std::make_shared<reg::TukeyLoss>(4.685 * scale);
-      t = reg::RegistrationICP(*cb_in, *ca, dmax, t,
-                               reg::TransformationEstimationPointToPlane(kernel),
-                               reg::ICPConvergenceCriteria(1e-8, 1e-8, 50))
+      t = reg::RegistrationICP(
+              *cb_in, *ca, dmax, t, reg::TransformationEstimationPointToPlane(kernel),
+              reg::ICPConvergenceCriteria(1e-8, 1e-8, std::max(50, in.fine_iterations)))
               .transformation_;
     }
     std::vector<int> nearest;

@@ -30,6 +30,13 @@ struct RegistrationInput {
   // moves): B's points over A's holes (shadows A did not see, and that B saw or filled) would
   // pair with A's points at the holes' edges, one-sided pairs that pull the transform.
   std::function<bool(const Vec3d&)> a_has_surface;
+  // Refined hypotheses turning B by more than this (degrees) are not kept: a placement known
+  // to within a few degrees (a mosaic's tiles) is not traded for a better-scoring wrong match of
+  // a repetitive relief. 180: any.
+  double max_rotation_deg = 180;
+  // Iterations of each robust fine ICP stage at most (a narrow overlap slides slowly into
+  // place along its relief's slopes).
+  int fine_iterations = 30;
 };
 
 struct RegistrationOutput {

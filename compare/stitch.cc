@@ -14,6 +14,7 @@
 #include <limits>
 #include <sstream>
 
+#include "compare/planar_alignment.h"
 #include "compare/registration_module.h"
 #include "core/budget.h"
 #include "core/error.h"
@@ -29,6 +30,10 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr double kPi = 3.14159265358979323846;
+// A pair is kept when at least this fraction of B's points that the fit places over A fit A
+// (within 3 robust sigmas): a changed area may take the rest, a wrong match leaves far fewer.
+constexpr double kMinInlierFraction = 0.5;
 
 struct Box {
   double x0 = std::numeric_limits<double>::infinity(), y0 = x0, x1 = -x0, y1 = -x0;
@@ -198,11 +203,13 @@ void StitchOptions::Check() const {
 std::string StitchResult::BriefReport() const {
   std::ostringstream os;
   const Json& r = scan.report;
+  int accepted = 0;
+  for (const Json& p : r.at("stitch").at("pairs")) accepted += p.at("accepted").get<bool>();
   os << std::fixed << std::setprecision(2) << "stitched " << mosaic_from_scan.size()
      << " scans into " << scan.height.width() << "x" << scan.height.height() << " pixels ("
      << r.at("grid").at("width_mm").get<double>() << " x "
-     << r.at("grid").at("height_mm").get<double>() << " mm), " << r.at("stitch").at("pairs").size()
-     << " pairs registered";
+     << r.at("grid").at("height_mm").get<double>() << " mm), " << accepted << " of "
+     << r.at("stitch").at("pairs").size() << " pairs registered";
   if (r.at("stitch").contains("edge_rms_um"))
     os << ", pose-graph edge RMS " << r.at("stitch").at("edge_rms_um").get<double>() << " um";
   os << " in " << r.at("timings_s").at("total").get<double>() << " s";
@@ -256,15 +263,20 @@ StitchResult StitchScans(const std::vector<Scan>& scans, const std::vector<std::
     Progress progress("stitch: register pairs", static_cast<int64_t>(candidates.size()));
     for (const auto& [a, b] : candidates) {
       const Mat4d guess = nominal[a].inverse() * nominal[b];  // B's world -> A's, nominal
-      // The overlap in A's world, with a margin for the re-placement.
-      const Box box = Footprint(scans[a].height, Mat4d::Identity())
-                          .Intersect(Footprint(scans[b].height, guess));
-      const double margin = 0.1 * std::min(box.x1 - box.x0, box.y1 - box.y0) + 20 * px;
+      // The nominal overlap in A's world. B's points there register against A's points within
+      // the plausible re-placement around it (every point of B that truly lies over A finds its
+      // partner); the plausible re-placement bounds the correction.
+      const HeightField& ha = scans[a].height;
+      const HeightField& hb = scans[b].height;
+      const Box fa = Footprint(ha, Mat4d::Identity());
+      const Box box = fa.Intersect(Footprint(hb, guess));
+      const double side = o.max_correction_fraction * std::min(hb.width(), hb.height()) * px;
+      const double margin = side + 2 * px;
       RegistrationInput in;
       Cloud(scans[a], normals[a], Mat4d::Identity(), box, margin, o.min_confidence,
             o.max_icp_points, &in.a_points, &in.a_normals);
-      Cloud(scans[b], normals[b], guess, box, margin, o.min_confidence, o.max_icp_points,
-            &in.b_points, &in.b_normals);
+      Cloud(scans[b], normals[b], guess, box, 0.0, o.min_confidence, o.max_icp_points, &in.b_points,
+            &in.b_normals);
       Json pj = {
           {"a", a}, {"b", b}, {"points_a", in.a_points.size()}, {"points_b", in.b_points.size()}};
       progress.Advance();
@@ -274,36 +286,90 @@ StitchResult StitchScans(const std::vector<Scan>& scans, const std::vector<std::
         pairs.push_back(pj);
         continue;
       }
+      // Coarse starts: phase correlation of the two overlaps' relief over rotations about z
+      // (compare/planar_alignment.h), the placements within the plausible rotation.
+      const Stopwatch t_planar;
+      {
+        ImageU8 in_a(ha.width(), ha.height(), 1, 0), in_b(hb.width(), hb.height(), 1, 0);
+        for (int j = 0; j < ha.height(); ++j)
+          for (int i = 0; i < ha.width(); ++i)
+            in_a(i, j) = box.Contains(ha.X(i), ha.Y(j), margin) ? 1 : 0;
+        for (int j = 0; j < hb.height(); ++j)
+          for (int i = 0; i < hb.width(); ++i) {
+            const Vec4d q = guess * Vec4d(hb.X(i), hb.Y(j), 0, 1);
+            in_b(i, j) = box.Contains(q.x(), q.y(), 0.0) ? 1 : 0;
+          }
+        PlanarAlignmentOptions po;
+        po.size = 128;
+        po.candidates = 5;
+        for (const PlanarCandidate& c : PlanarAlignment(ha, in_a, hb, in_b, po)) {
+          const Mat4d st = c.b_to_a * guess.inverse();
+          if (Eigen::AngleAxisd(Mat3d(st.topLeftCorner<3, 3>())).angle() * 180.0 / kPi <=
+              o.max_correction_deg)
+            in.starts.push_back(st);
+        }
+        pj["planar_starts"] = in.starts.size();
+        // And rotations about z within the plausible ones, about the centre of B's overlap
+        // (a strip's relief may correlate poorly; each start costs one ICP refinement).
+        Vec3d cb = Vec3d::Zero();
+        for (const Vec3d& p : in.b_points) cb += p;
+        cb /= static_cast<double>(in.b_points.size());
+        const double step = std::max(1.0, o.max_correction_deg / 4);
+        for (double deg = -o.max_correction_deg; deg <= o.max_correction_deg + 1e-9; deg += step) {
+          Mat4d st = Mat4d::Identity();
+          st.topLeftCorner<3, 3>() = Eigen::AngleAxisd(deg * kPi / 180, Vec3d::UnitZ()).matrix();
+          st.topRightCorner<3, 1>() = cb - st.topLeftCorner<3, 3>() * cb;
+          in.starts.push_back(st);
+        }
+      }
+      const double planar_s = t_planar.Seconds();
       const double area = std::max(box.Area(), px * px);
-      in.voxel_m = std::max(4 * px, std::sqrt(static_cast<double>(in.a_points.size()) * area /
-                                              std::max<size_t>(1, in.a_points.size()) / 8000.0));
+      in.voxel_m = std::max(4 * px, std::sqrt(area / 8000.0));
       in.max_distance_m = 2 * px;
       in.seed = 1;
+      in.max_rotation_deg = o.max_correction_deg;
+      in.fine_iterations = 300;
       const RegistrationOutput reg = Registration().Register(in);
       const double sigma2 = reg.inliers > 6 ? reg.sum_squares / (reg.inliers - 6) : 0.0;
-      bool ok = reg.coarse_icp_fitness >= 0.3 && reg.inliers > 100 && sigma2 > 0 &&
-                reg.b_inliers >= 0.3 * static_cast<double>(in.b_points.size());
       const Mat4d t = reg.b_to_a * guess;
       const Mat4d corr = reg.b_to_a;
+      // B's points that the fit places over A (or within the correspondence distance of its
+      // border): the overlap the inlier fraction is taken of.
+      int64_t over = 0;
+      for (const Vec3d& p : in.b_points) {
+        const Vec4d q = corr * Vec4d(p.x(), p.y(), p.z(), 1);
+        over += fa.Contains(q.x(), q.y(), in.max_distance_m);
+      }
+      const double inlier_fraction =
+          over > 0 ? std::min(1.0, static_cast<double>(reg.b_inliers) / static_cast<double>(over))
+                   : 0.0;
+      const bool ok =
+          reg.inliers > 100 && sigma2 > 0 && over >= 200 && inlier_fraction >= kMinInlierFraction;
       const double corr_deg =
-          Eigen::AngleAxisd(Mat3d(corr.topLeftCorner<3, 3>())).angle() * 180.0 / 3.14159265358979;
-      // The correction's largest displacement over A's footprint.
+          Eigen::AngleAxisd(Mat3d(corr.topLeftCorner<3, 3>())).angle() * 180.0 / kPi;
+      // The correction's largest displacement over the overlap.
       double corr_m = 0;
       for (int c = 0; c < 4; ++c) {
         const Vec4d p((c & 1) ? box.x1 : box.x0, (c & 2) ? box.y1 : box.y0, 0, 1);
         corr_m = std::max(corr_m, (corr * p - p).head<3>().norm());
       }
-      const double side = o.max_correction_fraction *
-                          std::min(scans[b].height.width(), scans[b].height.height()) * px;
       const bool plausible = corr_deg <= o.max_correction_deg && corr_m <= side;
       pj["accepted"] = ok && plausible;
-      if (!plausible) pj["why"] = "correction beyond the plausible re-placement";
+      if (!ok)
+        pj["why"] = over < 200 ? "fewer than 200 of B's points registered over A"
+                               : "too few of B's points over A fit it (inlier fraction below 0.5)";
+      else if (!plausible)
+        pj["why"] = "correction beyond the plausible re-placement";
+      pj["coarse_hypotheses"] = reg.coarse_hypotheses;
       pj["coarse_refined_fitness"] = reg.coarse_icp_fitness;
+      pj["points_over_a"] = over;
       pj["inliers"] = reg.b_inliers;
+      pj["inlier_fraction"] = inlier_fraction;
       pj["inlier_rms_um"] = reg.inliers ? std::sqrt(reg.sum_squares / reg.inliers) * 1e6 : 0.0;
-      pj["correction_rotation_deg"] =
-          Eigen::AngleAxisd(Mat3d(corr.topLeftCorner<3, 3>())).angle() * 180.0 / 3.14159265358979;
+      pj["correction_rotation_deg"] = corr_deg;
       pj["correction_translation_mm"] = {corr(0, 3) * 1e3, corr(1, 3) * 1e3, corr(2, 3) * 1e3};
+      pj["seconds"] = reg.seconds_coarse + reg.seconds_fine;
+      pj["seconds_planar"] = planar_s;
       pairs.push_back(pj);
       if (!ok || !plausible) continue;
       edges.push_back({a, b, t, reg.jtj / sigma2});
@@ -427,8 +493,11 @@ StitchResult StitchScans(const std::vector<Scan>& scans, const std::vector<std::
   StitchResult out;
   HeightField& g = out.scan.height;
   g.pixel_size = px;
-  g.x0 = std::floor(all.x0 / px) * px;
-  g.y0 = std::ceil(all.y1 / px) * px;
+  // On the first scan's pixel lattice as placed (its pixels are taken as they are, not
+  // resampled, where it alone covers the mosaic).
+  const Vec4d l0 = poses[0] * Vec4d(scans[0].height.X(0), scans[0].height.Y(0), 0, 1);
+  g.x0 = l0.x() + std::floor((all.x0 - l0.x()) / px) * px;
+  g.y0 = l0.y() + std::ceil((all.y1 - l0.y()) / px) * px;
   const int64_t w64 = static_cast<int64_t>(std::ceil((all.x1 - g.x0) / px)) + 1;
   const int64_t h64 = static_cast<int64_t>(std::ceil((g.y0 - all.y0) / px)) + 1;
   CheckMemoryBudget("stitched grid " + std::to_string(w64) + "x" + std::to_string(h64),
@@ -532,13 +601,12 @@ StitchResult StitchScans(const std::vector<Scan>& scans, const std::vector<std::
   Json pj = Json::array();
   for (size_t k = 0; k < n; ++k) {
     const Mat4d c = nominal[k].inverse() * poses[k];
-    pj.push_back(
-        {{"source", names[k]},
-         {"mosaic_from_scan", MatrixToJson(poses[k])},
-         {"nominal_offset_mm", {nominal[k](0, 3) * 1e3, nominal[k](1, 3) * 1e3}},
-         {"correction_rotation_deg",
-          Eigen::AngleAxisd(Mat3d(c.topLeftCorner<3, 3>())).angle() * 180.0 / 3.14159265358979},
-         {"correction_translation_mm", {c(0, 3) * 1e3, c(1, 3) * 1e3, c(2, 3) * 1e3}}});
+    pj.push_back({{"source", names[k]},
+                  {"mosaic_from_scan", MatrixToJson(poses[k])},
+                  {"nominal_offset_mm", {nominal[k](0, 3) * 1e3, nominal[k](1, 3) * 1e3}},
+                  {"correction_rotation_deg",
+                   Eigen::AngleAxisd(Mat3d(c.topLeftCorner<3, 3>())).angle() * 180.0 / kPi},
+                  {"correction_translation_mm", {c(0, 3) * 1e3, c(1, 3) * 1e3, c(2, 3) * 1e3}}});
   }
   st["poses"] = pj;
   st["pairs"] = pairs;

@@ -29,11 +29,12 @@ struct StitchOptions {
   // Pairs are registered where their nominal footprints overlap by at least this fraction of
   // the smaller scan's area.
   double min_overlap = 0.15;
-  // A pair's registration is kept only if its correction of the nominal placement is within
-  // these (a wrong match of a repetitive relief is refused, not averaged in), and its inlier RMS
-  // within 3x the median of the pairs'.
+  // A pair's registration (the relative re-placement of its two scans: up to twice one scan's)
+  // is kept only if its correction of the nominal placement is within these (a wrong match of a
+  // repetitive relief is refused, not averaged in), and its inlier RMS within 3x the median of
+  // the pairs'. The registration searches within them.
   double max_correction_deg = 10.0;
-  double max_correction_fraction = 0.25;  // of the smaller side of the overlap's scan
+  double max_correction_fraction = 0.4;  // displacement, of the smaller side of the pair's B
   // false: the plain mosaic (scans placed at their nominal offsets, no registration).
   bool register_scans = true;
   int max_icp_points = 60000;  // per scan and pair (evenly subsampled), >= 1000
