@@ -71,6 +71,20 @@ constexpr double kMinRelativeAmplitude = 1e-5;
 
 using Cd = std::complex<double>;
 
+// i^m (re + i im), with i^m applied as a rotation (no complex multiply).
+inline Cd TimesIPower(int m, double re, double im) {
+  switch (m & 3) {
+    case 0:
+      return Cd(re, im);
+    case 1:
+      return Cd(-im, re);
+    case 2:
+      return Cd(-re, -im);
+    default:
+      return Cd(im, -re);
+  }
+}
+
 typedef double V4d __attribute__((vector_size(32)));
 typedef float V4f __attribute__((vector_size(16)));
 typedef double V2d __attribute__((vector_size(16)));
@@ -601,20 +615,7 @@ void Moments(const Basis& basis, const Scalar* y, int n, std::array<Cd, kOrder +
   for (int m = kRows / 2; m <= kOrder; ++m) (*z_coef)[m] = 0.0;
   for (int m = 0; m < kRows / 2; ++m) {
     const double re = kInvFact[m] * w(2 * m), im = kInvFact[m] * w(2 * m + 1);
-    switch (m & 3) {
-      case 0:
-        (*z_coef)[m] = Cd(re, im);
-        break;
-      case 1:
-        (*z_coef)[m] = Cd(-im, re);
-        break;
-      case 2:
-        (*z_coef)[m] = Cd(-re, -im);
-        break;
-      default:
-        (*z_coef)[m] = Cd(im, -re);
-        break;
-    }
+    (*z_coef)[m] = TimesIPower(m, re, im);
   }
 }
 
@@ -701,20 +702,7 @@ void ZCoefficients(const double* w, int rows, std::array<Cd, kOrder + 1>* z_coef
       continue;
     }
     const double re = inv_fact * w[2 * m], im = inv_fact * w[2 * m + 1];
-    switch (m & 3) {
-      case 0:
-        (*z_coef)[m] = Cd(re, im);
-        break;
-      case 1:
-        (*z_coef)[m] = Cd(-im, re);
-        break;
-      case 2:
-        (*z_coef)[m] = Cd(-re, -im);
-        break;
-      default:
-        (*z_coef)[m] = Cd(im, -re);
-        break;
-    }
+    (*z_coef)[m] = TimesIPower(m, re, im);
   }
 }
 
